@@ -1,0 +1,16 @@
+"""Thin bpy operators: one per module, registered in `classes` order."""
+import bpy
+
+from .check_dependencies import HHD_OT_check_dependencies
+
+classes = (HHD_OT_check_dependencies,)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,20 @@
+"""UI panels: Properties editor > Render > HHD Lightmapper.
+
+The Render tab holds scene-wide bake settings already (Cycles' Bake panel lives there), and the
+settings here are per scene, not per view, so they sit beside it rather than in a 3D View tab.
+"""
+import bpy
+
+from .main import HHD_PT_main
+
+classes = (HHD_PT_main,)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,81 @@
+"""The packaged extension: manifest, per-platform build, install, enable, register cycles."""
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+pytestmark = pytest.mark.bpy
+
+
+def manifest():
+    with open(ROOT / "blender_manifest.toml", "rb") as f:
+        return tomllib.load(f)
+
+
+def test_manifest_declares_licence_permissions_and_platform_wheels():
+    m = manifest()
+    assert m["schema_version"] == "1.0.0" and m["id"] == "hhd_lightmapper"
+    assert m["license"] == ["SPDX:GPL-3.0-or-later"]
+    assert list(m["permissions"]) == ["files"]        # no network, no clipboard, ...
+    assert m["blender_version_min"] >= "4.2.0"
+    import fetch_wheels
+    by_platform = {}
+    for w in m["wheels"]:
+        by_platform.setdefault(fetch_wheels.wheel_platform(Path(w).name), set()).add(Path(w).name.split("-")[0])
+    assert set(by_platform) == set(m["platforms"])
+    for plat, packages in by_platform.items():
+        assert packages == {"embreex", "xatlas", "openexr"}, plat
+
+
+def test_each_platform_zip_holds_only_its_wheels_and_no_dev_files(built_zips):
+    m = manifest()
+    assert len(built_zips) == len(m["platforms"])
+    for z in built_zips:
+        names = zipfile.ZipFile(z).namelist()
+        assert "blender_manifest.toml" in names and "__init__.py" in names
+        assert "core/hhd.py" in names or "core/deps.py" in names
+        assert not [n for n in names if n.startswith(("tests/", "bench/", "tools/", ".ci/", "docs/"))]
+        wheels = [n for n in names if n.endswith(".whl")]
+        assert len(wheels) == 3, (z.name, wheels)
+
+
+def test_installed_extension_is_enabled_with_settings(extension):
+    import bpy
+    assert extension in bpy.context.preferences.addons
+    settings = bpy.context.scene.hhd
+    for name in ("uv_layer", "resolution", "samples", "bounces", "output_dir"):
+        assert hasattr(settings, name), name
+    assert settings.uv_layer == "HHD_Lightmap"
+    assert bpy.ops.hhd.check_dependencies() == {"FINISHED"}
+
+
+def test_disable_enable_twice_leaves_nothing_behind(extension):
+    import bpy
+    for _ in range(2):
+        bpy.ops.preferences.addon_disable(module=extension)
+        assert not hasattr(bpy.types.Scene, "hhd")
+        assert not hasattr(bpy.types, "HHD_PT_main")
+        assert not hasattr(bpy.ops.hhd, "check_dependencies") or \
+            "check_dependencies" not in dir(bpy.ops.hhd)
+        bpy.ops.preferences.addon_enable(module=extension)
+        assert hasattr(bpy.types.Scene, "hhd")
+        assert hasattr(bpy.types, "HHD_PT_main")
+        assert bpy.ops.hhd.check_dependencies() == {"FINISHED"}
+
+
+def test_missing_compiled_wheel_is_a_message_not_a_failed_enable(extension, monkeypatch):
+    import bpy
+    from hhd_lightmapper.core import deps
+    from hhd_lightmapper.core.errors import DependencyMissing
+
+    bpy.ops.preferences.addon_disable(module=extension)
+    monkeypatch.setitem(sys.modules, "embreex", None)      # as if the wheel were absent
+    bpy.ops.preferences.addon_enable(module=extension)     # enabling must still work
+    assert hasattr(bpy.types.Scene, "hhd")
+    with pytest.raises(RuntimeError, match="embreex"):     # the operator reports it as an error
+        bpy.ops.hhd.check_dependencies()
+    with pytest.raises(DependencyMissing, match="embreex.*ray tracing"):
+        deps.require("embreex")
