@@ -108,45 +108,41 @@ def tangent_frames(normals: np.ndarray) -> np.ndarray:
 
 
 # Band 2 as quadratic forms: Σ_m s_m Y2m(ω) = ωᵀ Q ω with Q traceless symmetric.
-def _band2_to_quadratic(s: np.ndarray) -> np.ndarray:
-    """`(N, 5, C)` band-2 coefficients -> `(N, 3, 3, C)` symmetric traceless Q."""
-    q = np.zeros(s.shape[:1] + (3, 3) + s.shape[2:])
-    q[:, 0, 1] = q[:, 1, 0] = 0.5 * C2 * s[:, 0]
-    q[:, 1, 2] = q[:, 2, 1] = -0.5 * C2 * s[:, 1]
-    q[:, 0, 2] = q[:, 2, 0] = -0.5 * C2 * s[:, 3]
-    q[:, 0, 0] = -C20 * s[:, 2] + C22 * s[:, 4]
-    q[:, 1, 1] = -C20 * s[:, 2] - C22 * s[:, 4]
-    q[:, 2, 2] = 2.0 * C20 * s[:, 2]
-    return q
-
-
-def _quadratic_to_band2(q: np.ndarray) -> np.ndarray:
-    """Inverse of `_band2_to_quadratic` for traceless symmetric Q."""
-    return np.stack([
-        2.0 * q[:, 0, 1] / C2,
-        -2.0 * q[:, 1, 2] / C2,
-        q[:, 2, 2] / (2.0 * C20),
-        -2.0 * q[:, 0, 2] / C2,
-        (q[:, 0, 0] - q[:, 1, 1]) / (2.0 * C22),
-    ], axis=1)
+def _band2_to_quadratic(s: list) -> dict:
+    """Band-2 coefficients (5 arrays) -> entries of the traceless symmetric Q with
+    Σ_m s_m Y2m(ω) = ωᵀ Q ω, as {(i, j): array} for i ≤ j."""
+    return {
+        (0, 1): 0.5 * C2 * s[0], (1, 2): -0.5 * C2 * s[1], (0, 2): -0.5 * C2 * s[3],
+        (0, 0): -C20 * s[2] + C22 * s[4], (1, 1): -C20 * s[2] - C22 * s[4], (2, 2): 2.0 * C20 * s[2],
+    }
 
 
 def rotate(sh: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Coefficients of g(ω) = f(M ω) for per-row rotations M `(N, 3, 3)`; sh `(N, 9, C)` or `(N, 9)`.
 
     Band 1 is a linear form C1·v·ω with v = (-s₃, -s₁, s₂), so v' = Mᵀv; band 2 is a quadratic
-    form ωᵀQω, so Q' = MᵀQM. Exact for any orthogonal M, fully vectorised.
+    form ωᵀQω, so Q' = MᵀQM. Exact for any orthogonal M, vectorised over rows. The sums over
+    the 3×3 indices are written out on contiguous per-coefficient arrays: numpy's batched 3×3
+    products and strided slices are several times slower.
     """
     sh = np.asarray(sh, dtype=np.float64)
-    s = _as_nkc(sh)
-    m = np.asarray(m, dtype=np.float64)
-    v = np.stack([-s[:, 3], -s[:, 1], s[:, 2]], axis=1)                # (N, 3, C)
-    v2 = np.einsum("nij,nic->njc", m, v)
-    q2 = np.einsum("nai,nabc,nbj->nijc", m, _band2_to_quadratic(s[:, 4:9]), m)
-    out = np.empty_like(s)
-    out[:, 0] = s[:, 0]
-    out[:, 1], out[:, 2], out[:, 3] = -v2[:, 1], v2[:, 2], -v2[:, 0]
-    out[:, 4:9] = _quadratic_to_band2(q2)
+    s = np.ascontiguousarray(np.moveaxis(_as_nkc(sh), 1, 0))          # (9, N, C)
+    mt = np.ascontiguousarray(np.asarray(m, dtype=np.float64).transpose(1, 2, 0))[..., None]  # (3,3,N,1)
+    v = (-s[3], -s[1], s[2])
+    v2 = [mt[0, j] * v[0] + mt[1, j] * v[1] + mt[2, j] * v[2] for j in range(3)]   # Mᵀ v
+    qd = _band2_to_quadratic(s[4:9])
+    q = [[qd[(min(a, b), max(a, b))] for b in range(3)] for a in range(3)]
+    mq = [[q[a][0] * mt[0, j] + q[a][1] * mt[1, j] + q[a][2] * mt[2, j] for j in range(3)]
+          for a in range(3)]
+
+    def q2(i, j):                                                       # (MᵀQM)_ij
+        return mt[0, i] * mq[0][j] + mt[1, i] * mq[1][j] + mt[2, i] * mq[2][j]
+
+    out = np.stack([
+        s[0], -v2[1], v2[2], -v2[0],
+        2.0 * q2(0, 1) / C2, -2.0 * q2(1, 2) / C2, q2(2, 2) / (2.0 * C20), -2.0 * q2(0, 2) / C2,
+        (q2(0, 0) - q2(1, 1)) / (2.0 * C22),
+    ], axis=1)
     return out[..., 0] if sh.ndim == 2 else out
 
 
