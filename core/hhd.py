@@ -360,8 +360,8 @@ def encode(sh, n_v, model: str = "hhd", direction: str = "searched", gram: str =
 CHUNK = 8192
 
 
-def _encode_chunk(world_sh, n, *, a, g, searched, luminance, hemisphere_sampled, phi_search, theta_max):
-    """encode() on one chunk of sanitised texels -> (I_z, w_a, d_world, clamped)."""
+def _prepare(world_sh, n, *, a, g, luminance, hemisphere_sampled):
+    """Shared set-up of a chunk: (fit, frames, local SH used by the fit, I_z, clamped, channel weights)."""
     iz = irradz(world_sh, n, hemisphere_sampled)                         # (N, C)
     clamped = (iz < 0.0).any(axis=1)
     iz = np.maximum(iz, 0.0)
@@ -377,9 +377,14 @@ def _encode_chunk(world_sh, n, *, a, g, searched, luminance, hemisphere_sampled,
     # Normalise each texel so the fit is scale-free (1e-8 and 1e8 behave alike, no overflow).
     scale = np.maximum(np.abs(target).max(axis=(1, 2)), iz_fit.max(axis=1))
     scale = np.where(scale > 0.0, scale, 1.0)
-    t_n, iz_n = target / scale[:, None, None], iz_fit / scale[:, None]
-    fit = _Fit(t_n, iz_n, a, g, weights)
+    fit = _Fit(target / scale[:, None, None], iz_fit / scale[:, None], a, g, weights)
+    fit.scale = scale
+    return fit, frames, local, iz, clamped, lum_fit
 
+
+def _encode_chunk(world_sh, n, *, searched, phi_search, theta_max, **prepare):
+    """encode() on one chunk of sanitised texels -> (I_z, w_a, d_world, clamped)."""
+    fit, frames, local, iz, clamped, lum_fit = _prepare(world_sh, n, **prepare)
     theta, phi = optimal_linear_angles(local, lum_fit, theta_max)
     if searched:
         if phi_search:
@@ -387,15 +392,34 @@ def _encode_chunk(world_sh, n, *, a, g, searched, luminance, hemisphere_sampled,
         else:
             theta, _ = _search_theta(fit, phi, theta, theta_max)
     _, w = fit.evaluate(theta, phi)
-    # Where the fit is all ambient (w = 1) the direction is irrelevant: store n_v, which keeps
-    # the direction texture smooth for filtering.
-    theta = np.where((w >= 1.0).all(axis=1), 0.0, theta)
+    # Where the fit is all ambient (w = 1 up to rounding) the direction is irrelevant: store
+    # n_v, which keeps the direction texture smooth for filtering.
+    all_ambient = (w >= 1.0 - 1e-9).all(axis=1)
+    theta = np.where(all_ambient, 0.0, theta)
+    w = np.where(all_ambient[:, None], 1.0, w)
 
     st = np.sin(theta)
     d_local = np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=1)
     d_world = np.einsum("nij,nj->ni", frames, d_local)
     d_world /= np.linalg.norm(d_world, axis=1, keepdims=True)
-    return iz, (w[:, 0] if luminance else w), d_world, clamped
+    return iz, (w[:, 0] if prepare["luminance"] else w), d_world, clamped
+
+
+def fit_error(sh, n_v, direction, model: str = "hhd", gram: str = "hemisphere",
+              ambient: str = "luminance", *, hemisphere_sampled: bool = True):
+    """The encoder's objective at given world directions `(N, 3)` (d·n_v > 0): the G-weighted
+    squared error between the fitted model's L2 SH and the SH irradiance, in irradiance² units
+    (luminance, or the luminance-weighted sum over channels for ambient="rgb"), and the
+    optimal clamped w_a `(N,)`/`(N, C)`. For measuring the search and the d·n_v floor."""
+    world_sh, n, _ = _sanitise(sh, n_v)
+    fit, frames, *_ = _prepare(world_sh, n, a=ambient_lobe(model),
+                                g=_gram.hemisphere() if gram == "hemisphere" else _gram.sphere(),
+                                luminance=ambient == "luminance", hemisphere_sampled=hemisphere_sampled)
+    d_local = np.einsum("nji,nj->ni", frames, np.asarray(direction, dtype=np.float64))
+    theta = np.arccos(np.clip(d_local[:, 2], -1.0, 1.0))
+    phi = np.arctan2(d_local[:, 1], d_local[:, 0])
+    err, w = fit.evaluate(theta, phi)
+    return err * fit.scale ** 2, (w[:, 0] if ambient == "luminance" else w)
 
 
 # --------------------------------------------------------------------------------------------
