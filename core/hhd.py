@@ -50,7 +50,7 @@ MIN_COS = 0.02
 IRRADZ_FROM_R10 = 2.0 / np.sqrt(3.0 * np.pi)
 
 SCAN_STEPS = 9          # θ samples of the coarse scan, end points included
-GOLDEN_ITERATIONS = 16  # bracket 2θ_max/8 · 0.618^16 ≈ 1e-4 rad
+GOLDEN_ITERATIONS = 14  # bracket 2θ_max/8 · 0.618^14 ≈ 5e-4 rad
 PHI_SCAN_STEPS = 8
 PHI_GOLDEN_ITERATIONS = 8
 

@@ -1,0 +1,153 @@
+"""The README's demo: build the demo scene with bpy and run the pipeline stages that exist.
+
+    python tools/demo.py --out out/demo        (or: make demo)
+
+Stages, in pipeline order. Each later issue replaces a "pending" stage with the real one:
+  scene    build the room (window, sun, sky, red wall, normal-mapped panel), save demo.blend
+  render   Cycles reference render of the camera view (reference_cycles.png)
+  unwrap   pending: xatlas lightmap UVs (issue 4)
+  bake     pending: Embree path-traced L2 SH (issue 5); until then the encoder runs on the
+           demo's sky + sun as seen, unoccluded, by a dome of normals
+  encode   HHD IrradZ encoding (core.hhd), error vs the SH irradiance, encoder.png
+  output   pending: EXR + JSON sidecar (issue 6);  preview: pending: EEVEE node groups (issue 7)
+Exits 0 and prints a summary; writes summary.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, default=ROOT / "out" / "demo")
+    ap.add_argument("--render-samples", type=int, default=32)
+    args = ap.parse_args()
+    out = args.out.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    # Never touch the user's real Blender configuration.
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-demo-blender-"))
+    sys.path.insert(0, str(ROOT / "tools"))
+
+    import bpy
+    import demo_scene
+
+    timings, stages = {}, {}
+    t = time.perf_counter()
+    demo_scene.build()
+    bpy.ops.wm.save_as_mainfile(filepath=str(out / "demo.blend"))
+    timings["scene"] = time.perf_counter() - t
+    stages["scene"] = f"{len(bpy.data.objects)} objects -> demo.blend"
+
+    t = time.perf_counter()
+    render_reference(bpy, out / "reference_cycles.png", args.render_samples)
+    timings["render"] = time.perf_counter() - t
+    stages["render"] = "Cycles reference -> reference_cycles.png"
+
+    stages["unwrap"] = "pending (issue 4: xatlas lightmap UVs)"
+    stages["bake"] = "pending (issue 5: Embree SH bake); encoder runs on unoccluded demo lighting"
+
+    t = time.perf_counter()
+    encoded = encode_demo_lighting(out / "encoder.png")
+    timings["encode"] = time.perf_counter() - t
+    stages["encode"] = (f"{encoded['texels']} texels, hemispherical RMSE {encoded['rmse_percent']:.2f}% of I_z "
+                        f"(optimal-linear + sphere Gram baseline: {encoded['baseline_rmse_percent']:.2f}%) -> encoder.png")
+    stages["output"] = "pending (issue 6: EXR + JSON sidecar)"
+    stages["preview"] = "pending (issue 7: EEVEE node groups)"
+
+    summary = {"stages": stages, "seconds": timings, "out": str(out)}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print("\nHHD Lightmapper demo")
+    for name, text in stages.items():
+        secs = f"{timings[name]:6.1f} s" if name in timings else "       "
+        print(f"  {name:8s} {secs}  {text}")
+    print(f"  output folder: {out}")
+    return 0
+
+
+def render_reference(bpy, path: Path, samples: int) -> None:
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    scene.render.resolution_x, scene.render.resolution_y = 320, 200
+    scene.render.resolution_percentage = 100
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+
+
+def encode_demo_lighting(png: Path) -> dict:
+    """Encode the demo's sky (uniform background) + sun for a dome of normals and plot
+    SH irradiance | HHD | error over the upper hemisphere of a normal tilted towards the sun."""
+    import numpy as np
+    from hhd_lightmapper.core import hhd, synthetic
+    import demo_scene
+
+    sky = np.asarray(demo_scene.SKY_COLOUR)
+    env = synthetic.Environment(
+        "demo sky + sun", lambda d: np.broadcast_to(sky, d.shape).copy(),
+        # Cycles sun strength is irradiance in W/m²; DESIGN.md irradiance is E/π.
+        [synthetic.DeltaLight(demo_scene.sun_direction(), np.full(3, 5.0 / np.pi))])
+    rng = np.random.default_rng(0)
+    normals = synthetic.random_normals(rng, 4000)
+    normals[:, 2] = np.abs(normals[:, 2])
+    s = synthetic.hemisphere_sh(env, normals)
+    p = hhd.encode(s, normals)
+    base = hhd.encode(s, normals, direction="optimal_linear", gram="sphere")
+    lum = hhd.LUMINANCE
+    mean_iz = (p.irradz @ lum).mean()
+    rmse = (hhd.hemispherical_rmse(s, normals, p) @ lum).mean() / mean_iz
+    rmse_base = (hhd.hemispherical_rmse(s, normals, base) @ lum).mean() / mean_iz
+    plot_hemisphere(env, png)
+    return {"texels": len(normals), "rmse_percent": 100 * rmse, "baseline_rmse_percent": 100 * rmse_base}
+
+
+def plot_hemisphere(env, png: Path, size: int = 96) -> None:
+    """Images over the upper hemisphere (orthographic view from above) of one texel."""
+    import numpy as np
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from hhd_lightmapper.core import hhd, sh, synthetic
+
+    n_v = np.array([[0.4, 0.1, 0.91]])
+    n_v /= np.linalg.norm(n_v)
+    s = synthetic.hemisphere_sh(env, n_v)
+    frames = sh.tangent_frames(n_v)[0]
+    u = np.linspace(-1, 1, size)
+    x, y = np.meshgrid(u, -u)
+    inside = x * x + y * y < 1.0
+    local = np.stack([x[inside], y[inside], np.sqrt(1 - x[inside] ** 2 - y[inside] ** 2)], 1)
+    world = local @ frames.T
+    k = len(world)
+    target = sh.irradiance(np.repeat(s, k, 0), world) @ hhd.LUMINANCE
+    images = {}
+    for name, kw in (("HHD searched + hemi G", {}), ("optimal linear + sphere G", dict(direction="optimal_linear", gram="sphere"))):
+        p = hhd.encode(s, n_v, **kw)
+        rep = hhd.HHDParams(np.repeat(p.irradz, k, 0), np.repeat(p.ambient_weight, k, 0), np.repeat(p.direction, k, 0))
+        images[name] = hhd.reconstruct(rep, np.repeat(n_v, k, 0), world) @ hhd.LUMINANCE
+    fig, axes = plt.subplots(1, 5, figsize=(15, 3.2))
+    panels = [("SH irradiance (reference)", target)] + [(n, v) for n, v in images.items()] + \
+             [(f"|error| {n.split()[0]}", np.abs(v - target)) for n, v in images.items()]
+    vmax = max(target.max(), *(v.max() for v in images.values()))
+    for ax, (title, values) in zip(axes, panels):
+        img = np.full(x.shape, np.nan)
+        img[inside] = values
+        ax.imshow(img, vmin=0, vmax=vmax if "error" not in title else vmax * 0.25, cmap="magma")
+        ax.set_title(title, fontsize=8)
+        ax.axis("off")
+    fig.suptitle("Demo lighting over the hemisphere of one texel (luminance, view from above the normal)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(png, dpi=100)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
