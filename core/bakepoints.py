@@ -1,0 +1,184 @@
+"""Lightmap texels turned into bake points. No bpy.
+
+For every texel any triangle overlaps (`raster`), one bake point: the world position at the
+overlap's centroid, the interpolated and normalised vertex normal n_v (the hemisphere the bake
+integrates over), the face normal (oriented to n_v's side, used to offset ray origins), the
+albedo there, and the texel's coverage. When several triangles overlap one texel the largest
+overlap wins (ties: the lowest triangle index), so the choice is deterministic.
+
+Arrays are compact over covered texels (P of them); `texel` maps them back into the
+width × height image (flat index y · width + x, y = v · height).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import raster
+from .errors import BakeError
+from .rays import RayScene, ray_offset
+
+#: Fraction of a texel's short probe rays that must hit back faces for it to count as buried
+#: (its hemisphere is closed by geometry, e.g. a wall pushed into the floor).
+BURIED_FRACTION = 0.5
+#: Probe directions per texel for the buried test (fixed, rotated per texel).
+BURIED_PROBES = 12
+
+
+@dataclass
+class SurfaceTriangles:
+    """Triangles that receive a lightmap, all in one atlas.
+
+    positions (T, 3, 3) world space, metres;  normals (T, 3, 3) vertex normals, world space;
+    uv (T, 3, 2) lightmap UVs in [0, 1]²;  object_index (T,) int;  albedo (T, 3) constant
+    albedo per triangle (linear RGB); optional textures: texture_index (T,) int (-1: constant),
+    texture_uv (T, 3, 2) the material's own UVs, textures [ (H, W, 3) float arrays ] (linear).
+    """
+    positions: np.ndarray
+    normals: np.ndarray
+    uv: np.ndarray
+    object_index: np.ndarray
+    albedo: np.ndarray
+    texture_index: np.ndarray | None = None
+    texture_uv: np.ndarray | None = None
+    textures: list = field(default_factory=list)
+
+
+@dataclass
+class BakePoints:
+    """position, normal (n_v), face_normal, albedo: (P, 3) float64; coverage (P,) in (0, 1];
+    texel, triangle, object_index (P,) int; buried (P,) bool (hemisphere closed by geometry);
+    offset: ray origin offset, scene units; texel_size (P,) world size of a texel, metres."""
+    width: int
+    height: int
+    texel: np.ndarray
+    position: np.ndarray
+    normal: np.ndarray
+    face_normal: np.ndarray
+    albedo: np.ndarray
+    coverage: np.ndarray
+    triangle: np.ndarray
+    object_index: np.ndarray
+    texel_size: np.ndarray
+    offset: float
+    buried: np.ndarray
+
+    def origins(self) -> np.ndarray:
+        """Ray origins `(P, 3)`: positions pushed off the surface along the face normal."""
+        return self.position + self.face_normal * self.offset
+
+    def image(self, values: np.ndarray, fill=0.0) -> np.ndarray:
+        """Scatter per-point values `(P, ...)` into a `(height, width, ...)` image."""
+        values = np.asarray(values)
+        out = np.full((self.height * self.width,) + values.shape[1:], fill, dtype=np.float64)
+        out[self.texel] = values
+        return out.reshape((self.height, self.width) + values.shape[1:])
+
+
+def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScene | None = None) -> BakePoints:
+    """Bake points of every covered texel. `occluders` (all geometry that casts shadows, the
+    receivers included) enables the buried-texel test; without it nothing is flagged."""
+    pos = np.asarray(surface.positions, dtype=np.float64)
+    if not np.isfinite(pos).all() or not np.isfinite(surface.uv).all():
+        raise BakeError("lightmap bake points: NaN or infinite positions or UVs in the input")
+    cov = raster.rasterise(surface.uv, width, height)
+    chosen, coverage = raster.choose_per_texel(cov)
+    tri = cov.triangle[chosen]
+    bary = _barycentric(cov.point[chosen], np.asarray(surface.uv, dtype=np.float64)[tri] * [width, height])
+    position = np.einsum("pk,pki->pi", bary, pos[tri])
+    normal = _normalise(np.einsum("pk,pki->pi", bary, np.asarray(surface.normals, dtype=np.float64)[tri]))
+    face = _normalise(np.cross(pos[tri, 1] - pos[tri, 0], pos[tri, 2] - pos[tri, 0]))
+    # A vertex normal of zero length (degenerate input) falls back to the face normal.
+    bad = ~np.isfinite(normal).all(axis=1) | (np.linalg.norm(normal, axis=1) < 0.5)
+    normal[bad] = face[bad]
+    face *= np.where(np.einsum("pi,pi->p", face, normal) < 0.0, -1.0, 1.0)[:, None]
+    points = BakePoints(
+        width=width, height=height, texel=cov.texel[chosen], position=position, normal=normal,
+        face_normal=face, albedo=_albedo(surface, tri, bary), coverage=coverage, triangle=tri,
+        object_index=np.asarray(surface.object_index)[tri],
+        texel_size=_texel_world_size(pos, np.asarray(surface.uv, dtype=np.float64), tri, width, height),
+        offset=ray_offset(pos), buried=np.zeros(len(tri), bool))
+    if occluders is not None:
+        points.buried = find_buried(points, occluders)
+    return points
+
+
+def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates `(P, 3)` of 2D points in 2D triangles `(P, 3, 2)`, clamped to
+    the triangle (the centroid is inside up to rounding)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    v0, v1, v2 = b - a, c - a, p - a
+    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+    den = np.where(den == 0.0, 1.0, den)
+    w1 = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
+    w2 = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
+    bary = np.clip(np.stack([1.0 - w1 - w2, w1, w2], axis=1), 0.0, 1.0)
+    return bary / bary.sum(axis=1, keepdims=True)
+
+
+def _normalise(v: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _texel_world_size(pos, uv, tri, width, height):
+    """World-space edge length of one texel on each chosen triangle: √(world area / texel area)."""
+    world = 0.5 * np.linalg.norm(np.cross(pos[tri, 1] - pos[tri, 0], pos[tri, 2] - pos[tri, 0]), axis=1)
+    t = uv[tri] * [width, height]
+    texels = 0.5 * np.abs((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1])
+                          - (t[:, 2, 0] - t[:, 0, 0]) * (t[:, 1, 1] - t[:, 0, 1]))
+    return np.sqrt(world / np.maximum(texels, 1e-12))
+
+
+def _albedo(surface: SurfaceTriangles, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    albedo = np.asarray(surface.albedo, dtype=np.float64)[tri].copy()
+    if surface.texture_index is None or not surface.textures:
+        return albedo
+    tex_index = np.asarray(surface.texture_index)[tri]
+    uv = np.einsum("pk,pki->pi", bary, np.asarray(surface.texture_uv, dtype=np.float64)[tri])
+    for k, image in enumerate(surface.textures):
+        rows = np.nonzero(tex_index == k)[0]
+        if len(rows):
+            albedo[rows] = sample_bilinear(np.asarray(image, dtype=np.float64), uv[rows])[:, :3]
+    return albedo
+
+
+def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup with repeat wrapping, Blender's convention: image `(H, W, C)` with row 0
+    at v = 0 (bottom), texel centres at (i + 0.5)/W. uv `(P, 2)` -> `(P, C)`."""
+    h, w = image.shape[:2]
+    x = uv[:, 0] * w - 0.5
+    y = uv[:, 1] * h - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    xs, ys = (x0 % w, (x0 + 1) % w), (y0 % h, (y0 + 1) % h)
+    return ((1 - fx) * (1 - fy) * image[ys[0], xs[0]] + fx * (1 - fy) * image[ys[0], xs[1]]
+            + (1 - fx) * fy * image[ys[1], xs[0]] + fx * fy * image[ys[1], xs[1]])
+
+
+def _probe_directions(n: int) -> np.ndarray:
+    """n fixed directions over the upper hemisphere (z up), cosine-spread (Fibonacci spiral)."""
+    k = np.arange(n) + 0.5
+    r = np.sqrt(k / n) * 0.95            # stay ~18° off the horizon: grazing probes are useless
+    phi = k * np.pi * (3.0 - np.sqrt(5.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - r * r)], axis=1)
+
+
+def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES) -> np.ndarray:
+    """Texels whose hemisphere is closed by nearby geometry seen from behind (the inside of a
+    box pushed into the floor): at least BURIED_FRACTION of short probe rays (length 4 texels)
+    hit back faces. The bake stores such texels black and never uses them as dilation sources,
+    so light cannot leak into them. (Deeper inside a closed volume texels are dark anyway: all
+    their rays end on the volume's inner faces.) Returns (P,) bool."""
+    from .sh import tangent_frames
+    if len(points.texel) == 0:
+        return np.zeros(0, bool)
+    frames = tangent_frames(points.face_normal)
+    dirs = np.einsum("pij,kj->pki", frames, _probe_directions(probes)).reshape(-1, 3)
+    origins = np.repeat(points.origins(), probes, axis=0)
+    reach = np.repeat(4.0 * points.texel_size + 4.0 * points.offset, probes)
+    t, prim, ng = scene.intersect(origins, dirs, reach)
+    back = (prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)
+    return back.reshape(-1, probes).mean(axis=1) >= BURIED_FRACTION

@@ -1,0 +1,192 @@
+"""xatlas unwrap, conservative rasterisation and bake points against independent references."""
+import numpy as np
+import pytest
+
+from hhd_lightmapper.core import bakepoints, raster, rays, unwrap
+from hhd_lightmapper.core.errors import BakeError
+import meshes
+
+
+# --- an independent, slow reference: clip one triangle against one texel in pure Python ---
+def clip_area(tri, x0, y0):
+    poly = [tuple(p) for p in tri]
+    for inside, cut in ((lambda p: p[0] >= x0, lambda a, b: (x0, a[1] + (x0 - a[0]) * (b[1] - a[1]) / (b[0] - a[0]))),
+                        (lambda p: p[0] <= x0 + 1, lambda a, b: (x0 + 1, a[1] + (x0 + 1 - a[0]) * (b[1] - a[1]) / (b[0] - a[0]))),
+                        (lambda p: p[1] >= y0, lambda a, b: (a[0] + (y0 - a[1]) * (b[0] - a[0]) / (b[1] - a[1]), y0)),
+                        (lambda p: p[1] <= y0 + 1, lambda a, b: (a[0] + (y0 + 1 - a[1]) * (b[0] - a[0]) / (b[1] - a[1]), y0 + 1))):
+        out = []
+        for i, a in enumerate(poly):
+            b = poly[(i + 1) % len(poly)]
+            if inside(a):
+                out.append(a)
+            if inside(a) != inside(b):
+                out.append(cut(a, b))
+        poly = out
+        if not poly:
+            return 0.0
+    return abs(sum(poly[i][0] * poly[(i + 1) % len(poly)][1] - poly[(i + 1) % len(poly)][0] * poly[i][1]
+                   for i in range(len(poly)))) / 2
+
+
+def reference_coverage(uv, w, h):
+    cov = {}
+    for t, tri in enumerate(uv * [w, h]):
+        for x in range(int(np.floor(tri[:, 0].min())), int(np.ceil(tri[:, 0].max()))):
+            for y in range(int(np.floor(tri[:, 1].min())), int(np.ceil(tri[:, 1].max()))):
+                a = clip_area(tri, x, y)
+                if a > 1e-12:
+                    cov[(t, y * w + x)] = a
+    return cov
+
+
+def unwrapped(mesh_fn, resolution=256, **kw):
+    v, f = mesh_fn(**kw)
+    result = unwrap.unwrap([unwrap.UnwrapMesh("m", v, f)], unwrap.UnwrapSettings(resolution=resolution, padding=4))
+    return v, f, result
+
+
+@pytest.mark.parametrize("mesh_fn", [meshes.plane, meshes.cube, meshes.uv_sphere, meshes.slivers])
+def test_raster_matches_the_slow_clipping_reference(mesh_fn):
+    v, f, result = unwrapped(mesh_fn, resolution=256 if mesh_fn is not meshes.uv_sphere else 256)
+    uv = result.objects[0].uv.astype(np.float64)
+    cov = raster.rasterise(uv, 256, 256)
+    ref = reference_coverage(uv, 256, 256)
+    got = {(int(t), int(x)): a for t, x, a in zip(cov.triangle, cov.texel, cov.area)}
+    assert set(got) == set(ref)                       # every touched texel, slivers included
+    for key, a in ref.items():
+        assert got[key] == pytest.approx(a, abs=1e-9)
+
+
+@pytest.mark.parametrize("mesh_fn", [meshes.plane, meshes.cube, meshes.uv_sphere, meshes.slivers])
+def test_bake_points_cover_every_texel_and_lie_on_the_surface(mesh_fn):
+    v, f, result = unwrapped(mesh_fn)
+    uv = result.objects[0].uv.astype(np.float64)
+    n = meshes.vertex_normals(v, f)
+    surface = bakepoints.SurfaceTriangles(v[f], n[f], uv, np.zeros(len(f), int), np.full((len(f), 3), 0.5))
+    pts = bakepoints.build(surface, 256, 256)
+    # summed coverage = UV area in texels (charts do not overlap)
+    uv_area = np.abs(raster._signed_area(uv * 256)).sum()
+    assert pts.coverage.sum() == pytest.approx(uv_area, rel=1e-9)
+    assert (pts.coverage > 0).all() and (pts.coverage <= 1).all()
+    assert len(np.unique(pts.texel)) == len(pts.texel)
+    # positions lie in their triangle's plane and map back into their own texel
+    tri = v[f][pts.triangle]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    assert np.abs(np.einsum("pi,pi->p", pts.position - tri[:, 0], fn)).max() < 1e-9
+    bary = np.linalg.lstsq  # (readability) solve position = Σ b_k P_k for b, then map to UV
+    for p_, t_, tx in list(zip(pts.position, pts.triangle, pts.texel))[::7]:
+        m = np.vstack([v[f[t_]].T, np.ones(3)])
+        b = bary(m, np.append(p_, 1.0), rcond=None)[0]
+        u_ = (b @ uv[t_]) * 256
+        assert int(tx % 256) - 1e-6 <= u_[0] <= int(tx % 256) + 1 + 1e-6
+        assert int(tx // 256) - 1e-6 <= u_[1] <= int(tx // 256) + 1 + 1e-6
+    np.testing.assert_allclose(np.linalg.norm(pts.normal, axis=1), 1.0)
+    assert (np.einsum("pi,pi->p", pts.normal, pts.face_normal) >= 0).all()
+
+
+def test_choice_between_overlapping_triangles_is_deterministic():
+    uv = np.array([[[0.1, 0.1], [0.6, 0.1], [0.1, 0.6]], [[0.1, 0.1], [0.6, 0.1], [0.1, 0.6]]])
+    cov = raster.rasterise(uv, 16, 16)
+    chosen, total = raster.choose_per_texel(cov)
+    assert (cov.triangle[chosen] == 0).all()                # ties go to the lowest index
+    again, _ = raster.choose_per_texel(raster.rasterise(uv, 16, 16))
+    np.testing.assert_array_equal(chosen, again)
+    assert total.max() == pytest.approx(1.0)                # overlapping coverage clips at 1
+
+
+def test_shared_atlas_charts_never_share_a_texel_and_density_sets_texel_counts():
+    v1, f1 = meshes.cube()
+    v2, f2 = meshes.uv_sphere()
+    res = unwrap.unwrap([unwrap.UnwrapMesh("cube", v1, f1), unwrap.UnwrapMesh("sphere", v2, f2)],
+                        unwrap.UnwrapSettings(resolution=512, padding=4))
+    assert res.atlas_sizes == [(512, 512)] and 0.3 < res.utilisation[0] <= 1.0
+    texels = [set(raster.rasterise(o.uv.astype(float), 512, 512).texel.tolist()) for o in res.objects]
+    assert not texels[0] & texels[1]
+    for o in res.objects:
+        assert (o.uv >= 0).all() and (o.uv <= 1).all()
+    dens = unwrap.unwrap([unwrap.UnwrapMesh("cube", v1 * 2.0, f1)], unwrap.UnwrapSettings(texel_density=40.0))
+    # 6 faces of 2 m × 2 m at 40 texels/m: 24 m² × 1600 = 38 400 texels
+    assert dens.objects[0].texels == pytest.approx(24 * 1600, rel=0.02)
+    per = unwrap.unwrap([unwrap.UnwrapMesh("a", v1, f1), unwrap.UnwrapMesh("b", v1, f1, resolution=256)],
+                        unwrap.UnwrapSettings(resolution=512))
+    assert per.atlas_sizes == [(512, 512), (256, 256)] and per.objects[1].atlas == 1
+
+
+def test_small_objects_are_warned_about_and_bad_geometry_named():
+    v, f = meshes.cube(0.01)
+    big_v, big_f = meshes.cube(10.0)
+    res = unwrap.unwrap([unwrap.UnwrapMesh("tiny", v, f), unwrap.UnwrapMesh("big", big_v, big_f)],
+                        unwrap.UnwrapSettings(resolution=256))
+    assert any("'tiny'" in w for w in res.warnings)
+    bad = v.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(BakeError, match="'broken'.*NaN"):
+        unwrap.unwrap([unwrap.UnwrapMesh("broken", bad, f)], unwrap.UnwrapSettings())
+    with pytest.raises(BakeError, match="'empty'.*no faces"):
+        unwrap.unwrap([unwrap.UnwrapMesh("empty", v, np.zeros((0, 3), int))], unwrap.UnwrapSettings())
+    with pytest.raises(BakeError, match="'flat'.*zero-area"):
+        unwrap.unwrap([unwrap.UnwrapMesh("flat", v, np.array([[0, 0, 1], [2, 2, 2]]))], unwrap.UnwrapSettings())
+
+
+def test_albedo_is_sampled_from_the_materials_own_uvs():
+    v, f = meshes.plane()
+    res = unwrap.unwrap([unwrap.UnwrapMesh("p", v, f)], unwrap.UnwrapSettings(resolution=256))
+    tex_uv = v[f][:, :, :2]                              # planar mapping: material UV = (x, y)
+    image = np.zeros((4, 4, 3))
+    image[..., 0] = np.arange(4)[None, :] / 3.0          # red ramps with x
+    surface = bakepoints.SurfaceTriangles(v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float),
+                                          np.zeros(2, int), np.full((2, 3), 0.5), np.zeros(2, int), tex_uv, [image])
+    pts = bakepoints.build(surface, 256, 256)
+    expected = bakepoints.sample_bilinear(image, pts.position[:, :2])
+    np.testing.assert_allclose(pts.albedo, expected, atol=1e-9)
+    centre = bakepoints.sample_bilinear(image, np.array([[(2 + 0.5) / 4, (1 + 0.5) / 4]]))
+    np.testing.assert_allclose(centre[0], [2 / 3, 0, 0])   # texel centres are exact
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
+def test_ray_offset_scales_with_the_scene(scale):
+    v, f = meshes.cube(scale)
+    off = rays.ray_offset(v)
+    assert 1e-6 * scale < off < 1e-4 * scale
+    far = rays.ray_offset(v + 1e4 * scale)            # far from the origin: float32 margin dominates
+    assert far > 32 * 1.19e-7 * 1e4 * scale
+
+
+def floor_with(obstacle_v, obstacle_f, resolution=256):
+    floor_v, floor_f = meshes.plane(4.0)
+    floor_v -= [2.0, 2.0, 0.0]
+    res = unwrap.unwrap([unwrap.UnwrapMesh("floor", floor_v, floor_f)], unwrap.UnwrapSettings(resolution=resolution))
+    surface = bakepoints.SurfaceTriangles(floor_v[floor_f], np.tile([0, 0, 1.0], (2, 3, 1)),
+                                          res.objects[0].uv.astype(float), np.zeros(2, int), np.full((2, 3), 0.5))
+    scene = rays.RayScene(np.concatenate([floor_v[floor_f], obstacle_v[obstacle_f]]))
+    return bakepoints.build(surface, resolution, resolution, occluders=scene), scene
+
+
+def test_thin_wall_pushed_into_the_floor_buries_the_texels_under_it():
+    """A 3 cm wall (≈ 2 texels) sunk 20 cm into the floor: the floor texels inside it see only
+    its inner faces and are flagged; texels a few texels away on either side are not."""
+    v, f = meshes.cube(1.0)
+    v = v * [0.03, 2.0, 1.2] + [0.0, 0.0, 0.4]
+    pts, _ = floor_with(v, f)
+    x, y = np.abs(pts.position[:, 0]), np.abs(pts.position[:, 1])
+    under = (x < 0.015) & (y < 0.9)
+    away = (x > 0.015 + 3 * pts.texel_size) | (y > 1.0 + 3 * pts.texel_size)
+    assert under.sum() > 50 and pts.buried[under].mean() > 0.95
+    assert not pts.buried[away].any()
+
+
+def test_closed_box_pushed_into_the_floor_is_dark_inside():
+    """Texels under a 1 m box: every shadow ray towards the sun ends on the box, and every probe
+    ray on its inner faces, so no light reaches them whatever the flagging."""
+    v, f = meshes.cube(1.0, centre=(0.0, 0.0, 0.2))
+    pts, scene = floor_with(v, f)
+    under = np.maximum(np.abs(pts.position[:, 0]), np.abs(pts.position[:, 1])) < 0.5 - 2 * pts.texel_size
+    outside = np.maximum(np.abs(pts.position[:, 0]), np.abs(pts.position[:, 1])) > 0.5 + 4 * pts.texel_size
+    assert not pts.buried[outside].any()
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(under.sum(), 3))
+    d[:, 2] = np.abs(d[:, 2])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t, prim, ng = scene.intersect(pts.origins()[under], d)
+    assert (prim >= 0).all() and (np.einsum("ri,ri->r", d, ng) > 0).all()   # all inner (back) faces
