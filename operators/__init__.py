@@ -2,8 +2,9 @@
 import bpy
 
 from .check_dependencies import HHD_OT_check_dependencies
+from .unwrap import HHD_OT_unwrap
 
-classes = (HHD_OT_check_dependencies,)
+classes = (HHD_OT_check_dependencies, HHD_OT_unwrap)
 
 
 def register():

@@ -14,7 +14,21 @@ class HHD_PT_main(bpy.types.Panel):
         layout.use_property_split = True
         col = layout.column()
         col.prop(settings, "uv_layer")
+        col.prop(settings, "atlas_mode")
         col.prop(settings, "resolution")
+        col.prop(settings, "texel_density")
+        col.prop(settings, "mip_levels")
+        col.prop(settings, "padding")
+        obj = context.object
+        if obj is not None and obj.type == 'MESH':
+            box = layout.box()
+            box.label(text=f"Overrides for '{obj.name}' (own atlas)")
+            box.prop(obj.hhd, "resolution")
+            box.prop(obj.hhd, "texel_density")
+        layout.operator("hhd.unwrap", icon='UV')
+        if settings.unwrap_summary:
+            layout.label(text=settings.unwrap_summary)
+        col = layout.column()
         col.prop(settings, "samples")
         col.prop(settings, "bounces")
         col.prop(settings, "output_dir")

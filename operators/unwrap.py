@@ -1,0 +1,75 @@
+"""Operator: xatlas lightmap UVs for the selected mesh objects (`bpy.ops.hhd.unwrap()`)."""
+import bpy
+from bpy.props import BoolProperty
+
+from ..core import unwrap as core_unwrap
+from ..core.errors import BakeError
+from . import mesh_data
+
+
+class HHD_OT_unwrap(bpy.types.Operator):
+    """Chart and pack lightmap UVs with xatlas into the lightmap UV layer of the selected meshes"""
+    bl_idname = "hhd.unwrap"
+    bl_label = "Unwrap Lightmap UVs"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    make_single_user: BoolProperty(
+        name="Make Single User", default=False,
+        description="Give linked duplicates their own mesh first (they cannot share lightmap UVs)")
+
+    @classmethod
+    def poll(cls, context):
+        if not mesh_data.target_meshes(context.selected_objects):
+            cls.poll_message_set("Select one or more mesh objects")
+            return False
+        return True
+
+    def execute(self, context):
+        settings = context.scene.hhd
+        objects = mesh_data.target_meshes(context.selected_objects)
+        wm = context.window_manager
+        wm.progress_begin(0, 100)
+        try:
+            summary, warnings = unwrap_objects(objects, settings, self.make_single_user,
+                                               lambda f, _msg: wm.progress_update(int(100 * f)))
+        except BakeError as exc:
+            self.report({'ERROR'}, str(exc))
+            return {'CANCELLED'}
+        finally:
+            wm.progress_end()
+        for w in warnings:
+            self.report({'WARNING'}, w)
+        settings.unwrap_summary = summary
+        self.report({'INFO'}, summary)
+        return {'FINISHED'}
+
+
+def unwrap_objects(objects, settings, make_single_user=False, progress=None):
+    """Unwrap `objects` with the scene settings; returns (summary line, warnings)."""
+    shared = mesh_data.shared_meshes(objects)
+    if shared and not make_single_user:
+        mesh, names = next(iter(shared.items()))
+        raise BakeError(f"{', '.join(repr(n) for n in names)} share the mesh '{mesh}': one lightmap UV "
+                        "layer cannot give them separate texels. Make them single user (Object > Relations > "
+                        "Make Single User > Object & Data), or unwrap with 'Make Single User'")
+    if shared:
+        mesh_data.make_single_user(objects)
+    read = [mesh_data.read_unwrap_mesh(o) for o in objects]
+    padding = settings.padding or core_unwrap.padding_for_mips(settings.mip_levels)
+    result = core_unwrap.unwrap(
+        [m for m, _ in read],
+        core_unwrap.UnwrapSettings(resolution=settings.resolution, texel_density=settings.texel_density or None,
+                                   padding=padding, per_object=settings.atlas_mode == 'PER_OBJECT'),
+        progress)
+    warnings = list(result.warnings)
+    for obj, (_, loops), ouv in zip(objects, read, result.objects):
+        split = mesh_data.write_uv_layer(obj, settings.uv_layer, loops, ouv.uv)
+        if split:
+            warnings.append(f"'{obj.name}': {split} polygon(s) were split across charts; their lightmap "
+                            "UVs are approximate (triangulate them to avoid this)")
+    sizes = ", ".join(f"{w}×{h}" for w, h in result.atlas_sizes)
+    used = ", ".join(f"{100 * u:.0f}%" for u in result.utilisation)
+    per_object = ", ".join(f"{o.name}: {o.texels:.0f}" for o in result.objects)
+    summary = (f"{len(objects)} object(s), {result.charts} charts, atlas {sizes}, {used} used; "
+               f"texels per object: {per_object}")
+    return summary, warnings
