@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Candidate (triangle, texel) pairs per chunk: bounds memory to a few hundred MB.
-PAIRS_PER_CHUNK = 1 << 21
+#: Candidate (triangle, texel) pairs per chunk: ~60 MB of temporaries, no slower than larger chunks.
+PAIRS_PER_CHUNK = 1 << 18
 
 
 @dataclass

@@ -157,14 +157,16 @@ def _pack(meshes, resolution, density, padding):
             raise BakeError(f"texel density {density:g}/m needs an atlas larger than {MAX_RESOLUTION}²: "
                             "lower the density or split the objects into several atlases")
         return atlas, atlas.width, atlas.height
-    # Fixed resolution: let xatlas estimate the density, then shrink it until one atlas of
-    # exactly resolution² holds every chart (usually one or two retries).
+    # Fixed resolution: let xatlas estimate the density, then shrink it by the measured overshoot
+    # until one atlas of exactly resolution² holds every chart. Each retry re-runs xatlas (its
+    # Python binding cannot re-pack alone), so scale by the overshoot: usually one retry.
     atlas = attempt(0, resolution)
     tpu = atlas.texels_per_unit
     for _ in range(12):
         if atlas.atlas_count == 1 and atlas.width <= resolution and atlas.height <= resolution:
             return atlas, resolution, resolution
-        tpu *= 0.92
+        overshoot = max(atlas.width, atlas.height) / resolution if atlas.atlas_count == 1 else 1.0
+        tpu *= min(0.97, 0.98 / max(overshoot, 1e-9))
         atlas = attempt(tpu, resolution)
     raise BakeError(f"could not pack the charts into one {resolution}² atlas")
 
