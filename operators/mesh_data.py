@@ -89,3 +89,55 @@ def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> int:
     poly = np.zeros(len(mesh.loop_triangles), dtype=np.int64)
     mesh.loop_triangles.foreach_get("polygon_index", poly)
     return len(np.unique(poly[mismatch.reshape(-1, 3).any(axis=1)]))
+
+
+def _material_albedo(mat) -> tuple:
+    """Constant linear RGB albedo of a material: the Principled BSDF's unlinked Base Color, else
+    the viewport colour. (Texture albedo comes with the scene extraction of the bake.)"""
+    if mat is None:
+        return (0.8, 0.8, 0.8)
+    if mat.use_nodes and mat.node_tree:
+        for node in mat.node_tree.nodes:
+            if node.type == 'BSDF_PRINCIPLED' and not node.inputs["Base Color"].is_linked:
+                return tuple(node.inputs["Base Color"].default_value[:3])
+    return tuple(mat.diffuse_color[:3])
+
+
+def read_surface(objects, uv_layer: str, depsgraph):
+    """SurfaceTriangles of the evaluated meshes of `objects` (modifiers applied, world space):
+    positions, corner normals (smooth/flat/custom as Blender shades them), lightmap UVs, object
+    index and constant albedo per triangle."""
+    from ..core.bakepoints import SurfaceTriangles
+    parts = []
+    for index, obj in enumerate(objects):
+        evaluated = obj.evaluated_get(depsgraph)
+        mesh = evaluated.to_mesh()
+        try:
+            if uv_layer not in mesh.uv_layers:
+                raise BakeError(f"'{obj.name}' has no '{uv_layer}' UV layer: run Unwrap first")
+            mesh.calc_loop_triangles()
+            n_tri = len(mesh.loop_triangles)
+            loops = np.zeros(n_tri * 3, np.int64)
+            mesh.loop_triangles.foreach_get("loops", loops)
+            verts = np.zeros(n_tri * 3, np.int64)
+            mesh.loop_triangles.foreach_get("vertices", verts)
+            mat_index = np.zeros(n_tri, np.int64)
+            mesh.loop_triangles.foreach_get("material_index", mat_index)
+            co = np.zeros(len(mesh.vertices) * 3)
+            mesh.vertices.foreach_get("co", co)
+            normals = np.zeros(len(mesh.loops) * 3)
+            mesh.corner_normals.foreach_get("vector", normals)
+            uv = np.zeros(len(mesh.loops) * 2)
+            mesh.uv_layers[uv_layer].data.foreach_get("uv", uv)
+            m = np.array(evaluated.matrix_world, dtype=np.float64)
+            normal_matrix = np.linalg.inv(m[:3, :3]).T
+            world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+            n_world = normals.reshape(-1, 3) @ normal_matrix.T
+            n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
+            albedo = np.array([_material_albedo(s.material) for s in evaluated.material_slots] or [(0.8, 0.8, 0.8)])
+            parts.append((world[verts].reshape(-1, 3, 3), n_world[loops].reshape(-1, 3, 3),
+                          uv.reshape(-1, 2)[loops].reshape(-1, 3, 2), np.full(n_tri, index),
+                          albedo[np.minimum(mat_index, len(albedo) - 1)]))
+        finally:
+            evaluated.to_mesh_clear()
+    return SurfaceTriangles(*(np.concatenate(x) for x in zip(*parts)))

@@ -5,7 +5,9 @@
 Stages, in pipeline order. Each later issue replaces a "pending" stage with the real one:
   scene    build the room (window, sun, sky, red wall, normal-mapped panel), save demo.blend
   render   Cycles reference render of the camera view (reference_cycles.png)
-  unwrap   pending: xatlas lightmap UVs (issue 4)
+  unwrap   bpy.ops.hhd.unwrap(): xatlas lightmap UVs for every mesh in one atlas
+  points   lightmap texels -> bake points (position, n_v, albedo, coverage, buried flag),
+           atlas.png shows n_v per texel
   bake     pending: Embree path-traced L2 SH (issue 5); until then the encoder runs on the
            demo's sky + sun as seen, unoccluded, by a dome of normals
   encode   HHD IrradZ encoding (core.hhd), error vs the SH irradiance, encoder.png
@@ -51,7 +53,24 @@ def main() -> int:
     timings["render"] = time.perf_counter() - t
     stages["render"] = "Cycles reference -> reference_cycles.png"
 
-    stages["unwrap"] = "pending (issue 4: xatlas lightmap UVs)"
+    import hhd_lightmapper
+    hhd_lightmapper.register()            # the add-on's operators, as Blender would register them
+    t = time.perf_counter()
+    meshes = [o for o in bpy.context.scene.objects if o.type == "MESH"]
+    for o in bpy.context.scene.objects:
+        o.select_set(o.type == "MESH")
+    bpy.context.view_layer.objects.active = meshes[0]
+    bpy.context.scene.hhd.resolution = 512
+    bpy.ops.hhd.unwrap()
+    bpy.ops.wm.save_as_mainfile(filepath=str(out / "demo.blend"))
+    timings["unwrap"] = time.perf_counter() - t
+    stages["unwrap"] = bpy.context.scene.hhd.unwrap_summary.split("; texels")[0]
+
+    t = time.perf_counter()
+    points = demo_bake_points(bpy, meshes, out / "atlas.png")
+    timings["points"] = time.perf_counter() - t
+    stages["points"] = (f"{len(points.texel)} texels, {int(points.buried.sum())} buried, "
+                        f"ray offset {points.offset * 1000:.3f} mm -> atlas.png")
     stages["bake"] = "pending (issue 5: Embree SH bake); encoder runs on unoccluded demo lighting"
 
     t = time.perf_counter()
@@ -70,6 +89,25 @@ def main() -> int:
         print(f"  {name:8s} {secs}  {text}")
     print(f"  output folder: {out}")
     return 0
+
+
+def demo_bake_points(bpy, meshes, png: Path):
+    """Bake points of the demo atlas, with the buried test against all scene geometry."""
+    import numpy as np
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from hhd_lightmapper.core import bakepoints, rays
+    from hhd_lightmapper.operators import mesh_data
+
+    settings = bpy.context.scene.hhd
+    surface = mesh_data.read_surface(meshes, settings.uv_layer, bpy.context.evaluated_depsgraph_get())
+    points = bakepoints.build(surface, settings.resolution, settings.resolution,
+                              occluders=rays.RayScene(surface.positions))
+    image = points.image(points.normal * 0.5 + 0.5, fill=0.0)
+    image[points.image(points.buried.astype(float)) > 0] = (1.0, 0.0, 1.0)
+    plt.imsave(png, np.clip(image[::-1], 0, 1))
+    return points
 
 
 def render_reference(bpy, path: Path, samples: int) -> None:
