@@ -103,7 +103,8 @@ def ambient_lobe(model: str) -> np.ndarray:
 
 def directional_lobe(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """Irradiance SH `(N, 9)` of a directional light at (θ, φ) scaled to irradiance 1 at z:
-    (π / d_z) conv(Y(d)). Only its L2 projection, as in the paper's fit."""
+    (π / d_z) conv(Y(d)). Only its L2 projection, as in the paper's fit. The search uses the
+    factorised form (`_phi_factors` × `_theta_functions`); this direct form is its reference."""
     st = np.sin(theta)
     d = np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=-1)
     return _sh.evaluate(d) * (_sh.COSINE_KERNEL * np.pi) / d[..., 2:3]
@@ -164,13 +165,14 @@ class _Fit:
     errors into the direction's objective. Targets are normalised per texel by the caller so
     the search behaves identically for radiance 1e-8 and 1e8.
 
-    Speed: the directional lobe's coefficients factor as d_j = f_j(θ) g_j(φ) (`_theta_factors`,
+    Speed: the directional lobe's coefficients factor as d_j = f_j(θ) g_j(φ) (`_theta_functions`,
     `_phi_factors`), so for a fixed φ per texel (`at_phi`) every product with G, a and the
     target is precomputed once, and each θ evaluation is a few dozen vector operations.
     """
 
     def __init__(self, target: np.ndarray, iz: np.ndarray, a: np.ndarray, g: np.ndarray,
-                 weights: np.ndarray):
+                 weights: np.ndarray, scale: np.ndarray | None = None):
+        self.scale = np.ones(len(iz)) if scale is None else scale   # per-texel normalisation undone by fit_error
         self.g = g
         self.ga = g @ a
         self.aga = float(a @ self.ga)
@@ -377,8 +379,7 @@ def _prepare(world_sh, n, *, a, g, luminance, hemisphere_sampled):
     # Normalise each texel so the fit is scale-free (1e-8 and 1e8 behave alike, no overflow).
     scale = np.maximum(np.abs(target).max(axis=(1, 2)), iz_fit.max(axis=1))
     scale = np.where(scale > 0.0, scale, 1.0)
-    fit = _Fit(target / scale[:, None, None], iz_fit / scale[:, None], a, g, weights)
-    fit.scale = scale
+    fit = _Fit(target / scale[:, None, None], iz_fit / scale[:, None], a, g, weights, scale)
     return fit, frames, local, iz, clamped, lum_fit
 
 

@@ -133,3 +133,13 @@ def test_self_bounce_adds_albedo_times_occluded_fraction():
     base = hhd.reconstruct(p, n_v, n)
     bounce = hhd.reconstruct(p, n_v, n, albedo=np.array([0.5, 0.5, 0.5])) - base
     np.testing.assert_allclose(bounce[:, 0], 0.5 * 2.0 * np.array([0.0, 0.5, 1.0]))
+
+
+def test_factorised_directional_lobe_equals_the_direct_one(rng):
+    """The search's fast path: d_j = f_j(θ) g_j(φ) must reproduce (π/d_z) conv(Y(d))."""
+    theta = rng.uniform(0.0, 1.5, 50)
+    phi = rng.uniform(-np.pi, np.pi, 50)
+    f = hhd._theta_functions(theta)
+    g = hhd._phi_factors(phi)
+    factorised = np.stack([f[hhd._FUNCTION_OF_COEFF[j]] * g[j] * np.ones(50) for j in range(9)], axis=1)
+    np.testing.assert_allclose(factorised, hhd.directional_lobe(theta, phi), rtol=1e-12, atol=1e-12)
