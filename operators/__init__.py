@@ -6,12 +6,4 @@ from .unwrap import HHD_OT_unwrap
 
 classes = (HHD_OT_check_dependencies, HHD_OT_unwrap)
 
-
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)
