@@ -63,10 +63,23 @@ class BakePoints:
     texel_size: np.ndarray
     offset: float
     buried: np.ndarray
+    tri_texel_uv: np.ndarray = None      # (T, 3, 2) every triangle's UVs in texel units
+    tri_positions: np.ndarray = None     # (T, 3, 3) every triangle's world corners
 
     def origins(self) -> np.ndarray:
         """Ray origins `(P, 3)`: positions pushed off the surface along the face normal."""
         return self.position + self.face_normal * self.offset
+
+    def sample_origins(self, rng: np.random.Generator, idx: np.ndarray, k: int) -> np.ndarray:
+        """k ray origins `(len(idx)·k, 3)` per texel, uniform over the texel's footprint on its
+        chosen triangle (points outside the triangle are clamped onto it), offset along the
+        face normal: a texel's value is the average over its footprint, as Cycles bakes it."""
+        tri = np.repeat(self.triangle[idx], k)
+        corner = np.repeat(np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1), k, axis=0)
+        uv = corner + rng.random((len(tri), 2))
+        bary = _barycentric(uv, self.tri_texel_uv[tri])
+        pos = np.einsum("rk,rki->ri", bary, self.tri_positions[tri])
+        return pos + np.repeat(self.face_normal[idx], k, axis=0) * self.offset
 
     def image(self, values: np.ndarray, fill=0.0) -> np.ndarray:
         """Scatter per-point values `(P, ...)` into a `(height, width, ...)` image."""
@@ -98,7 +111,8 @@ def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScen
         face_normal=face, albedo=_albedo(surface, tri, bary), coverage=coverage, triangle=tri,
         object_index=np.asarray(surface.object_index)[tri],
         texel_size=_texel_world_size(pos, np.asarray(surface.uv, dtype=np.float64), tri, width, height),
-        offset=ray_offset(pos), buried=np.zeros(len(tri), bool))
+        offset=ray_offset(pos), buried=np.zeros(len(tri), bool),
+        tri_texel_uv=np.asarray(surface.uv, dtype=np.float64) * [width, height], tri_positions=pos)
     if occluders is not None:
         points.buried = find_buried(points, occluders)
     return points

@@ -1,0 +1,67 @@
+"""BakeScene: everything the tracer needs, as plain numpy (the only thing read from bpy). No bpy.
+
+Units follow Blender/Cycles (checked against Cycles' Diffuse bake in tests/test_bake_cycles.py):
+  * radiance: W/(m²·sr) as Cycles emission and world strength (strength × colour);
+  * sun: `irradiance` = strength × colour, W/m² on a surface facing it; our irradiance unit
+    (DESIGN.md, E = (1/π)∫L cos) is then S cosθ / π;
+  * point light: `power` = power × colour, W; a surface at distance d facing it gets
+    E = P / (4π² d²) in our unit, i.e. its radiance SH is P/(4π d²) · Y(l). With a radius r it
+    has radiance P / (4π² r²) over the cone it subtends: with Blender's default "soft falloff"
+    a disk of radius r facing the shaded point (cos α = d/√(d² + r²)), without it a sphere
+    (cos α = √(1 - r²/d²)) — as Cycles' point_light_sample does.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class SunLight:
+    """direction (3,) unit, towards the sun; irradiance (3,) W/m²; angle: angular diameter, rad."""
+    direction: np.ndarray
+    irradiance: np.ndarray
+    angle: float = 0.0
+
+    @property
+    def is_delta(self) -> bool:
+        return self.angle <= 0.0
+
+
+@dataclass
+class PointLight:
+    """position (3,) m; power (3,) W; radius m (0: a true point, noise-free); soft_falloff:
+    Blender's use_soft_falloff (disk facing the shaded point) rather than a sphere."""
+    position: np.ndarray
+    power: np.ndarray
+    radius: float = 0.0
+    soft_falloff: bool = True
+
+    @property
+    def is_delta(self) -> bool:
+        return self.radius <= 0.0
+
+
+@dataclass
+class BakeScene:
+    """triangles (T, 3, 3) world space, all geometry that casts shadows or reflects light;
+    albedo (T, 3) linear RGB in [0, 1]; emission (T, 3) radiance, emitted on both sides;
+    lights: SunLight / PointLight; world: background radiance (3,) or None (black)."""
+    triangles: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray | None = None
+    lights: list = field(default_factory=list)
+    world: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.triangles = np.asarray(self.triangles, dtype=np.float64)
+        self.albedo = np.clip(np.asarray(self.albedo, dtype=np.float64), 0.0, 1.0)
+        if self.emission is not None:
+            self.emission = np.asarray(self.emission, dtype=np.float64)
+            if not self.emission.any():
+                self.emission = None          # model only what the scene has
+        if self.world is not None:
+            self.world = np.asarray(self.world, dtype=np.float64)
+            if not self.world.any():
+                self.world = None

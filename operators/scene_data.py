@@ -1,0 +1,112 @@
+"""bpy scene -> BakeScene (the only bpy reading for a bake's lighting and occluders).
+
+Reads the evaluated depsgraph: every mesh instance visible to render (modifiers, instancing
+and collection instances included) becomes occluding, reflecting geometry; lights and the
+world are converted to the Cycles units `core.scene` documents. What is not supported yet is
+reported by name, never silently approximated.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.errors import BakeError
+from ..core.scene import BakeScene, PointLight, SunLight
+from .mesh_data import _material_albedo
+
+
+def _material_emission(mat) -> tuple:
+    """Emitted radiance (linear RGB) of a material: a Principled BSDF's Emission Color ×
+    Strength, or an Emission shader feeding the output; black otherwise."""
+    if mat is None or not mat.use_nodes or mat.node_tree is None:
+        return (0.0, 0.0, 0.0)
+    nodes = mat.node_tree.nodes
+    output = next((n for n in nodes if n.type == 'OUTPUT_MATERIAL' and n.is_active_output), None)
+    surface = output.inputs["Surface"].links[0].from_node if output and output.inputs["Surface"].is_linked else None
+    if surface is None:
+        return (0.0, 0.0, 0.0)
+    if surface.type == 'EMISSION':
+        colour, strength = surface.inputs["Color"].default_value[:3], surface.inputs["Strength"].default_value
+    elif surface.type == 'BSDF_PRINCIPLED':
+        colour = surface.inputs["Emission Color"].default_value[:3]
+        strength = surface.inputs["Emission Strength"].default_value
+    else:
+        return (0.0, 0.0, 0.0)
+    return tuple(float(c) * float(strength) for c in colour)
+
+
+def _instance_triangles(instance):
+    """(triangles (T, 3, 3) world space, albedo (T, 3), emission (T, 3)) of one mesh instance."""
+    obj = instance.object
+    mesh = obj.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        n_tri = len(mesh.loop_triangles)
+        if n_tri == 0:
+            return None
+        verts = np.zeros(n_tri * 3, np.int64)
+        mesh.loop_triangles.foreach_get("vertices", verts)
+        mat_index = np.zeros(n_tri, np.int64)
+        mesh.loop_triangles.foreach_get("material_index", mat_index)
+        co = np.zeros(len(mesh.vertices) * 3)
+        mesh.vertices.foreach_get("co", co)
+        m = np.array(instance.matrix_world, dtype=np.float64)
+        world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+        mats = [s.material for s in obj.material_slots] or [None]
+        albedo = np.array([_material_albedo(mt) for mt in mats])
+        emission = np.array([_material_emission(mt) for mt in mats])
+        pick = np.minimum(mat_index, len(mats) - 1)
+        return world[verts].reshape(-1, 3, 3), albedo[pick], emission[pick]
+    finally:
+        obj.to_mesh_clear()
+
+
+def _light(instance):
+    light = instance.object.data
+    m = np.array(instance.matrix_world, dtype=np.float64)
+    colour = np.array(light.color[:3], dtype=np.float64)
+    if light.type == 'SUN':
+        towards = m[:3, 2] / np.linalg.norm(m[:3, 2])        # lights shine along their local -Z
+        return SunLight(towards, colour * light.energy, float(light.angle))
+    if light.type == 'POINT':
+        return PointLight(m[:3, 3].copy(), colour * light.energy, float(light.shadow_soft_size),
+                          bool(getattr(light, "use_soft_falloff", True)))
+    raise BakeError(f"light '{instance.object.name}': {light.type.lower()} lights are not supported by the "
+                    "bake yet (sun and point lights are); hide it from render to bake without it")
+
+
+def _world(scene):
+    world = scene.world
+    if world is None:
+        return None
+    if not world.use_nodes or world.node_tree is None:
+        return np.array(world.color[:3], dtype=np.float64)
+    output = next((n for n in world.node_tree.nodes if n.type == 'OUTPUT_WORLD' and n.is_active_output), None)
+    if output is None or not output.inputs["Surface"].is_linked:
+        return None
+    node = output.inputs["Surface"].links[0].from_node
+    if node.type != 'BACKGROUND':
+        raise BakeError(f"world '{world.name}': only a Background shader is supported by the bake yet")
+    if node.inputs["Color"].is_linked:
+        raise BakeError(f"world '{world.name}': a textured background (HDRI, sky) is not supported by the "
+                        "bake yet; use a plain Background colour")
+    colour = np.array(node.inputs["Color"].default_value[:3], dtype=np.float64)
+    return colour * float(node.inputs["Strength"].default_value)
+
+
+def read_bake_scene(depsgraph) -> BakeScene:
+    """BakeScene of everything visible to render in the evaluated depsgraph."""
+    tris, albedo, emission, lights = [], [], [], []
+    for instance in depsgraph.object_instances:
+        obj = instance.object
+        if obj.type == 'LIGHT':
+            lights.append(_light(instance))
+        elif obj.type == 'MESH' and not obj.hide_render:
+            part = _instance_triangles(instance)
+            if part is not None:
+                tris.append(part[0])
+                albedo.append(part[1])
+                emission.append(part[2])
+    if not tris:
+        raise BakeError("nothing to bake: the scene has no mesh visible to render")
+    return BakeScene(np.concatenate(tris), np.concatenate(albedo), np.concatenate(emission),
+                     lights, _world(depsgraph.scene))
