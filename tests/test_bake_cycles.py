@@ -55,3 +55,43 @@ def test_emissive_mesh(floor):
     cc.plane("Lamp", (0, 0, 1.0), 0.8, cc.material("Lamp", (0.0, 0.0, 0.0), emission=(1.0, 0.9, 0.7, 8.0)),
              rotation=(math.pi, 0, 0))
     cc.assert_agree(cc.compare([floor], samples=128, bounces=1))
+
+
+def test_cornell_box_interreflection(extension):
+    """A closed room with a red and a green wall, lit by a ceiling lamp (emissive) and a point
+    light: three diffuse bounces in both renderers."""
+    cc.clear_scene()
+    white, red, green = (cc.material(n, c) for n, c in
+                         (("White", (0.75, 0.75, 0.75)), ("Red", (0.7, 0.1, 0.08)), ("Green", (0.1, 0.6, 0.12))))
+    floor = cc.plane("Floor", (0, 0, 0), 2.0, white)
+    cc.plane("Ceiling", (0, 0, 2.0), 2.0, white, rotation=(math.pi, 0, 0))
+    cc.plane("Back", (0, 1.0, 1.0), 2.0, white, rotation=(math.pi / 2, 0, 0))
+    cc.plane("Front", (0, -1.0, 1.0), 2.0, white, rotation=(-math.pi / 2, 0, 0))
+    cc.plane("Left", (-1.0, 0, 1.0), 2.0, red, rotation=(0, math.pi / 2, 0))
+    cc.plane("Right", (1.0, 0, 1.0), 2.0, green, rotation=(0, -math.pi / 2, 0))
+    cc.plane("Lamp", (0, 0, 1.98), 0.6, cc.material("Lamp", (0, 0, 0), emission=(1, 1, 1, 6.0)),
+             rotation=(math.pi, 0, 0))
+    cc.light('POINT', location=(0.4, -0.3, 1.5), energy=60.0, shadow_soft_size=0.0)
+    cc.unwrap([floor])
+    r = cc.compare([floor], samples=128, bounces=3, cycles_samples=128)
+    assert r["mean"] > 0.5
+    red_side = r["points"].position[r["keep"], 0] < -0.6
+    assert (r["ours"][red_side, 0] > r["ours"][red_side, 1]).mean() > 0.9   # colour bleeding
+    cc.assert_agree(r, allowance=0.02)
+
+
+def test_box_pushed_into_the_floor_leaves_no_light_under_it(extension):
+    """The leak fixture of the unwrap/raster issue, baked: a box sunk into a sunlit floor."""
+    cc.clear_scene()
+    floor = cc.plane("Floor", (0, 0, 0), 4.0, cc.material("Floor"))
+    cc.box("Sunk", (0.0, 0.0, 0.2), (1.0, 1.0, 1.0), cc.material("Box"))
+    cc.light('SUN', rotation=(math.radians(40), 0, 0), energy=3.0)
+    cc.world((0.3, 0.4, 0.6))
+    cc.unwrap([floor])
+    points, iz, _ = cc.ours([floor], samples=32, bounces=2, seed=3)
+    x, y = np.abs(points.position[:, 0]), np.abs(points.position[:, 1])
+    under = np.maximum(x, y) < 0.5 - 0.5 * points.texel_size     # any part of the texel under the box
+    outside = np.maximum(x, y) > 0.5 + 2 * points.texel_size
+    assert under.sum() > 100
+    assert iz[under].max() == 0.0
+    assert iz[outside].min() > 0.0

@@ -1,0 +1,86 @@
+"""The tracer on its own (no Blender): furnace, exact delta lights, determinism, threads,
+progress, cancel, buried texels."""
+import numpy as np
+import pytest
+
+from hhd_lightmapper.core import bakepoints, hhd, rays, sh, tracer, unwrap
+from hhd_lightmapper.core.errors import BakeError
+from hhd_lightmapper.core.scene import BakeScene, SunLight
+import meshes
+
+
+def floor_points(extra_v=None, extra_f=None):
+    v, f = meshes.plane(2.0)
+    res = unwrap.unwrap([unwrap.UnwrapMesh("floor", v, f)], unwrap.UnwrapSettings(resolution=256))
+    surface = bakepoints.SurfaceTriangles(v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float),
+                                          np.zeros(2, int), np.full((2, 3), 0.5))
+    tris = v[f] if extra_v is None else np.concatenate([v[f], extra_v[extra_f]])
+    return bakepoints.build(surface, 256, 256, occluders=rays.RayScene(tris)), tris
+
+
+def test_furnace_gives_exact_irradiance_and_the_masked_hemisphere_sh():
+    points, tris = floor_points()
+    scene = BakeScene(tris, np.full((len(tris), 3), 0.5), world=np.array([1.0, 1.0, 1.0]))
+    result = tracer.bake(points, scene, tracer.BakeSettings(samples=32))
+    np.testing.assert_allclose(hhd.irradz(result.sh, points.normal), 1.0, rtol=1e-12)
+    local = sh.to_local(result.sh, sh.tangent_frames(points.normal))
+    expected = np.zeros(9)
+    expected[0], expected[2] = np.sqrt(np.pi), np.sqrt(3 * np.pi) / 2      # masked constant hemisphere
+    mean = local.mean(axis=0)[:, 0]
+    se = np.sqrt((result.sh_error[:, :, 0] ** 2).sum(axis=0)) / len(points.texel)
+    assert (np.abs(mean - expected) <= 5 * se + 1e-12).all(), (mean, se)
+
+
+def test_unshadowed_sun_is_noise_free_and_exact():
+    points, tris = floor_points()
+    sun = SunLight(np.array([0.6, 0.0, 0.8]), np.array([3.0, 2.0, 1.0]))
+    result = tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5), lights=[sun]),
+                         tracer.BakeSettings(samples=16, bounces=0))
+    np.testing.assert_allclose(hhd.irradz(result.sh, points.normal), np.tile([3.0, 2.0, 1.0], (len(points.texel), 1)) * 0.8 / np.pi,
+                               rtol=1e-9)
+    np.testing.assert_allclose(result.sh, np.tile(sh.evaluate(sun.direction[None])[0][:, None] * sun.irradiance,
+                                                  (len(points.texel), 1, 1)), atol=1e-12)
+
+
+def test_same_seed_same_result_whatever_the_thread_count():
+    wall_v, wall_f = meshes.cube(1.0, centre=(0.0, 0.0, 0.5))
+    points, tris = floor_points(wall_v * [0.2, 1.0, 1.0], wall_f)
+    scene = BakeScene(tris, np.full((len(tris), 3), 0.6), lights=[SunLight(np.array([0.5, 0.1, 0.86]), np.ones(3))],
+                      world=np.array([0.2, 0.3, 0.5]))
+    settings = dict(samples=32, bounces=2, seed=5, chunk_texels=4096)
+    a = tracer.bake(points, scene, tracer.BakeSettings(threads=1, **settings))
+    b = tracer.bake(points, scene, tracer.BakeSettings(threads=2, **settings))
+    np.testing.assert_array_equal(a.sh, b.sh)
+    c = tracer.bake(points, scene, tracer.BakeSettings(threads=2, **{**settings, "seed": 6}))
+    assert not np.array_equal(a.sh, c.sh)
+    assert a.rays > len(points.texel) * 32
+
+
+def test_progress_is_reported_and_cancel_stops_within_a_chunk():
+    points, tris = floor_points()
+    scene = BakeScene(tris, np.full((len(tris), 3), 0.5), world=np.ones(3))
+    seen = []
+    tracer.bake(points, scene, tracer.BakeSettings(samples=32, chunk_texels=8192),
+                progress=lambda f, msg: seen.append((f, msg)))
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
+    assert "pass 2 of 2" in seen[-1][1] and "rays/s" in seen[-1][1]
+    calls = []
+    with pytest.raises(tracer.BakeCancelled):
+        tracer.bake(points, scene, tracer.BakeSettings(samples=64, chunk_texels=8192),
+                    cancel=lambda: calls.append(1) or len(calls) > 2)
+    assert len(calls) == 3
+
+
+def test_buried_texels_bake_black_and_odd_pass_sizes_are_refused():
+    v, f = meshes.cube(1.0)
+    v = v * [0.03, 2.0, 1.2] + [0.0, 0.0, 0.4]
+    points, tris = floor_points(v, f)
+    assert points.buried.any()
+    result = tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5), world=np.ones(3)),
+                         tracer.BakeSettings(samples=16))
+    assert (result.sh[points.buried] == 0).all()
+    clear = np.abs(points.position[:, 0]) > 0.015 + 3 * points.texel_size   # away from the wall
+    assert (hhd.irradz(result.sh, points.normal)[clear] > 0).all()
+    with pytest.raises(BakeError, match="even"):
+        tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5)), tracer.BakeSettings(pass_samples=15))
