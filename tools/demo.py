@@ -8,9 +8,9 @@ Stages, in pipeline order. Each later issue replaces a "pending" stage with the 
   unwrap   bpy.ops.hhd.unwrap(): xatlas lightmap UVs for every mesh in one atlas
   points   lightmap texels -> bake points (position, n_v, albedo, coverage, buried flag),
            atlas.png shows n_v per texel
-  bake     pending: Embree path-traced L2 SH (issue 5); until then the encoder runs on the
-           demo's sky + sun as seen, unoccluded, by a dome of normals
-  encode   HHD IrradZ encoding (core.hhd), error vs the SH irradiance, encoder.png
+  bake     Embree path-traced L2 SH of every texel (sun + sky, 2 bounces), irradz.png
+  encode   HHD IrradZ encoding of the baked SH (core.hhd), error vs the SH irradiance;
+           encoder.png compares HHD and the baseline over one texel's hemisphere
   output   pending: EXR + JSON sidecar (issue 6);  preview: pending: EEVEE node groups (issue 7)
 Exits 0 and prints a summary; writes summary.json.
 """
@@ -31,6 +31,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "demo")
     ap.add_argument("--render-samples", type=int, default=32)
+    ap.add_argument("--samples", type=int, default=32, help="bake samples per texel")
     args = ap.parse_args()
     out = args.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -71,10 +72,14 @@ def main() -> int:
     timings["points"] = time.perf_counter() - t
     stages["points"] = (f"{len(points.texel)} texels, {int(points.buried.sum())} buried, "
                         f"ray offset {points.offset * 1000:.3f} mm -> atlas.png")
-    stages["bake"] = "pending (issue 5: Embree SH bake); encoder runs on unoccluded demo lighting"
+    t = time.perf_counter()
+    baked = demo_bake(bpy, points, out / "irradz.png", args.samples)
+    timings["bake"] = time.perf_counter() - t
+    stages["bake"] = (f"{args.samples} samples/texel, {baked.rays / 1e6:.1f} M rays, "
+                      f"{baked.rays / baked.seconds / 1e6:.2f} M rays/s -> irradz.png")
 
     t = time.perf_counter()
-    encoded = encode_demo_lighting(out / "encoder.png")
+    encoded = encode_baked(baked.sh, points, out / "encoder.png")
     timings["encode"] = time.perf_counter() - t
     stages["encode"] = (f"{encoded['texels']} texels, hemispherical RMSE {encoded['rmse_percent']:.2f}% of I_z "
                         f"(optimal-linear + sphere Gram baseline: {encoded['baseline_rmse_percent']:.2f}%) -> encoder.png")
@@ -122,43 +127,58 @@ def render_reference(bpy, path: Path, samples: int) -> None:
     bpy.ops.render.render(write_still=True)
 
 
-def encode_demo_lighting(png: Path) -> dict:
-    """Encode the demo's sky (uniform background) + sun for a dome of normals and plot
-    SH irradiance | HHD | error over the upper hemisphere of a normal tilted towards the sun."""
-    import numpy as np
-    from hhd_lightmapper.core import hhd, synthetic
-    import demo_scene
-
-    sky = np.asarray(demo_scene.SKY_COLOUR)
-    env = synthetic.Environment(
-        "demo sky + sun", lambda d: np.broadcast_to(sky, d.shape).copy(),
-        # Cycles sun strength is irradiance in W/m²; DESIGN.md irradiance is E/π.
-        [synthetic.DeltaLight(demo_scene.sun_direction(), np.full(3, 5.0 / np.pi))])
-    rng = np.random.default_rng(0)
-    normals = synthetic.random_normals(rng, 4000)
-    normals[:, 2] = np.abs(normals[:, 2])
-    s = synthetic.hemisphere_sh(env, normals)
-    p = hhd.encode(s, normals)
-    base = hhd.encode(s, normals, direction="optimal_linear", gram="sphere")
-    lum = hhd.LUMINANCE
-    mean_iz = (p.irradz @ lum).mean()
-    rmse = (hhd.hemispherical_rmse(s, normals, p) @ lum).mean() / mean_iz
-    rmse_base = (hhd.hemispherical_rmse(s, normals, base) @ lum).mean() / mean_iz
-    plot_hemisphere(env, png)
-    return {"texels": len(normals), "rmse_percent": 100 * rmse, "baseline_rmse_percent": 100 * rmse_base}
-
-
-def plot_hemisphere(env, png: Path, size: int = 96) -> None:
-    """Images over the upper hemisphere (orthographic view from above) of one texel."""
+def demo_bake(bpy, points, png: Path, samples: int):
+    """Bake the demo atlas with the extension's tracer; plot I_z (tone-mapped) per texel."""
     import numpy as np
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from hhd_lightmapper.core import hhd, sh, synthetic
+    from hhd_lightmapper.core import hhd, tracer
+    from hhd_lightmapper.operators import scene_data
 
-    n_v = np.array([[0.4, 0.1, 0.91]])
-    n_v /= np.linalg.norm(n_v)
-    s = synthetic.hemisphere_sh(env, n_v)
+    scene = scene_data.read_bake_scene(bpy.context.evaluated_depsgraph_get())
+    last = [0.0]
+
+    def progress(fraction, message):
+        if fraction - last[0] >= 0.25 or fraction >= 1.0:
+            print(f"  bake {100 * fraction:5.1f}%  {message}", flush=True)
+            last[0] = fraction
+    result = tracer.bake(points, scene, tracer.BakeSettings(samples=samples, bounces=2), progress=progress)
+    iz = hhd.irradz(result.sh, points.normal)
+    image = points.image(iz / (1.0 + iz))
+    plt.imsave(png, np.clip(image[::-1], 0, 1))
+    return result
+
+
+def encode_baked(sh, points, png: Path) -> dict:
+    """Encode the baked SH; measure the hemispherical error on a sample of texels."""
+    import numpy as np
+    from hhd_lightmapper.core import hhd
+
+    p = hhd.encode(sh, points.normal)
+    rng = np.random.default_rng(0)
+    lit = np.nonzero(p.irradz @ hhd.LUMINANCE > 1e-3)[0]
+    pick = rng.choice(lit, size=min(4000, len(lit)), replace=False)
+    base = hhd.encode(sh[pick], points.normal[pick], direction="optimal_linear", gram="sphere")
+    lum = hhd.LUMINANCE
+    mean_iz = (p.irradz[pick] @ lum).mean()
+    sub = hhd.HHDParams(p.irradz[pick], p.ambient_weight[pick], p.direction[pick])
+    rmse = (hhd.hemispherical_rmse(sh[pick], points.normal[pick], sub) @ lum).mean() / mean_iz
+    rmse_base = (hhd.hemispherical_rmse(sh[pick], points.normal[pick], base) @ lum).mean() / mean_iz
+    brightest = pick[np.argmax(p.irradz[pick] @ lum)]
+    plot_hemisphere(sh[brightest:brightest + 1], points.normal[brightest:brightest + 1], png)
+    return {"texels": len(points.texel), "rmse_percent": 100 * rmse, "baseline_rmse_percent": 100 * rmse_base}
+
+
+def plot_hemisphere(s, n_v, png: Path, size: int = 96) -> None:
+    """Images over the upper hemisphere (orthographic view from above) of one texel with
+    radiance SH s (1, 9, 3) and vertex normal n_v (1, 3)."""
+    import numpy as np
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from hhd_lightmapper.core import hhd, sh
+
     frames = sh.tangent_frames(n_v)[0]
     u = np.linspace(-1, 1, size)
     x, y = np.meshgrid(u, -u)
@@ -182,7 +202,7 @@ def plot_hemisphere(env, png: Path, size: int = 96) -> None:
         ax.imshow(img, vmin=0, vmax=vmax if "error" not in title else vmax * 0.25, cmap="magma")
         ax.set_title(title, fontsize=8)
         ax.axis("off")
-    fig.suptitle("Demo lighting over the hemisphere of one texel (luminance, view from above the normal)", fontsize=9)
+    fig.suptitle("Baked lighting over the hemisphere of the demo's brightest texel (luminance, view from above the normal)", fontsize=9)
     fig.tight_layout()
     fig.savefig(png, dpi=100)
 
