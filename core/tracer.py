@@ -143,12 +143,11 @@ class _Tracer:
         dirs = np.einsum("rij,rj->ri", self.frames[idx][texel], local)
         origins = self.points.sample_origins(rng, idx, k)
         radiance = self._path_radiance(rng, origins, dirs)               # (n·k, 3)
-        mixture = _sh.accumulate(texel, dirs, radiance / (pdf * k)[:, None], len(idx))
+        mixture = _sh.accumulate_grouped(dirs, radiance / (pdf * k)[:, None], k)
         # I_z's coefficient (band 1 along n_v) from the cosine half alone: zero variance for
         # constant radiance (the furnace test is exact), lower variance in general.
-        cos_half = np.tile(_cosine_samples(k), len(idx))
-        cosine = _sh.accumulate(texel[cos_half], dirs[cos_half],
-                                radiance[cos_half] * (np.pi / (local[cos_half, 2] * (k // 2)))[:, None], len(idx))
+        odd = slice(1, None, 2)                                          # the cosine samples
+        cosine = _sh.accumulate_grouped(dirs[odd], radiance[odd] * (np.pi / (local[odd, 2] * (k // 2)))[:, None], k // 2)
         estimate = _replace_zonal_band1(mixture, cosine, self.points.normal[idx])
         return estimate + self._direct_sh(rng, idx, texel, origins, k)
 
@@ -245,8 +244,9 @@ class _Tracer:
             above = np.einsum("ri,ri->r", dirs, normal) > 0.0
             if not above.any():
                 continue
-            vis = self._unoccluded(origins[above], dirs[above], dist[above])
-            out += _sh.accumulate(texel[above], dirs[above], value[above] * (vis / k)[:, None], len(idx))
+            vis = np.zeros(len(origins))
+            vis[above] = self._unoccluded(origins[above], dirs[above], dist[above])
+            out += _sh.accumulate_grouped(dirs, value * (vis / k)[:, None], k)
         return out
 
 
@@ -259,11 +259,6 @@ def _replace_zonal_band1(sh_all: np.ndarray, sh_from: np.ndarray, n: np.ndarray)
     out = sh_all.copy()
     out[:, 1], out[:, 2], out[:, 3] = -v[:, 1], v[:, 2], -v[:, 0]
     return out
-
-
-def _cosine_samples(k: int) -> np.ndarray:
-    """Which of a texel's k samples use the cosine mapping (the odd ones; the rest are uniform)."""
-    return np.arange(k) % 2 == 1
 
 
 def _mixture_directions(rng, n_texels: int, k: int):

@@ -94,3 +94,10 @@ def test_local_frame_round_trip_and_zenith_value(rng):
     np.testing.assert_allclose(sh.to_world(local, frames), coeffs, atol=1e-12)
     z = np.tile([0.0, 0.0, 1.0], (30, 1))
     np.testing.assert_allclose(sh.evaluate_sh(local, z), sh.evaluate_sh(coeffs, n), atol=1e-12)
+
+
+def test_grouped_accumulation_equals_the_scatter(rng):
+    dirs = quad.random_dirs(rng, 12 * 8)
+    values = rng.random((12 * 8, 3))
+    texel = np.repeat(np.arange(12), 8)
+    np.testing.assert_allclose(sh.accumulate_grouped(dirs, values, 8), sh.accumulate(texel, dirs, values, 12), atol=1e-12)
