@@ -103,6 +103,32 @@ def _material_albedo(mat) -> tuple:
     return tuple(mat.diffuse_color[:3])
 
 
+def read_triangles(mesh, matrix_world):
+    """World-space triangles of a mesh: (positions (T, 3, 3), loop indices (T, 3), material
+    index (T,)), or None when it has no faces."""
+    mesh.calc_loop_triangles()
+    n_tri = len(mesh.loop_triangles)
+    if n_tri == 0:
+        return None
+    loops = np.zeros(n_tri * 3, np.int64)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    verts = np.zeros(n_tri * 3, np.int64)
+    mesh.loop_triangles.foreach_get("vertices", verts)
+    mat_index = np.zeros(n_tri, np.int64)
+    mesh.loop_triangles.foreach_get("material_index", mat_index)
+    co = np.zeros(len(mesh.vertices) * 3)
+    mesh.vertices.foreach_get("co", co)
+    m = np.array(matrix_world, dtype=np.float64)
+    world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+    return world[verts].reshape(-1, 3, 3), loops.reshape(-1, 3), mat_index
+
+
+def slot_albedo(obj, mat_index):
+    """Constant albedo (T, 3) per triangle from the object's material slots."""
+    albedo = np.array([_material_albedo(s.material) for s in obj.material_slots] or [(0.8, 0.8, 0.8)])
+    return albedo[np.minimum(mat_index, len(albedo) - 1)]
+
+
 def read_surface(objects, uv_layer: str, depsgraph):
     """SurfaceTriangles of the evaluated meshes of `objects` (modifiers applied, world space):
     positions, corner normals (smooth/flat/custom as Blender shades them), lightmap UVs, object
@@ -115,29 +141,19 @@ def read_surface(objects, uv_layer: str, depsgraph):
         try:
             if uv_layer not in mesh.uv_layers:
                 raise BakeError(f"'{obj.name}' has no '{uv_layer}' UV layer: run Unwrap first")
-            mesh.calc_loop_triangles()
-            n_tri = len(mesh.loop_triangles)
-            loops = np.zeros(n_tri * 3, np.int64)
-            mesh.loop_triangles.foreach_get("loops", loops)
-            verts = np.zeros(n_tri * 3, np.int64)
-            mesh.loop_triangles.foreach_get("vertices", verts)
-            mat_index = np.zeros(n_tri, np.int64)
-            mesh.loop_triangles.foreach_get("material_index", mat_index)
-            co = np.zeros(len(mesh.vertices) * 3)
-            mesh.vertices.foreach_get("co", co)
+            tris = read_triangles(mesh, evaluated.matrix_world)
+            if tris is None:
+                continue
+            positions, loops, mat_index = tris
             normals = np.zeros(len(mesh.loops) * 3)
             mesh.corner_normals.foreach_get("vector", normals)
             uv = np.zeros(len(mesh.loops) * 2)
             mesh.uv_layers[uv_layer].data.foreach_get("uv", uv)
-            m = np.array(evaluated.matrix_world, dtype=np.float64)
-            normal_matrix = np.linalg.inv(m[:3, :3]).T
-            world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+            normal_matrix = np.linalg.inv(np.array(evaluated.matrix_world, dtype=np.float64)[:3, :3]).T
             n_world = normals.reshape(-1, 3) @ normal_matrix.T
             n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
-            albedo = np.array([_material_albedo(s.material) for s in evaluated.material_slots] or [(0.8, 0.8, 0.8)])
-            parts.append((world[verts].reshape(-1, 3, 3), n_world[loops].reshape(-1, 3, 3),
-                          uv.reshape(-1, 2)[loops].reshape(-1, 3, 2), np.full(n_tri, index),
-                          albedo[np.minimum(mat_index, len(albedo) - 1)]))
+            parts.append((positions, n_world[loops], uv.reshape(-1, 2)[loops], np.full(len(loops), index),
+                          slot_albedo(evaluated, mat_index)))
         finally:
             evaluated.to_mesh_clear()
     return SurfaceTriangles(*(np.concatenate(x) for x in zip(*parts)))

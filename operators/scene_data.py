@@ -11,7 +11,7 @@ import numpy as np
 
 from ..core.errors import BakeError
 from ..core.scene import BakeScene, PointLight, SunLight
-from .mesh_data import _material_albedo
+from .mesh_data import read_triangles, slot_albedo
 
 
 def _material_emission(mat) -> tuple:
@@ -39,23 +39,12 @@ def _instance_triangles(instance):
     obj = instance.object
     mesh = obj.to_mesh()
     try:
-        mesh.calc_loop_triangles()
-        n_tri = len(mesh.loop_triangles)
-        if n_tri == 0:
+        tris = read_triangles(mesh, instance.matrix_world)
+        if tris is None:
             return None
-        verts = np.zeros(n_tri * 3, np.int64)
-        mesh.loop_triangles.foreach_get("vertices", verts)
-        mat_index = np.zeros(n_tri, np.int64)
-        mesh.loop_triangles.foreach_get("material_index", mat_index)
-        co = np.zeros(len(mesh.vertices) * 3)
-        mesh.vertices.foreach_get("co", co)
-        m = np.array(instance.matrix_world, dtype=np.float64)
-        world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
-        mats = [s.material for s in obj.material_slots] or [None]
-        albedo = np.array([_material_albedo(mt) for mt in mats])
-        emission = np.array([_material_emission(mt) for mt in mats])
-        pick = np.minimum(mat_index, len(mats) - 1)
-        return world[verts].reshape(-1, 3, 3), albedo[pick], emission[pick]
+        positions, _, mat_index = tris
+        emission = np.array([_material_emission(s.material) for s in obj.material_slots] or [(0.0, 0.0, 0.0)])
+        return positions, slot_albedo(obj, mat_index), emission[np.minimum(mat_index, len(emission) - 1)]
     finally:
         obj.to_mesh_clear()
 

@@ -78,14 +78,20 @@ def light(kind, location=(0, 0, 0), rotation=(0, 0, 0), energy=1.0, **props):
     return obj
 
 
-def unwrap(receivers):
+def select(objs):
+    """Select exactly `objs` (objects just linked included) and make the first active."""
     import bpy
     bpy.context.view_layer.update()
     for o in bpy.context.view_layer.objects:
         o.select_set(False)
-    for o in receivers:
+    for o in objs:
         o.select_set(True)
-    bpy.context.view_layer.objects.active = receivers[0]
+    bpy.context.view_layer.objects.active = objs[0]
+
+
+def unwrap(receivers):
+    import bpy
+    select(receivers)
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
 
 
@@ -118,9 +124,7 @@ def cycles(receivers, points, samples, bounces, seed):
             node.name = "hhd_bake_target"
             node.image = image
             mat.node_tree.nodes.active = node
-    for o in bpy.context.view_layer.objects:
-        o.select_set(o in receivers)
-    bpy.context.view_layer.objects.active = receivers[0]
+    select(receivers)
     bpy.ops.object.bake(type='DIFFUSE', pass_filter={'DIRECT', 'INDIRECT'}, margin=0, use_clear=True,
                         uv_layer=LAYER)
     px = np.array(image.pixels[:], dtype=np.float64).reshape(RES * RES, 4)[:, :3]

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper.core import raster
+from cycles_compare import select
 
 pytestmark = pytest.mark.bpy
 LAYER = "HHD_Lightmap"
@@ -28,16 +29,6 @@ def add(op, **kw):
     import bpy
     op(**kw)
     return bpy.context.active_object
-
-
-def select(objs):
-    import bpy
-    bpy.context.view_layer.update()
-    for o in bpy.context.view_layer.objects:
-        o.select_set(False)
-    for o in objs:
-        o.select_set(True)
-    bpy.context.view_layer.objects.active = objs[0]
 
 
 def uv_triangles(obj, name=LAYER, evaluated=False):
