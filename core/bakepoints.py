@@ -33,7 +33,7 @@ class SurfaceTriangles:
     positions (T, 3, 3) world space, metres;  normals (T, 3, 3) vertex normals, world space;
     uv (T, 3, 2) lightmap UVs in [0, 1]²;  object_index (T,) int;  albedo (T, 3) constant
     albedo per triangle (linear RGB); optional textures: texture_index (T,) int (-1: constant),
-    texture_uv (T, 3, 2) the material's own UVs, textures [ (H, W, 3) float arrays ] (linear).
+    texture_uv (T, 3, 2) the material's own UVs, textures [core.textures.Texture].
     """
     positions: np.ndarray
     normals: np.ndarray
@@ -154,22 +154,8 @@ def _albedo(surface: SurfaceTriangles, tri: np.ndarray, bary: np.ndarray) -> np.
     for k, image in enumerate(surface.textures):
         rows = np.nonzero(tex_index == k)[0]
         if len(rows):
-            albedo[rows] = sample_bilinear(np.asarray(image, dtype=np.float64), uv[rows])[:, :3]
+            albedo[rows] = image.sample(uv[rows])
     return albedo
-
-
-def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear lookup with repeat wrapping, Blender's convention: image `(H, W, C)` with row 0
-    at v = 0 (bottom), texel centres at (i + 0.5)/W. uv `(P, 2)` -> `(P, C)`."""
-    h, w = image.shape[:2]
-    x = uv[:, 0] * w - 0.5
-    y = uv[:, 1] * h - 0.5
-    x0, y0 = np.floor(x), np.floor(y)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    xs, ys = (x0 % w, (x0 + 1) % w), (y0 % h, (y0 + 1) % h)
-    return ((1 - fx) * (1 - fy) * image[ys[0], xs[0]] + fx * (1 - fy) * image[ys[0], xs[1]]
-            + (1 - fx) * fy * image[ys[1], xs[0]] + fx * fy * image[ys[1], xs[1]])
 
 
 def _probe_directions(n: int) -> np.ndarray:

@@ -35,17 +35,22 @@ class RayScene:
         self._mesh = TriangleMesh(self._scene, tri, faces)
         self.n_triangles = len(faces)
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None):
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None,
+                  barycentrics: bool = False):
         """Closest hits. Returns (t (R,) float32 distance or inf, prim (R,) int32 or -1,
-        ng (R, 3) float32 unnormalised geometric normal, CCW winding)."""
+        ng (R, 3) float32 unnormalised geometric normal, CCW winding), plus (u, v) (R,) with
+        hit = (1-u-v)·p0 + u·p1 + v·p2 when `barycentrics`."""
         o = np.ascontiguousarray(origins, dtype=np.float32)
         d = np.ascontiguousarray(directions, dtype=np.float32)
         if len(o) == 0:
-            return np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros((0, 3), np.float32)
+            empty = (np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros((0, 3), np.float32))
+            return empty + (np.zeros(0, np.float32), np.zeros(0, np.float32)) if barycentrics else empty
         dists = None
         if tmax is not None:
             dists = np.array(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (len(o),)))  # run() writes it
         out = self._scene.run(o, d, dists=dists, output=True)
         prim = out["primID"]
         t = np.where(prim >= 0, out["tfar"], np.inf).astype(np.float32)
+        if barycentrics:
+            return t, prim, out["Ng"], out["u"], out["v"]
         return t, prim, out["Ng"]

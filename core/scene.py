@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+
 @dataclass
 class SunLight:
     """direction (3,) unit, towards the sun; irradiance (3,) W/m²; angle: angular diameter, rad."""
@@ -46,13 +47,33 @@ class PointLight:
 @dataclass
 class BakeScene:
     """triangles (T, 3, 3) world space, all geometry that casts shadows or reflects light;
-    albedo (T, 3) linear RGB in [0, 1]; emission (T, 3) radiance, emitted on both sides;
-    lights: SunLight / PointLight; world: background radiance (3,) or None (black)."""
+    albedo (T, 3) linear RGB in [0, 1] (used where a triangle has no texture); optional texture
+    albedo: texture_index (T,) int (-1: none), texture_uv (T, 3, 2), textures [textures.Texture];
+    emission (T, 3) radiance, emitted on both sides; lights: SunLight / PointLight; world:
+    background radiance (3,) or None (black); notes: what the extraction approximated."""
     triangles: np.ndarray
     albedo: np.ndarray
     emission: np.ndarray | None = None
     lights: list = field(default_factory=list)
     world: np.ndarray | None = None
+    texture_index: np.ndarray | None = None
+    texture_uv: np.ndarray | None = None
+    textures: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+
+    def albedo_at(self, prim: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Albedo (R, 3) at hit points given by triangle and barycentrics (u, v)."""
+        out = self.albedo[prim]
+        if self.texture_index is None or not self.textures:
+            return out
+        tex = self.texture_index[prim]
+        for k, image in enumerate(self.textures):
+            rows = np.nonzero(tex == k)[0]
+            if len(rows):
+                uv = self.texture_uv[prim[rows]]
+                w = np.stack([1.0 - u[rows] - v[rows], u[rows], v[rows]], axis=1)
+                out[rows] = image.sample(np.einsum("rk,rki->ri", w, uv))
+        return out
 
     def __post_init__(self):
         self.triangles = np.asarray(self.triangles, dtype=np.float64)

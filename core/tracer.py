@@ -129,9 +129,9 @@ class _Tracer:
         with self._lock:
             self.rays += int(n)
 
-    def _intersect(self, o, d, tmax=None):
+    def _intersect(self, o, d, tmax=None, barycentrics=False):
         self._count(len(o))
-        return self.rays_scene.intersect(o, d, tmax)
+        return self.rays_scene.intersect(o, d, tmax, barycentrics)
 
     # ---- one pass over one chunk: the Monte Carlo part ------------------------------------
     def trace_pass(self, pass_index: int, chunk_index: int, idx: np.ndarray) -> np.ndarray:
@@ -159,12 +159,12 @@ class _Tracer:
         throughput = np.ones((len(origins), 3))
         o, d = origins, dirs
         for bounce in range(self.settings.bounces + 1):
-            t, prim, ng = self._intersect(o, d)
+            t, prim, ng, bu, bv = self._intersect(o, d, barycentrics=True)
             miss = prim < 0
             if scene.world is not None and miss.any():
                 radiance[live[miss]] += throughput[miss] * scene.world
             hit = ~miss
-            live, throughput, o, d, t, prim, ng = (a[hit] for a in (live, throughput, o, d, t, prim, ng))
+            live, throughput, o, d, t, prim, ng, bu, bv = (a[hit] for a in (live, throughput, o, d, t, prim, ng, bu, bv))
             if len(live) == 0:
                 break
             if scene.emission is not None:
@@ -174,7 +174,7 @@ class _Tracer:
             n = ng / np.linalg.norm(ng, axis=1, keepdims=True)
             n *= np.where(np.einsum("ri,ri->r", n, d) > 0.0, -1.0, 1.0)[:, None]   # face the ray: two-sided
             x = o + d * t[:, None].astype(np.float64) + n * self.offset
-            throughput = throughput * scene.albedo[prim]
+            throughput = throughput * scene.albedo_at(prim, bu.astype(np.float64), bv.astype(np.float64))
             radiance[live] += throughput * self._irradiance_at(rng, x, n)
             # continue with a cosine-distributed direction: BRDF·cos/pdf = albedo (already applied)
             local = _cosine_directions(rng, len(live))

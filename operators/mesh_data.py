@@ -91,16 +91,83 @@ def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> int:
     return len(np.unique(poly[mismatch.reshape(-1, 3).any(axis=1)]))
 
 
-def _material_albedo(mat) -> tuple:
-    """Constant linear RGB albedo of a material: the Principled BSDF's unlinked Base Color, else
-    the viewport colour. (Texture albedo comes with the scene extraction of the bake.)"""
+def material_albedo_source(mat):
+    """Where a material's albedo comes from: ('constant', rgb, note) or ('texture', (image, uv_map
+    name or ''), None). A Principled BSDF's unlinked Base Color is a constant; linked straight
+    from an Image Texture it is that image through the texture's own UV map; any other setup
+    falls back to the viewport colour with a note saying so. For a texture the value is the
+    (Image Texture node, UV map name) pair."""
     if mat is None:
-        return (0.8, 0.8, 0.8)
-    if mat.use_nodes and mat.node_tree:
-        for node in mat.node_tree.nodes:
-            if node.type == 'BSDF_PRINCIPLED' and not node.inputs["Base Color"].is_linked:
-                return tuple(node.inputs["Base Color"].default_value[:3])
-    return tuple(mat.diffuse_color[:3])
+        return 'constant', (0.8, 0.8, 0.8), None
+    bsdf = None
+    if mat.node_tree is not None:
+        bsdf = next((n for n in mat.node_tree.nodes if n.type == 'BSDF_PRINCIPLED'), None)
+    if bsdf is None:
+        return 'constant', tuple(mat.diffuse_color[:3]), (
+            f"material '{mat.name}': no Principled BSDF; baking with its viewport colour")
+    base = bsdf.inputs["Base Color"]
+    if not base.is_linked:
+        return 'constant', tuple(base.default_value[:3]), None
+    node = base.links[0].from_node
+    if node.type == 'TEX_IMAGE' and node.image is not None:
+        vector = node.inputs["Vector"]
+        uv_map = ''
+        if vector.is_linked and vector.links[0].from_node.type == 'UVMAP':
+            uv_map = vector.links[0].from_node.uv_map
+        return 'texture', (node, uv_map), None
+    return 'constant', tuple(mat.diffuse_color[:3]), (
+        f"material '{mat.name}': Base Color comes from a {node.type.replace('_', ' ').lower()} node; "
+        "baking with its viewport colour")
+
+
+class TextureCache:
+    """Image Texture nodes read once as core Textures (linear pixels, interpolation, extension),
+    shared by every triangle using them."""
+
+    def __init__(self):
+        self.images: list = []
+        self._index: dict = {}
+
+    def add(self, node) -> int:
+        from ..core.textures import Texture, srgb_to_linear
+        image = node.image
+        key = (image.name, node.interpolation, node.extension)
+        if key not in self._index:
+            w, h = image.size
+            if w == 0 or h == 0:
+                raise BakeError(f"image '{image.name}' has no pixels (missing file?)")
+            px = np.zeros(w * h * 4, dtype=np.float32)
+            image.pixels.foreach_get(px)
+            rgb = px.reshape(h, w, 4)[..., :3].astype(np.float64)
+            if image.colorspace_settings.name == 'sRGB' and not image.is_float:
+                rgb = srgb_to_linear(rgb)
+            self._index[key] = len(self.images)
+            self.images.append(Texture(rgb, node.interpolation, node.extension))
+        return self._index[key]
+
+
+def triangle_albedo(obj, mesh, loops, mat_index, cache: TextureCache, notes: list):
+    """(albedo (T, 3), texture_index (T,), texture_uv (T, 3, 2)) of a mesh's triangles."""
+    slots = [s.material for s in obj.material_slots] or [None]
+    constant, texture, uv_name = [], [], []
+    for mat in slots:
+        kind, value, note = material_albedo_source(mat)
+        if note and note not in notes:
+            notes.append(note)
+        constant.append(value if kind == 'constant' else (0.8, 0.8, 0.8))
+        texture.append(cache.add(value[0]) if kind == 'texture' else -1)
+        uv_name.append(value[1] if kind == 'texture' else None)
+    pick = np.minimum(mat_index, len(slots) - 1)
+    texture_uv = np.zeros(loops.shape + (2,))
+    for name in {n for n in uv_name if n is not None}:
+        layer = mesh.uv_layers.get(name) if name else next((l for l in mesh.uv_layers if l.active_render), None)
+        if layer is None:
+            raise BakeError(f"'{obj.name}' has no UV map '{name or '(render)'}' for its albedo texture")
+        uv = np.zeros(len(mesh.loops) * 2)
+        layer.data.foreach_get("uv", uv)
+        rows = np.isin(pick, [i for i, n in enumerate(uv_name) if n == name])
+        texture_uv[rows] = uv.reshape(-1, 2)[loops[rows]]
+    return np.array(constant)[pick], np.array(texture)[pick], texture_uv
 
 
 def read_triangles(mesh, matrix_world):
@@ -123,17 +190,13 @@ def read_triangles(mesh, matrix_world):
     return world[verts].reshape(-1, 3, 3), loops.reshape(-1, 3), mat_index
 
 
-def slot_albedo(obj, mat_index):
-    """Constant albedo (T, 3) per triangle from the object's material slots."""
-    albedo = np.array([_material_albedo(s.material) for s in obj.material_slots] or [(0.8, 0.8, 0.8)])
-    return albedo[np.minimum(mat_index, len(albedo) - 1)]
-
-
-def read_surface(objects, uv_layer: str, depsgraph):
+def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None = None, notes: list | None = None):
     """SurfaceTriangles of the evaluated meshes of `objects` (modifiers applied, world space):
     positions, corner normals (smooth/flat/custom as Blender shades them), lightmap UVs, object
-    index and constant albedo per triangle."""
+    index and albedo (constant or image texture) per triangle. `notes` collects fallbacks."""
     from ..core.bakepoints import SurfaceTriangles
+    cache = cache or TextureCache()
+    notes = notes if notes is not None else []
     parts = []
     for index, obj in enumerate(objects):
         evaluated = obj.evaluated_get(depsgraph)
@@ -152,8 +215,11 @@ def read_surface(objects, uv_layer: str, depsgraph):
             normal_matrix = np.linalg.inv(np.array(evaluated.matrix_world, dtype=np.float64)[:3, :3]).T
             n_world = normals.reshape(-1, 3) @ normal_matrix.T
             n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
+            albedo, tex_index, tex_uv = triangle_albedo(evaluated, mesh, loops, mat_index, cache, notes)
             parts.append((positions, n_world[loops], uv.reshape(-1, 2)[loops], np.full(len(loops), index),
-                          slot_albedo(evaluated, mat_index)))
+                          albedo, tex_index, tex_uv))
         finally:
             evaluated.to_mesh_clear()
-    return SurfaceTriangles(*(np.concatenate(x) for x in zip(*parts)))
+    if not parts:
+        raise BakeError("none of the objects has faces to bake")
+    return SurfaceTriangles(*(np.concatenate(x) for x in zip(*parts)), textures=cache.images)

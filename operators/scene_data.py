@@ -11,7 +11,7 @@ import numpy as np
 
 from ..core.errors import BakeError
 from ..core.scene import BakeScene, PointLight, SunLight
-from .mesh_data import read_triangles, slot_albedo
+from .mesh_data import TextureCache, read_triangles, triangle_albedo
 
 
 def _material_emission(mat) -> tuple:
@@ -34,17 +34,19 @@ def _material_emission(mat) -> tuple:
     return tuple(float(c) * float(strength) for c in colour)
 
 
-def _instance_triangles(instance):
-    """(triangles (T, 3, 3) world space, albedo (T, 3), emission (T, 3)) of one mesh instance."""
+def _instance_triangles(instance, cache, notes):
+    """(triangles (T, 3, 3) world space, albedo (T, 3), texture index (T,), texture uv (T, 3, 2),
+    emission (T, 3)) of one mesh instance."""
     obj = instance.object
     mesh = obj.to_mesh()
     try:
         tris = read_triangles(mesh, instance.matrix_world)
         if tris is None:
             return None
-        positions, _, mat_index = tris
+        positions, loops, mat_index = tris
+        albedo, tex_index, tex_uv = triangle_albedo(obj, mesh, loops, mat_index, cache, notes)
         emission = np.array([_material_emission(s.material) for s in obj.material_slots] or [(0.0, 0.0, 0.0)])
-        return positions, slot_albedo(obj, mat_index), emission[np.minimum(mat_index, len(emission) - 1)]
+        return positions, albedo, tex_index, tex_uv, emission[np.minimum(mat_index, len(emission) - 1)]
     finally:
         obj.to_mesh_clear()
 
@@ -84,18 +86,17 @@ def _world(scene):
 
 def read_bake_scene(depsgraph) -> BakeScene:
     """BakeScene of everything visible to render in the evaluated depsgraph."""
-    tris, albedo, emission, lights = [], [], [], []
+    parts, lights, cache, notes = [], [], TextureCache(), []
     for instance in depsgraph.object_instances:
         obj = instance.object
         if obj.type == 'LIGHT':
             lights.append(_light(instance))
         elif obj.type == 'MESH' and not obj.hide_render:
-            part = _instance_triangles(instance)
+            part = _instance_triangles(instance, cache, notes)
             if part is not None:
-                tris.append(part[0])
-                albedo.append(part[1])
-                emission.append(part[2])
-    if not tris:
+                parts.append(part)
+    if not parts:
         raise BakeError("nothing to bake: the scene has no mesh visible to render")
-    return BakeScene(np.concatenate(tris), np.concatenate(albedo), np.concatenate(emission),
-                     lights, _world(depsgraph.scene))
+    tris, albedo, tex_index, tex_uv, emission = (np.concatenate(x) for x in zip(*parts))
+    return BakeScene(tris, albedo, emission, lights, _world(depsgraph.scene),
+                     texture_index=tex_index, texture_uv=tex_uv, textures=cache.images, notes=notes)

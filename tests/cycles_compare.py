@@ -153,3 +153,26 @@ def assert_agree(r, allowance=0.01):
     tol_bias = 4 * r["se_mean"] + allowance * r["mean"]
     assert abs(r["bias"]) <= tol_bias, (r["bias"], tol_bias, r["mean"])
     assert r["rms"] <= 1.5 * r["noise_rms"] + allowance * r["mean"], (r["rms"], r["noise_rms"], r["mean"])
+
+
+def textured_material(name, left_rgb, right_rgb, uv_map=None, size=8):
+    """Principled BSDF whose Base Color is an sRGB byte image: left half one colour, right half
+    another (values given in sRGB, as an artist paints them), optionally through a UV Map node."""
+    import bpy
+    mat = material(name)
+    image = bpy.data.images.new(name + "_albedo", size, size, float_buffer=False)
+    px = np.zeros((size, size, 4))
+    px[:, : size // 2, :3] = left_rgb
+    px[:, size // 2:, :3] = right_rgb
+    px[..., 3] = 1.0
+    image.pixels.foreach_set(px.astype(np.float32).ravel())
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tex.interpolation = 'Closest'
+    links.new(tex.outputs["Color"], nodes["Principled BSDF"].inputs["Base Color"])
+    if uv_map:
+        uv = nodes.new("ShaderNodeUVMap")
+        uv.uv_map = uv_map
+        links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    return mat

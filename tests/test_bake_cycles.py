@@ -95,3 +95,30 @@ def test_box_pushed_into_the_floor_leaves_no_light_under_it(extension):
     assert under.sum() > 100
     assert iz[under].max() == 0.0
     assert iz[outside].min() > 0.0
+
+
+def test_texture_albedo_reaches_bake_points_and_bounce_light(extension):
+    """A wall textured red | blue (sRGB byte image through its own UV map) lit by the sun bleeds
+    its colours onto the floor as in Cycles; the wall's bake points carry the decoded texture."""
+    import bpy
+    from hhd_lightmapper.core import bakepoints, textures
+    from hhd_lightmapper.operators import mesh_data
+    cc.clear_scene()
+    floor = cc.plane("Floor", (0, 0, 0), 2.0, cc.material("Floor", (0.8, 0.8, 0.8)))
+    wall = cc.plane("Wall", (0, 1.0, 0.6), 2.0, cc.textured_material("Wall", (0.9, 0.1, 0.1), (0.1, 0.2, 0.9), "UVMap"),
+                    rotation=(math.pi / 2, 0, 0))
+    cc.light('SUN', rotation=(math.radians(50), 0, 0), energy=4.0)      # towards +y: lights the wall's floor side
+    cc.unwrap([floor, wall])
+    r = cc.compare([floor], samples=64, bounces=1)
+    near_wall = r["points"].position[r["keep"], 1] > 0.6
+    left, right = near_wall & (r["points"].position[r["keep"], 0] < -0.3), near_wall & (r["points"].position[r["keep"], 0] > 0.3)
+    assert r["ours"][left, 0].mean() > r["ours"][right, 0].mean()       # red bleeds on the left
+    assert r["ours"][right, 2].mean() > r["ours"][left, 2].mean()       # blue on the right
+    cc.assert_agree(r)
+    surface = mesh_data.read_surface([wall], cc.LAYER, bpy.context.evaluated_depsgraph_get())
+    points = bakepoints.build(surface, cc.RES, cc.RES)
+    stored = lambda c: np.round(np.array(c) * 255) / 255          # a byte image holds 8-bit sRGB
+    red, blue = textures.srgb_to_linear(stored([0.9, 0.1, 0.1])), textures.srgb_to_linear(stored([0.1, 0.2, 0.9]))
+    x = points.position[:, 0]
+    np.testing.assert_allclose(points.albedo[x < -0.2].mean(axis=0), red, atol=1e-6)
+    np.testing.assert_allclose(points.albedo[x > 0.2].mean(axis=0), blue, atol=1e-6)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bakepoints, raster, rays, unwrap
+from hhd_lightmapper.core import bakepoints, raster, rays, textures, unwrap
 from hhd_lightmapper.core.errors import BakeError
 import meshes
 
@@ -138,12 +138,18 @@ def test_albedo_is_sampled_from_the_materials_own_uvs():
     image = np.zeros((4, 4, 3))
     image[..., 0] = np.arange(4)[None, :] / 3.0          # red ramps with x
     surface = bakepoints.SurfaceTriangles(v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float),
-                                          np.zeros(2, int), np.full((2, 3), 0.5), np.zeros(2, int), tex_uv, [image])
+                                          np.zeros(2, int), np.full((2, 3), 0.5), np.zeros(2, int), tex_uv,
+                                          [textures.Texture(image)])
     pts = bakepoints.build(surface, 256, 256)
-    expected = bakepoints.sample_bilinear(image, pts.position[:, :2])
+    expected = textures.sample_bilinear(image, pts.position[:, :2])
     np.testing.assert_allclose(pts.albedo, expected, atol=1e-9)
-    centre = bakepoints.sample_bilinear(image, np.array([[(2 + 0.5) / 4, (1 + 0.5) / 4]]))
+    centre = textures.sample_bilinear(image, np.array([[(2 + 0.5) / 4, (1 + 0.5) / 4]]))
     np.testing.assert_allclose(centre[0], [2 / 3, 0, 0])   # texel centres are exact
+    edge = np.array([[0.01, 0.5]])
+    assert textures.Texture(image, "Linear", "REPEAT").sample(edge)[0, 0] > 0.2   # wraps to the right edge
+    assert textures.Texture(image, "Linear", "EXTEND").sample(edge)[0, 0] == 0.0
+    assert textures.Texture(image, "Closest").sample(np.array([[0.74, 0.5]]))[0, 0] == pytest.approx(2 / 3)
+    assert textures.Texture(image, "Linear", "CLIP").sample(np.array([[1.2, 0.5]]))[0, 0] == 0.0
 
 
 @pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
