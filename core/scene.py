@@ -45,11 +45,30 @@ class PointLight:
 
 
 @dataclass
+class SpotLight(PointLight):
+    """A point light (same units and radius models) limited to a cone: direction (3,) unit, the
+    way it points; size: full cone angle, rad; blend in [0, 1]. Cycles' attenuation:
+    smoothstep((cos φ - cos(size/2)) / ((1 - cos(size/2)) · blend)), φ the angle between the
+    spot axis and the direction from the light to the shaded point (a hard edge for blend 0)."""
+    direction: np.ndarray = None
+    size: float = np.pi / 4
+    blend: float = 0.15
+
+    def attenuation(self, light_to_point: np.ndarray) -> np.ndarray:
+        cos_half = np.cos(0.5 * self.size)
+        x = light_to_point @ self.direction - cos_half
+        if self.blend <= 0.0:
+            return (x > 0.0).astype(np.float64)
+        f = np.clip(x / ((1.0 - cos_half) * self.blend), 0.0, 1.0)
+        return f * f * (3.0 - 2.0 * f)
+
+
+@dataclass
 class BakeScene:
     """triangles (T, 3, 3) world space, all geometry that casts shadows or reflects light;
     albedo (T, 3) linear RGB in [0, 1] (used where a triangle has no texture); optional texture
     albedo: texture_index (T,) int (-1: none), texture_uv (T, 3, 2), textures [textures.Texture];
-    emission (T, 3) radiance, emitted on both sides; lights: SunLight / PointLight; world:
+    emission (T, 3) radiance, emitted on both sides; lights: SunLight / PointLight / SpotLight; world:
     background radiance (3,) or None (black); notes: what the extraction approximated."""
     triangles: np.ndarray
     albedo: np.ndarray

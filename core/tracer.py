@@ -36,7 +36,7 @@ from . import sh as _sh
 from .bakepoints import BakePoints
 from .errors import BakeError
 from .rays import RayScene, ray_offset
-from .scene import BakeScene, PointLight, SunLight
+from .scene import BakeScene, PointLight, SpotLight, SunLight
 
 RR_START = 2            # bounces before Russian roulette may end a path
 RR_MAX_SURVIVAL = 0.95
@@ -213,19 +213,27 @@ class _Tracer:
             dirs = axis if light.is_delta else _cone_directions(rng, axis, np.cos(0.5 * light.angle))
             return dirs, np.broadcast_to(light.irradiance, (r, 3)), np.full(r, np.inf)
         if isinstance(light, PointLight):
-            to = light.position - x
-            dist = np.maximum(np.linalg.norm(to, axis=1), 1e-30)
-            axis = to / dist[:, None]
-            if light.is_delta:
-                return axis, light.power[None, :] / (4.0 * np.pi * dist ** 2)[:, None], dist
-            if light.soft_falloff:     # a disk of radius r facing the point
-                cos_a = dist / np.sqrt(dist ** 2 + light.radius ** 2)
-            else:                      # a sphere of radius r
-                cos_a = np.sqrt(1.0 - np.minimum(light.radius / dist, 1.0) ** 2)
-            # radiance P/(4π² r²) over the cone the light subtends, solid angle 2π(1 - cos α)
-            value = light.power[None, :] / (4.0 * np.pi ** 2 * light.radius ** 2) * (2.0 * np.pi * (1.0 - cos_a))[:, None]
-            return _cone_directions(rng, axis, cos_a), value, np.maximum(dist - light.radius, 0.0)
+            dirs, value, dist = self._sample_point(rng, light, x)
+            if isinstance(light, SpotLight):
+                value = value * light.attenuation(-dirs)[:, None]
+            return dirs, value, dist
         raise BakeError(f"unsupported light {type(light).__name__}")
+
+    @staticmethod
+    def _sample_point(rng, light: PointLight, x):
+        """_sample_light for a point light (also the base of a spot light)."""
+        to = light.position - x
+        dist = np.maximum(np.linalg.norm(to, axis=1), 1e-30)
+        axis = to / dist[:, None]
+        if light.is_delta:
+            return axis, light.power[None, :] / (4.0 * np.pi * dist ** 2)[:, None], dist
+        if light.soft_falloff:     # a disk of radius r facing the point
+            cos_a = dist / np.sqrt(dist ** 2 + light.radius ** 2)
+        else:                      # a sphere of radius r
+            cos_a = np.sqrt(1.0 - np.minimum(light.radius / dist, 1.0) ** 2)
+        # radiance P/(4π² r²) over the cone the light subtends, solid angle 2π(1 - cos α)
+        value = light.power[None, :] / (4.0 * np.pi ** 2 * light.radius ** 2) * (2.0 * np.pi * (1.0 - cos_a))[:, None]
+        return _cone_directions(rng, axis, cos_a), value, np.maximum(dist - light.radius, 0.0)
 
     def _unoccluded(self, o, d, dist) -> np.ndarray:
         tmax = np.where(np.isfinite(dist), dist * (1.0 - 1e-4) - self.offset, np.float32(3e38))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import BakeError
-from ..core.scene import BakeScene, PointLight, SunLight
+from ..core.scene import BakeScene, PointLight, SpotLight, SunLight
 from .mesh_data import TextureCache, read_triangles, triangle_albedo
 
 
@@ -61,8 +61,13 @@ def _light(instance):
     if light.type == 'POINT':
         return PointLight(m[:3, 3].copy(), colour * light.energy, float(light.shadow_soft_size),
                           bool(getattr(light, "use_soft_falloff", True)))
+    if light.type == 'SPOT':
+        axis = -m[:3, 2] / np.linalg.norm(m[:3, 2])
+        return SpotLight(m[:3, 3].copy(), colour * light.energy, float(light.shadow_soft_size),
+                         bool(getattr(light, "use_soft_falloff", True)), axis,
+                         float(light.spot_size), float(light.spot_blend))
     raise BakeError(f"light '{instance.object.name}': {light.type.lower()} lights are not supported by the "
-                    "bake yet (sun and point lights are); hide it from render to bake without it")
+                    "bake yet (sun, point and spot lights are); hide it from render to bake without it")
 
 
 def _world(scene):

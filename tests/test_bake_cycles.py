@@ -46,6 +46,13 @@ def test_point_with_radius(floor, soft_falloff):
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
+@pytest.mark.parametrize("radius", [0.0, 0.2])
+def test_spot(floor, radius):
+    cc.light('SPOT', location=(0.3, -0.4, 1.5), rotation=(math.radians(15), 0, 0), energy=500.0,
+             shadow_soft_size=radius, spot_size=math.radians(70), spot_blend=0.4)
+    cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
+
+
 def test_constant_world(floor):
     cc.world((0.4, 0.6, 1.0))
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
