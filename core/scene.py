@@ -64,11 +64,39 @@ class SpotLight(PointLight):
 
 
 @dataclass
+class AreaLight:
+    """A one-sided Lambertian emitter: position (3,) centre; axis_u, axis_v (3,) half-extent
+    vectors of the light's plane (length = half size); normal (3,) unit, the side it emits to;
+    power (3,) W; shape 'SQUARE' | 'RECTANGLE' | 'DISK' | 'ELLIPSE'. Radiance P / (π A)."""
+    position: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    normal: np.ndarray
+    power: np.ndarray
+    shape: str = "SQUARE"
+    is_delta = False
+
+    @property
+    def area(self) -> float:
+        full = 4.0 * np.linalg.norm(self.axis_u) * np.linalg.norm(self.axis_v)
+        return full * (np.pi / 4.0 if self.shape in ("DISK", "ELLIPSE") else 1.0)
+
+    def sample_points(self, rng, n: int) -> np.ndarray:
+        """n points uniform over the light's surface."""
+        if self.shape in ("DISK", "ELLIPSE"):
+            r, phi = np.sqrt(rng.random(n)), 2.0 * np.pi * rng.random(n)
+            a, b = r * np.cos(phi), r * np.sin(phi)
+        else:
+            a, b = 2.0 * rng.random(n) - 1.0, 2.0 * rng.random(n) - 1.0
+        return self.position + a[:, None] * self.axis_u + b[:, None] * self.axis_v
+
+
+@dataclass
 class BakeScene:
     """triangles (T, 3, 3) world space, all geometry that casts shadows or reflects light;
     albedo (T, 3) linear RGB in [0, 1] (used where a triangle has no texture); optional texture
     albedo: texture_index (T,) int (-1: none), texture_uv (T, 3, 2), textures [textures.Texture];
-    emission (T, 3) radiance, emitted on both sides; lights: SunLight / PointLight / SpotLight; world:
+    emission (T, 3) radiance, emitted on both sides; lights: SunLight / PointLight / SpotLight / AreaLight; world:
     background radiance (3,) or None (black); notes: what the extraction approximated."""
     triangles: np.ndarray
     albedo: np.ndarray

@@ -36,7 +36,7 @@ from . import sh as _sh
 from .bakepoints import BakePoints
 from .errors import BakeError
 from .rays import RayScene, ray_offset
-from .scene import BakeScene, PointLight, SpotLight, SunLight
+from .scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
 
 RR_START = 2            # bounces before Russian roulette may end a path
 RR_MAX_SURVIVAL = 0.95
@@ -217,6 +217,15 @@ class _Tracer:
             if isinstance(light, SpotLight):
                 value = value * light.attenuation(-dirs)[:, None]
             return dirs, value, dist
+        if isinstance(light, AreaLight):
+            p = light.sample_points(rng, r)
+            to = p - x
+            dist = np.maximum(np.linalg.norm(to, axis=1), 1e-30)
+            dirs = to / dist[:, None]
+            cos_l = np.maximum(-(dirs @ light.normal), 0.0)
+            radiance = light.power / (np.pi * light.area)
+            # radiance × (solid angle of the sampled area element = A cos_l / d²)
+            return dirs, radiance[None, :] * (light.area * cos_l / dist ** 2)[:, None], dist
         raise BakeError(f"unsupported light {type(light).__name__}")
 
     @staticmethod

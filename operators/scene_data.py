@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import BakeError
-from ..core.scene import BakeScene, PointLight, SpotLight, SunLight
+from ..core.scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
 from .mesh_data import TextureCache, read_triangles, triangle_albedo
 
 
@@ -66,8 +66,16 @@ def _light(instance):
         return SpotLight(m[:3, 3].copy(), colour * light.energy, float(light.shadow_soft_size),
                          bool(getattr(light, "use_soft_falloff", True)), axis,
                          float(light.spot_size), float(light.spot_blend))
+    if light.type == 'AREA':
+        size_x = light.size
+        size_y = light.size if light.shape in ('SQUARE', 'DISK') else light.size_y
+        if getattr(light, "spread", np.pi) < np.pi - 1e-6:
+            raise BakeError(f"light '{instance.object.name}': area lights with a spread below 180° are not "
+                            "supported by the bake yet")
+        return AreaLight(m[:3, 3].copy(), m[:3, 0] * 0.5 * size_x, m[:3, 1] * 0.5 * size_y,
+                         -m[:3, 2] / np.linalg.norm(m[:3, 2]), colour * light.energy, light.shape)
     raise BakeError(f"light '{instance.object.name}': {light.type.lower()} lights are not supported by the "
-                    "bake yet (sun, point and spot lights are); hide it from render to bake without it")
+                    "bake yet; hide it from render to bake without it")
 
 
 def _world(scene):

@@ -53,6 +53,13 @@ def test_spot(floor, radius):
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
+@pytest.mark.parametrize("shape", ["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"])
+def test_area(floor, shape):
+    cc.light('AREA', location=(-0.2, 0.1, 1.0), rotation=(math.radians(20), 0, 0), energy=150.0,
+             shape=shape, size=0.6, size_y=0.3)
+    cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
+
+
 def test_constant_world(floor):
     cc.world((0.4, 0.6, 1.0))
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
