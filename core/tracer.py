@@ -62,8 +62,9 @@ class BakeSettings:
 
 @dataclass
 class BakeResult:
-    """sh (P, 9, 3) world-space radiance SH; sh_error (P, 9, 3) standard error of the estimate
-    (from the spread between passes; 0 for exact parts); samples per texel done; rays traced."""
+    """sh (P, 9, 3) world-space radiance SH; sh_error (P, 9, 3) standard error of the estimate,
+    from the spread between passes (0 where every pass agrees, e.g. an unshadowed sun; not
+    available, reported as 0, after a single pass); samples per texel done; rays traced."""
     sh: np.ndarray
     sh_error: np.ndarray
     samples: int
@@ -91,7 +92,7 @@ def bake(points: BakePoints, scene: BakeScene, settings: BakeSettings = BakeSett
     with ThreadPoolExecutor(max_workers=max(1, settings.threads)) as pool:
         for p in range(passes):
             futures = [pool.submit(tracer.trace_pass, p, c, idx) for c, idx in enumerate(chunks)]
-            for k, (future, idx) in enumerate(zip(futures, chunks)):
+            for future, idx in zip(futures, chunks):
                 if cancel is not None and cancel():
                     for f in futures:
                         f.cancel()

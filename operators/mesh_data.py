@@ -92,11 +92,11 @@ def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> int:
 
 
 def material_albedo_source(mat):
-    """Where a material's albedo comes from: ('constant', rgb, note) or ('texture', (image, uv_map
-    name or ''), None). A Principled BSDF's unlinked Base Color is a constant; linked straight
-    from an Image Texture it is that image through the texture's own UV map; any other setup
-    falls back to the viewport colour with a note saying so. For a texture the value is the
-    (Image Texture node, UV map name) pair."""
+    """Where a material's albedo comes from: ('constant', rgb, note or None) or ('texture',
+    (Image Texture node, UV map name or '' for the render UV map), None). A Principled BSDF's
+    unlinked Base Color is a constant; linked straight from an Image Texture it is that image
+    through the texture's own UV map; any other setup falls back to the viewport colour with a
+    note saying so."""
     if mat is None:
         return 'constant', (0.8, 0.8, 0.8), None
     bsdf = None
