@@ -89,13 +89,13 @@ def _rasterise_chunk(p, lo, hi, counts, tri_ids, width):
     centroid[full] = np.stack([x0[full] + 0.5, y0[full] + 0.5], axis=1)
     area[inside_texel] = np.abs(_signed_area(pt[inside_texel]))
     centroid[inside_texel] = pt[inside_texel].mean(axis=1)
-    clip = overlap & ~full & ~inside_texel
-    area[clip], centroid[clip] = _clip_to_texels(pt[clip], x0[clip], y0[clip])
+    clip = overlap & ~full & ~inside_texel        # partial overlaps: exact integrals
+    area[clip], centroid[clip] = _overlap_with_texels(pt[clip], x0[clip], y0[clip])
     keep = area > 0.0
     return Coverage(tri_ids[tri[keep]], (iy * width + ix)[keep], area[keep], centroid[keep])
 
 
-def _clip_to_texels(tri, x0, y0):
+def _overlap_with_texels(tri, x0, y0):
     """Exact overlap area `(P,)` and centroid `(P, 2)` of CCW triangles `(P, 3, 2)` with the
     squares [x0, x0+1] × [y0, y0+1].
 

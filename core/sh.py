@@ -60,26 +60,11 @@ def project(dirs: np.ndarray, values: np.ndarray, weights: np.ndarray | None = N
     return np.einsum("sk,s...->k...", y * w[:, None], v)
 
 
-def accumulate(texel: np.ndarray, dirs: np.ndarray, values: np.ndarray, n_texels: int) -> np.ndarray:
-    """Scatter-add samples into per-texel SH: out[t] += Σ_{k: texel_k = t} values_k Y(ω_k).
-
-    texel `(S,)` int, dirs `(S, 3)`, values `(S, C)` already weighted -> `(n_texels, 9, C)`.
-    Uses bincount per (coefficient, channel), ≈10× faster than np.add.at.
-    """
-    y = evaluate(dirs)
-    v = np.asarray(values, dtype=np.float64)
-    out = np.zeros((n_texels, N_COEFFS, v.shape[1]))
-    for k in range(N_COEFFS):
-        for c in range(v.shape[1]):
-            out[:, k, c] = np.bincount(texel, weights=y[:, k] * v[:, c], minlength=n_texels)
-    return out
-
-
 def accumulate_grouped(dirs: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
     """Per-texel SH when each texel's k samples are contiguous: out[t] = Σ_{s<k} values[t·k+s] Y(ω).
 
     dirs `(T·k, 3)`, values `(T·k, C)` already weighted -> `(T, 9, C)`. A reshape and one
-    batched matrix product (Yᵀ V per texel): ~10× faster than `accumulate`'s scatter, and
+    batched matrix product (Yᵀ V per texel): measured ~10× faster than a bincount scatter and
     ~7× faster than the equivalent einsum."""
     y = evaluate(dirs).reshape(-1, k, N_COEFFS)
     v = np.asarray(values, dtype=np.float64).reshape(len(y), k, -1)

@@ -57,14 +57,10 @@ def hemisphere_sh(env: Environment, normals: np.ndarray, n_z: int = 32, n_phi: i
     return out
 
 
-def _elevation(dirs):
-    return dirs[:, 2]
-
-
 def sky(sun_elevation_deg: float, sun_azimuth_deg: float = 30.0, sun_irradiance=(8.0, 7.2, 6.0)) -> Environment:
     """Blue sky brightening to the horizon, a dim brown ground, and a sun (delta light)."""
     def radiance(d):
-        z = _elevation(d)
+        z = d[:, 2]
         up = np.clip(z, 0.0, 1.0)[:, None]
         sky_col = np.array([0.25, 0.45, 1.0]) * (0.6 + 0.8 * (1.0 - up))
         ground = np.array([0.12, 0.09, 0.06]) * np.ones_like(up)
