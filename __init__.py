@@ -4,7 +4,7 @@ This file only delegates. bpy is imported inside register() so that `hhd_lightma
 (pure numpy) can be imported without Blender: by tests, workers and build machines.
 """
 
-_PACKAGES = ("properties", "operators", "panels")
+_PACKAGES = ("properties", "operators", "panels", "cli")
 
 
 def _modules():

@@ -1,9 +1,33 @@
 """Scene settings of HHD Lightmapper: `bpy.context.scene.hhd`."""
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+from .core import presets
+
+# Blender 4.5+ wants path properties that accept "//" to say so (4.2-4.4 do not know the flag).
+_BLEND_RELATIVE = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
+
+
+def _apply_preset(self, _context):
+    if self.preset != 'CUSTOM':
+        self.samples, self.bounces = presets.settings(self.preset)
+
+
+def _mark_custom(self, _context):
+    if self.preset != 'CUSTOM' and presets.settings(self.preset) != (self.samples, self.bounces):
+        self.preset = 'CUSTOM'
 
 
 class HHDSettings(bpy.types.PropertyGroup):
+    target: EnumProperty(
+        name="Receivers", default='SELECTED',
+        items=[('SELECTED', "Selected Objects", "The selected mesh objects receive lightmaps"),
+               ('COLLECTION', "Collection", "The mesh objects of a collection receive lightmaps")],
+        description="Objects that get lightmap texels; every render-visible object occludes and "
+                    "bounces light either way")
+    target_collection: PointerProperty(
+        name="Collection", type=bpy.types.Collection,
+        description="Collection whose mesh objects receive lightmaps (child collections included)")
     uv_layer: StringProperty(
         name="Lightmap UV Layer", default="HHD_Lightmap",
         description="UV layer the unwrap writes and the bake reads; no other UV layer is touched")
@@ -24,15 +48,25 @@ class HHDSettings(bpy.types.PropertyGroup):
         name="Padding", default=0, min=0, max=64,
         description="Texels between charts; 0 derives it from Mip Levels")
     unwrap_summary: StringProperty(name="Last Unwrap", default="", options={'SKIP_SAVE'})
+    preset: EnumProperty(
+        name="Quality", default='PRODUCTION', update=_apply_preset,
+        items=[(k, k.title(), d) for k, (_s, _b, d) in presets.PRESETS.items()]
+        + [('CUSTOM', "Custom", "Samples and bounces as set below")],
+        description="Samples and bounces from the measured speed/accuracy presets")
     samples: IntProperty(
-        name="Samples", default=256, min=1, max=65536,
+        name="Samples", default=256, min=2, max=65536, update=_mark_custom,
         description="Hemisphere samples per lightmap texel")
     bounces: IntProperty(
-        name="Bounces", default=3, min=0, max=16,
+        name="Bounces", default=3, min=0, max=16, update=_mark_custom,
         description="Diffuse interreflection bounces after the first hit")
     output_dir: StringProperty(
-        name="Output Folder", default="//lightmaps", subtype='DIR_PATH',
+        name="Output Folder", default="//lightmaps", subtype='DIR_PATH', options=_BLEND_RELATIVE,
         description="Where the EXR files and JSON sidecar are written (relative to the .blend)")
+    pack_images: BoolProperty(
+        name="Pack Images", default=False,
+        description="Pack the baked images into the .blend (by default they stay external files)")
+    seed: IntProperty(name="Seed", default=0, min=0, description="Random seed: the same seed gives the same bake")
+    bake_summary: StringProperty(name="Last Bake", default="", options={'SKIP_SAVE'})
     model: EnumProperty(
         name="Model", default='HHD',
         items=[('HHD', "HHD", "Hemisphere light + highlight direction (IrradZ)"),
@@ -58,6 +92,11 @@ class HHDObjectSettings(bpy.types.PropertyGroup):
     texel_density: FloatProperty(
         name="Texel Density Override", default=0.0, min=0.0, soft_max=200.0,
         description="Own atlas at this many texels per metre; 0 uses the scene settings")
+    atlas: StringProperty(
+        name="Atlas", default="",
+        description="Atlas the last unwrap put this object in (the bake's file name stem)")
+    atlas_width: IntProperty(name="Atlas Width", default=0, min=0)
+    atlas_height: IntProperty(name="Atlas Height", default=0, min=0)
 
 
 classes = (HHDSettings, HHDObjectSettings)
@@ -68,9 +107,14 @@ def register():
         bpy.utils.register_class(cls)
     bpy.types.Scene.hhd = bpy.props.PointerProperty(type=HHDSettings)
     bpy.types.Object.hhd = bpy.props.PointerProperty(type=HHDObjectSettings)
+    # Bake progress lives on the window manager: it is UI state, never saved in the .blend.
+    bpy.types.WindowManager.hhd_progress = FloatProperty(name="Bake Progress", min=0.0, max=1.0, subtype='FACTOR')
+    bpy.types.WindowManager.hhd_status = StringProperty(name="Bake Status")
 
 
 def unregister():
+    del bpy.types.WindowManager.hhd_status
+    del bpy.types.WindowManager.hhd_progress
     del bpy.types.Object.hhd
     del bpy.types.Scene.hhd
     for cls in reversed(classes):

@@ -1,9 +1,11 @@
 """Thin bpy operators: one per module, registered in `classes` order."""
 import bpy
 
+from .bake import HHD_OT_bake
 from .check_dependencies import HHD_OT_check_dependencies
+from .encode import HHD_OT_encode, HHD_OT_open_output
 from .unwrap import HHD_OT_unwrap
 
-classes = (HHD_OT_check_dependencies, HHD_OT_unwrap)
+classes = (HHD_OT_check_dependencies, HHD_OT_unwrap, HHD_OT_bake, HHD_OT_encode, HHD_OT_open_output)
 
 register, unregister = bpy.utils.register_classes_factory(classes)

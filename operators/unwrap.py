@@ -62,8 +62,12 @@ def unwrap_objects(objects, settings, make_single_user=False, progress=None):
                                    padding=padding, per_object=settings.atlas_mode == 'PER_OBJECT'),
         progress)
     warnings = list(result.warnings)
+    others = {o.hhd.atlas for o in bpy.data.objects if o.type == 'MESH' and o not in objects and o.hhd.atlas}
+    names = atlas_names([o.name for o in objects], [o.atlas for o in result.objects], others)
     for obj, (_, loops), ouv in zip(objects, read, result.objects):
         split = mesh_data.write_uv_layer(obj, settings.uv_layer, loops, ouv.uv)
+        obj.hhd.atlas = names[ouv.atlas]
+        obj.hhd.atlas_width, obj.hhd.atlas_height = result.atlas_sizes[ouv.atlas]
         if split:
             warnings.append(f"'{obj.name}': {split} polygon(s) were split across charts; their lightmap "
                             "UVs are approximate (triangulate them to avoid this)")
@@ -73,3 +77,23 @@ def unwrap_objects(objects, settings, make_single_user=False, progress=None):
     summary = (f"{len(objects)} object(s), {result.charts} charts, atlas {sizes}, {used} used; "
                f"texels per object: {per_object}")
     return summary, warnings
+
+
+def atlas_names(objects: list[str], atlas_of: list[int], taken: set[str] = frozenset()) -> dict[int, str]:
+    """File-name stems per atlas index: "Lightmap" for an atlas shared by several objects (or the
+    only atlas), "Lightmap_<object>" for an object's own atlas (characters unsafe in file names
+    replaced by '_'); a name other objects' atlases (`taken`) already use gets a number, so a
+    second unwrap of other objects never makes their bakes overwrite each other's files."""
+    members: dict[int, list[str]] = {}
+    for name, atlas in zip(objects, atlas_of):
+        members.setdefault(atlas, []).append(name)
+    out = {}
+    for atlas, names in members.items():
+        if len(names) > 1 or len(members) == 1:
+            out[atlas] = "Lightmap"
+        else:
+            out[atlas] = "Lightmap_" + "".join(c if c.isalnum() or c in "-_." else "_" for c in names[0])
+        base, k = out[atlas], 2
+        while out[atlas] in taken:
+            out[atlas], k = f"{base}_{k}", k + 1
+    return out

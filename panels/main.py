@@ -1,4 +1,4 @@
-"""The HHD Lightmapper panel in Properties > Render."""
+"""The HHD Lightmapper panel in Properties > Render: receivers → unwrap → bake → preview → files."""
 import bpy
 
 
@@ -12,7 +12,25 @@ class HHD_PT_main(bpy.types.Panel):
         settings = context.scene.hhd
         layout = self.layout
         layout.use_property_split = True
-        col = layout.column()
+        layout.use_property_decorate = False
+        self.draw_receivers(layout, settings, context)
+        self.draw_unwrap(layout, settings, context)
+        self.draw_bake(layout, settings, context)
+        self.draw_output(layout, settings)
+
+    @staticmethod
+    def draw_receivers(layout, settings, context):
+        col = layout.column(heading="Receivers")
+        col.prop(settings, "target", text="Receivers")
+        if settings.target == 'COLLECTION':
+            col.prop(settings, "target_collection")
+        col.label(text="Occluders: every render-visible object", icon='INFO')
+
+    @staticmethod
+    def draw_unwrap(layout, settings, context):
+        box = layout.box()
+        box.label(text="Lightmap UVs", icon='UV')
+        col = box.column()
         col.prop(settings, "uv_layer")
         col.prop(settings, "atlas_mode")
         col.prop(settings, "resolution")
@@ -21,20 +39,45 @@ class HHD_PT_main(bpy.types.Panel):
         col.prop(settings, "padding")
         obj = context.object
         if obj is not None and obj.type == 'MESH':
-            box = layout.box()
-            box.label(text=f"Overrides for '{obj.name}' (own atlas)")
-            box.prop(obj.hhd, "resolution")
-            box.prop(obj.hhd, "texel_density")
-        layout.operator("hhd.unwrap", icon='UV')
+            sub = box.column()
+            sub.label(text=f"'{obj.name}' overrides (own atlas)")
+            sub.prop(obj.hhd, "resolution")
+            sub.prop(obj.hhd, "texel_density")
+            if obj.hhd.atlas:
+                sub.label(text=f"Atlas '{obj.hhd.atlas}' {obj.hhd.atlas_width}×{obj.hhd.atlas_height}")
+        box.operator("hhd.unwrap", icon='UV')
         if settings.unwrap_summary:
-            layout.label(text=settings.unwrap_summary)
-        col = layout.column()
+            box.label(text=settings.unwrap_summary)
+
+    @staticmethod
+    def draw_bake(layout, settings, context):
+        box = layout.box()
+        box.label(text="Bake", icon='RENDER_STILL')
+        col = box.column()
+        col.prop(settings, "preset")
         col.prop(settings, "samples")
         col.prop(settings, "bounces")
-        col.prop(settings, "output_dir")
-        col = layout.column(heading="Encoder")
+        col.prop(settings, "seed")
+        col = box.column(heading="Encoder")
         col.prop(settings, "model")
         col.prop(settings, "direction")
         col.prop(settings, "ambient")
         col.prop(settings, "phi_search")
-        layout.operator("hhd.check_dependencies", icon='CHECKMARK')
+        wm = context.window_manager
+        if wm.hhd_status:
+            box.progress(factor=wm.hhd_progress, type='BAR', text=wm.hhd_status)
+        row = box.row(align=True)
+        row.operator("hhd.bake", icon='RENDER_STILL')
+        row.operator("hhd.encode", icon='FILE_REFRESH')
+        if settings.bake_summary:
+            box.label(text=settings.bake_summary)
+
+    @staticmethod
+    def draw_output(layout, settings):
+        box = layout.box()
+        box.label(text="Output", icon='FILE_FOLDER')
+        col = box.column()
+        col.prop(settings, "output_dir")
+        col.prop(settings, "pack_images")
+        box.operator("hhd.open_output", icon='FILEBROWSER')
+        box.operator("hhd.check_dependencies", icon='CHECKMARK')

@@ -2,16 +2,17 @@
 
     python tools/demo.py --out out/demo        (or: make demo)
 
-Stages, in pipeline order. Each later issue replaces a "pending" stage with the real one:
+Stages, in pipeline order:
   scene    build the room (window, sun, sky, red wall, normal-mapped panel), save demo.blend
   render   Cycles reference render of the camera view (reference_cycles.png)
-  unwrap   bpy.ops.hhd.unwrap(): xatlas lightmap UVs for every mesh in one atlas
-  points   lightmap texels -> bake points (position, n_v, albedo, coverage, buried flag),
-           atlas.png shows n_v per texel
-  bake     Embree path-traced L2 SH of every texel (sun + sky, 2 bounces), irradz.png
-  encode   HHD IrradZ encoding of the baked SH (core.hhd), error vs the SH irradiance;
-           encoder.png compares HHD and the baseline over one texel's hemisphere
-  output   pending: EXR + JSON sidecar (issue 6);  preview: pending: EEVEE node groups (issue 7)
+  bake     headless, as a build machine runs it (a subprocess):
+               python -m hhd_lightmapper.cli demo.blend bake --unwrap --out lightmaps --save
+           = xatlas UVs (512² atlas), bake points, Embree path-traced L2 SH (sun + sky, 2 bounces),
+           HHD encoding, lightmaps/Lightmap_hhd.exr + _sh.exr + _texels.exr + .json; the images are
+           loaded into demo.blend, which is saved
+  encode   reads the files back: irradz.png (I_z), encoder.png (HHD vs baseline over one texel's
+           hemisphere) and the encoder's hemispherical error on 4000 texels
+  preview  pending: EEVEE node groups (issue 7)
 Exits 0 and prints a summary; writes summary.json.
 """
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -54,36 +56,31 @@ def main() -> int:
     timings["render"] = time.perf_counter() - t
     stages["render"] = "Cycles reference -> reference_cycles.png"
 
-    import hhd_lightmapper
-    hhd_lightmapper.register()            # the add-on's operators, as Blender would register them
-    t = time.perf_counter()
-    meshes = [o for o in bpy.context.scene.objects if o.type == "MESH"]
-    for o in bpy.context.scene.objects:
-        o.select_set(o.type == "MESH")
-    bpy.context.view_layer.objects.active = meshes[0]
-    bpy.context.scene.hhd.resolution = 512
-    bpy.ops.hhd.unwrap()
+    # Unwrap + bake headless, exactly as a build machine would:
+    #   python -m hhd_lightmapper.cli demo.blend bake --unwrap --out lightmaps --save
+    meshes = sorted(o.name for o in bpy.context.scene.objects if o.type == "MESH")
     bpy.ops.wm.save_as_mainfile(filepath=str(out / "demo.blend"))
-    timings["unwrap"] = time.perf_counter() - t
-    stages["unwrap"] = bpy.context.scene.hhd.unwrap_summary.split("; texels")[0]
-
+    command = [sys.executable, "-m", "hhd_lightmapper.cli", str(out / "demo.blend"), "bake", "--unwrap", "--resolution", "512",
+               "--out", str(out / "lightmaps"), "--samples", str(args.samples), "--bounces", "2",
+               "--objects", *meshes, "--save"]
+    print("$ " + " ".join(command[2:]), flush=True)
     t = time.perf_counter()
-    points = demo_bake_points(bpy, meshes, out / "atlas.png")
-    timings["points"] = time.perf_counter() - t
-    stages["points"] = (f"{len(points.texel)} texels, {int(points.buried.sum())} buried, "
-                        f"ray offset {points.offset * 1000:.3f} mm -> atlas.png")
-    t = time.perf_counter()
-    baked = demo_bake(bpy, points, out / "irradz.png", args.samples)
+    code = subprocess.call(command)
     timings["bake"] = time.perf_counter() - t
-    stages["bake"] = (f"{args.samples} samples/texel, {baked.rays / 1e6:.1f} M rays, "
-                      f"{baked.rays / baked.seconds / 1e6:.2f} M rays/s -> irradz.png")
+    if code != 0:
+        print(f"demo: the headless bake failed with exit code {code}")
+        return code
+    sidecar = json.loads((out / "lightmaps" / "Lightmap.json").read_text())
+    bake = sidecar["bake"]
+    stages["bake"] = (f"unwrap + {bake['samples_taken']} samples/texel, {bake['rays'] / 1e6:.1f} M rays, "
+                      f"{sidecar['stats']['texels_baked']} texels -> lightmaps/Lightmap_hhd.exr, _sh.exr, .json")
 
     t = time.perf_counter()
-    encoded = encode_baked(baked.sh, points, out / "encoder.png")
+    encoded = plot_results(out / "lightmaps", out / "irradz.png", out / "encoder.png")
     timings["encode"] = time.perf_counter() - t
     stages["encode"] = (f"{encoded['texels']} texels, hemispherical RMSE {encoded['rmse_percent']:.2f}% of I_z "
-                        f"(optimal-linear + sphere Gram baseline: {encoded['baseline_rmse_percent']:.2f}%) -> encoder.png")
-    stages["output"] = "pending (issue 6: EXR + JSON sidecar)"
+                        f"(optimal-linear + sphere Gram baseline: {encoded['baseline_rmse_percent']:.2f}%) "
+                        "-> irradz.png, encoder.png")
     stages["preview"] = "pending (issue 7: EEVEE node groups)"
 
     summary = {"stages": stages, "seconds": timings, "out": str(out)}
@@ -94,25 +91,6 @@ def main() -> int:
         print(f"  {name:8s} {secs}  {text}")
     print(f"  output folder: {out}")
     return 0
-
-
-def demo_bake_points(bpy, meshes, png: Path):
-    """Bake points of the demo atlas, with the buried test against all scene geometry."""
-    import numpy as np
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from hhd_lightmapper.core import bakepoints, rays
-    from hhd_lightmapper.operators import mesh_data
-
-    settings = bpy.context.scene.hhd
-    surface = mesh_data.read_surface(meshes, settings.uv_layer, bpy.context.evaluated_depsgraph_get())
-    points = bakepoints.build(surface, settings.resolution, settings.resolution,
-                              occluders=rays.RayScene(surface.positions))
-    image = points.image(points.normal * 0.5 + 0.5, fill=0.0)
-    image[points.image(points.buried.astype(float)) > 0] = (1.0, 0.0, 1.0)
-    plt.imsave(png, np.clip(image[::-1], 0, 1))
-    return points
 
 
 def render_reference(bpy, path: Path, samples: int) -> None:
@@ -127,47 +105,33 @@ def render_reference(bpy, path: Path, samples: int) -> None:
     bpy.ops.render.render(write_still=True)
 
 
-def demo_bake(bpy, points, png: Path, samples: int):
-    """Bake the demo atlas with the extension's tracer; plot I_z (tone-mapped) per texel."""
+def plot_results(folder: Path, irradz_png: Path, encoder_png: Path) -> dict:
+    """Read the bake's files back (as a game engine would): I_z image, and the encoder's error
+    on a sample of texels (re-encoded from the SH EXR, with the baseline for comparison)."""
     import numpy as np
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from hhd_lightmapper.core import hhd, tracer
-    from hhd_lightmapper.operators import scene_data
+    from hhd_lightmapper.core import exr, hhd, lightmap_files
 
-    scene = scene_data.read_bake_scene(bpy.context.evaluated_depsgraph_get())
-    last = [0.0]
-
-    def progress(fraction, message):
-        if fraction - last[0] >= 0.25 or fraction >= 1.0:
-            print(f"  bake {100 * fraction:5.1f}%  {message}", flush=True)
-            last[0] = fraction
-    result = tracer.bake(points, scene, tracer.BakeSettings(samples=samples, bounces=2), progress=progress)
-    iz = hhd.irradz(result.sh, points.normal)
-    image = points.image(iz / (1.0 + iz))
-    plt.imsave(png, np.clip(image[::-1], 0, 1))
-    return result
-
-
-def encode_baked(sh, points, png: Path) -> dict:
-    """Encode the baked SH; measure the hemispherical error on a sample of texels."""
-    import numpy as np
-    from hhd_lightmapper.core import hhd
-
-    p = hhd.encode(sh, points.normal)
+    channels, _ = exr.read(folder / "Lightmap_hhd.exr")
+    iz = np.stack([channels[f"Iz.{c}"].astype(float) for c in "RGB"], axis=-1)
+    plt.imsave(irradz_png, np.clip(iz / (1.0 + iz), 0, 1))       # EXR rows are top-down already
+    data = lightmap_files.read_texel_data(lightmap_files.AtlasFiles(folder, "Lightmap"))
+    sh, normal = data.sh[data.baked], data.normal[data.baked]
+    p = hhd.encode(sh, normal)
     rng = np.random.default_rng(0)
     lit = np.nonzero(p.irradz @ hhd.LUMINANCE > 1e-3)[0]
     pick = rng.choice(lit, size=min(4000, len(lit)), replace=False)
-    base = hhd.encode(sh[pick], points.normal[pick], direction="optimal_linear", gram="sphere")
+    base = hhd.encode(sh[pick], normal[pick], direction="optimal_linear", gram="sphere")
     lum = hhd.LUMINANCE
     mean_iz = (p.irradz[pick] @ lum).mean()
     sub = hhd.HHDParams(p.irradz[pick], p.ambient_weight[pick], p.direction[pick])
-    rmse = (hhd.hemispherical_rmse(sh[pick], points.normal[pick], sub) @ lum).mean() / mean_iz
-    rmse_base = (hhd.hemispherical_rmse(sh[pick], points.normal[pick], base) @ lum).mean() / mean_iz
+    rmse = (hhd.hemispherical_rmse(sh[pick], normal[pick], sub) @ lum).mean() / mean_iz
+    rmse_base = (hhd.hemispherical_rmse(sh[pick], normal[pick], base) @ lum).mean() / mean_iz
     brightest = pick[np.argmax(p.irradz[pick] @ lum)]
-    plot_hemisphere(sh[brightest:brightest + 1], points.normal[brightest:brightest + 1], png)
-    return {"texels": len(points.texel), "rmse_percent": 100 * rmse, "baseline_rmse_percent": 100 * rmse_base}
+    plot_hemisphere(sh[brightest:brightest + 1], normal[brightest:brightest + 1], encoder_png)
+    return {"texels": int(len(sh)), "rmse_percent": 100 * rmse, "baseline_rmse_percent": 100 * rmse_base}
 
 
 def plot_hemisphere(s, n_v, png: Path, size: int = 96) -> None:

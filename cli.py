@@ -1,0 +1,197 @@
+"""Headless use: `blender -b scene.blend --command hhd_lightmapper <unwrap|bake|encode> [options]`.
+
+Registered with `bpy.utils.register_cli_command` when the extension is enabled. The same entry
+point works with the `bpy` module from Python, without a Blender executable:
+
+    python -m hhd_lightmapper.cli scene.blend bake --out lightmaps
+
+(`standalone` opens the .blend and registers the add-on first). Exit codes are stable, so build
+scripts can tell failures apart: see EXIT_* below; every failure prints one line saying why.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import traceback
+
+import bpy
+
+from .core import presets
+from .core.errors import BakeError, DependencyMissing
+from .core.tracer import BakeCancelled
+
+COMMAND = "hhd_lightmapper"
+EXIT_OK = 0
+EXIT_INPUT = 1          # the scene or the options cannot be baked as given (message names what)
+EXIT_USAGE = 2          # bad command line (argparse)
+EXIT_DEPENDENCY = 3     # a compiled package (embreex, xatlas, OpenEXR) is missing
+EXIT_OUTPUT = 4         # the output files could not be written (previous files are intact)
+EXIT_CANCELLED = 5      # interrupted (Ctrl-C): no file replaced
+EXIT_INTERNAL = 70      # a bug: the traceback is printed
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=f"blender -b FILE.blend --command {COMMAND}",
+                                description="HHD Lightmapper: unwrap, bake and encode directional lightmaps.")
+    sub = p.add_subparsers(dest="action", required=True)
+
+    def receivers(q):
+        q.add_argument("--objects", nargs="+", metavar="NAME", help="receiver objects (default: the scene's "
+                       "Receivers setting: the saved selection or collection)")
+        q.add_argument("--collection", metavar="NAME", help="receivers: the mesh objects of this collection")
+
+    def encoder(q):
+        q.add_argument("--model", choices=["hhd", "ahd"])
+        q.add_argument("--direction", choices=["searched", "optimal_linear"])
+        q.add_argument("--ambient", choices=["luminance", "rgb"])
+        q.add_argument("--phi-search", action="store_true", default=None)
+
+    q = sub.add_parser("unwrap", help="xatlas lightmap UVs for the receivers")
+    receivers(q)
+    q.add_argument("--resolution", type=int)
+    q.add_argument("--texel-density", type=float)
+    q.add_argument("--make-single-user", action="store_true")
+    q.add_argument("--save", action="store_true", help="save the .blend afterwards (keeps the UVs)")
+
+    q = sub.add_parser("bake", help="trace, encode and write the lightmap files")
+    receivers(q)
+    encoder(q)
+    q.add_argument("--out", metavar="DIR", help="output folder (default: the scene's Output Folder)")
+    q.add_argument("--preset", choices=[k.lower() for k in presets.PRESETS])
+    q.add_argument("--samples", type=int)
+    q.add_argument("--bounces", type=int)
+    q.add_argument("--seed", type=int)
+    q.add_argument("--unwrap", action="store_true", help="unwrap the receivers first")
+    q.add_argument("--resolution", type=int, help="atlas size for --unwrap")
+    q.add_argument("--texel-density", type=float, help="texels per metre for --unwrap")
+    q.add_argument("--save", action="store_true", help="save the .blend afterwards (keeps the loaded images)")
+
+    q = sub.add_parser("encode", help="re-encode a finished bake from its SH EXR (no tracing)")
+    receivers(q)
+    encoder(q)
+    q.add_argument("--out", metavar="DIR", help="folder of the bake (default: the scene's Output Folder)")
+    return p
+
+
+def _apply_options(settings, args) -> None:
+    """Command-line options override the scene settings for this run (not saved unless --save)."""
+    for key in ("resolution", "texel_density", "samples", "bounces", "seed", "phi_search"):
+        value = getattr(args, key, None)
+        if value is not None:
+            setattr(settings, key, value)
+    for key in ("model", "direction", "ambient"):
+        value = getattr(args, key, None)
+        if value is not None:
+            setattr(settings, key, value.upper())
+    if getattr(args, "preset", None):
+        settings.preset = args.preset.upper()
+    if args.collection:
+        if args.collection not in bpy.data.collections:
+            raise BakeError(f"no collection named '{args.collection}'")
+        settings.target, settings.target_collection = 'COLLECTION', bpy.data.collections[args.collection]
+
+
+def _unwrap(context, args) -> str:
+    from .operators import bake_session, unwrap
+    objects = bake_session.target_objects(context, args.objects)
+    if not objects:
+        raise BakeError("no receivers: pass --objects or --collection, or save the .blend with them selected")
+    summary, warnings = unwrap.unwrap_objects(objects, context.scene.hhd, getattr(args, "make_single_user", False))
+    for w in warnings:
+        print(f"warning: {w}")
+    return summary
+
+
+def _bake(context, args) -> str:
+    from .core.console import ConsoleProgress
+    from .operators import bake_session
+    if args.unwrap:
+        print(_unwrap(context, args), flush=True)
+    session = bake_session.BakeSession(context, args.objects, args.out)
+    for w in session.warnings:
+        print(f"warning: {w}")
+    print(f"bake: {session.describe()}", flush=True)
+    progress = ConsoleProgress()
+    try:
+        session.run(progress=progress)
+    finally:
+        progress.close()
+    return session.finish()
+
+
+def _encode(context, args) -> str:
+    from .operators import bake_session, encode
+    objects = bake_session.target_objects(context, args.objects)
+    return encode.reencode_objects(objects, context.scene.hhd, args.out)
+
+
+def main(argv: list[str]) -> int:
+    """Run one command; returns the exit code (never raises)."""
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as exc:
+        return EXIT_USAGE if exc.code else EXIT_OK
+    context = bpy.context
+    start = time.perf_counter()
+    try:
+        _apply_options(context.scene.hhd, args)
+        summary = {"unwrap": _unwrap, "bake": _bake, "encode": _encode}[args.action](context, args)
+        if getattr(args, "save", False):
+            if not bpy.data.is_saved:
+                raise BakeError("--save: the .blend has never been saved, so there is no file to save to")
+            bpy.ops.wm.save_mainfile()
+    except DependencyMissing as exc:
+        return _fail(EXIT_DEPENDENCY, exc)
+    except (BakeCancelled, KeyboardInterrupt):
+        return _fail(EXIT_CANCELLED, "interrupted: no output file was replaced")
+    except BakeError as exc:
+        return _fail(EXIT_INPUT, exc)
+    except OSError as exc:
+        return _fail(EXIT_OUTPUT, f"cannot write the output: {exc} (previous files are intact)")
+    except Exception:      # a bug: say so, with the traceback, and a distinct code
+        traceback.print_exc()
+        return _fail(EXIT_INTERNAL, "internal error (please report it with the traceback above)")
+    print(f"{args.action}: {summary} [{time.perf_counter() - start:.1f} s]", flush=True)
+    return EXIT_OK
+
+
+def _fail(code: int, message) -> int:
+    print(f"{COMMAND}: error: {message}", file=sys.stderr, flush=True)
+    return code
+
+
+def standalone(argv: list[str]) -> int:
+    """`python -m hhd_lightmapper.cli FILE.blend <command> ...` under the bpy module."""
+    if not argv or not argv[0].endswith(".blend"):
+        print(f"usage: python -m hhd_lightmapper.cli FILE.blend {{unwrap,bake,encode}} ...", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        bpy.ops.wm.open_mainfile(filepath=argv[0])
+    except RuntimeError as exc:
+        return _fail(EXIT_INPUT, f"cannot open {argv[0]}: {exc}")
+    import hhd_lightmapper
+    hhd_lightmapper.register()
+    try:
+        return main(argv[1:])
+    finally:
+        hhd_lightmapper.unregister()
+
+
+_handle = None
+
+
+def register():
+    global _handle
+    _handle = bpy.utils.register_cli_command(COMMAND, main)
+
+
+def unregister():
+    global _handle
+    if _handle is not None:
+        bpy.utils.unregister_cli_command(_handle)
+        _handle = None
+
+
+if __name__ == "__main__":
+    sys.exit(standalone(sys.argv[1:]))

@@ -1,0 +1,169 @@
+"""The bake pipeline over atlases: bake points → trace → encode → files. No bpy.
+
+`run` is what the Bake operator (modal or not) and the command line both call, after the bpy side
+has read the scene into plain data (`AtlasInput`, `BakeScene`). It never touches the scene: its
+only effect is the files of each atlas, which are staged under temporary names and renamed over
+any previous bake only once every atlas is finished. A cancel or an error leaves the previous
+files as they were.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from . import bakepoints, exr, lightmap_files, tracer
+from .bakepoints import SurfaceTriangles
+from .errors import BakeError
+from .rays import RayScene
+from .scene import BakeScene
+
+#: Share of the progress bar per stage (bake points, tracing, encoding + writing).
+_STAGES = (0.08, 0.84, 0.08)
+
+
+@dataclass
+class AtlasInput:
+    """One atlas to bake: its name (file stem), size in texels, the receiving triangles and the
+    names of the objects they belong to (`surface.object_index` indexes `objects`)."""
+    name: str
+    width: int
+    height: int
+    surface: SurfaceTriangles
+    objects: list[str]
+
+
+@dataclass
+class EncoderSettings:
+    """Keyword arguments of `hhd.encode` (see there)."""
+    model: str = "hhd"
+    direction: str = "searched"
+    ambient: str = "luminance"
+    phi_search: bool = False
+
+    def kwargs(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class PipelineSettings:
+    trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
+    encoder: EncoderSettings = field(default_factory=EncoderSettings)
+
+
+@dataclass
+class AtlasResult:
+    name: str
+    files: lightmap_files.AtlasFiles
+    texels: int
+    rays: int
+    seconds: dict
+
+
+class Progress:
+    """Turns stage progress into one fraction plus a status line with speed and ETA."""
+
+    def __init__(self, callback: Callable[[float, str], None] | None):
+        self.callback = callback
+        self.start = time.perf_counter()
+
+    def report(self, fraction: float, message: str) -> None:
+        if self.callback is None:
+            return
+        elapsed = time.perf_counter() - self.start
+        eta = elapsed / fraction * (1.0 - fraction) if fraction > 0.02 else None
+        tail = f", ETA {_format_seconds(eta)}" if eta is not None else ""
+        self.callback(min(max(fraction, 0.0), 1.0), f"{message}{tail}")
+
+
+def _format_seconds(s: float) -> str:
+    return f"{s:.0f} s" if s < 90 else f"{s / 60:.1f} min"
+
+
+def _check_cancel(cancel) -> None:
+    if cancel is not None and cancel():
+        raise tracer.BakeCancelled("bake cancelled")
+
+
+def build_points(atlases: list[AtlasInput], scene: BakeScene, progress: Progress, cancel=None):
+    """Bake points of every atlas; raises BakeError naming an object whose UVs cover no texel."""
+    occluders = RayScene(scene.triangles) if len(scene.triangles) else None
+    out = []
+    for i, atlas in enumerate(atlases):
+        _check_cancel(cancel)
+        points = bakepoints.build(atlas.surface, atlas.width, atlas.height, occluders=occluders)
+        counts = np.bincount(points.object_index, minlength=len(atlas.objects))
+        empty = [atlas.objects[k] for k in np.unique(atlas.surface.object_index) if counts[k] == 0]
+        if empty:
+            raise BakeError(f"{', '.join(repr(n) for n in empty)}: the lightmap UVs cover no texel of "
+                            f"atlas '{atlas.name}' (zero-area UVs): run Unwrap again")
+        out.append(points)
+        progress.report(_STAGES[0] * (i + 1) / len(atlases), f"bake points of '{atlas.name}': {len(points.texel)} texels")
+    return out
+
+
+def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings, out_dir,
+        progress: Callable[[float, str], None] | None = None, cancel: Callable[[], bool] | None = None,
+        extra_sidecar: dict | None = None) -> list[AtlasResult]:
+    """Bake every atlas and write its files into `out_dir`. `progress(fraction, message)` is
+    called often (at least once per tracer chunk); `cancel()` returning True stops within a chunk
+    (raises tracer.BakeCancelled) with no file replaced."""
+    if not atlases:
+        raise BakeError("nothing to bake: no target objects")
+    out_dir = Path(out_dir)
+    report = Progress(progress)
+    t0 = time.perf_counter()
+    points = build_points(atlases, scene, report, cancel)
+    t_points = time.perf_counter() - t0
+    total_texels = sum(len(p.texel) for p in points)
+    baked, done_texels = [], 0
+    for atlas, pts in zip(atlases, points):
+        def on_trace(f, msg, base=done_texels, n=len(pts.texel)):
+            frac = (base + f * n) / total_texels
+            rate = frac * total_texels * settings.trace.samples / max(time.perf_counter() - t0 - t_points, 1e-9)
+            report.report(_STAGES[0] + _STAGES[1] * frac,
+                          f"'{atlas.name}': {msg}, {rate / 1e3:.0f} k texel-samples/s")
+        baked.append(tracer.bake(pts, scene, settings.trace, progress=on_trace, cancel=cancel))
+        done_texels += len(pts.texel)
+    return _write(atlases, points, baked, settings, out_dir, report, cancel, t_points, extra_sidecar or {})
+
+
+def _write(atlases, points, baked, settings, out_dir, report, cancel, t_points, extra) -> list[AtlasResult]:
+    results = []
+    with exr.Staging() as staging:
+        for i, (atlas, pts, result) in enumerate(zip(atlases, points, baked)):
+            _check_cancel(cancel)
+            t = time.perf_counter()
+            files = lightmap_files.AtlasFiles(out_dir, atlas.name)
+            seconds = {"bake_points": t_points, "trace": result.seconds}
+            sidecar = dict(extra)
+            sidecar.update({
+                "bake": {**asdict(settings.trace), "samples_taken": result.samples, "passes": result.passes,
+                         "rays": result.rays},
+                "objects": lightmap_files.object_rects(pts, atlas.objects),
+                "timings_seconds": seconds,
+            })
+            data = lightmap_files.TexelData.from_points(pts, result.sh)
+            lightmap_files.stage_atlas(staging, files, data, settings.encoder.kwargs(), sidecar)
+            seconds["encode_and_write"] = time.perf_counter() - t
+            results.append(AtlasResult(atlas.name, files, len(pts.texel), result.rays, seconds))
+            report.report(sum(_STAGES[:2]) + _STAGES[2] * (i + 1) / len(atlases), f"wrote '{atlas.name}'")
+        _check_cancel(cancel)
+        staging.commit()
+    return results
+
+
+def reencode(files: lightmap_files.AtlasFiles, encoder: EncoderSettings) -> float:
+    """Encode an atlas again from its SH and texel EXRs with other encoder settings (no tracing);
+    replaces the HHD EXR and the sidecar atomically. Returns the seconds it took."""
+    t = time.perf_counter()
+    sidecar = lightmap_files.read_sidecar(files.sidecar)
+    data = lightmap_files.read_texel_data(files)
+    sidecar["reencoded_from_sh"] = True
+    with exr.Staging() as staging:
+        lightmap_files.stage_atlas(staging, files, data, encoder.kwargs(), sidecar, write_sh=False)
+        staging.commit()
+    return time.perf_counter() - t

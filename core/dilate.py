@@ -1,0 +1,49 @@
+"""Fill texels outside the charts from their nearest chart texels. No bpy.
+
+Bilinear filtering and mip-mapping average neighbouring texels; an empty (black) texel next to
+a chart would darken its border. Dilation copies into every empty texel the value of a nearby
+source texel, growing outward one ring per step (8-neighbourhood, so the fill is the chessboard
+nearest source). The propagation works on texel indices, so any number of channels costs one
+gather at the end. Texels farther than `rings` from every source get the mean of all sources.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: Neighbour offsets (dy, dx), edge neighbours first so they win over diagonal ones.
+_NEIGHBOURS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))
+
+
+def nearest_source(valid: np.ndarray, rings: int) -> np.ndarray:
+    """For an `(H, W)` bool mask of source texels: `(H, W)` int flat index of the source each
+    texel takes its value from (itself for sources), -1 where none is within `rings`."""
+    h, w = valid.shape
+    index = np.where(valid, np.arange(h * w).reshape(h, w), -1)
+    for _ in range(rings):
+        empty = index < 0
+        if not empty.any():
+            break
+        padded = np.pad(index, 1, constant_values=-1)
+        grown = index.copy()
+        for dy, dx in _NEIGHBOURS:
+            neighbour = padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+            take = (grown < 0) & (neighbour >= 0)
+            grown[take] = neighbour[take]
+        if np.array_equal(grown, index):
+            break
+        index = grown
+    return index
+
+
+def dilate(image: np.ndarray, valid: np.ndarray, rings: int = 16) -> np.ndarray:
+    """Copy of `image` `(H, W, ...)` with non-`valid` texels filled from the nearest valid one
+    (within `rings`), the rest with the mean of the valid texels (0 if there are none)."""
+    h, w = valid.shape
+    flat = image.reshape((h * w,) + image.shape[2:])
+    source = nearest_source(valid, rings).reshape(-1)
+    out = flat.copy()
+    reached = source >= 0
+    out[reached] = flat[source[reached]]
+    fill = flat[valid.reshape(-1)].mean(axis=0) if valid.any() else 0.0
+    out[~reached] = fill
+    return out.reshape(image.shape)

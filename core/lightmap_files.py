@@ -1,0 +1,239 @@
+"""The files a bake writes per lightmap atlas, and reading them back. No bpy.
+
+Per atlas `<name>` in the output folder (docs/format.md is the contract):
+  <name>_hhd.exr     the encoded lightmap: Iz.R/G/B (I_z, linear RGB irradiance at n_v, DESIGN.md
+                     units), Wa.V (w_a, luminance mode) or Wa.R/G/B (RGB mode), Direction.X/Y (the
+                     highlight direction d, world space, octahedral in [-1, 1]²). Half floats when
+                     every value fits, float32 otherwise (I_z above 65504): never clipped.
+  <name>_sh.exr      the raw L2 radiance SH, 27 float32 channels SH0.R … SH8.B (DESIGN order),
+                     world space: re-encode or blend without re-tracing.
+  <name>_texels.exr  what the encoder needs besides the SH: Normal.X/Y/Z (n_v, world, float32)
+                     and Coverage.V (fraction of the texel covered by triangles; 0 outside
+                     charts, -1 for buried texels, whose hemisphere is closed by geometry).
+  <name>.json        the sidecar: format version, channel meanings, conventions, settings,
+                     per-object texel rectangles, timings, statistics.
+Texels outside charts are filled by dilation (`dilate`) in every image, so bilinear filtering and
+mip-maps never pull in black; buried texels stay black (I_z = 0).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import dilate as _dilate
+from . import exr, hhd, octahedral
+from .bakepoints import BakePoints
+from .errors import BakeError
+
+FORMAT = "hhd-lightmap"
+FORMAT_VERSION = 1
+SH_CHANNELS = [f"SH{k}.{c}" for k in range(9) for c in "RGB"]
+#: Dilation reach in texels: enough for bilinear filtering down several mip levels; farther
+#: empty texels take the atlas mean.
+DILATE_RINGS = 16
+
+CONVENTIONS = {
+    "world": "Blender world space: right-handed, Z up, metres",
+    "uv": "lightmap UV (0,0) is the bottom-left texel corner; EXR scanline 0 is the top row (v = 1); "
+          "texel (x, y) counted from the bottom sits in scanline height-1-y",
+    "sh_basis": "real L2 SH, order (0,0),(1,-1),(1,0),(1,1),(2,-2),(2,-1),(2,0),(2,1),(2,2); "
+                "Y1 ∝ (-y, z, -x), Y2 ∝ (xy, -yz, 3z²-1, -xz, x²-y²); orthonormal over the sphere",
+    "sh_quantity": "incident radiance over the hemisphere of n_v (zero below it), linear RGB",
+    "irradiance": "I(n) = (1/π) ∫ L(ω) max(n·ω, 0) dω, so diffuse outgoing radiance = albedo × I",
+    "hhd": "I(n) = Iz · [ wa·(1 + n·nv)/2 + (1 − wa)·max(n·d, 0)/(d·nv) ]",
+    "ahd": "I(n) = Iz · [ wa + (1 − wa)·max(n·d, 0)/(d·nv) ]",
+    "self_bounce": "optional: + albedo · Iz · (1 − n·nv)/2",
+    "direction": "d in world space, octahedral: encode p = d.xy/(|x|+|y|+|z|); if d.z < 0: "
+                 "p = (1 − |p.yx|)·sign(p); d·nv ≥ 0.02 guaranteed",
+    "luminance": "Rec.709 (0.2126, 0.7152, 0.0722)",
+}
+
+
+@dataclass
+class AtlasFiles:
+    """Paths of one atlas's files (they share `folder` and `name`)."""
+    folder: Path
+    name: str
+
+    @property
+    def hhd(self) -> Path:
+        return self.folder / f"{self.name}_hhd.exr"
+
+    @property
+    def sh(self) -> Path:
+        return self.folder / f"{self.name}_sh.exr"
+
+    @property
+    def texels(self) -> Path:
+        return self.folder / f"{self.name}_texels.exr"
+
+    @property
+    def sidecar(self) -> Path:
+        return self.folder / f"{self.name}.json"
+
+    def all(self) -> list[Path]:
+        return [self.hhd, self.sh, self.texels, self.sidecar]
+
+
+@dataclass
+class TexelData:
+    """An atlas's per-texel inputs to the encoder, as images `(H, W, ...)` (rows bottom-up):
+    sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried)."""
+    sh: np.ndarray
+    normal: np.ndarray
+    coverage: np.ndarray
+
+    @property
+    def baked(self) -> np.ndarray:
+        """Texels with a bake value of their own (covered, not buried): the dilation sources."""
+        return self.coverage > 0.0
+
+    @classmethod
+    def from_points(cls, points: BakePoints, sh: np.ndarray) -> "TexelData":
+        coverage = np.where(points.buried, -1.0, points.coverage)
+        return cls(sh=points.image(np.asarray(sh, np.float64)), normal=points.image(points.normal),
+                   coverage=points.image(coverage))
+
+
+def encode_image(data: TexelData, encoder: dict) -> tuple[dict, hhd.HHDParams]:
+    """Encode the baked texels with `hhd.encode(**encoder)`; returns the HHD EXR channels (dilated,
+    bottom-up rows) and the params of the baked texels."""
+    h, w = data.coverage.shape
+    baked = data.baked
+    params = hhd.encode(data.sh[baked], data.normal[baked], **encoder)
+    rgb_weight = params.ambient_weight.ndim == 2
+    iz = np.zeros((h, w, 3))
+    wa = np.ones((h, w, 3 if rgb_weight else 1))
+    direction = np.zeros((h, w, 3))
+    direction[..., 2] = 1.0
+    iz[baked] = params.irradz
+    wa[baked] = params.ambient_weight.reshape(len(params.irradz), -1)
+    direction[baked] = params.direction
+    iz = _dilate_keep_buried(iz, data)
+    wa = _dilate.dilate(wa, baked, DILATE_RINGS)
+    direction = _dilate.dilate(direction, baked, DILATE_RINGS)
+    oct_uv = octahedral.encode(direction.reshape(-1, 3)).reshape(h, w, 2)
+    channels = {}
+    iz_type = np.float16 if exr.fits_half(iz) else np.float32
+    for c, name in enumerate("RGB"):
+        channels[f"Iz.{name}"] = iz[..., c].astype(iz_type)
+    for c, name in enumerate("RGB" if rgb_weight else "V"):
+        channels[f"Wa.{name}"] = wa[..., c].astype(np.float16)
+    channels["Direction.X"] = oct_uv[..., 0].astype(np.float16)
+    channels["Direction.Y"] = oct_uv[..., 1].astype(np.float16)
+    return channels, params
+
+
+def _dilate_keep_buried(image: np.ndarray, data: TexelData) -> np.ndarray:
+    out = _dilate.dilate(image, data.baked, DILATE_RINGS)
+    out[data.coverage < 0.0] = 0.0
+    return out
+
+
+def sh_channels(data: TexelData) -> dict:
+    sh = _dilate_keep_buried(data.sh, data).reshape(data.sh.shape[:2] + (27,))
+    return {name: sh[..., k].astype(np.float32) for k, name in enumerate(SH_CHANNELS)}
+
+
+def texel_channels(data: TexelData) -> dict:
+    out = {f"Normal.{a}": data.normal[..., k].astype(np.float32) for k, a in enumerate("XYZ")}
+    out["Coverage.V"] = data.coverage.astype(np.float32)
+    return out
+
+
+def channel_table(channels: dict, meanings: dict) -> dict:
+    return {name: {"type": "half" if a.dtype == np.float16 else "float", "meaning": meanings[name.split(".")[0]]}
+            for name, a in channels.items()}
+
+
+MEANINGS = {
+    "Iz": "I_z: irradiance at the vertex normal n_v, linear RGB, DESIGN.md units (albedo × I = radiance)",
+    "Wa": "w_a: ambient weight in [0, 1] (luminance mode: one channel V; RGB mode: per channel)",
+    "Direction": "highlight direction d, world space, octahedral X/Y in [-1, 1]",
+    "SH0": "radiance SH coefficient k (SHk.R/G/B), world space", "Normal": "vertex normal n_v, world space, unit",
+    "Coverage": "fraction of the texel covered by triangles; 0 outside charts (dilated), -1 buried",
+}
+MEANINGS.update({f"SH{k}": MEANINGS["SH0"] for k in range(9)})
+
+
+def _to_rows(channels: dict) -> dict:
+    return {k: exr.to_exr_rows(v) for k, v in channels.items()}
+
+
+def stage_atlas(staging: exr.Staging, files: AtlasFiles, data: TexelData, encoder: dict,
+                sidecar: dict, write_sh: bool = True) -> hhd.HHDParams:
+    """Encode and stage every file of one atlas (nothing is replaced until `staging.commit()`).
+    `sidecar` carries the bake's settings/objects/timings; channel tables and encoder settings
+    are added here. Returns the encoded params of the baked texels."""
+    hhd_ch, params = encode_image(data, encoder)
+    h, w = data.coverage.shape
+    attributes = {"hhdFormat": FORMAT, "hhdFormatVersion": FORMAT_VERSION, "hhdAtlas": files.name}
+    exr.write_file(staging.stage(files.hhd), _to_rows(hhd_ch), attributes)
+    tables = {"hhd": channel_table(hhd_ch, MEANINGS)}
+    if write_sh:
+        sh_ch, tx_ch = sh_channels(data), texel_channels(data)
+        exr.write_file(staging.stage(files.sh), _to_rows(sh_ch), attributes)
+        exr.write_file(staging.stage(files.texels), _to_rows(tx_ch), attributes)
+        tables.update(sh=channel_table(sh_ch, MEANINGS), texels=channel_table(tx_ch, MEANINGS))
+    else:
+        tables.update({k: v for k, v in sidecar.get("channels", {}).items() if k != "hhd"})
+    lum = params.irradz @ hhd.LUMINANCE
+    doc = dict(sidecar)
+    doc.update({
+        "format": FORMAT, "format_version": FORMAT_VERSION, "atlas": files.name, "width": w, "height": h,
+        "files": {"hhd": files.hhd.name, "sh": files.sh.name, "texels": files.texels.name},
+        "channels": tables, "conventions": CONVENTIONS,
+        "encoder": {k: v for k, v in encoder.items()},
+        "stats": {"texels_baked": int(data.baked.sum()), "texels_buried": int((data.coverage < 0).sum()),
+                  "texels_invalid": params.n_invalid, "irradz_max": float(params.irradz.max(initial=0.0)),
+                  "irradz_mean_luminance": float(lum.mean()) if len(lum) else 0.0},
+    })
+    staging.write_text(files.sidecar, json.dumps(doc, indent=2, ensure_ascii=False))
+    return params
+
+
+def read_sidecar(path) -> dict:
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise BakeError(f"no bake found: {path} does not exist (bake first)") from None
+    except (OSError, ValueError) as exc:
+        raise BakeError(f"cannot read the bake sidecar {path}: {exc}") from exc
+    if doc.get("format") != FORMAT or doc.get("format_version", 0) > FORMAT_VERSION:
+        raise BakeError(f"{path} is not an HHD lightmap sidecar of format version ≤ {FORMAT_VERSION}")
+    return doc
+
+
+def read_texel_data(files: AtlasFiles) -> TexelData:
+    """The SH and texel EXRs of a finished bake, as the encoder's input."""
+    sh_ch, _ = exr.read(files.sh)
+    tx_ch, _ = exr.read(files.texels)
+    missing = [n for n in SH_CHANNELS if n not in sh_ch]
+    if missing:
+        raise BakeError(f"{files.sh} lacks SH channels {missing[:3]}…")
+    sh = np.stack([exr.from_exr_rows(sh_ch[n]) for n in SH_CHANNELS], axis=-1).astype(np.float64)
+    h, w = sh.shape[:2]
+    normal = np.stack([exr.from_exr_rows(tx_ch[f"Normal.{a}"]) for a in "XYZ"], axis=-1).astype(np.float64)
+    coverage = exr.from_exr_rows(tx_ch["Coverage.V"]).astype(np.float64)
+    return TexelData(sh=sh.reshape(h, w, 9, 3), normal=normal, coverage=coverage)
+
+
+def object_rects(points: BakePoints, names: list[str]) -> list[dict]:
+    """Per object: its texel rectangle in the atlas (x0, y0 inclusive, x1, y1 exclusive, y from
+    the bottom), the same as a UV rectangle, and its number of baked texels."""
+    x = points.texel % points.width
+    y = points.texel // points.width
+    out = []
+    for index, name in enumerate(names):
+        mine = points.object_index == index
+        if not mine.any():
+            out.append({"name": name, "texels": 0, "rect": None, "uv_rect": None})
+            continue
+        x0, x1, y0, y1 = int(x[mine].min()), int(x[mine].max()) + 1, int(y[mine].min()), int(y[mine].max()) + 1
+        out.append({"name": name, "texels": int(mine.sum()), "rect": [x0, y0, x1, y1],
+                    "uv_rect": [x0 / points.width, y0 / points.height, x1 / points.width, y1 / points.height]})
+    return out

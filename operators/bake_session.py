@@ -1,0 +1,164 @@
+"""One bake, split at the bpy boundary: read Blender → run the core pipeline → load the results.
+
+`BakeSession(...)` reads everything the bake needs from Blender (main thread, no changes to the
+scene); `run()` is pure core work (safe on a worker thread: it touches no bpy data) and writes
+only the output files; `finish()` loads the written images into the .blend. A bake that is
+cancelled or fails before `finish()` has changed nothing in the .blend and replaced no file.
+"""
+from __future__ import annotations
+
+import os
+
+import bpy
+
+from ..core import bake as core_bake
+from ..core import presets, tracer
+from ..core.errors import BakeError
+from ..core.lightmap_files import AtlasFiles
+from . import mesh_data, scene_data
+
+DEFAULT_ATLAS = "Lightmap"
+
+
+def target_objects(context, names: list[str] | None = None) -> list:
+    """Receivers: the named objects, else the scene's target (selected objects or a collection).
+    Raises BakeError naming an object that does not exist or is not a mesh."""
+    settings = context.scene.hhd
+    if names:
+        missing = [n for n in names if n not in bpy.data.objects]
+        if missing:
+            raise BakeError(f"no object named {', '.join(repr(n) for n in missing)} in this .blend")
+        wrong = [n for n in names if bpy.data.objects[n].type != 'MESH']
+        if wrong:
+            raise BakeError(f"{', '.join(repr(n) for n in wrong)} is not a mesh object: only meshes get lightmaps")
+        return mesh_data.target_meshes(bpy.data.objects[n] for n in names)
+    if settings.target == 'COLLECTION':
+        if settings.target_collection is None:
+            raise BakeError("Receivers is set to Collection but no collection is chosen")
+        return mesh_data.target_meshes(settings.target_collection.all_objects)
+    return mesh_data.target_meshes(context.selected_objects)
+
+
+def output_folder(settings, override: str | None = None) -> str:
+    """Absolute output folder: `override`, else the setting (relative to the .blend)."""
+    path = override or settings.output_dir
+    if path.startswith("//") and not bpy.data.is_saved:
+        raise BakeError(f"the Output Folder '{path}' is relative to the .blend, which has not been saved: "
+                        "save the .blend or choose an absolute folder")
+    return os.path.normpath(bpy.path.abspath(path))
+
+
+def atlas_groups(objects, settings) -> tuple[list[tuple[str, int, int, list]], list[str]]:
+    """[(atlas name, width, height, objects)] from the last unwrap's record on each object
+    (objects with lightmap UVs made elsewhere go into the default atlas at the scene resolution),
+    and warnings for atlases only partly baked."""
+    groups: dict[str, list] = {}
+    for obj in objects:
+        rec = obj.hhd
+        name = rec.atlas or DEFAULT_ATLAS
+        size = (rec.atlas_width, rec.atlas_height) if rec.atlas else (settings.resolution, settings.resolution)
+        entry = groups.setdefault(name, [size, []])
+        if entry[0] != size:
+            raise BakeError(f"'{obj.name}' was unwrapped into atlas '{name}' at {size[0]}×{size[1]}, other objects "
+                            f"of that atlas at {entry[0][0]}×{entry[0][1]}: unwrap them together again")
+        entry[1].append(obj)
+    warnings = []
+    for name, (_, members) in groups.items():
+        left_out = sorted(o.name for o in bpy.data.objects
+                          if o.type == 'MESH' and o.hhd.atlas == name and o not in members)
+        if left_out:
+            warnings.append(f"atlas '{name}' also holds {', '.join(repr(n) for n in left_out)}, not baked now: "
+                            "their texels in this bake's files are empty (bake them together)")
+    return [(name, size[0], size[1], members) for name, (size, members) in groups.items()], warnings
+
+
+def _check_receivers(objects, uv_layer: str) -> None:
+    if not objects:
+        raise BakeError("no mesh objects to bake: select the objects that should receive lightmaps")
+    for obj in objects:
+        if len(obj.data.polygons) == 0:
+            raise BakeError(f"'{obj.name}' has no faces to bake")
+        if uv_layer not in obj.data.uv_layers:
+            raise BakeError(f"'{obj.name}' has no '{uv_layer}' UV layer: run Unwrap first")
+
+
+def pipeline_settings(settings, preset: str | None = None) -> core_bake.PipelineSettings:
+    samples, bounces = presets.settings(preset) if preset else (settings.samples, settings.bounces)
+    samples = max(2, samples)
+    trace = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples + samples % 2),
+                                bounces=bounces, seed=settings.seed)
+    return core_bake.PipelineSettings(trace=trace, encoder=encoder_settings(settings))
+
+
+def encoder_settings(settings) -> core_bake.EncoderSettings:
+    return core_bake.EncoderSettings(model=settings.model.lower(), direction=settings.direction.lower(),
+                                     ambient=settings.ambient.lower(), phi_search=settings.phi_search)
+
+
+class BakeSession:
+    """Everything one bake needs, read from Blender at construction (see the module doc)."""
+
+    def __init__(self, context, objects: list[str] | None = None, out_dir: str | None = None,
+                 preset: str | None = None, overrides: dict | None = None):
+        scene = context.scene
+        settings = scene.hhd
+        self.settings = pipeline_settings(settings, preset)
+        for key, value in (overrides or {}).items():
+            setattr(self.settings.trace, key, value)
+        self.out_dir = output_folder(settings, out_dir)
+        self.receivers = target_objects(context, objects)
+        _check_receivers(self.receivers, settings.uv_layer)
+        groups, self.warnings = atlas_groups(self.receivers, settings)
+        depsgraph = context.evaluated_depsgraph_get()
+        cache = mesh_data.TextureCache()
+        notes: list[str] = []
+        self.scene = scene_data.read_bake_scene(depsgraph)
+        notes += self.scene.notes
+        self.atlases = []
+        for name, width, height, members in groups:
+            surface = mesh_data.read_surface(members, settings.uv_layer, depsgraph, cache, notes)
+            self.atlases.append(core_bake.AtlasInput(name, width, height, surface, [o.name for o in members]))
+        self.warnings += list(dict.fromkeys(notes))
+        self.pack = settings.pack_images
+        self.blend = bpy.data.filepath
+        self.results: list[core_bake.AtlasResult] = []
+
+    def describe(self) -> str:
+        n_occ = len(self.scene.triangles)
+        return (f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es); {n_occ} occluder triangles; "
+                f"{self.settings.trace.samples} samples, {self.settings.trace.bounces} bounces")
+
+    def run(self, progress=None, cancel=None) -> list[core_bake.AtlasResult]:
+        """The core bake and file output; touches no bpy data (worker-thread safe)."""
+        extra = {"blend_file": self.blend, "receivers": [o for a in self.atlases for o in a.objects],
+                 "occluder_triangles": int(len(self.scene.triangles)), "notes": self.warnings}
+        self.results = core_bake.run(self.atlases, self.scene, self.settings, self.out_dir,
+                                     progress=progress, cancel=cancel, extra_sidecar=extra)
+        return self.results
+
+    def finish(self) -> str:
+        """Load the written images into the .blend; returns a one-line summary."""
+        for result in self.results:
+            load_atlas_images(result.files, self.pack)
+        texels = sum(r.texels for r in self.results)
+        seconds = sum(sum(v for v in r.seconds.values()) for r in self.results)
+        return (f"Baked {texels} texels in {len(self.results)} atlas(es) to {self.out_dir} "
+                f"({seconds:.1f} s: {', '.join(r.name for r in self.results)})")
+
+
+def load_atlas_images(files: AtlasFiles, pack: bool = False) -> list:
+    """Load (or reload) an atlas's HHD and SH EXRs as Non-Color images; external unless `pack`."""
+    images = []
+    for path in (files.hhd, files.sh):
+        image = next((im for im in bpy.data.images
+                      if im.filepath and os.path.normpath(bpy.path.abspath(im.filepath)) == os.path.normpath(str(path))),
+                     None)
+        if image is None:
+            image = bpy.data.images.load(str(path), check_existing=False)
+        else:
+            image.reload()
+        image.colorspace_settings.is_data = True
+        if pack:
+            image.pack()
+        images.append(image)
+    return images

@@ -1,0 +1,172 @@
+"""The bake workflow in Blender: operators in background mode end to end, re-encode, errors
+naming the object, cancel leaving the .blend untouched, and the command line's exit codes."""
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import cycles_compare as cc
+from hhd_lightmapper import cli
+from hhd_lightmapper.core import exr
+from hhd_lightmapper.core.tracer import BakeCancelled
+
+pytestmark = pytest.mark.bpy
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def baked_scene(extension, tmp_path):
+    """Floor + cube, sun + sky, unwrapped at 256², saved as tmp_path/scene.blend."""
+    import bpy
+    scene = cc.clear_scene()
+    grey = cc.material("grey")
+    floor = cc.plane("Floor", (0, 0, 0), 4, grey)
+    cube = cc.box("Cube", (0, 0, 0.5), (1, 1, 1), cc.material("red", (0.8, 0.1, 0.1)))
+    cc.light('SUN', rotation=(0.5, 0.2, 0), energy=3.0)
+    cc.world((0.1, 0.2, 0.3))
+    scene.hhd.samples, scene.hhd.bounces, scene.hhd.output_dir = 8, 1, "//lightmaps"
+    scene.hhd.model, scene.hhd.ambient, scene.hhd.pack_images = 'HHD', 'LUMINANCE', False
+    cc.unwrap([floor, cube])
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
+    return scene, [floor, cube], tmp_path
+
+
+def scene_hash() -> str:
+    """Hash of what a bake must not change: every mesh's UV layers, every material's node tree
+    and every image's identity and source."""
+    import bpy
+    h = hashlib.sha256()
+    for mesh in sorted(bpy.data.meshes, key=lambda m: m.name):
+        for layer in mesh.uv_layers:
+            uv = np.zeros(len(mesh.loops) * 2, np.float32)
+            layer.data.foreach_get("uv", uv)
+            h.update(layer.name.encode() + uv.tobytes())
+    for mat in sorted(bpy.data.materials, key=lambda m: m.name):
+        h.update(mat.name.encode())
+        for node in mat.node_tree.nodes:
+            h.update(f"{node.name}{node.bl_idname}{tuple(node.location)}".encode())
+            for socket in node.inputs:
+                value = getattr(socket, "default_value", None)
+                h.update(repr(tuple(value) if hasattr(value, "__len__") else value).encode())
+        for link in mat.node_tree.links:
+            h.update(f"{link.from_node.name}.{link.from_socket.identifier}>{link.to_node.name}.{link.to_socket.identifier}".encode())
+    for image in sorted(bpy.data.images, key=lambda i: i.name):
+        h.update(f"{image.name}|{image.filepath}|{image.packed_file is not None}".encode())
+    return h.hexdigest()
+
+
+def test_bake_and_reencode_operators_end_to_end(baked_scene):
+    import bpy
+    scene, receivers, folder = baked_scene
+    cc.select(receivers)
+    assert bpy.ops.hhd.bake() == {'FINISHED'}
+    out = folder / "lightmaps"
+    assert sorted(p.name for p in out.iterdir()) == ["Lightmap.json", "Lightmap_hhd.exr", "Lightmap_sh.exr",
+                                                      "Lightmap_texels.exr"]
+    doc = json.loads((out / "Lightmap.json").read_text())
+    assert [o["name"] for o in doc["objects"]] == ["Cube", "Floor"] and all(o["texels"] > 0 for o in doc["objects"])
+    assert doc["bake"]["samples"] == 8 and doc["encoder"]["model"] == "hhd"
+    loaded = {Path(bpy.path.abspath(im.filepath)).name: im for im in bpy.data.images}
+    assert {"Lightmap_hhd.exr", "Lightmap_sh.exr"} <= set(loaded)
+    assert all(im.packed_file is None for im in loaded.values())          # external, not packed
+    assert "Baked" in scene.hhd.bake_summary
+    sh_bytes, hhd_bytes = (out / "Lightmap_sh.exr").read_bytes(), (out / "Lightmap_hhd.exr").read_bytes()
+    scene.hhd.model = 'AHD'
+    assert bpy.ops.hhd.encode() == {'FINISHED'}
+    assert (out / "Lightmap_sh.exr").read_bytes() == sh_bytes
+    assert (out / "Lightmap_hhd.exr").read_bytes() != hhd_bytes
+    assert json.loads((out / "Lightmap.json").read_text())["encoder"]["model"] == "ahd"
+    scene.hhd.pack_images = True
+    assert bpy.ops.hhd.bake() == {'FINISHED'}
+    assert all(im.packed_file is not None for im in bpy.data.images if im.name.startswith("Lightmap_"))
+
+
+def test_errors_name_the_object_and_the_problem(baked_scene):
+    import bpy
+    scene, (floor, cube), folder = baked_scene
+    cube.data.uv_layers.remove(cube.data.uv_layers[cc.LAYER])
+    cc.select([floor, cube])
+    with pytest.raises(RuntimeError, match="'Cube' has no 'HHD_Lightmap' UV layer: run Unwrap first"):
+        bpy.ops.hhd.bake()
+    empty = bpy.data.objects.new("Empty Mesh", bpy.data.meshes.new("nothing"))
+    scene.collection.objects.link(empty)
+    cc.select([empty])
+    with pytest.raises(RuntimeError, match="'Empty Mesh' has no faces"):
+        bpy.ops.hhd.bake()
+    floor.data.uv_layers[cc.LAYER].data.foreach_set("uv", np.zeros(len(floor.data.loops) * 2, np.float32))
+    cc.select([floor])
+    with pytest.raises(RuntimeError, match="'Floor': the lightmap UVs cover no texel"):
+        bpy.ops.hhd.bake()
+    assert not (folder / "lightmaps").exists()
+
+
+def test_cancel_leaves_the_blend_and_the_previous_files_unchanged(baked_scene):
+    import bpy
+    from hhd_lightmapper.operators import bake_session
+    scene, receivers, folder = baked_scene
+    cc.select(receivers)
+    assert bpy.ops.hhd.bake() == {'FINISHED'}
+    files = {p: p.read_bytes() for p in (folder / "lightmaps").iterdir()}
+    before = scene_hash()
+    scene.hhd.samples = 64
+    before = scene_hash()
+    session = bake_session.BakeSession(bpy.context)          # what the modal operator runs
+    checks = []
+    with pytest.raises(BakeCancelled):
+        session.run(cancel=lambda: checks.append(1) or len(checks) > 2)   # Esc after two chunks
+    assert scene_hash() == before
+    assert {p: p.read_bytes() for p in (folder / "lightmaps").iterdir()} == files
+
+
+def run_cli(blend, *args, env=None, **kw):
+    return subprocess.run([sys.executable, "-m", "hhd_lightmapper.cli", str(blend), *args],
+                          capture_output=True, text=True, env=env, timeout=300, **kw)
+
+
+@pytest.mark.slow
+def test_command_line_exit_codes(baked_scene, tmp_path):
+    scene, receivers, folder = baked_scene
+    blend = folder / "scene.blend"
+    ok = run_cli(blend, "bake", "--out", str(tmp_path / "cli"), "--objects", "Floor", "Cube", "--preset", "draft")
+    assert ok.returncode == cli.EXIT_OK, ok.stderr
+    assert "[100.0%]" in ok.stdout and (tmp_path / "cli" / "Lightmap_hhd.exr").is_file()
+    encode = run_cli(blend, "encode", "--out", str(tmp_path / "cli"), "--objects", "Floor", "Cube", "--model", "ahd")
+    assert encode.returncode == cli.EXIT_OK, encode.stderr
+    assert json.loads((tmp_path / "cli" / "Lightmap.json").read_text())["encoder"]["model"] == "ahd"
+
+    usage = run_cli(blend, "bake", "--samples", "many")
+    assert usage.returncode == cli.EXIT_USAGE and "invalid int value" in usage.stderr
+    missing = run_cli(blend, "bake", "--objects", "Nope")
+    assert missing.returncode == cli.EXIT_INPUT and "no object named 'Nope'" in missing.stderr
+    (tmp_path / "a_file").write_text("not a folder")
+    unwritable = run_cli(blend, "bake", "--out", str(tmp_path / "a_file" / "sub"), "--objects", "Floor", "--samples", "2")
+    assert unwritable.returncode == cli.EXIT_OUTPUT and "cannot write the output" in unwritable.stderr
+
+    blocked = tmp_path / "blocked"
+    blocked.mkdir()
+    (blocked / "OpenEXR.py").write_text("raise ImportError('blocked by the test')\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(blocked), os.environ.get("PYTHONPATH", "")]))
+    nodep = run_cli(blend, "bake", "--out", str(tmp_path / "nodep"), "--objects", "Floor", "--samples", "2", env=env)
+    assert nodep.returncode == cli.EXIT_DEPENDENCY and "'OpenEXR'" in nodep.stderr
+
+    proc = subprocess.Popen([sys.executable, "-m", "hhd_lightmapper.cli", str(blend), "bake", "--out",
+                             str(tmp_path / "interrupted"), "--objects", "Floor", "Cube", "--samples", "4096"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in proc.stdout:
+        if "texel-samples/s" in line:          # tracing has started
+            proc.send_signal(signal.SIGINT)
+            break
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == cli.EXIT_CANCELLED, err
+    assert not (tmp_path / "interrupted").exists() or not any((tmp_path / "interrupted").iterdir())
+
+
+def test_in_process_entry_point_reports_input_errors(baked_scene):
+    assert cli.main(["bake", "--collection", "Nope"]) == cli.EXIT_INPUT
+    assert cli.main(["frobnicate"]) == cli.EXIT_USAGE
