@@ -97,7 +97,9 @@ class BakeScene:
     albedo (T, 3) linear RGB in [0, 1] (used where a triangle has no texture); optional texture
     albedo: texture_index (T,) int (-1: none), texture_uv (T, 3, 2), textures [textures.Texture];
     emission (T, 3) radiance, emitted on both sides; lights: SunLight / PointLight / SpotLight / AreaLight; world:
-    background radiance (3,) or None (black); notes: what the extraction approximated."""
+    background radiance (3,) or None (black); environment: an HDRI world
+    (`environment.EnvironmentMap`, importance-sampled with MIS) in place of `world`; notes: what
+    the extraction approximated."""
     triangles: np.ndarray
     albedo: np.ndarray
     emission: np.ndarray | None = None
@@ -107,6 +109,7 @@ class BakeScene:
     texture_uv: np.ndarray | None = None
     textures: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    environment: object = None
 
     def albedo_at(self, prim: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Albedo (R, 3) at hit points given by triangle and barycentrics (u, v)."""
@@ -133,3 +136,7 @@ class BakeScene:
             self.world = np.asarray(self.world, dtype=np.float64)
             if not self.world.any():
                 self.world = None
+        if self.environment is not None and self.environment.is_black:
+            self.environment = None
+        if self.environment is not None and self.world is not None:
+            raise ValueError("a BakeScene has either a constant world or an environment map, not both")

@@ -15,8 +15,12 @@ texel is the average over its area, as Cycles bakes it. Lights (not geometry, ne
 rays) are added by next-event estimation only, so nothing is counted twice: at the bake point
 one shadow ray per light per sample, projected to SH along the light's direction (a delta light
 — sun without angle, point without radius — has an exact direction: an unshadowed sun adds
-exactly s·Y(l), no noise). Emitting triangles and the world are reached by the sampled rays
-(no light sampling for them yet: see the closing notes of issue 5).
+exactly s·Y(l), no noise). Emitting triangles and a constant world are reached by the sampled
+rays. An HDRI world (`environment`) is both importance-sampled (one light sample per path
+vertex, the bake point included) and reached by the sampled rays; the two are combined with the
+power heuristic (MIS), against the mixture pdf at the bake point and the cosine pdf at bounces.
+Weights sum to one per direction, so every SH coefficient stays unbiased (the I_z coefficient
+from the cosine half included).
 
 Work is split into fixed chunks of texels; each chunk of each pass draws its random numbers
 from its own generator seeded by (seed, pass, chunk), so results do not depend on the thread
@@ -143,7 +147,7 @@ class _Tracer:
         texel = np.repeat(np.arange(len(idx)), k)
         dirs = np.einsum("rij,rj->ri", self.frames[idx][texel], local)
         origins = self.points.sample_origins(rng, idx, k)
-        radiance = self._path_radiance(rng, origins, dirs)               # (n·k, 3)
+        radiance = self._path_radiance(rng, origins, dirs, pdf)          # (n·k, 3)
         mixture = _sh.accumulate_grouped(dirs, radiance / (pdf * k)[:, None], k)
         # I_z's coefficient (band 1 along n_v) from the cosine half alone: zero variance for
         # constant radiance (the furnace test is exact), lower variance in general.
@@ -152,8 +156,9 @@ class _Tracer:
         estimate = _replace_zonal_band1(mixture, cosine, self.points.normal[idx])
         return estimate + self._direct_sh(rng, idx, texel, origins, k)
 
-    def _path_radiance(self, rng, origins, dirs) -> np.ndarray:
-        """Radiance arriving at `origins` from directions `dirs` (R, 3): wavefront over bounces."""
+    def _path_radiance(self, rng, origins, dirs, pdf) -> np.ndarray:
+        """Radiance arriving at `origins` from directions `dirs` (R, 3) sampled with density `pdf`
+        (R,) per steradian: wavefront over bounces."""
         scene = self.scene
         radiance = np.zeros((len(origins), 3))
         live = np.arange(len(origins))
@@ -162,10 +167,11 @@ class _Tracer:
         for bounce in range(self.settings.bounces + 1):
             t, prim, ng, bu, bv = self._intersect(o, d, barycentrics=True)
             miss = prim < 0
-            if scene.world is not None and miss.any():
-                radiance[live[miss]] += throughput[miss] * scene.world
+            if miss.any():
+                radiance[live[miss]] += throughput[miss] * self._escaped(d[miss], pdf[miss])
             hit = ~miss
-            live, throughput, o, d, t, prim, ng, bu, bv = (a[hit] for a in (live, throughput, o, d, t, prim, ng, bu, bv))
+            live, throughput, o, d, t, prim, ng, bu, bv, pdf = (
+                a[hit] for a in (live, throughput, o, d, t, prim, ng, bu, bv, pdf))
             if len(live) == 0:
                 break
             if scene.emission is not None:
@@ -180,21 +186,50 @@ class _Tracer:
             # continue with a cosine-distributed direction: BRDF·cos/pdf = albedo (already applied)
             local = _cosine_directions(rng, len(live))
             d = np.einsum("rij,rj->ri", _sh.tangent_frames(n), local)
+            pdf = local[:, 2] / np.pi
             o = x
             if bounce + 1 >= RR_START:
                 survive = np.minimum(throughput.max(axis=1), RR_MAX_SURVIVAL)
                 keep = rng.random(len(live)) < survive
                 throughput = throughput[keep] / survive[keep, None]
-                live, o, d = live[keep], o[keep], d[keep]
+                live, o, d, pdf = live[keep], o[keep], d[keep], pdf[keep]
             if len(live) == 0:
                 break
         return radiance
+
+    def _escaped(self, d, pdf) -> np.ndarray:
+        """Radiance (R, 3) of rays leaving the scene along d, sampled with density pdf: the
+        constant world, or the HDRI weighted against its own light sampling (power heuristic)."""
+        scene = self.scene
+        if scene.environment is not None:
+            p_env = scene.environment.pdf(d)
+            return scene.environment.radiance(d) * (pdf * pdf / (pdf * pdf + p_env * p_env))[:, None]
+        if scene.world is not None:
+            return np.broadcast_to(scene.world, (len(d), 3))
+        return np.zeros((len(d), 3))
+
+    def _environment_sample(self, rng, n: int, other_pdf):
+        """One HDRI light sample per point: directions (R, 3) and radiance / pdf × MIS weight
+        (R, 3) against the other strategy, whose density `other_pdf(dirs)` gives."""
+        env = self.scene.environment
+        dirs, p_env = env.sample(rng, n)
+        p_other = other_pdf(dirs)
+        weight = p_env / (p_env * p_env + p_other * p_other)       # = w_light / p_env
+        return dirs, env.radiance(dirs) * weight[:, None]
 
     # ---- lights ------------------------------------------------------------------------------
     def _irradiance_at(self, rng, x, n) -> np.ndarray:
         """Irradiance (DESIGN units, E/π·π = outgoing radiance per unit albedo) at surface points
         x with normals n from all lights, one shadow ray per light and point."""
         total = np.zeros((len(x), 3))
+        if self.scene.environment is not None:
+            dirs, value = self._environment_sample(
+                rng, len(x), lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi)
+            cos = np.einsum("ri,ri->r", dirs, n)
+            facing = cos > 0.0
+            if facing.any():
+                visible = self._unoccluded(x[facing], dirs[facing], np.full(int(facing.sum()), np.inf))
+                total[facing] += (visible * cos[facing])[:, None] * value[facing] / np.pi
         for light in self.scene.lights:
             dirs, value, dist = self._sample_light(rng, light, x)
             cos = np.einsum("ri,ri->r", dirs, n)
@@ -257,6 +292,16 @@ class _Tracer:
         exactly s·Y(l) (no noise); penumbrae average over the texel's footprint."""
         out = np.zeros((len(idx), 9, 3))
         normal = self.points.normal[idx][texel]
+        if self.scene.environment is not None:
+            def mixture_pdf(w):
+                cos = np.einsum("ri,ri->r", w, normal)
+                return np.where(cos > 0.0, 0.5 / (2.0 * np.pi) + 0.5 * cos / np.pi, 0.0)
+            dirs, value = self._environment_sample(rng, len(origins), mixture_pdf)
+            above = np.einsum("ri,ri->r", dirs, normal) > 0.0
+            vis = np.zeros(len(origins))
+            if above.any():
+                vis[above] = self._unoccluded(origins[above], dirs[above], np.full(int(above.sum()), np.inf))
+            out += _sh.accumulate_grouped(dirs, value * (vis / k)[:, None], k)
         for light in self.scene.lights:
             dirs, value, dist = self._sample_light(rng, light, origins)
             above = np.einsum("ri,ri->r", dirs, normal) > 0.0

@@ -89,12 +89,63 @@ def _world(scene):
         return None
     node = output.inputs["Surface"].links[0].from_node
     if node.type != 'BACKGROUND':
-        raise BakeError(f"world '{world.name}': only a Background shader is supported by the bake yet")
+        raise BakeError(f"world '{world.name}': only a Background shader is supported by the bake "
+                        "(a plain colour or an Environment Texture)")
+    if node.inputs["Strength"].is_linked:
+        raise BakeError(f"world '{world.name}': a linked Background Strength is not supported; set a value")
+    strength = float(node.inputs["Strength"].default_value)
     if node.inputs["Color"].is_linked:
-        raise BakeError(f"world '{world.name}': a textured background (HDRI, sky) is not supported by the "
-                        "bake yet; use a plain Background colour")
+        return _environment(world, node.inputs["Color"].links[0].from_node, strength)
     colour = np.array(node.inputs["Color"].default_value[:3], dtype=np.float64)
-    return colour * float(node.inputs["Strength"].default_value)
+    return colour * strength
+
+
+def _environment(world, node, strength):
+    """EnvironmentMap of an Environment Texture (equirectangular) feeding the Background, with the
+    rotation/scale of a Mapping node on its Vector input."""
+    from ..core.environment import EnvironmentMap
+    from ..core.textures import srgb_to_linear
+    if node.type != 'TEX_ENVIRONMENT':
+        raise BakeError(f"world '{world.name}': the Background colour comes from a '{node.name}' node; the bake "
+                        "supports a plain colour or an Environment Texture feeding it directly")
+    if node.projection != 'EQUIRECTANGULAR':
+        raise BakeError(f"world '{world.name}': Environment Texture projection {node.projection.title()} is not "
+                        "supported; use Equirectangular")
+    image = node.image
+    if image is None or image.size[0] == 0 or image.size[1] == 0:
+        raise BakeError(f"world '{world.name}': the Environment Texture has no image (or its file is missing)")
+    w, h = image.size
+    px = np.zeros(w * h * image.channels, dtype=np.float32)
+    image.pixels.foreach_get(px)
+    rgb = px.reshape(h, w, image.channels)[..., :3].astype(np.float64)
+    if image.colorspace_settings.name == 'sRGB' and not image.is_float:
+        rgb = srgb_to_linear(rgb)
+    return EnvironmentMap(rgb * strength, _vector_mapping(world, node))
+
+
+def _vector_mapping(world, node) -> np.ndarray:
+    """3×3 world direction → lookup direction of the node's Vector input: identity when unlinked,
+    a Mapping node's rotation/scale (its location does not move a direction and is ignored)."""
+    if not node.inputs["Vector"].is_linked:
+        return np.eye(3)
+    mapping = node.inputs["Vector"].links[0].from_node
+    source = mapping.inputs["Vector"].links[0].from_node if mapping.inputs["Vector"].is_linked else None
+    if mapping.type != 'MAPPING' or (source is not None and source.type != 'TEX_COORD'):
+        raise BakeError(f"world '{world.name}': the Environment Texture's Vector must come from a Mapping node "
+                        "(fed by Texture Coordinate or nothing)")
+    from mathutils import Euler
+    for name in ("Rotation", "Scale"):
+        if mapping.inputs[name].is_linked:
+            raise BakeError(f"world '{world.name}': a linked Mapping {name} is not supported")
+    rotation = np.array(Euler(mapping.inputs["Rotation"].default_value, 'XYZ').to_matrix(), dtype=np.float64)
+    scale = np.diag(np.array(mapping.inputs["Scale"].default_value, dtype=np.float64))
+    if not np.all(np.abs(np.diag(scale)) > 0):
+        raise BakeError(f"world '{world.name}': the Mapping node has a zero scale")
+    if mapping.vector_type in ('POINT', 'VECTOR'):
+        return rotation @ scale
+    if mapping.vector_type == 'TEXTURE':
+        return np.linalg.inv(scale) @ rotation.T
+    return rotation @ np.linalg.inv(scale)           # NORMAL: inverse-transpose of R·S
 
 
 def read_bake_scene(depsgraph) -> BakeScene:
@@ -111,5 +162,7 @@ def read_bake_scene(depsgraph) -> BakeScene:
     if not parts:
         raise BakeError("nothing to bake: the scene has no mesh visible to render")
     tris, albedo, tex_index, tex_uv, emission = (np.concatenate(x) for x in zip(*parts))
-    return BakeScene(tris, albedo, emission, lights, _world(depsgraph.scene),
-                     texture_index=tex_index, texture_uv=tex_uv, textures=cache.images, notes=notes)
+    world = _world(depsgraph.scene)
+    constant, environment = (None, world) if hasattr(world, "radiance") else (world, None)
+    return BakeScene(tris, albedo, emission, lights, constant, texture_index=tex_index, texture_uv=tex_uv,
+                     textures=cache.images, notes=notes, environment=environment)

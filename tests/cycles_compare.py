@@ -66,6 +66,44 @@ def world(colour):
     bpy.context.scene.world = w
 
 
+def sky_pixels(h=32, w=64, sun=(0.75, 0.3), sun_radiance=200.0):
+    """An equirectangular float image (H, W, 4), row 0 at the bottom: a blue sky brightening
+    towards the zenith, a dim ground, and a 3×3-pixel "sun" at image coordinates `sun` (u, v)."""
+    v = (np.arange(h) + 0.5) / h
+    z = np.cos(np.pi * (1.0 - v))
+    px = np.zeros((h, w, 4))
+    px[..., :3] = np.where(z[:, None, None] > 0, (0.2 + 0.8 * z[:, None, None]) * np.array([0.3, 0.5, 1.0]),
+                           np.array([0.05, 0.04, 0.03]))
+    r, c = int(sun[1] * h), int(sun[0] * w)
+    px[r - 1:r + 2, c - 1:c + 2, :3] = sun_radiance * np.array([1.0, 0.9, 0.8])
+    px[..., 3] = 1.0
+    return px
+
+
+def hdri_world(pixels, strength=1.0, rotation=None):
+    """World = Environment Texture (a float image) × strength, optionally through a Mapping
+    node rotating it (Euler XYZ, radians)."""
+    import bpy
+    h, w = pixels.shape[:2]
+    image = bpy.data.images.new("sky", w, h, float_buffer=True, alpha=True)
+    image.pixels.foreach_set(pixels.astype(np.float32).ravel())
+    wld = bpy.data.worlds.new("HDRI")
+    wld.use_nodes = True
+    nodes, links = wld.node_tree.nodes, wld.node_tree.links
+    env = nodes.new("ShaderNodeTexEnvironment")
+    env.image = image
+    links.new(env.outputs["Color"], nodes["Background"].inputs["Color"])
+    nodes["Background"].inputs["Strength"].default_value = strength
+    if rotation is not None:
+        mapping = nodes.new("ShaderNodeMapping")
+        mapping.inputs["Rotation"].default_value = rotation
+        coords = nodes.new("ShaderNodeTexCoord")
+        links.new(coords.outputs["Generated"], mapping.inputs["Vector"])
+        links.new(mapping.outputs["Vector"], env.inputs["Vector"])
+    bpy.context.scene.world = wld
+    return wld
+
+
 def light(kind, location=(0, 0, 0), rotation=(0, 0, 0), energy=1.0, **props):
     import bpy
     data = bpy.data.lights.new(kind, kind)
