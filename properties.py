@@ -65,6 +65,17 @@ class HHDSettings(bpy.types.PropertyGroup):
     pack_images: BoolProperty(
         name="Pack Images", default=False,
         description="Pack the baked images into the .blend (by default they stay external files)")
+    preview_mode: EnumProperty(
+        name="Preview", default='HHD',
+        items=[('HHD', "HHD", "The HHD encoding (as the bake wrote it)"),
+               ('AHD', "AHD", "The AHD reconstruction of the same texels (needs an AHD bake or re-encode to match)"),
+               ('L1', "L1 SH", "Irradiance from the first 4 SH coefficients"),
+               ('L2', "L2 SH", "Irradiance from all 9 SH coefficients"),
+               ('SCALAR', "Scalar", "I_z only: no response to normal maps")],
+        description="Which reconstruction the EEVEE preview shows (A/B the encodings on the same object)")
+    preview_self_bounce: BoolProperty(
+        name="Self Bounce", default=False,
+        description="Add the light the surface's own bumps bounce back (HHD/AHD preview)")
     seed: IntProperty(name="Seed", default=0, min=0, description="Random seed: the same seed gives the same bake")
     bake_summary: StringProperty(name="Last Bake", default="", options={'SKIP_SAVE'})
     model: EnumProperty(

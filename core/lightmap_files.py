@@ -74,6 +74,15 @@ class AtlasFiles:
     def sidecar(self) -> Path:
         return self.folder / f"{self.name}.json"
 
+    @property
+    def preview(self) -> Path:
+        """Folder of the RGB images the EEVEE preview samples (Blender cannot sample a pass of a
+        multi-channel EXR): iz, wa, dir (octahedral X, Y in R, G), sh0 … sh8."""
+        return self.folder / f"{self.name}_preview"
+
+    def preview_image(self, key: str) -> Path:
+        return self.preview / f"{key}.exr"
+
     def all(self) -> list[Path]:
         return [self.hhd, self.sh, self.texels, self.sidecar]
 
@@ -192,7 +201,28 @@ def stage_atlas(staging: exr.Staging, files: AtlasFiles, data: TexelData, encode
                   "irradz_mean_luminance": float(lum.mean()) if len(lum) else 0.0},
     })
     staging.write_text(files.sidecar, json.dumps(doc, indent=2, ensure_ascii=False))
+    stage_preview(staging, files, hhd_ch, data if write_sh else None)
     return params
+
+
+def _rgb(channels: list[np.ndarray]) -> dict:
+    """R, G, B channels of a preview image (missing ones zero), float32 so nothing clips."""
+    channels = list(channels) + [np.zeros_like(channels[0])] * (3 - len(channels))
+    return {c: np.asarray(a, np.float32) for c, a in zip("RGB", channels)}
+
+
+def stage_preview(staging: exr.Staging, files: AtlasFiles, hhd_ch: dict, data: TexelData | None) -> None:
+    """Stage the preview's plain RGB EXRs (rows top-down like every file here): I_z, w_a (three
+    equal channels in luminance mode), the octahedral direction, and with `data` the SH."""
+    wa = [hhd_ch[f"Wa.{c}"] for c in "RGB"] if "Wa.R" in hhd_ch else [hhd_ch["Wa.V"]] * 3
+    images = {"iz": _rgb([hhd_ch[f"Iz.{c}"] for c in "RGB"]), "wa": _rgb(wa),
+              "dir": _rgb([hhd_ch["Direction.X"], hhd_ch["Direction.Y"]])}
+    if data is not None:
+        sh = _dilate_keep_buried(data.sh, data)
+        for k in range(9):
+            images[f"sh{k}"] = _rgb([sh[..., k, c] for c in range(3)])
+    for key, channels in images.items():
+        exr.write_file(staging.stage(files.preview_image(key)), _to_rows(channels))
 
 
 def read_sidecar(path) -> dict:

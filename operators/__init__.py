@@ -4,8 +4,10 @@ import bpy
 from .bake import HHD_OT_bake
 from .check_dependencies import HHD_OT_check_dependencies
 from .encode import HHD_OT_encode, HHD_OT_open_output
+from .preview import HHD_OT_preview_hide, HHD_OT_preview_show
 from .unwrap import HHD_OT_unwrap
 
-classes = (HHD_OT_check_dependencies, HHD_OT_unwrap, HHD_OT_bake, HHD_OT_encode, HHD_OT_open_output)
+classes = (HHD_OT_check_dependencies, HHD_OT_unwrap, HHD_OT_bake, HHD_OT_encode, HHD_OT_open_output,
+           HHD_OT_preview_show, HHD_OT_preview_hide)
 
 register, unregister = bpy.utils.register_classes_factory(classes)

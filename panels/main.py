@@ -71,6 +71,12 @@ class HHD_PT_main(bpy.types.Panel):
         row.operator("hhd.encode", icon='FILE_REFRESH')
         if settings.bake_summary:
             box.label(text=settings.bake_summary)
+        col = box.column()
+        col.prop(settings, "preview_mode")
+        col.prop(settings, "preview_self_bounce")
+        row = box.row(align=True)
+        row.operator("hhd.preview_show", icon='HIDE_OFF')
+        row.operator("hhd.preview_hide", icon='HIDE_ON')
 
     @staticmethod
     def draw_output(layout, settings):

@@ -1,0 +1,1 @@
+"""EEVEE node groups that reconstruct the baked lightmaps, and their hook-up to materials."""

@@ -67,8 +67,10 @@ def test_bake_and_reencode_operators_end_to_end(baked_scene):
     cc.select(receivers)
     assert bpy.ops.hhd.bake() == {'FINISHED'}
     out = folder / "lightmaps"
-    assert sorted(p.name for p in out.iterdir()) == ["Lightmap.json", "Lightmap_hhd.exr", "Lightmap_sh.exr",
-                                                      "Lightmap_texels.exr"]
+    assert sorted(p.name for p in out.iterdir()) == ["Lightmap.json", "Lightmap_hhd.exr", "Lightmap_preview",
+                                                      "Lightmap_sh.exr", "Lightmap_texels.exr"]
+    assert sorted(p.name for p in (out / "Lightmap_preview").iterdir()) == sorted(
+        ["iz.exr", "wa.exr", "dir.exr"] + [f"sh{k}.exr" for k in range(9)])
     doc = json.loads((out / "Lightmap.json").read_text())
     assert [o["name"] for o in doc["objects"]] == ["Cube", "Floor"] and all(o["texels"] > 0 for o in doc["objects"])
     assert doc["bake"]["samples"] == 8 and doc["encoder"]["model"] == "hhd"
@@ -112,7 +114,7 @@ def test_cancel_leaves_the_blend_and_the_previous_files_unchanged(baked_scene):
     scene, receivers, folder = baked_scene
     cc.select(receivers)
     assert bpy.ops.hhd.bake() == {'FINISHED'}
-    files = {p: p.read_bytes() for p in (folder / "lightmaps").iterdir()}
+    files = {p: p.read_bytes() for p in (folder / "lightmaps").rglob("*") if p.is_file()}
     before = scene_hash()
     scene.hhd.samples = 64
     before = scene_hash()
@@ -121,7 +123,7 @@ def test_cancel_leaves_the_blend_and_the_previous_files_unchanged(baked_scene):
     with pytest.raises(BakeCancelled):
         session.run(cancel=lambda: checks.append(1) or len(checks) > 2)   # Esc after two chunks
     assert scene_hash() == before
-    assert {p: p.read_bytes() for p in (folder / "lightmaps").iterdir()} == files
+    assert {p: p.read_bytes() for p in (folder / "lightmaps").rglob("*") if p.is_file()} == files
 
 
 def run_cli(blend, *args, env=None, **kw):

@@ -1,0 +1,69 @@
+"""Operators: show / hide the baked lighting in EEVEE (`bpy.ops.hhd.preview_show()` / `preview_hide()`)."""
+from pathlib import Path
+
+import bpy
+
+from ..core.errors import BakeError
+from ..core.lightmap_files import AtlasFiles
+from ..shaders import preview
+from . import bake_session
+from .bake import receivers_poll
+
+
+def atlas_files_of(objects, settings) -> dict:
+    """{object name: AtlasFiles} for baked objects; raises BakeError naming one without a bake."""
+    folder = Path(bake_session.output_folder(settings))
+    out = {}
+    for obj in objects:
+        name = obj.hhd.atlas or bake_session.DEFAULT_ATLAS
+        files = AtlasFiles(folder, name)
+        if not files.preview_image("iz").is_file():
+            raise BakeError(f"'{obj.name}' has no bake in {folder} (atlas '{name}'): bake it first")
+        out[obj.name] = files
+    return out
+
+
+class HHD_OT_preview_show(bpy.types.Operator):
+    """Show the baked lightmaps on the receivers' materials in EEVEE, decoded as a game engine would"""
+    bl_idname = "hhd.preview_show"
+    bl_label = "Show Preview"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        return receivers_poll(cls, context)
+
+    def execute(self, context):
+        settings = context.scene.hhd
+        try:
+            objects = bake_session.target_objects(context)
+            if not objects:
+                raise BakeError("no mesh objects selected")
+            files = atlas_files_of(objects, settings)
+            notes = preview.show(objects, files, settings.preview_mode, settings.uv_layer, settings.preview_self_bounce)
+        except BakeError as exc:
+            self.report({'ERROR'}, str(exc))
+            return {'CANCELLED'}
+        for note in notes:
+            self.report({'WARNING'}, note)
+        self.report({'INFO'}, f"Preview ({settings.preview_mode}) on {len(objects)} object(s)")
+        return {'FINISHED'}
+
+
+class HHD_OT_preview_hide(bpy.types.Operator):
+    """Remove the preview and restore every material exactly as it was"""
+    bl_idname = "hhd.preview_hide"
+    bl_label = "Hide Preview"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        if not any(preview.RECORD in m for m in bpy.data.materials):
+            cls.poll_message_set("No preview is shown")
+            return False
+        return True
+
+    def execute(self, context):
+        restored = preview.hide()
+        self.report({'INFO'}, f"Preview removed from {restored} material(s)")
+        return {'FINISHED'}

@@ -1,0 +1,175 @@
+"""Show / hide the baked lighting on the objects' own materials, restorable exactly.
+
+Show inserts, into every material of the baked objects, a frame of nodes named "HHD Preview …":
+the lightmap images sampled through the lightmap UV map (linear filtering), the chosen node group
+fed by the Principled BSDF's Base Color and Normal links (image textures, normal maps; constants
+when unlinked) and Geometry's Normal as n_v, an Emission shader of albedo × irradiance, and a
+Mix Shader between the material's own surface (factor 0) and the preview (factor 1). The mix
+factor is the object attribute `hhd_preview`, set to 1 on the baked objects only: a material shared
+with objects that were not baked keeps its own look on them.
+
+The material's original Surface link is recorded in the material (`hhd_preview` property); Hide
+removes every preview node, restores that link and deletes the record and the object attributes,
+so the node tree is exactly as before. Edits the artist makes to the material meanwhile are kept.
+"""
+from __future__ import annotations
+
+import json
+
+import bpy
+
+from . import node_groups
+
+PREFIX = "HHD Preview"
+RECORD = "hhd_preview"
+
+
+def _new(tree, kind, name, location, parent):
+    node = tree.nodes.new(kind)
+    node.name = node.label = f"{PREFIX} {name}"
+    node.location = location
+    node.parent = parent
+    return node
+
+
+def _principled(tree):
+    output = _output(tree)
+    if output is None or not output.inputs["Surface"].is_linked:
+        return None
+    node = output.inputs["Surface"].links[0].from_node
+    return node if node.type == 'BSDF_PRINCIPLED' else next(
+        (n for n in tree.nodes if n.type == 'BSDF_PRINCIPLED'), None)
+
+
+def _output(tree):
+    return next((n for n in tree.nodes if n.type == 'OUTPUT_MATERIAL' and n.is_active_output), None)
+
+
+def _feed(tree, source_input, target_input):
+    """Link what feeds `source_input` into `target_input`, or copy its constant."""
+    if source_input.is_linked:
+        tree.links.new(source_input.links[0].from_socket, target_input)
+    else:
+        value = source_input.default_value
+        target_input.default_value = value if len(target_input.default_value) == len(value) else (*value[:3], 1.0)
+
+
+def _image(tree, path, name, uv, x, y, frame):
+    node = _new(tree, "ShaderNodeTexImage", name, (x, y), frame)
+    image = bpy.data.images.load(str(path), check_existing=True)
+    image.reload()
+    image.colorspace_settings.is_data = True
+    node.image, node.interpolation, node.extension = image, 'Linear', 'EXTEND'
+    tree.links.new(uv, node.inputs["Vector"])
+    return node.outputs["Color"]
+
+
+def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) -> str | None:
+    """Insert the preview into one material; returns a note when a fallback was used."""
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    tree = mat.node_tree
+    if RECORD in mat:
+        hide_on_material(mat)
+    output = _output(tree)
+    if output is None:      # named with the prefix, so Hide removes it again
+        output = _new(tree, "ShaderNodeOutputMaterial", "Output", (300, 0), None)
+    note = None
+    link = output.inputs["Surface"].links[0] if output.inputs["Surface"].is_linked else None
+    mat[RECORD] = json.dumps({"output": output.name, "from_node": link.from_node.name if link else None,
+                              "from_socket": link.from_socket.identifier if link else None})
+    frame = _new(tree, "NodeFrame", "Frame", (output.location.x + 300, output.location.y), None)
+    x0, y0 = output.location.x + 320, output.location.y - 40
+    uv = _new(tree, "ShaderNodeUVMap", "UV", (x0, y0), frame)
+    uv.uv_map = uv_layer
+    group = _new(tree, "ShaderNodeGroup", "Group", (x0 + 600, y0), frame)
+    group.node_tree = node_groups.ensure(kind)
+    geometry = _new(tree, "ShaderNodeNewGeometry", "Geometry", (x0 + 300, y0 - 500), frame)
+    principled = _principled(tree)
+    gi = group.inputs
+    if principled is not None:
+        _feed(tree, principled.inputs["Base Color"], gi["Albedo"])
+        if "Normal" in gi:
+            if principled.inputs["Normal"].is_linked:
+                tree.links.new(principled.inputs["Normal"].links[0].from_socket, gi["Normal"])
+            else:
+                tree.links.new(geometry.outputs["Normal"], gi["Normal"])
+    else:
+        gi["Albedo"].default_value = tuple(mat.diffuse_color)
+        if "Normal" in gi:
+            tree.links.new(geometry.outputs["Normal"], gi["Normal"])
+        note = f"material '{mat.name}' has no Principled BSDF: the preview uses its viewport colour as albedo"
+    if "Vertex Normal" in gi:
+        tree.links.new(geometry.outputs["Normal"], gi["Vertex Normal"])
+        gi["Self Bounce"].default_value = 1.0 if self_bounce else 0.0
+    y = y0
+    keys = {"HHD": ["iz", "wa", "dir"], "AHD": ["iz", "wa", "dir"], "SCALAR": ["iz"],
+            "L1": [f"sh{k}" for k in range(4)], "L2": [f"sh{k}" for k in range(9)]}[kind]
+    sockets = {"iz": "Iz", "wa": "Wa", "dir": "Direction", **{f"sh{k}": f"SH{k}" for k in range(9)}}
+    for key in keys:
+        tree.links.new(_image(tree, files.preview_image(key), key, uv.outputs["UV"], x0 + 250, y, frame),
+                       gi[sockets[key]])
+        y -= 280
+    emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 850, y0), frame)
+    tree.links.new(group.outputs["Radiance"], emission.inputs["Color"])
+    attribute = _new(tree, "ShaderNodeAttribute", "Switch", (x0 + 850, y0 + 200), frame)
+    attribute.attribute_type, attribute.attribute_name = 'OBJECT', RECORD
+    mix = _new(tree, "ShaderNodeMixShader", "Mix", (x0 + 1050, y0), frame)
+    tree.links.new(attribute.outputs["Fac"], mix.inputs["Fac"])
+    if link is not None:
+        tree.links.new(link.from_socket, mix.inputs[1])
+    tree.links.new(emission.outputs["Emission"], mix.inputs[2])
+    tree.links.new(mix.outputs["Shader"], output.inputs["Surface"])
+    return note
+
+
+def hide_on_material(mat) -> bool:
+    """Remove the preview from a material and restore its Surface link; False if none was shown."""
+    if RECORD not in mat or mat.node_tree is None:
+        return False
+    record = json.loads(mat[RECORD])
+    tree = mat.node_tree
+    for node in [n for n in tree.nodes if n.name.startswith(PREFIX)]:
+        tree.nodes.remove(node)
+    output = tree.nodes.get(record["output"])
+    if output is not None and record["from_node"]:
+        source = tree.nodes.get(record["from_node"])
+        socket = next((s for s in source.outputs if s.identifier == record["from_socket"]), None) if source else None
+        if socket is not None:
+            tree.links.new(socket, output.inputs["Surface"])
+    del mat[RECORD]
+    return True
+
+
+def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool = False) -> list[str]:
+    """Preview on `objects` (each with `atlas_files[obj.name]`); returns notes for the report."""
+    notes = []
+    done: dict[str, str] = {}
+    for obj in objects:
+        obj[RECORD] = 1.0
+        for slot in obj.material_slots:
+            mat = slot.material
+            if mat is None:
+                continue
+            if mat.name in done:
+                if done[mat.name] != atlas_files[obj.name].name:
+                    notes.append(f"material '{mat.name}' is shared by objects in different atlases: its preview "
+                                 f"shows atlas '{done[mat.name]}' (give each atlas its own material)")
+                continue
+            done[mat.name] = atlas_files[obj.name].name
+            note = show_on_material(mat, atlas_files[obj.name], kind, uv_layer, self_bounce)
+            if note:
+                notes.append(note)
+        if not obj.material_slots or all(s.material is None for s in obj.material_slots):
+            notes.append(f"'{obj.name}' has no material: nothing to preview on it")
+    return notes
+
+
+def hide(objects=None) -> int:
+    """Remove the preview from every material that has one and the switch from the objects
+    (all objects when None); returns how many materials were restored."""
+    restored = sum(hide_on_material(m) for m in bpy.data.materials)
+    for obj in objects if objects is not None else bpy.data.objects:
+        if RECORD in obj:
+            del obj[RECORD]
+    return restored
