@@ -45,7 +45,7 @@ def main() -> int:
     out = args.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     demo_scene.build()
-    externalise_images(bpy, out)
+    demo_scene.externalise_images(out)
     bpy.ops.wm.save_as_mainfile(filepath=str(out / "scene.blend"))
     hhd_lightmapper.register()
     scene = bpy.context.scene
@@ -89,21 +89,6 @@ def main() -> int:
                                                       "rmse_percent": rows, "seconds": timings}, indent=2))
     print(f"side by side: {png}\ntimings: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()))
     return 0
-
-
-def externalise_images(bpy, folder: Path) -> None:
-    """EEVEE in background mode renders in-memory images black: save them as files first."""
-    for image in bpy.data.images:
-        if image.source == 'GENERATED' or image.packed_file is not None:
-            path = folder / f"{image.name}.png"
-            image.filepath_raw = str(path)
-            image.file_format = 'PNG'
-            image.save()
-            if image.packed_file is not None:
-                image.unpack(method='REMOVE')
-            image.source = 'FILE'
-            image.filepath = str(path)
-            image.reload()
 
 
 def cycles_reference(bpy, scene, out: Path, samples: int, bounces: int):

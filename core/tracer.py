@@ -15,10 +15,11 @@ texel is the average over its area, as Cycles bakes it. Lights (not geometry, ne
 rays) are added by next-event estimation only, so nothing is counted twice: at the bake point
 one shadow ray per light per sample, projected to SH along the light's direction (a delta light
 — sun without angle, point without radius — has an exact direction: an unshadowed sun adds
-exactly s·Y(l), no noise). Emitting triangles and a constant world are reached by the sampled
-rays. An HDRI world (`environment`) is both importance-sampled (one light sample per path
-vertex, the bake point included) and reached by the sampled rays; the two are combined with the
-power heuristic (MIS), against the mixture pdf at the bake point and the cosine pdf at bounces.
+exactly s·Y(l), no noise). A constant world is reached by the sampled rays only. Emitting
+triangles (picked ∝ power, `emitters.py`) and an HDRI world (`environment`) are both
+light-sampled (one sample per path vertex, the bake point included) and reached by the sampled
+rays; the two are combined with the power heuristic (MIS), against the mixture pdf at the bake
+point and the cosine pdf at bounces.
 Weights sum to one per direction, so every SH coefficient stays unbiased (the I_z coefficient
 from the cosine half included).
 
@@ -38,6 +39,7 @@ import numpy as np
 
 from . import sh as _sh
 from .bakepoints import BakePoints
+from .emitters import EmitterSampler
 from .errors import BakeError
 from .rays import RayScene, ray_offset
 from .scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
@@ -127,6 +129,7 @@ class _Tracer:
         self.rays_scene = RayScene(scene.triangles)
         self.offset = max(points.offset, ray_offset(scene.triangles))
         self.frames = _sh.tangent_frames(points.normal)
+        self.emitters = EmitterSampler(scene.triangles, scene.emission) if scene.emission is not None else None
         self._lock = threading.Lock()
         self.rays = 0
 
@@ -174,8 +177,10 @@ class _Tracer:
                 a[hit] for a in (live, throughput, o, d, t, prim, ng, bu, bv, pdf))
             if len(live) == 0:
                 break
-            if scene.emission is not None:
-                radiance[live] += throughput * scene.emission[prim]
+            if self.emitters:
+                p_light = self.emitters.pdf(prim, d, t.astype(np.float64))
+                weight = pdf * pdf / (pdf * pdf + p_light * p_light)
+                radiance[live] += throughput * scene.emission[prim] * weight[:, None]
             if bounce == self.settings.bounces:
                 break
             n = ng / np.linalg.norm(ng, axis=1, keepdims=True)
@@ -208,30 +213,31 @@ class _Tracer:
             return np.broadcast_to(scene.world, (len(d), 3))
         return np.zeros((len(d), 3))
 
-    def _environment_sample(self, rng, n: int, other_pdf):
-        """One HDRI light sample per point: directions (R, 3) and radiance / pdf × MIS weight
-        (R, 3) against the other strategy, whose density `other_pdf(dirs)` gives."""
+    def _mis_light_samples(self, rng, x, other_pdf):
+        """One sample per point x (R, 3) of each light that rays can also reach (the HDRI, the
+        emissive triangles): yields (directions (R, 3), radiance × MIS weight / pdf (R, 3),
+        distances (R,)), the weight (power heuristic) against the strategy of density
+        `other_pdf(dirs)`."""
         env = self.scene.environment
-        dirs, p_env = env.sample(rng, n)
-        p_other = other_pdf(dirs)
-        weight = p_env / (p_env * p_env + p_other * p_other)       # = w_light / p_env
-        return dirs, env.radiance(dirs) * weight[:, None]
+        if env is not None:
+            dirs, p_env = env.sample(rng, len(x))
+            p_other = other_pdf(dirs)
+            yield dirs, env.radiance(dirs) * (p_env / (p_env * p_env + p_other * p_other))[:, None], np.full(len(x), np.inf)
+        if self.emitters:
+            dirs, dist, emitted, p_light = self.emitters.sample(rng, x)
+            p_other = other_pdf(dirs)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                weight = np.where(p_light > 0.0, p_light / (p_light * p_light + p_other * p_other), 0.0)
+            yield dirs, emitted * weight[:, None], dist
 
     # ---- lights ------------------------------------------------------------------------------
     def _irradiance_at(self, rng, x, n) -> np.ndarray:
         """Irradiance (DESIGN units, E/π·π = outgoing radiance per unit albedo) at surface points
         x with normals n from all lights, one shadow ray per light and point."""
         total = np.zeros((len(x), 3))
-        if self.scene.environment is not None:
-            dirs, value = self._environment_sample(
-                rng, len(x), lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi)
-            cos = np.einsum("ri,ri->r", dirs, n)
-            facing = cos > 0.0
-            if facing.any():
-                visible = self._unoccluded(x[facing], dirs[facing], np.full(int(facing.sum()), np.inf))
-                total[facing] += (visible * cos[facing])[:, None] * value[facing] / np.pi
-        for light in self.scene.lights:
-            dirs, value, dist = self._sample_light(rng, light, x)
+        cosine_pdf = lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi
+        samples = [self._sample_light(rng, light, x) for light in self.scene.lights]
+        for dirs, value, dist in samples + list(self._mis_light_samples(rng, x, cosine_pdf)):
             cos = np.einsum("ri,ri->r", dirs, n)
             facing = cos > 0.0
             if not facing.any():
@@ -292,18 +298,12 @@ class _Tracer:
         exactly s·Y(l) (no noise); penumbrae average over the texel's footprint."""
         out = np.zeros((len(idx), 9, 3))
         normal = self.points.normal[idx][texel]
-        if self.scene.environment is not None:
-            def mixture_pdf(w):
-                cos = np.einsum("ri,ri->r", w, normal)
-                return np.where(cos > 0.0, 0.5 / (2.0 * np.pi) + 0.5 * cos / np.pi, 0.0)
-            dirs, value = self._environment_sample(rng, len(origins), mixture_pdf)
-            above = np.einsum("ri,ri->r", dirs, normal) > 0.0
-            vis = np.zeros(len(origins))
-            if above.any():
-                vis[above] = self._unoccluded(origins[above], dirs[above], np.full(int(above.sum()), np.inf))
-            out += _sh.accumulate_grouped(dirs, value * (vis / k)[:, None], k)
-        for light in self.scene.lights:
-            dirs, value, dist = self._sample_light(rng, light, origins)
+
+        def mixture_pdf(w):
+            cos = np.einsum("ri,ri->r", w, normal)
+            return np.where(cos > 0.0, 0.5 / (2.0 * np.pi) + 0.5 * cos / np.pi, 0.0)
+        samples = [self._sample_light(rng, light, origins) for light in self.scene.lights]
+        for dirs, value, dist in samples + list(self._mis_light_samples(rng, origins, mixture_pdf)):
             above = np.einsum("ri,ri->r", dirs, normal) > 0.0
             if not above.any():
                 continue

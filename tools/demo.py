@@ -12,7 +12,8 @@ Stages, in pipeline order:
            loaded into demo.blend, which is saved
   encode   reads the files back: irradz.png (I_z), encoder.png (HHD vs baseline over one texel's
            hemisphere) and the encoder's hemispherical error on 4000 texels
-  preview  pending: EEVEE node groups (issue 7)
+  preview  reopens demo.blend, Show Preview (HHD node group on every material), EEVEE render
+           preview_eevee.png, saves demo.blend with the preview shown (Hide Preview restores it)
 Exits 0 and prints a summary; writes summary.json.
 """
 from __future__ import annotations
@@ -47,6 +48,7 @@ def main() -> int:
     timings, stages = {}, {}
     t = time.perf_counter()
     demo_scene.build()
+    demo_scene.externalise_images(out)
     bpy.ops.wm.save_as_mainfile(filepath=str(out / "demo.blend"))
     timings["scene"] = time.perf_counter() - t
     stages["scene"] = f"{len(bpy.data.objects)} objects -> demo.blend"
@@ -81,7 +83,9 @@ def main() -> int:
     stages["encode"] = (f"{encoded['texels']} texels, hemispherical RMSE {encoded['rmse_percent']:.2f}% of I_z "
                         f"(optimal-linear + sphere Gram baseline: {encoded['baseline_rmse_percent']:.2f}%) "
                         "-> irradz.png, encoder.png")
-    stages["preview"] = "pending (issue 7: EEVEE node groups)"
+    t = time.perf_counter()
+    stages["preview"] = show_preview(bpy, out)
+    timings["preview"] = time.perf_counter() - t
 
     summary = {"stages": stages, "seconds": timings, "out": str(out)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
@@ -103,6 +107,27 @@ def render_reference(bpy, path: Path, samples: int) -> None:
     scene.render.image_settings.file_format = "PNG"
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
+
+
+def show_preview(bpy, out: Path) -> str:
+    """Open the baked demo.blend, Show Preview (HHD) on every mesh, render the camera view with
+    EEVEE (preview_eevee.png) and save: opening demo.blend shows the baked lighting."""
+    import hhd_lightmapper
+    bpy.ops.wm.open_mainfile(filepath=str(out / "demo.blend"))
+    hhd_lightmapper.register()
+    scene = bpy.context.scene
+    for o in scene.objects:
+        o.select_set(o.type == "MESH")
+    scene.hhd.preview_mode = 'HHD'
+    assert bpy.ops.hhd.preview_show() == {'FINISHED'}
+    scene.render.engine = 'BLENDER_EEVEE'
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 320, 200, 100
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = str(out / "preview_eevee.png")
+    bpy.ops.render.render(write_still=True)
+    bpy.ops.wm.save_mainfile()
+    materials = sum("hhd_preview" in m for m in bpy.data.materials)
+    return f"Show Preview (HHD) on {materials} materials, EEVEE render -> preview_eevee.png; saved in demo.blend"
 
 
 def plot_results(folder: Path, irradz_png: Path, encoder_png: Path) -> dict:

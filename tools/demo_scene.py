@@ -121,3 +121,20 @@ def sun_direction() -> np.ndarray:
     """Unit vector towards the sun (world space)."""
     e, a = (math.radians(v) for v in SUN_DIRECTION_DEG)
     return np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+
+
+def externalise_images(folder) -> None:
+    """Save generated/packed images as PNG files next to the .blend and use those: EEVEE in
+    background mode (the bpy module) renders in-memory images black."""
+    from pathlib import Path
+    for image in bpy.data.images:
+        if image.source == 'GENERATED' or image.packed_file is not None:
+            path = Path(folder) / f"{image.name}.png"
+            image.filepath_raw = str(path)
+            image.file_format = 'PNG'
+            image.save()
+            if image.packed_file is not None:
+                image.unpack(method='REMOVE')
+            image.source = 'FILE'
+            image.filepath = str(path)
+            image.reload()
