@@ -179,7 +179,7 @@ class _Tracer:
                 break
             if self.emitters:
                 p_light = self.emitters.pdf(prim, d, t.astype(np.float64))
-                weight = pdf * pdf / (pdf * pdf + p_light * p_light)
+                weight = pdf * pdf / np.maximum(pdf * pdf + p_light * p_light, 1e-300)
                 radiance[live] += throughput * scene.emission[prim] * weight[:, None]
             if bounce == self.settings.bounces:
                 break

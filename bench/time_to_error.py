@@ -1,0 +1,257 @@
+"""Time to equal error: our bake against Cycles' Diffuse bake, plus ray rates and memory.
+
+    python bench/time_to_error.py [--scene classroom|field|both] [--resolution 512]
+
+Scenes: `classroom` (../shared/scenes/classroom, 104k triangles, OBJ; its environment map is not
+shipped, so it is lit by a sun and a sky colour through the windows; receivers: the 6 largest room
+meshes with few charts; the backdrop and furniture only occlude) and `field` (a procedural ~1M-triangle field of spheres on a
+ground plane, sun + sky; receivers: the ground). For each: (a) raw embreex closest-hit rays/s
+(incoherent, 2 threads, same run), (b) our bake's rays/s (all rays, shadow rays included) and
+texel-samples/s, (c) I_z RMSE against a long Cycles Diffuse bake (Direct + Indirect, Color off,
+3 bounces) for our bake and Cycles at increasing sample counts, and the time each needs to reach
+three error levels (log-log interpolation). Peak memory of a 4096² atlas bake is measured by
+`--memory` (tracemalloc of numpy allocations + RSS). Writes bench/results/time_to_error.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "bench" / "results"
+CLASSROOM = ROOT.parent / "shared" / "scenes" / "classroom"
+LAYER = "HHD_Lightmap"
+BOUNCES = 3
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", choices=["classroom", "field", "both"], default="both")
+    ap.add_argument("--resolution", type=int, default=512)
+    ap.add_argument("--padding", type=int, default=2, help="texels between charts (the classroom has ~2000 charts)")
+    ap.add_argument("--reference-samples", type=int, default=1024)
+    ap.add_argument("--ours", type=int, nargs="+", default=[4, 16, 64, 256])
+    ap.add_argument("--cycles", type=int, nargs="+", default=[4, 16, 64, 256])
+    ap.add_argument("--levels", type=float, nargs="+", default=[0.20, 0.10, 0.05])
+    args = ap.parse_args()
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
+    import bpy  # noqa: F401
+    import hhd_lightmapper
+    hhd_lightmapper.register()
+    results = {}
+    for name in (["classroom", "field"] if args.scene == "both" else [args.scene]):
+        receivers = build_classroom() if name == "classroom" else build_field()
+        results[name] = measure(receivers, args)
+        print_table(name, results[name], args.levels)
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "time_to_error.json").write_text(json.dumps(results, indent=2))
+    return 0
+
+
+# ---- scenes -------------------------------------------------------------------------------
+def clear():
+    import bpy
+    for collection in (bpy.data.objects, bpy.data.meshes, bpy.data.lights, bpy.data.materials,
+                       bpy.data.images, bpy.data.worlds):
+        for block in list(collection):
+            collection.remove(block)
+
+
+def lighting(sun_rotation=(0.9, 0.0, 2.3), sky=(0.5, 0.7, 1.0)):
+    import bpy
+    sun = bpy.data.lights.new("Sun", 'SUN')
+    sun.energy, sun.angle = 4.0, 0.0
+    obj = bpy.data.objects.new("Sun", sun)
+    obj.rotation_euler = sun_rotation
+    bpy.context.scene.collection.objects.link(obj)
+    world = bpy.data.worlds.new("Sky")
+    world.use_nodes = True
+    world.node_tree.nodes["Background"].inputs["Color"].default_value = (*sky, 1.0)
+    bpy.context.scene.world = world
+
+
+def build_classroom():
+    import bpy
+    import xml.etree.ElementTree as ET
+    clear()
+    grey = bpy.data.materials.new("Diffuse")
+    grey.use_nodes = True
+    grey.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0
+    root = ET.parse(CLASSROOM / "scene_v3.xml").getroot()
+    meshes = []
+    for shape in root.iter("shape"):
+        if shape.get("type") != "obj":
+            continue
+        filename = next(s.get("value") for s in shape.iter("string") if s.get("name") == "filename")
+        bpy.ops.wm.obj_import(filepath=str(CLASSROOM / filename))
+        for obj in bpy.context.selected_objects:
+            obj.data.materials.clear()
+            obj.data.materials.append(grey)
+            meshes.append(obj)
+    lighting()
+    size = lambda o: max(o.dimensions)
+    # receivers: the largest room surfaces with few charts (walls, floor, ceiling, desks); the
+    # backdrop and the many-part furniture only occlude and reflect
+    room = [o for o in meshes if size(o) < 30.0 and len(o.data.polygons) < 5000]
+    area = lambda o: sum(p.area for p in o.data.polygons)
+    return sorted(room, key=area)[-6:]
+
+
+def build_field():
+    import bpy
+    sys.path.insert(0, str(ROOT / "bench"))
+    from unwrap_raster import sphere_field
+    clear()
+    v, f = sphere_field(1_000_000)
+    mesh = bpy.data.meshes.new("Field")
+    mesh.from_pydata(v.tolist(), [], f.tolist())
+    field = bpy.data.objects.new("Field", mesh)
+    lo, hi = v.min(0), v.max(0)
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2] - 0.01))
+    ground = bpy.context.active_object
+    ground.scale = ((hi[0] - lo[0]) * 1.2, (hi[1] - lo[1]) * 1.2, 1.0)
+    bpy.context.scene.collection.objects.link(field)
+    mat = bpy.data.materials.new("Diffuse")
+    mat.use_nodes = True
+    for o in (field, ground):
+        o.data.materials.append(mat)
+    lighting()
+    return [ground]
+
+
+# ---- measurement --------------------------------------------------------------------------
+def measure(receivers, args) -> dict:
+    import bpy
+    from hhd_lightmapper.core import bakepoints, rays
+    from hhd_lightmapper.operators import mesh_data, scene_data
+    scene = bpy.context.scene
+    scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density = LAYER, args.resolution, 0.0
+    scene.hhd.padding = args.padding
+    select(receivers)
+    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    surface = mesh_data.read_surface(receivers, LAYER, depsgraph)
+    bake_scene = scene_data.read_bake_scene(depsgraph)
+    ray_scene = rays.RayScene(bake_scene.triangles)
+    points = bakepoints.build(surface, args.resolution, args.resolution, occluders=ray_scene)
+    keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
+    out = {"triangles": int(len(bake_scene.triangles)), "texels": int(len(points.texel)),
+           "raw_rays_per_s": raw_rate(ray_scene, bake_scene.triangles)}
+    t = time.perf_counter()
+    reference = cycles_bake(receivers, points, args.reference_samples, seed=9173)
+    out["reference"] = {"samples": args.reference_samples, "seconds": time.perf_counter() - t}
+    mean = float(reference[keep].mean())
+    out["ours"], out["cycles"] = [], []
+    for samples in args.ours:
+        iz, seconds, result = our_bake(points, bake_scene, samples)
+        out["ours"].append({"samples": samples, "seconds": seconds, "rays_per_s": result.rays / result.seconds,
+                            "texel_samples_per_s": len(points.texel) * result.samples / result.seconds,
+                            "rmse": rmse(iz, reference, keep, mean)})
+        print(f"  ours   {samples:5d} spp {seconds:7.1f} s  RMSE {out['ours'][-1]['rmse']:.4f}", flush=True)
+    for samples in args.cycles:
+        t = time.perf_counter()
+        iz = cycles_bake(receivers, points, samples)
+        seconds = time.perf_counter() - t
+        out["cycles"].append({"samples": samples, "seconds": seconds, "rmse": rmse(iz, reference, keep, mean),
+                              "texel_samples_per_s": len(points.texel) * samples / seconds})
+        print(f"  cycles {samples:5d} spp {seconds:7.1f} s  RMSE {out['cycles'][-1]['rmse']:.4f}", flush=True)
+    out["time_to_error"] = {f"{level:g}": {"ours": time_at(out["ours"], level), "cycles": time_at(out["cycles"], level)}
+                            for level in args.levels}
+    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return out
+
+
+def select(objs):
+    import bpy
+    bpy.context.view_layer.update()
+    for o in bpy.context.view_layer.objects:
+        o.select_set(False)
+    for o in objs:
+        o.select_set(True)
+    bpy.context.view_layer.objects.active = objs[0]
+
+
+def raw_rate(ray_scene, tris, batch=1_000_000, rounds=2) -> float:
+    from concurrent.futures import ThreadPoolExecutor
+    rng = np.random.default_rng(0)
+    lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
+    batches = []
+    for _ in range(2 * rounds):
+        d = rng.normal(size=(batch, 3))
+        batches.append((rng.uniform(lo, hi, (batch, 3)), d / np.linalg.norm(d, axis=1, keepdims=True)))
+    t = time.perf_counter()
+    with ThreadPoolExecutor(2) as pool:
+        list(pool.map(lambda od: ray_scene.intersect(*od), batches))
+    return len(batches) * batch / (time.perf_counter() - t)
+
+
+def our_bake(points, bake_scene, samples):
+    from hhd_lightmapper.core import hhd, tracer
+    t = time.perf_counter()
+    result = tracer.bake(points, bake_scene, tracer.BakeSettings(samples=samples, pass_samples=min(16, samples),
+                                                                 bounces=BOUNCES))
+    iz = hhd.irradz(result.sh, points.normal)
+    return iz, time.perf_counter() - t, result
+
+
+def cycles_bake(receivers, points, samples, seed=0) -> np.ndarray:
+    """Cycles' Diffuse bake (Direct + Indirect, Color off) of the same texels, I_z (P, 3). The
+    reference uses another seed: Cycles' samples for one seed are nested, so a low-sample bake
+    would otherwise share its first samples with the reference and look better than it is."""
+    import bpy
+    scene = bpy.context.scene
+    scene.render.engine = 'CYCLES'
+    scene.cycles.device, scene.cycles.samples, scene.cycles.seed = 'CPU', samples, seed
+    scene.cycles.use_denoising = False
+    scene.cycles.max_bounces = scene.cycles.diffuse_bounces = BOUNCES
+    scene.cycles.glossy_bounces = scene.cycles.transmission_bounces = 0
+    w, h = points.width, points.height
+    image = bpy.data.images.get("bench_bake") or bpy.data.images.new("bench_bake", w, h, float_buffer=True)
+    for obj in receivers:
+        for mat in obj.data.materials:
+            node = mat.node_tree.nodes.get("bench_target") or mat.node_tree.nodes.new("ShaderNodeTexImage")
+            node.name, node.image = "bench_target", image
+            mat.node_tree.nodes.active = node
+    select(receivers)
+    bpy.ops.object.bake(type='DIFFUSE', pass_filter={'DIRECT', 'INDIRECT'}, margin=0, use_clear=True, uv_layer=LAYER)
+    px = np.array(image.pixels[:], dtype=np.float64).reshape(w * h, 4)[:, :3]
+    return px[points.texel]
+
+
+def rmse(iz, reference, keep, mean) -> float:
+    return float(np.sqrt(np.mean((iz[keep] - reference[keep]) ** 2)) / mean)
+
+
+def time_at(rows, level):
+    """Seconds to reach relative RMSE `level`, interpolated in log-log; None if never reached."""
+    pts = sorted((r["rmse"], r["seconds"]) for r in rows)
+    for (e0, t0), (e1, t1) in zip(pts, pts[1:]):
+        if e0 <= level <= e1:
+            f = np.log(level / e1) / np.log(e0 / e1) if e0 != e1 else 0.0
+            return float(np.exp(np.log(t1) + f * (np.log(t0) - np.log(t1))))
+    return None
+
+
+def print_table(name, r, levels):
+    ours = r["ours"][-1]
+    print(f"\n{name}: {r['triangles']} triangles, {r['texels']} texels; raw embreex {r['raw_rays_per_s'] / 1e6:.1f} M rays/s; "
+          f"our bake {ours['rays_per_s'] / 1e6:.2f} M rays/s ({100 * ours['rays_per_s'] / r['raw_rays_per_s']:.0f}% of raw), "
+          f"{ours['texel_samples_per_s'] / 1e6:.2f} M texel-samples/s; reference: Cycles {r['reference']['samples']} spp")
+    print(f"{'I_z RMSE':>10s} {'ours (s)':>10s} {'Cycles (s)':>11s} {'ratio':>7s}")
+    for level in levels:
+        row = r["time_to_error"][f"{level:g}"]
+        o, c = row["ours"], row["cycles"]
+        ratio = f"{c / o:.2f}×" if o and c else "—"
+        print(f"{level:10.0%} {o if o is None else round(o, 1)!s:>10s} {c if c is None else round(c, 1)!s:>11s} {ratio:>7s}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
