@@ -12,7 +12,7 @@ import os
 import bpy
 
 from ..core import bake as core_bake
-from ..core import presets, tracer
+from ..core import tracer
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles
 from . import mesh_data, scene_data
@@ -82,9 +82,8 @@ def _check_receivers(objects, uv_layer: str) -> None:
             raise BakeError(f"'{obj.name}' has no '{uv_layer}' UV layer: run Unwrap first")
 
 
-def pipeline_settings(settings, preset: str | None = None) -> core_bake.PipelineSettings:
-    samples, bounces = presets.settings(preset) if preset else (settings.samples, settings.bounces)
-    samples = max(2, samples)
+def pipeline_settings(settings) -> core_bake.PipelineSettings:
+    samples, bounces = max(2, settings.samples), settings.bounces
     trace = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples + samples % 2),
                                 bounces=bounces, seed=settings.seed)
     return core_bake.PipelineSettings(trace=trace, encoder=encoder_settings(settings))
@@ -98,13 +97,9 @@ def encoder_settings(settings) -> core_bake.EncoderSettings:
 class BakeSession:
     """Everything one bake needs, read from Blender at construction (see the module doc)."""
 
-    def __init__(self, context, objects: list[str] | None = None, out_dir: str | None = None,
-                 preset: str | None = None, overrides: dict | None = None):
-        scene = context.scene
-        settings = scene.hhd
-        self.settings = pipeline_settings(settings, preset)
-        for key, value in (overrides or {}).items():
-            setattr(self.settings.trace, key, value)
+    def __init__(self, context, objects: list[str] | None = None, out_dir: str | None = None):
+        settings = context.scene.hhd
+        self.settings = pipeline_settings(settings)
         self.out_dir = output_folder(settings, out_dir)
         self.receivers = target_objects(context, objects)
         _check_receivers(self.receivers, settings.uv_layer)
