@@ -164,7 +164,7 @@ def _fail(code: int, message) -> int:
 def standalone(argv: list[str]) -> int:
     """`python -m hhd_lightmapper.cli FILE.blend <command> ...` under the bpy module."""
     if not argv or not argv[0].endswith(".blend"):
-        print(f"usage: python -m hhd_lightmapper.cli FILE.blend {{unwrap,bake,encode}} ...", file=sys.stderr)
+        print("usage: python -m hhd_lightmapper.cli FILE.blend {unwrap,bake,encode} ...", file=sys.stderr)
         return EXIT_USAGE
     try:
         bpy.ops.wm.open_mainfile(filepath=argv[0])

@@ -83,9 +83,6 @@ class AtlasFiles:
     def preview_image(self, key: str) -> Path:
         return self.preview / f"{key}.exr"
 
-    def all(self) -> list[Path]:
-        return [self.hhd, self.sh, self.texels, self.sidecar]
-
 
 @dataclass
 class TexelData:

@@ -8,6 +8,7 @@ area get no chart (xatlas puts them at UV (0, 0)) and are skipped by the rasteri
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -17,6 +18,8 @@ from . import deps
 from .errors import BakeError
 
 MIN_RESOLUTION, MAX_RESOLUTION = 256, 8192
+#: Pause after each xatlas generate() before the atlas may be destroyed (see `_pack`).
+WORKER_SETTLE_SECONDS = 0.05
 #: Objects below this many covered texels get a warning: too few to show any lighting detail.
 FEW_TEXELS = 64
 
@@ -149,6 +152,12 @@ def _pack(meshes, resolution, density, padding):
         pack.texels_per_unit = float(texels_per_unit)
         pack.resolution = int(fixed_resolution)
         atlas.generate(pack_options=pack)
+        # xatlas's TaskScheduler destructor wakes its workers without taking their mutex: a
+        # worker still going idle after generate() can miss that wake-up, and Destroy then
+        # joins it forever (seen once in CI: the process hung in ~TaskScheduler). Workers are
+        # idle within microseconds; letting them settle before the atlas can be released
+        # closes that window (≈ 3-6 generate() calls per unwrap, so well under a second).
+        time.sleep(WORKER_SETTLE_SECONDS)
         return atlas
 
     if density is not None:

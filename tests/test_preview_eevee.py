@@ -93,7 +93,6 @@ def render_inputs(scene, mat, path):
     """EEVEE renders of the preview (Combined) and of what feeds its group, one quantity per
     render through the preview's own Emission shader (AOVs are not written by this bpy build):
     lightmap UV, shading normal, n_v (unit vectors packed as 0.5·v + 0.5), albedo."""
-    import bpy
     tree = mat.node_tree
     group = next(n for n in tree.nodes if n.type == 'GROUP')
     emission = next(n for n in tree.nodes if n.type == 'EMISSION' and n.name.startswith("HHD Preview"))

@@ -13,7 +13,6 @@ import pytest
 
 import cycles_compare as cc
 from hhd_lightmapper import cli
-from hhd_lightmapper.core import exr
 from hhd_lightmapper.core.tracer import BakeCancelled
 
 pytestmark = pytest.mark.bpy
