@@ -61,6 +61,9 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--preset", choices=[k.lower() for k in presets.PRESETS])
     q.add_argument("--samples", type=int)
     q.add_argument("--bounces", type=int)
+    q.add_argument("--noise-target", type=float, metavar="PERCENT",
+                   help="stop a texel once the standard error of its irradiance is below PERCENT of it")
+    q.add_argument("--time-budget", type=float, metavar="SECONDS", help="stop tracing after SECONDS")
     q.add_argument("--seed", type=int)
     q.add_argument("--unwrap", action="store_true", help="unwrap the receivers first")
     q.add_argument("--resolution", type=int, help="atlas size for --unwrap")
@@ -76,7 +79,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def _apply_options(settings, args) -> None:
     """Command-line options override the scene settings for this run (not saved unless --save)."""
-    for key in ("resolution", "texel_density", "samples", "bounces", "seed", "phi_search"):
+    if getattr(args, "preset", None):          # first: explicit options below override it
+        settings.preset = args.preset.upper()
+    for key in ("resolution", "texel_density", "samples", "bounces", "noise_target", "time_budget", "seed",
+                "phi_search"):
         value = getattr(args, key, None)
         if value is not None:
             setattr(settings, key, value)
@@ -84,8 +90,6 @@ def _apply_options(settings, args) -> None:
         value = getattr(args, key, None)
         if value is not None:
             setattr(settings, key, value.upper())
-    if getattr(args, "preset", None):
-        settings.preset = args.preset.upper()
     if args.collection:
         if args.collection not in bpy.data.collections:
             raise BakeError(f"no collection named '{args.collection}'")

@@ -8,13 +8,18 @@ from .core import presets
 _BLEND_RELATIVE = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
 
 
+def _knobs(settings) -> tuple[int, int, float]:
+    return settings.samples, settings.bounces, round(settings.noise_target / 100.0, 6)
+
+
 def _apply_preset(self, _context):
     if self.preset != 'CUSTOM':
-        self.samples, self.bounces = presets.settings(self.preset)
+        samples, bounces, noise = presets.get(self.preset).knobs()
+        self.samples, self.bounces, self.noise_target = samples, bounces, 100.0 * noise
 
 
 def _mark_custom(self, _context):
-    if self.preset != 'CUSTOM' and presets.settings(self.preset) != (self.samples, self.bounces):
+    if self.preset != 'CUSTOM' and presets.get(self.preset).knobs() != _knobs(self):
         self.preset = 'CUSTOM'
 
 
@@ -50,15 +55,26 @@ class HHDSettings(bpy.types.PropertyGroup):
     unwrap_summary: StringProperty(name="Last Unwrap", default="", options={'SKIP_SAVE'})
     preset: EnumProperty(
         name="Quality", default='PRODUCTION', update=_apply_preset,
-        items=[(k, k.title(), d) for k, (_s, _b, d) in presets.PRESETS.items()]
-        + [('CUSTOM', "Custom", "Samples and bounces as set below")],
-        description="Samples and bounces from the measured speed/accuracy presets")
+        items=[(k, k.title(), p.description) for k, p in presets.PRESETS.items()]
+        + [('CUSTOM', "Custom", "Samples, bounces and noise target as set below")],
+        description="Samples, bounces and noise target from the measured speed/accuracy presets "
+                    "(README: Speed vs accuracy)")
     samples: IntProperty(
         name="Samples", default=256, min=2, max=65536, update=_mark_custom,
         description="Hemisphere samples per lightmap texel")
     bounces: IntProperty(
         name="Bounces", default=3, min=0, max=16, update=_mark_custom,
         description="Diffuse interreflection bounces after the first hit")
+    noise_target: FloatProperty(
+        name="Noise Target", default=0.0, min=0.0, max=50.0, precision=1, subtype='PERCENTAGE',
+        update=_mark_custom,
+        description="Stop a texel early once the standard error of its irradiance is below this "
+                    "percentage of it (Samples is then the most a texel takes); 0 = every texel "
+                    "takes every sample")
+    time_budget: FloatProperty(
+        name="Time Budget", default=0.0, min=0.0, soft_max=3600.0, unit='TIME_ABSOLUTE',
+        description="Stop tracing after this many seconds (the first pass always completes); "
+                    "0 = no limit")
     output_dir: StringProperty(
         name="Output Folder", default="//lightmaps", subtype='DIR_PATH', options=_BLEND_RELATIVE,
         description="Where the EXR files and JSON sidecar are written (relative to the .blend)")

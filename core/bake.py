@@ -9,7 +9,7 @@ files as they were.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -120,15 +120,24 @@ def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings,
     t_points = time.perf_counter() - t0
     total_texels = sum(len(p.texel) for p in points)
     baked, done_texels = [], 0
+    t_trace = time.perf_counter()
     for atlas, pts in zip(atlases, points):
         def on_trace(f, msg, base=done_texels, n=len(pts.texel)):
             frac = (base + f * n) / total_texels
-            rate = frac * total_texels * settings.trace.samples / max(time.perf_counter() - t0 - t_points, 1e-9)
-            report.report(_STAGES[0] + _STAGES[1] * frac,
-                          f"'{atlas.name}': {msg}, {rate / 1e3:.0f} k texel-samples/s")
-        baked.append(tracer.bake(pts, scene, settings.trace, progress=on_trace, cancel=cancel))
+            report.report(_STAGES[0] + _STAGES[1] * frac, f"'{atlas.name}': {msg}")
+        trace = _atlas_settings(settings.trace, time.perf_counter() - t_trace, len(pts.texel), total_texels - done_texels)
+        baked.append(tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel))
         done_texels += len(pts.texel)
     return _write(atlases, points, baked, settings, out_dir, report, cancel, t_points, extra_sidecar or {})
+
+
+def _atlas_settings(trace: tracer.BakeSettings, spent: float, texels: int, texels_left: int) -> tracer.BakeSettings:
+    """The tracer settings of one atlas: a time budget is shared among the atlases still to
+    bake in proportion to their texels."""
+    if not trace.time_budget:
+        return trace
+    share = max(trace.time_budget - spent, 0.0) * texels / max(texels_left, 1)
+    return replace(trace, time_budget=max(share, 1e-3))
 
 
 def _write(atlases, points, baked, settings, out_dir, report, cancel, t_points, extra) -> list[AtlasResult]:
@@ -142,6 +151,7 @@ def _write(atlases, points, baked, settings, out_dir, report, cancel, t_points, 
             sidecar = dict(extra)
             sidecar.update({
                 "bake": {**asdict(settings.trace), "samples_taken": result.samples, "passes": result.passes,
+                         "mean_samples_per_texel": result.mean_samples, "stopped_by": result.stopped_by,
                          "rays": result.rays},
                 "objects": lightmap_files.object_rects(pts, atlas.objects),
                 "timings_seconds": seconds,

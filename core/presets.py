@@ -1,23 +1,37 @@
-"""Quality presets: samples per texel and bounces. No bpy.
+"""Quality presets: the tracer knobs each sets. No bpy.
 
-Provisional values until bench/tradeoff.py (issue 8) derives them from the measured Pareto
-front; the README's speed/accuracy section gives what each costs on the bench scenes.
+Derived from the measured Pareto front of bench/tradeoff.py (README "Speed vs accuracy" gives
+each preset's time and error on the bench scenes): a preset is a maximum sample count, a
+bounce count and a noise target (relative standard error of I_z at which a texel stops early,
+0 = every texel takes every sample).
 """
 from __future__ import annotations
 
-#: name -> (samples per texel, bounces, one-line description)
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Preset:
+    samples: int            # most samples per texel
+    bounces: int
+    noise_target: float     # relative standard error of I_z (0.05 = 5 %); 0 = off
+    description: str
+
+    def knobs(self) -> tuple[int, int, float]:
+        return self.samples, self.bounces, self.noise_target
+
+
 PRESETS = {
-    "DRAFT": (16, 1, "Seconds: placement and light direction checks; visible noise"),
-    "PREVIEW": (64, 2, "Quick look at the lighting; slight noise in dark corners"),
-    "PRODUCTION": (256, 3, "Shipping quality for most scenes"),
-    "REFERENCE": (2048, 6, "Converged reference for comparisons; slow"),
+    "DRAFT": Preset(16, 1, 0.0, "Seconds: placement and light direction checks; visible noise"),
+    "PREVIEW": Preset(64, 2, 0.0, "Quick look at the lighting; slight noise in dark corners"),
+    "PRODUCTION": Preset(256, 3, 0.0, "Shipping quality for most scenes"),
+    "REFERENCE": Preset(2048, 6, 0.0, "Converged reference for comparisons; slow"),
 }
 
 
-def settings(name: str) -> tuple[int, int]:
-    """(samples, bounces) of a preset; raises ValueError naming the valid presets."""
+def get(name: str) -> Preset:
+    """The preset called name (any case); raises ValueError naming the valid presets."""
     key = name.upper()
     if key not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(p.lower() for p in PRESETS)}")
-    samples, bounces, _ = PRESETS[key]
-    return samples, bounces
+    return PRESETS[key]

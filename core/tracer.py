@@ -37,6 +37,7 @@ from typing import Callable
 
 import numpy as np
 
+from . import hhd as _hhd
 from . import sh as _sh
 from .bakepoints import BakePoints
 from .emitters import EmitterSampler
@@ -54,69 +55,168 @@ class BakeCancelled(BakeError):
 
 @dataclass
 class BakeSettings:
-    """samples: hemisphere samples per texel (rounded up to whole passes); pass_samples: samples
-    per texel per pass (the progressive step); bounces: diffuse reflections after the first hit
-    (0 = direct light only); seed: makes the bake reproducible; threads: worker threads;
-    chunk_texels: texels per work item (bounds memory: ~1 KB per texel-sample)."""
+    """samples: hemisphere samples per texel, rounded up to whole passes (the most a texel gets
+    when a noise target or time budget stops it earlier); pass_samples: samples per texel per
+    pass (the progressive step); bounces: diffuse reflections after the first hit (0 = direct
+    light only); seed: makes the bake reproducible; threads: worker threads; chunk_texels:
+    texels per work item (bounds memory: ~1 KB per texel-sample).
+
+    noise_target: 0 (off) or the relative standard error of I_z (luminance) at which a texel
+    stops: after at least MIN_ADAPTIVE_PASSES passes a texel whose pass-to-pass standard error
+    is below noise_target × max(its I_z, NOISE_FLOOR × the atlas mean I_z) gets no more passes.
+    The floor keeps near-black texels from asking for relative precision nobody can see.
+    time_budget: 0 (off) or seconds of tracing after which no new chunk starts; the first pass
+    always completes, so every texel has an estimate."""
     samples: int = 256
     pass_samples: int = 16
     bounces: int = 3
     seed: int = 0
     threads: int = 2
     chunk_texels: int = 8192
+    noise_target: float = 0.0
+    time_budget: float = 0.0
+
+
+#: Passes a texel takes before its pass-to-pass spread may stop it (the spread of fewer passes
+#: is too noisy itself: with 4 passes it is within ±50% of the true error 90% of the time).
+MIN_ADAPTIVE_PASSES = 4
+#: Fraction of the atlas mean I_z below which the noise target is absolute, not relative.
+NOISE_FLOOR = 0.1
 
 
 @dataclass
 class BakeResult:
     """sh (P, 9, 3) world-space radiance SH; sh_error (P, 9, 3) standard error of the estimate,
     from the spread between passes (0 where every pass agrees, e.g. an unshadowed sun; not
-    available, reported as 0, after a single pass); samples per texel done; rays traced."""
+    available, reported as 0, after a single pass); samples: the most samples a texel took;
+    texel_samples (P,) samples each texel took (they differ under a noise target or time
+    budget); passes: the most passes; rays traced; seconds of wall time; stopped_by: "samples",
+    "noise_target" (every texel converged) or "time_budget"."""
     sh: np.ndarray
     sh_error: np.ndarray
     samples: int
     passes: int
     rays: int
     seconds: float
+    texel_samples: np.ndarray | None = None
+    stopped_by: str = "samples"
+
+    @property
+    def mean_samples(self) -> float:
+        return float(self.texel_samples.mean()) if self.texel_samples is not None and len(self.texel_samples) else 0.0
 
 
 def bake(points: BakePoints, scene: BakeScene, settings: BakeSettings = BakeSettings(),
          progress: Callable[[float, str], None] | None = None,
          cancel: Callable[[], bool] | None = None) -> BakeResult:
-    """Trace every bake point; progressive passes of `pass_samples` each. `progress(fraction,
-    message)` is called after every chunk; `cancel()` returning True stops within one chunk and
-    raises BakeCancelled."""
+    """Trace every bake point; progressive passes of `pass_samples` each, each pass over the
+    texels still converging (all of them unless `settings.noise_target` is set).
+    `progress(fraction, message)` is called after every chunk; `cancel()` returning True stops
+    within one chunk and raises BakeCancelled."""
     if settings.pass_samples < 2 or settings.pass_samples % 2:
         raise BakeError(f"samples per pass must be even and at least 2, got {settings.pass_samples}")
+    if settings.noise_target < 0 or settings.time_budget < 0 or not np.isfinite(settings.noise_target):
+        raise BakeError("the noise target and the time budget must be ≥ 0 (0 switches them off)")
     start = time.perf_counter()
     tracer = _Tracer(points, scene, settings)
     n = len(points.texel)
-    passes = max(1, -(-settings.samples // settings.pass_samples))
-    chunks = [np.arange(s, min(s + settings.chunk_texels, n)) for s in range(0, n, settings.chunk_texels)]
-    total = np.zeros((n, 9, 3))
-    total_sq = np.zeros((n, 9, 3))
-    done = 0
+    max_passes = max(1, -(-settings.samples // settings.pass_samples))
+    acc = _Accumulator(n, points.normal)
+    active = np.arange(n)
+    stopped_by = "samples"
     with ThreadPoolExecutor(max_workers=max(1, settings.threads)) as pool:
-        for p in range(passes):
+        for p in range(max_passes):
+            chunks = [active[s:s + settings.chunk_texels] for s in range(0, len(active), settings.chunk_texels)]
             futures = [pool.submit(tracer.trace_pass, p, c, idx) for c, idx in enumerate(chunks)]
-            for future, idx in zip(futures, chunks):
+            for c, (future, idx) in enumerate(zip(futures, chunks)):
                 if cancel is not None and cancel():
-                    for f in futures:
-                        f.cancel()
+                    _cancel_all(futures)
                     raise BakeCancelled("bake cancelled")
-                estimate = future.result()
-                total[idx] += estimate
-                total_sq[idx] += estimate * estimate
-                done += 1
+                acc.add(idx, future.result())
+                elapsed = time.perf_counter() - start
                 if progress:
-                    rate = tracer.rays / max(time.perf_counter() - start, 1e-9)
-                    progress(done / (passes * len(chunks)),
-                             f"pass {p + 1} of {passes}, {rate / 1e6:.2f} M rays/s")
-    mean = total / passes
-    var = np.maximum(total_sq / passes - mean * mean, 0.0) / max(passes - 1, 1)
-    sh = mean
+                    progress(_fraction(p, (c + 1) / len(chunks), max_passes, settings, elapsed),
+                             _status(p, max_passes, len(active), n, tracer.rays, acc.texel_passes,
+                                     settings.pass_samples, elapsed))
+                if settings.time_budget and elapsed >= settings.time_budget and p > 0:
+                    _cancel_all(futures)
+                    stopped_by = "time_budget"
+                    break
+            if stopped_by == "time_budget":
+                break
+            if settings.noise_target and p + 1 >= MIN_ADAPTIVE_PASSES:
+                active = active[~acc.converged(active, settings.noise_target)]
+                if len(active) == 0:
+                    stopped_by = "noise_target"
+                    break
+    sh, sh_error = acc.result()
     sh[points.buried] = 0.0
-    return BakeResult(sh=sh, sh_error=np.sqrt(var), samples=passes * settings.pass_samples,
-                      passes=passes, rays=tracer.rays, seconds=time.perf_counter() - start)
+    return BakeResult(sh=sh, sh_error=sh_error, samples=int(acc.passes.max(initial=0)) * settings.pass_samples,
+                      passes=int(acc.passes.max(initial=0)), rays=tracer.rays,
+                      seconds=time.perf_counter() - start,
+                      texel_samples=acc.passes * settings.pass_samples, stopped_by=stopped_by)
+
+
+def _cancel_all(futures) -> None:
+    """Drop the chunks not started; wait for the running ones so no worker outlives the bake."""
+    for f in futures:
+        f.cancel()
+    for f in futures:
+        if not f.cancelled():
+            f.exception()
+
+
+def _fraction(p, chunk_fraction, max_passes, settings, elapsed) -> float:
+    fraction = (p + chunk_fraction) / max_passes
+    if settings.time_budget:
+        fraction = max(fraction, min(elapsed / settings.time_budget, 1.0))
+    return fraction
+
+
+def _status(p, max_passes, active, n, rays, texel_passes, pass_samples, elapsed) -> str:
+    elapsed = max(elapsed, 1e-9)
+    converging = f", {100 * active / max(n, 1):.0f}% of texels converging" if active < n else ""
+    return (f"pass {p + 1} of {max_passes}{converging}, {rays / elapsed / 1e6:.2f} M rays/s, "
+            f"{texel_passes * pass_samples / elapsed / 1e3:.0f} k texel-samples/s")
+
+
+class _Accumulator:
+    """Running sums of the pass estimates per texel (each texel may have its own pass count):
+    the SH (N, 9, 3), their squares, and I_z's luminance for the noise target."""
+
+    def __init__(self, n: int, normals: np.ndarray):
+        self.normals = normals
+        self.total = np.zeros((n, 9, 3))
+        self.total_sq = np.zeros((n, 9, 3))
+        self.iz = np.zeros(n)
+        self.iz_sq = np.zeros(n)
+        self.passes = np.zeros(n, dtype=np.int64)
+        self.texel_passes = 0
+
+    def add(self, idx: np.ndarray, estimate: np.ndarray) -> None:
+        self.total[idx] += estimate
+        self.total_sq[idx] += estimate * estimate
+        iz = _hhd.irradz(estimate, self.normals[idx]) @ _hhd.LUMINANCE
+        self.iz[idx] += iz
+        self.iz_sq[idx] += iz * iz
+        self.passes[idx] += 1
+        self.texel_passes += len(idx)
+
+    def converged(self, idx: np.ndarray, target: float) -> np.ndarray:
+        """Which of the texels idx have a standard error of I_z below the target (see BakeSettings)."""
+        k = self.passes[idx].astype(np.float64)
+        mean = self.iz[idx] / k
+        var = np.maximum(self.iz_sq[idx] / k - mean * mean, 0.0) / np.maximum(k - 1.0, 1.0)
+        sampled = self.passes > 0
+        floor = NOISE_FLOOR * max(float((self.iz[sampled] / self.passes[sampled]).mean()), 0.0) if sampled.any() else 0.0
+        ok = np.sqrt(var) <= target * np.maximum(mean, floor)
+        return ok & np.isfinite(var)
+
+    def result(self):
+        k = np.maximum(self.passes, 1).astype(np.float64)[:, None, None]
+        mean = self.total / k
+        var = np.maximum(self.total_sq / k - mean * mean, 0.0) / np.maximum(k - 1.0, 1.0)
+        return mean, np.sqrt(var)
 
 
 class _Tracer:

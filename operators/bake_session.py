@@ -85,13 +85,23 @@ def _check_receivers(objects, uv_layer: str) -> None:
 def pipeline_settings(settings) -> core_bake.PipelineSettings:
     samples, bounces = max(2, settings.samples), settings.bounces
     trace = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples + samples % 2),
-                                bounces=bounces, seed=settings.seed)
+                                bounces=bounces, seed=settings.seed, noise_target=settings.noise_target / 100.0,
+                                time_budget=settings.time_budget)
     return core_bake.PipelineSettings(trace=trace, encoder=encoder_settings(settings))
 
 
 def encoder_settings(settings) -> core_bake.EncoderSettings:
     return core_bake.EncoderSettings(model=settings.model.lower(), direction=settings.direction.lower(),
                                      ambient=settings.ambient.lower(), phi_search=settings.phi_search)
+
+
+def _samples_text(trace) -> str:
+    text = f"{trace.samples} samples"
+    if trace.noise_target:
+        text = f"≤ {text} (noise target {100 * trace.noise_target:g}%)"
+    if trace.time_budget:
+        text += f", time budget {trace.time_budget:g} s"
+    return text
 
 
 class BakeSession:
@@ -121,7 +131,7 @@ class BakeSession:
     def describe(self) -> str:
         n_occ = len(self.scene.triangles)
         return (f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es); {n_occ} occluder triangles; "
-                f"{self.settings.trace.samples} samples, {self.settings.trace.bounces} bounces")
+                f"{_samples_text(self.settings.trace)}, {self.settings.trace.bounces} bounces")
 
     def run(self, progress=None, cancel=None) -> list[core_bake.AtlasResult]:
         """The core bake and file output; touches no bpy data (worker-thread safe)."""

@@ -57,6 +57,8 @@ class HHD_PT_main(bpy.types.Panel):
         col.prop(settings, "preset")
         col.prop(settings, "samples")
         col.prop(settings, "bounces")
+        col.prop(settings, "noise_target")
+        col.prop(settings, "time_budget")
         col.prop(settings, "seed")
         col = box.column(heading="Encoder")
         col.prop(settings, "model")

@@ -166,3 +166,76 @@ def test_emissive_triangles_are_light_sampled_without_bias():
     assert (np.abs(diff) <= 4 * se + 1e-9).all(), diff / se
     relative_noise = result.sh_error[pick, 0] / np.maximum(reference[:, 0], 1e-12)
     assert np.median(relative_noise) < 0.05, np.median(relative_noise)
+
+
+def occluded_floor_scene():
+    """A floor half shadowed by a wall under a soft sun and a sky: texels differ in noise
+    (open sky converges fast, the penumbra and the wall's foot slowly)."""
+    wall_v, wall_f = meshes.cube(1.0, centre=(0.0, 0.0, 0.5))
+    points, tris = floor_points(wall_v * [0.2, 1.2, 1.0], wall_f)
+    sun = SunLight(np.array([0.6, 0.0, 0.8]), np.array([3.0, 2.8, 2.5]), angle=np.radians(10.0))
+    return points, BakeScene(tris, np.full((len(tris), 3), 0.6), lights=[sun], world=np.array([0.3, 0.4, 0.6]))
+
+
+def luminance_iz(result, points):
+    return hhd.irradz(result.sh, points.normal) @ hhd.LUMINANCE
+
+
+def test_noise_target_stops_converged_texels_and_meets_the_target():
+    points, scene = occluded_floor_scene()
+    open_ = ~points.buried
+    reference = luminance_iz(tracer.bake(points, scene, tracer.BakeSettings(samples=1024, bounces=1, seed=1)), points)
+    target = 0.03
+    adaptive = tracer.bake(points, scene, tracer.BakeSettings(samples=1024, bounces=1, noise_target=target))
+    taken = adaptive.texel_samples[open_]
+    assert taken.min() >= tracer.MIN_ADAPTIVE_PASSES * 16
+    assert taken.min() < taken.max()                  # easy texels stopped before the hard ones
+    assert adaptive.mean_samples < 0.5 * 1024
+    # the error it reaches: relative RMS over the texels ≈ the target (the reference has noise too)
+    iz = luminance_iz(adaptive, points)[open_]
+    floor = tracer.NOISE_FLOOR * reference[open_].mean()
+    relative = (iz - reference[open_]) / np.maximum(reference[open_], floor)
+    assert np.sqrt(np.mean(relative ** 2)) < 1.5 * target, np.sqrt(np.mean(relative ** 2))
+    # fixed counts with the same mean sample count are noisier where it matters: the slow texels
+    slow = taken >= np.percentile(taken, 90)
+    fixed = tracer.bake(points, scene, tracer.BakeSettings(samples=int(adaptive.mean_samples // 16 * 16), bounces=1))
+    fixed_rel = (luminance_iz(fixed, points)[open_] - reference[open_]) / np.maximum(reference[open_], floor)
+    assert np.sqrt(np.mean(relative[slow] ** 2)) < np.sqrt(np.mean(fixed_rel[slow] ** 2))
+
+
+def test_noise_target_is_deterministic_whatever_the_thread_count():
+    points, scene = occluded_floor_scene()
+    settings = dict(samples=256, bounces=1, noise_target=0.05, chunk_texels=4096)
+    a = tracer.bake(points, scene, tracer.BakeSettings(threads=1, **settings))
+    b = tracer.bake(points, scene, tracer.BakeSettings(threads=2, **settings))
+    np.testing.assert_array_equal(a.sh, b.sh)
+    np.testing.assert_array_equal(a.texel_samples, b.texel_samples)
+
+
+def test_noise_target_on_black_and_constant_texels_stops_at_the_minimum():
+    points, tris = floor_points()
+    black = tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5)),
+                        tracer.BakeSettings(samples=512, noise_target=0.01))
+    assert black.stopped_by == "noise_target" and black.samples == tracer.MIN_ADAPTIVE_PASSES * 16
+    assert np.all(black.sh == 0.0)
+    furnace = tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5), world=np.full(3, 1e30)),
+                          tracer.BakeSettings(samples=512, noise_target=0.01))
+    assert furnace.stopped_by == "noise_target" and np.isfinite(furnace.sh).all()
+
+
+def test_time_budget_stops_after_the_first_pass_with_an_estimate_everywhere():
+    points, scene = occluded_floor_scene()
+    result = tracer.bake(points, scene, tracer.BakeSettings(samples=1 << 20, bounces=1, time_budget=0.5))
+    assert result.stopped_by == "time_budget"
+    assert result.texel_samples.min() >= 16 and result.samples < 1 << 20
+    assert result.seconds < 60                        # far from the 65536 passes it was allowed
+    assert np.isfinite(result.sh).all()
+    fixed = tracer.bake(points, scene, tracer.BakeSettings(samples=64, bounces=1))
+    assert luminance_iz(result, points).mean() == pytest.approx(luminance_iz(fixed, points).mean(), rel=0.02)
+
+
+def test_negative_noise_target_or_budget_is_refused():
+    points, scene = occluded_floor_scene()
+    for bad in (dict(noise_target=-0.1), dict(time_budget=-1.0), dict(noise_target=float("nan"))):
+        with pytest.raises(BakeError, match="noise target"):
+            tracer.bake(points, scene, tracer.BakeSettings(samples=16, **bad))

@@ -140,6 +140,12 @@ def test_command_line_exit_codes(baked_scene, tmp_path):
     encode = run_cli(blend, "encode", "--out", str(tmp_path / "cli"), "--objects", "Floor", "Cube", "--model", "ahd")
     assert encode.returncode == cli.EXIT_OK, encode.stderr
     assert json.loads((tmp_path / "cli" / "Lightmap.json").read_text())["encoder"]["model"] == "ahd"
+    adaptive = run_cli(blend, "bake", "--out", str(tmp_path / "adaptive"), "--objects", "Floor", "Cube",
+                       "--preset", "reference", "--samples", "96", "--noise-target", "50")
+    assert adaptive.returncode == cli.EXIT_OK, adaptive.stderr
+    bake = json.loads((tmp_path / "adaptive" / "Lightmap.json").read_text())["bake"]
+    assert bake["samples"] == 96 and bake["noise_target"] == 0.5       # options override the preset
+    assert 64 <= bake["mean_samples_per_texel"] <= 96 and bake["bounces"] == 6
 
     usage = run_cli(blend, "bake", "--samples", "many")
     assert usage.returncode == cli.EXIT_USAGE and "invalid int value" in usage.stderr
