@@ -2,7 +2,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-from .core import presets
+from .core import hhd, presets
 
 # Blender 4.5+ wants path properties that accept "//" to say so (4.2-4.4 do not know the flag).
 _BLEND_RELATIVE = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
@@ -63,7 +63,7 @@ class HHDSettings(bpy.types.PropertyGroup):
         name="Samples", default=256, min=2, max=65536, update=_mark_custom,
         description="Hemisphere samples per lightmap texel")
     bounces: IntProperty(
-        name="Bounces", default=3, min=0, max=16, update=_mark_custom,
+        name="Bounces", default=8, min=0, max=16, update=_mark_custom,
         description="Diffuse interreflection bounces after the first hit")
     noise_target: FloatProperty(
         name="Noise Target", default=0.0, min=0.0, max=50.0, precision=1, subtype='PERCENTAGE',
@@ -109,6 +109,10 @@ class HHDSettings(bpy.types.PropertyGroup):
     phi_search: BoolProperty(
         name="Search Azimuth", default=False,
         description="Also search the highlight direction's azimuth (slower, slightly lower error)")
+    golden_iterations: IntProperty(
+        name="Search Steps", default=hhd.GOLDEN_ITERATIONS, min=0, max=40,
+        description="Golden-section steps refining the highlight direction's elevation after a "
+                    "9-point scan (0: the best scan point)")
 
 
 class HHDObjectSettings(bpy.types.PropertyGroup):

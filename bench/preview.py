@@ -107,6 +107,7 @@ def cycles_reference(bpy, scene, out: Path, samples: int, bounces: int):
     scene.cycles.use_denoising = False
     scene.cycles.max_bounces = scene.cycles.diffuse_bounces = bounces
     scene.cycles.glossy_bounces = scene.cycles.transmission_bounces = 0
+    scene.cycles.sample_clamp_direct = scene.cycles.sample_clamp_indirect = 0.0   # default clamps bias it dark
     scene.render.film_transparent = True
     configure_output(scene)
     reference = render(bpy, scene, out / "cycles.exr", alpha=True)

@@ -15,9 +15,9 @@ from typing import Callable
 
 import numpy as np
 
-from . import bakepoints, exr, lightmap_files, tracer
+from . import bakepoints, exr, hhd, lightmap_files, tracer
 from .bakepoints import SurfaceTriangles
-from .errors import BakeError
+from .errors import BakeCancelled, BakeError
 from .rays import RayScene
 from .scene import BakeScene
 
@@ -43,6 +43,7 @@ class EncoderSettings:
     direction: str = "searched"
     ambient: str = "luminance"
     phi_search: bool = False
+    golden_iterations: int = hhd.GOLDEN_ITERATIONS
 
     def kwargs(self) -> dict:
         return asdict(self)
@@ -85,7 +86,7 @@ def _format_seconds(s: float) -> str:
 
 def _check_cancel(cancel) -> None:
     if cancel is not None and cancel():
-        raise tracer.BakeCancelled("bake cancelled")
+        raise BakeCancelled("bake cancelled")
 
 
 def build_points(atlases: list[AtlasInput], scene: BakeScene, progress: Progress, cancel=None):
@@ -94,7 +95,8 @@ def build_points(atlases: list[AtlasInput], scene: BakeScene, progress: Progress
     out = []
     for i, atlas in enumerate(atlases):
         _check_cancel(cancel)
-        points = bakepoints.build(atlas.surface, atlas.width, atlas.height, occluders=occluders)
+        points = bakepoints.build(atlas.surface, atlas.width, atlas.height, occluders=occluders,
+                                  check=lambda: _check_cancel(cancel))
         counts = np.bincount(points.object_index, minlength=len(atlas.objects))
         empty = [atlas.objects[k] for k in np.unique(atlas.surface.object_index) if counts[k] == 0]
         if empty:

@@ -89,13 +89,15 @@ class BakePoints:
         return out.reshape((self.height, self.width) + values.shape[1:])
 
 
-def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScene | None = None) -> BakePoints:
+def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScene | None = None,
+          check=None) -> BakePoints:
     """Bake points of every covered texel. `occluders` (all geometry that casts shadows, the
-    receivers included) enables the buried-texel test; without it nothing is flagged."""
+    receivers included) enables the buried-texel test; without it nothing is flagged.
+    `check()`, if given, is called between chunks of work (it raises to stop: a cancel)."""
     pos = np.asarray(surface.positions, dtype=np.float64)
     if not np.isfinite(pos).all() or not np.isfinite(surface.uv).all():
         raise BakeError("lightmap bake points: NaN or infinite positions or UVs in the input")
-    cov = raster.rasterise(surface.uv, width, height)
+    cov = raster.rasterise(surface.uv, width, height, check)
     chosen, coverage = raster.choose_per_texel(cov)
     tri = cov.triangle[chosen]
     bary = _barycentric(cov.point[chosen], np.asarray(surface.uv, dtype=np.float64)[tri] * [width, height])
@@ -114,7 +116,7 @@ def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScen
         offset=ray_offset(pos), buried=np.zeros(len(tri), bool),
         tri_texel_uv=np.asarray(surface.uv, dtype=np.float64) * [width, height], tri_positions=pos)
     if occluders is not None:
-        points.buried = find_buried(points, occluders)
+        points.buried = find_buried(points, occluders, check=check)
     return points
 
 
@@ -166,19 +168,26 @@ def _probe_directions(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - r * r)], axis=1)
 
 
-def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES) -> np.ndarray:
+def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES, check=None,
+                chunk: int = 1 << 16) -> np.ndarray:
     """Texels whose hemisphere is closed by nearby geometry seen from behind (the inside of a
     box pushed into the floor): at least BURIED_FRACTION of short probe rays (length 4 texels)
     hit back faces. The bake stores such texels black and never uses them as dilation sources,
     so light cannot leak into them. (Deeper inside a closed volume texels are dark anyway: all
-    their rays end on the volume's inner faces.) Returns (P,) bool."""
+    their rays end on the volume's inner faces.) Returns (P,) bool. Works in chunks of texels
+    (bounded memory), calling `check()` before each."""
     from .sh import tangent_frames
-    if len(points.texel) == 0:
-        return np.zeros(0, bool)
-    frames = tangent_frames(points.face_normal)
-    dirs = np.einsum("pij,kj->pki", frames, _probe_directions(probes)).reshape(-1, 3)
-    origins = np.repeat(points.origins(), probes, axis=0)
-    reach = np.repeat(4.0 * points.texel_size + 4.0 * points.offset, probes)
-    t, prim, ng = scene.intersect(origins, dirs, reach)
-    back = (prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)
-    return back.reshape(-1, probes).mean(axis=1) >= BURIED_FRACTION
+    buried = np.zeros(len(points.texel), bool)
+    origins_all = points.origins()
+    local = _probe_directions(probes)
+    for s in range(0, len(buried), chunk):
+        if check is not None:
+            check()
+        sl = slice(s, s + chunk)
+        dirs = np.einsum("pij,kj->pki", tangent_frames(points.face_normal[sl]), local).reshape(-1, 3)
+        origins = np.repeat(origins_all[sl], probes, axis=0)
+        reach = np.repeat(4.0 * points.texel_size[sl] + 4.0 * points.offset, probes)
+        t, prim, ng = scene.intersect(origins, dirs, reach)
+        back = (prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)
+        buried[sl] = back.reshape(-1, probes).mean(axis=1) >= BURIED_FRACTION
+    return buried

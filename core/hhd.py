@@ -273,7 +273,8 @@ def _golden(f, lo: np.ndarray, hi: np.ndarray, iterations: int):
     return np.where(best_is_1, x1, x2), np.where(best_is_1, f1, f2)
 
 
-def _search_theta(fit: _Fit, phi: np.ndarray, theta_start: np.ndarray, theta_max: float):
+def _search_theta(fit: _Fit, phi: np.ndarray, theta_start: np.ndarray, theta_max: float,
+                  iterations: int = GOLDEN_ITERATIONS):
     """Best θ at fixed φ: coarse scan of [0, θ_max], golden-section in the best bracket, and the
     starting θ (the optimal linear one) as a candidate. Returns (θ, objective)."""
     n = len(phi)
@@ -284,7 +285,7 @@ def _search_theta(fit: _Fit, phi: np.ndarray, theta_start: np.ndarray, theta_max
     step = grid[1] - grid[0]
     lo = np.clip(grid[k] - step, 0.0, theta_max)
     hi = np.clip(grid[k] + step, 0.0, theta_max)
-    theta, err = _golden(lambda t: at.evaluate(t)[0], lo, hi, GOLDEN_ITERATIONS)
+    theta, err = _golden(lambda t: at.evaluate(t)[0], lo, hi, iterations)
     candidates = np.stack([theta, grid[k], theta_start], axis=1)
     errors = np.stack([err, scan[np.arange(n), k], at.evaluate(theta_start)[0]], axis=1)
     best = np.argmin(errors, axis=1)
@@ -292,19 +293,20 @@ def _search_theta(fit: _Fit, phi: np.ndarray, theta_start: np.ndarray, theta_max
     return candidates[rows, best], errors[rows, best]
 
 
-def _search_phi(fit: _Fit, phi0: np.ndarray, theta0: np.ndarray, theta_max: float):
+def _search_phi(fit: _Fit, phi0: np.ndarray, theta0: np.ndarray, theta_max: float,
+                iterations: int = GOLDEN_ITERATIONS):
     """Outer search over φ (scan of the full circle, then golden-section around the best), with
     the inner θ search at each φ. Returns (θ, φ)."""
     n = len(phi0)
     offsets = np.arange(PHI_SCAN_STEPS) * (2.0 * np.pi / PHI_SCAN_STEPS)
-    results = [_search_theta(fit, phi0 + o, theta0, theta_max) for o in offsets]
+    results = [_search_theta(fit, phi0 + o, theta0, theta_max, iterations) for o in offsets]
     errs = np.stack([r[1] for r in results], axis=1)
     k = np.argmin(errs, axis=1)
     half = np.pi / PHI_SCAN_STEPS
     phi_best_scan = phi0 + offsets[k]
-    phi, _ = _golden(lambda p: _search_theta(fit, p, theta0, theta_max)[1],
+    phi, _ = _golden(lambda p: _search_theta(fit, p, theta0, theta_max, iterations)[1],
                      phi_best_scan - half, phi_best_scan + half, PHI_GOLDEN_ITERATIONS)
-    theta, err = _search_theta(fit, phi, theta0, theta_max)
+    theta, err = _search_theta(fit, phi, theta0, theta_max, iterations)
     scan_theta = np.stack([r[0] for r in results], axis=1)[np.arange(n), k]
     better_scan = errs[np.arange(n), k] < err
     return np.where(better_scan, scan_theta, theta), np.where(better_scan, phi_best_scan, phi)
@@ -321,7 +323,7 @@ def optimal_linear_angles(local_sh: np.ndarray, channel_weights: np.ndarray, the
 
 def encode(sh, n_v, model: str = "hhd", direction: str = "searched", gram: str = "hemisphere",
            ambient: str = "luminance", *, hemisphere_sampled: bool = True, phi_search: bool = False,
-           min_cos: float = MIN_COS) -> HHDParams:
+           min_cos: float = MIN_COS, golden_iterations: int = GOLDEN_ITERATIONS) -> HHDParams:
     """Fit HHD or AHD to world-space radiance SH, per texel.
 
     sh   `(N, 9, C)` world-space radiance SH (any float dtype; C = 3 for RGB)
@@ -335,6 +337,8 @@ def encode(sh, n_v, model: str = "hhd", direction: str = "searched", gram: str =
     target of the fit is the SH irradiance i either way.
     phi_search: add the outer φ search (≈ 20× the cost, a slight error decrease).
     min_cos: floor on d·n_v.
+    golden_iterations: golden-section steps of the θ search (each shrinks the bracket by 0.618;
+    0 keeps the best of the coarse scan and the optimal-linear θ).
 
     NaN/Inf in a texel's SH or normal, or a zero normal, marks it `invalid` and encodes it
     black rather than raising: one bad texel must not lose a bake. Callers report `n_invalid`.
@@ -349,7 +353,7 @@ def encode(sh, n_v, model: str = "hhd", direction: str = "searched", gram: str =
     options = dict(a=ambient_lobe(model), g=_gram.hemisphere() if gram == "hemisphere" else _gram.sphere(),
                    searched=direction == "searched", luminance=ambient == "luminance",
                    hemisphere_sampled=hemisphere_sampled, phi_search=phi_search,
-                   theta_max=float(np.arccos(min_cos)))
+                   theta_max=float(np.arccos(min_cos)), iterations=max(0, int(golden_iterations)))
     world_sh, n, invalid = _sanitise(sh, n_v)
     parts = [_encode_chunk(world_sh[s:s + CHUNK], n[s:s + CHUNK], **options)
              for s in range(0, len(n), CHUNK)] or [_encode_chunk(world_sh, n, **options)]
@@ -383,15 +387,15 @@ def _prepare(world_sh, n, *, a, g, luminance, hemisphere_sampled):
     return fit, frames, local, iz, clamped, lum_fit
 
 
-def _encode_chunk(world_sh, n, *, searched, phi_search, theta_max, **prepare):
+def _encode_chunk(world_sh, n, *, searched, phi_search, theta_max, iterations, **prepare):
     """encode() on one chunk of sanitised texels -> (I_z, w_a, d_world, clamped)."""
     fit, frames, local, iz, clamped, lum_fit = _prepare(world_sh, n, **prepare)
     theta, phi = optimal_linear_angles(local, lum_fit, theta_max)
     if searched:
         if phi_search:
-            theta, phi = _search_phi(fit, phi, theta, theta_max)
+            theta, phi = _search_phi(fit, phi, theta, theta_max, iterations)
         else:
-            theta, _ = _search_theta(fit, phi, theta, theta_max)
+            theta, _ = _search_theta(fit, phi, theta, theta_max, iterations)
     _, w = fit.evaluate(theta, phi)
     # Where the fit is all ambient (w = 1 up to rounding) the direction is irrelevant: store
     # n_v, which keeps the direction texture smooth for filtering.

@@ -22,10 +22,12 @@ class Preset:
 
 
 PRESETS = {
-    "DRAFT": Preset(16, 1, 0.0, "Seconds: placement and light direction checks; visible noise"),
-    "PREVIEW": Preset(64, 2, 0.0, "Quick look at the lighting; slight noise in dark corners"),
-    "PRODUCTION": Preset(256, 3, 0.0, "Shipping quality for most scenes"),
-    "REFERENCE": Preset(2048, 6, 0.0, "Converged reference for comparisons; slow"),
+    # cheapest measured setting whose worst-scene relative I_z RMSE is within 55 / 30 / 16 / 6 %
+    # (bench/results/presets.json; times for ~15-28k texels on 2 cores)
+    "DRAFT": Preset(16, 1, 0.0, "About a second: placement and light direction checks; visibly noisy indoors"),
+    "PREVIEW": Preset(64, 4, 0.0, "A few seconds: the lighting's look; noticeable noise indoors"),
+    "PRODUCTION": Preset(256, 8, 0.0, "Shipping quality: 8 bounces (fewer darken interiors), moderate noise"),
+    "REFERENCE": Preset(2048, 8, 0.0, "Converged reference for comparisons; about a minute per 20k texels"),
 }
 
 

@@ -30,8 +30,9 @@ class Coverage:
     point: np.ndarray
 
 
-def rasterise(uv: np.ndarray, width: int, height: int) -> Coverage:
-    """All positive-area overlaps of triangles `uv (T, 3, 2)` (in [0, 1]²) with texels."""
+def rasterise(uv: np.ndarray, width: int, height: int, check=None) -> Coverage:
+    """All positive-area overlaps of triangles `uv (T, 3, 2)` (in [0, 1]²) with texels.
+    `check()`, if given, is called between chunks (it raises to stop, e.g. on cancel)."""
     p = np.asarray(uv, dtype=np.float64) * np.array([width, height], dtype=np.float64)
     signed = _signed_area(p)
     live = np.nonzero(np.abs(signed) > 0.0)[0]
@@ -46,6 +47,8 @@ def rasterise(uv: np.ndarray, width: int, height: int) -> Coverage:
     parts = []
     start = 0
     while start < len(p):
+        if check is not None:
+            check()
         stop = start + max(1, int(np.searchsorted(np.cumsum(counts[start:]), PAIRS_PER_CHUNK)))
         parts.append(_rasterise_chunk(p[start:stop], lo[start:stop], hi[start:stop],
                                       counts[start:stop], live[start:stop], width))

@@ -41,16 +41,12 @@ from . import hhd as _hhd
 from . import sh as _sh
 from .bakepoints import BakePoints
 from .emitters import EmitterSampler
-from .errors import BakeError
+from .errors import BakeCancelled, BakeError
 from .rays import RayScene, ray_offset
 from .scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
 
 RR_START = 2            # bounces before Russian roulette may end a path
 RR_MAX_SURVIVAL = 0.95
-
-
-class BakeCancelled(BakeError):
-    """The user cancelled the bake; nothing was written."""
 
 
 @dataclass

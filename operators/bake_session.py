@@ -92,7 +92,8 @@ def pipeline_settings(settings) -> core_bake.PipelineSettings:
 
 def encoder_settings(settings) -> core_bake.EncoderSettings:
     return core_bake.EncoderSettings(model=settings.model.lower(), direction=settings.direction.lower(),
-                                     ambient=settings.ambient.lower(), phi_search=settings.phi_search)
+                                     ambient=settings.ambient.lower(), phi_search=settings.phi_search,
+                                     golden_iterations=settings.golden_iterations)
 
 
 def _samples_text(trace) -> str:

@@ -91,14 +91,27 @@ def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> int:
     return len(np.unique(poly[mismatch.reshape(-1, 3).any(axis=1)]))
 
 
+def surface_node(mat):
+    """The node feeding the active Material Output's Surface, or None."""
+    if mat is None or not mat.use_nodes or mat.node_tree is None:
+        return None
+    output = next((n for n in mat.node_tree.nodes if n.type == 'OUTPUT_MATERIAL' and n.is_active_output), None)
+    if output is None or not output.inputs["Surface"].is_linked:
+        return None
+    return output.inputs["Surface"].links[0].from_node
+
+
 def material_albedo_source(mat):
     """Where a material's albedo comes from: ('constant', rgb, note or None) or ('texture',
     (Image Texture node, UV map name or '' for the render UV map), None). A Principled BSDF's
     unlinked Base Color is a constant; linked straight from an Image Texture it is that image
-    through the texture's own UV map; any other setup falls back to the viewport colour with a
-    note saying so."""
+    through the texture's own UV map; an Emission shader alone reflects nothing (black); any
+    other setup falls back to the viewport colour with a note saying so."""
     if mat is None:
         return 'constant', (0.8, 0.8, 0.8), None
+    surface = surface_node(mat)
+    if surface is not None and surface.type == 'EMISSION':
+        return 'constant', (0.0, 0.0, 0.0), None          # an Emission shader reflects nothing
     bsdf = None
     if mat.node_tree is not None:
         bsdf = next((n for n in mat.node_tree.nodes if n.type == 'BSDF_PRINCIPLED'), None)

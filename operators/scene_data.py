@@ -11,17 +11,13 @@ import numpy as np
 
 from ..core.errors import BakeError
 from ..core.scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
-from .mesh_data import TextureCache, read_triangles, triangle_albedo
+from .mesh_data import TextureCache, read_triangles, surface_node, triangle_albedo
 
 
 def _material_emission(mat) -> tuple:
     """Emitted radiance (linear RGB) of a material: a Principled BSDF's Emission Color ×
     Strength, or an Emission shader feeding the output; black otherwise."""
-    if mat is None or not mat.use_nodes or mat.node_tree is None:
-        return (0.0, 0.0, 0.0)
-    nodes = mat.node_tree.nodes
-    output = next((n for n in nodes if n.type == 'OUTPUT_MATERIAL' and n.is_active_output), None)
-    surface = output.inputs["Surface"].links[0].from_node if output and output.inputs["Surface"].is_linked else None
+    surface = surface_node(mat)
     if surface is None:
         return (0.0, 0.0, 0.0)
     if surface.type == 'EMISSION':

@@ -65,6 +65,7 @@ class HHD_PT_main(bpy.types.Panel):
         col.prop(settings, "direction")
         col.prop(settings, "ambient")
         col.prop(settings, "phi_search")
+        col.prop(settings, "golden_iterations")
         wm = context.window_manager
         if wm.hhd_status:
             box.progress(factor=wm.hhd_progress, type='BAR', text=wm.hhd_status)

@@ -239,3 +239,22 @@ def test_negative_noise_target_or_budget_is_refused():
     for bad in (dict(noise_target=-0.1), dict(time_budget=-1.0), dict(noise_target=float("nan"))):
         with pytest.raises(BakeError, match="noise target"):
             tracer.bake(points, scene, tracer.BakeSettings(samples=16, **bad))
+
+
+def test_bake_point_stage_checks_for_cancel_between_chunks():
+    from hhd_lightmapper.core.errors import BakeCancelled
+    v, f = meshes.plane(2.0)
+    res = unwrap.unwrap([unwrap.UnwrapMesh("floor", v, f)], unwrap.UnwrapSettings(resolution=1024))
+    surface = bakepoints.SurfaceTriangles(v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float),
+                                          np.zeros(2, int), np.full((2, 3), 0.5))
+    calls = []
+    points = bakepoints.build(surface, 1024, 1024, occluders=rays.RayScene(v[f]), check=lambda: calls.append(1))
+    assert len(calls) >= len(points.texel) // (1 << 16)      # at least once per chunk of the buried test
+    def cancel_on_third():
+        calls.append(1)
+        if len(calls) > 2:
+            raise BakeCancelled("bake cancelled")
+    calls.clear()
+    with pytest.raises(BakeCancelled):
+        bakepoints.build(surface, 1024, 1024, occluders=rays.RayScene(v[f]), check=cancel_on_third)
+    assert len(calls) == 3
