@@ -96,18 +96,7 @@ def cycles_reference(bpy, scene, out: Path, samples: int, bounces: int):
     not written to files by the bpy module here, so "diffuse only" is made in the materials:
     Principled BSDFs with specular, coat and sheen off (Lambert diffuse, roughness 1); a
     transparent film gives the receiver mask, a 1-sample render of the panel alone its mask."""
-    for mat in bpy.data.materials:
-        for node in (mat.node_tree.nodes if mat.node_tree else []):
-            if node.type == 'BSDF_PRINCIPLED':
-                for name, value in (("Specular IOR Level", 0.0), ("Coat Weight", 0.0), ("Sheen Weight", 0.0),
-                                    ("Roughness", 1.0), ("Metallic", 0.0)):
-                    node.inputs[name].default_value = value
-    scene.render.engine = 'CYCLES'
-    scene.cycles.device, scene.cycles.samples = 'CPU', samples
-    scene.cycles.use_denoising = False
-    scene.cycles.max_bounces = scene.cycles.diffuse_bounces = bounces
-    scene.cycles.glossy_bounces = scene.cycles.transmission_bounces = 0
-    scene.cycles.sample_clamp_direct = scene.cycles.sample_clamp_indirect = 0.0   # default clamps bias it dark
+    diffuse_cycles(bpy, scene, samples, bounces)
     scene.render.film_transparent = True
     configure_output(scene)
     reference = render(bpy, scene, out / "cycles.exr", alpha=True)
@@ -121,6 +110,23 @@ def cycles_reference(bpy, scene, out: Path, samples: int, bounces: int):
         o.hide_render = False
     scene.render.film_transparent = False
     return reference[..., :3], mask, panel
+
+
+def diffuse_cycles(bpy, scene, samples: int, bounces: int) -> None:
+    """Cycles on the CPU rendering diffuse light only: Principled BSDFs made Lambertian
+    (specular, coat, sheen, metallic off, roughness 1), diffuse bounces only, no denoising and
+    no sample clamping (Cycles clamps indirect samples to 10 by default: a bias)."""
+    for mat in bpy.data.materials:
+        for node in (mat.node_tree.nodes if mat.node_tree else []):
+            if node.type == 'BSDF_PRINCIPLED':
+                for name, value in (("Specular IOR Level", 0.0), ("Coat Weight", 0.0), ("Sheen Weight", 0.0),
+                                    ("Roughness", 1.0), ("Metallic", 0.0)):
+                    node.inputs[name].default_value = value
+    scene.render.engine = 'CYCLES'
+    scene.cycles.device, scene.cycles.samples, scene.cycles.use_denoising = 'CPU', samples, False
+    scene.cycles.max_bounces = scene.cycles.diffuse_bounces = bounces
+    scene.cycles.glossy_bounces = scene.cycles.transmission_bounces = 0
+    scene.cycles.sample_clamp_direct = scene.cycles.sample_clamp_indirect = 0.0
 
 
 def render(bpy, scene, path: Path, alpha=False) -> np.ndarray:

@@ -380,20 +380,9 @@ def cycles_reference(sc: Scene, samples: int):
     """(Cycles render of the view (H, W, 3), its noise floor in %, receiver mask): diffuse only
     (bench/preview.py), 8 bounces, two halves with different seeds."""
     import bpy
-    from preview import render
+    from preview import diffuse_cycles, render
     scene = sc.scene
-    for mat in bpy.data.materials:
-        for node in (mat.node_tree.nodes if mat.node_tree else []):
-            if node.type == 'BSDF_PRINCIPLED':
-                for key, value in (("Specular IOR Level", 0.0), ("Coat Weight", 0.0), ("Sheen Weight", 0.0),
-                                   ("Roughness", 1.0), ("Metallic", 0.0)):
-                    node.inputs[key].default_value = value
-    scene.render.engine = 'CYCLES'
-    scene.cycles.device, scene.cycles.samples, scene.cycles.use_denoising = 'CPU', samples // 2, False
-    scene.cycles.max_bounces = scene.cycles.diffuse_bounces = 8
-    scene.cycles.glossy_bounces = scene.cycles.transmission_bounces = 0
-    # Cycles clamps indirect samples to 10 by default: a bias (the emissive room renders ~12% dark)
-    scene.cycles.sample_clamp_direct = scene.cycles.sample_clamp_indirect = 0.0
+    diffuse_cycles(bpy, scene, samples // 2, 8)
     scene.render.film_transparent = True
     halves = []
     for seed in (1, 2):

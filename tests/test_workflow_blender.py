@@ -13,6 +13,7 @@ import pytest
 
 import cycles_compare as cc
 from hhd_lightmapper import cli
+from hhd_lightmapper.core import presets
 from hhd_lightmapper.core.tracer import BakeCancelled
 
 pytestmark = pytest.mark.bpy
@@ -145,7 +146,7 @@ def test_command_line_exit_codes(baked_scene, tmp_path):
     assert adaptive.returncode == cli.EXIT_OK, adaptive.stderr
     bake = json.loads((tmp_path / "adaptive" / "Lightmap.json").read_text())["bake"]
     assert bake["samples"] == 96 and bake["noise_target"] == 0.5       # options override the preset
-    assert 64 <= bake["mean_samples_per_texel"] <= 96 and bake["bounces"] == 6
+    assert 64 <= bake["mean_samples_per_texel"] <= 96 and bake["bounces"] == presets.get("reference").bounces
 
     usage = run_cli(blend, "bake", "--samples", "many")
     assert usage.returncode == cli.EXIT_USAGE and "invalid int value" in usage.stderr
