@@ -12,14 +12,23 @@ def _knobs(settings) -> tuple[int, int, float]:
     return settings.samples, settings.bounces, round(settings.noise_target / 100.0, 6)
 
 
+_applying_preset = False     # the knobs' update callbacks fire while a preset sets them
+
+
 def _apply_preset(self, _context):
-    if self.preset != 'CUSTOM':
-        samples, bounces, noise = presets.get(self.preset).knobs()
+    global _applying_preset
+    if self.preset == 'CUSTOM':
+        return
+    samples, bounces, noise = presets.get(self.preset).knobs()
+    _applying_preset = True
+    try:
         self.samples, self.bounces, self.noise_target = samples, bounces, 100.0 * noise
+    finally:
+        _applying_preset = False
 
 
 def _mark_custom(self, _context):
-    if self.preset != 'CUSTOM' and presets.get(self.preset).knobs() != _knobs(self):
+    if not _applying_preset and self.preset != 'CUSTOM' and presets.get(self.preset).knobs() != _knobs(self):
         self.preset = 'CUSTOM'
 
 

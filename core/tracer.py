@@ -73,8 +73,9 @@ class BakeSettings:
     time_budget: float = 0.0
 
 
-#: Passes a texel takes before its pass-to-pass spread may stop it (the spread of fewer passes
-#: is too noisy itself: with 4 passes it is within ±50% of the true error 90% of the time).
+#: Passes a texel takes before its pass-to-pass spread may stop it (the spread of few passes is
+#: noisy itself: from 4 Gaussian passes it lies between 0.34× and 1.6× the true error 90% of the
+#: time, from 2 passes between 0.06× and 2×).
 MIN_ADAPTIVE_PASSES = 4
 #: Fraction of the atlas mean I_z below which the noise target is absolute, not relative.
 NOISE_FLOOR = 0.1

@@ -78,3 +78,17 @@ def test_missing_compiled_wheel_is_a_message_not_a_failed_enable(extension, monk
         bpy.ops.hhd.check_dependencies()
     with pytest.raises(DependencyMissing, match="embreex.*ray tracing"):
         deps.require("embreex")
+
+
+def test_a_preset_sets_its_knobs_and_an_edit_makes_it_custom(extension):
+    import bpy
+    from hhd_lightmapper.core import presets
+    s = bpy.context.scene.hhd
+    for name, preset in presets.PRESETS.items():
+        s.preset = name
+        assert s.preset == name
+        assert (s.samples, s.bounces, s.noise_target) == (preset.samples, preset.bounces, 100 * preset.noise_target)
+    s.samples += 1
+    assert s.preset == 'CUSTOM'
+    s.preset = 'PRODUCTION'
+    assert s.preset == 'PRODUCTION'
