@@ -81,7 +81,7 @@ def knob_points(quick: bool) -> list[dict]:
     add = lambda knob, label, **kw: pts.append({"knob": knob, "label": label, **BASE, **kw})
     for s in ([4, 16, 64, 256] if quick else [4, 16, 64, 256, 1024]):
         add("samples", f"{s} spp", samples=s)
-    for b in ([1, 2, 8] if quick else [1, 2, 8]):
+    for b in (1, 2, 8):
         add("bounces", f"{b} bounces", bounces=b)
     for s, b in ([] if quick else [(16, 1), (64, 2), (1024, 2)]):
         add("samples × bounces", f"{s} spp, {b} bounces", samples=s, bounces=b)
@@ -211,8 +211,7 @@ class Scene:
         self.folder = (args.out / name).resolve()
         self.folder.mkdir(parents=True, exist_ok=True)
         scenes.build(name)
-        sys.path.insert(0, str(ROOT / "tools"))
-        import demo_scene
+        import demo_scene          # on the path since scenes imported it
         demo_scene.externalise_images(self.folder)
         bpy.ops.wm.save_as_mainfile(filepath=str(self.folder / "scene.blend"))
         self.scene = bpy.context.scene
@@ -322,7 +321,7 @@ def measure_scene(name: str, args) -> dict:
         sc.unwrap(density * point.get("density_factor", 1.0))
         b = sc.bake(folder, point)
         same_texels = point.get("density_factor", 1.0) == 1.0
-        row = {**{k: v for k, v in point.items()}, **{k: v for k, v in b.items() if k != "data"}}
+        row = {**point, **{k: v for k, v in b.items() if k != "data"}}
         row.update(errors(b["data"] if same_texels else None, folder=folder, tag=slug(point["label"])))
         rows.append(row)
         print(f"[{name}] {point['knob']:18s} {point['label']:22s} {fmt_row(row)}", flush=True)
@@ -400,7 +399,8 @@ def emitter_mask(sc: Scene) -> np.ndarray:
     1-sample render of them alone on a transparent film."""
     import bpy
     from preview import render
-    emitters = [o for o in sc.scene.objects if o.type == 'MESH' and o.name in scenes_module().EMITTERS]
+    import scenes
+    emitters = [o for o in sc.scene.objects if o.type == 'MESH' and o.name in scenes.EMITTERS]
     if not emitters:
         return np.zeros((sc.scene.render.resolution_y, sc.scene.render.resolution_x), bool)
     others = [o for o in sc.scene.objects if o.type == 'MESH' and o not in emitters]
@@ -412,11 +412,6 @@ def emitter_mask(sc: Scene) -> np.ndarray:
         o.hide_render = False
     sc.scene.render.film_transparent = False
     return alpha > 0.01
-
-
-def scenes_module():
-    import scenes
-    return scenes
 
 
 # ---- measures -------------------------------------------------------------------------------
