@@ -4,11 +4,16 @@ Input meshes are triangle lists in world space (metres), so texel density is per
 object as it stands in the scene (object scale included; negative scale is fine: only lengths
 and areas matter). Output UVs are per triangle corner in [0, 1]² of the object's atlas, with
 texel centres at (i + 0.5)/width. xatlas keeps the input triangle order; triangles with zero
-area get no chart (xatlas puts them at UV (0, 0)) and are skipped by the rasteriser.
+area get no chart (xatlas puts them at UV (0, 0)) and are skipped by the rasteriser. xatlas runs
+in a child process (`xatlas_worker`), so a crash in its threads is a retry, not a lost session.
 """
 from __future__ import annotations
 
-import time
+import os
+import pickle
+import signal
+import subprocess
+import sys
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -18,8 +23,11 @@ from . import deps
 from .errors import BakeError
 
 MIN_RESOLUTION, MAX_RESOLUTION = 256, 8192
-#: Pause after each xatlas generate() before the atlas may be destroyed (see `_pack`).
-WORKER_SETTLE_SECONDS = 0.05
+#: xatlas runs in a child process (`xatlas_worker`): tries before giving up, and the time after
+#: which a child counts as hung (1M triangles take ≈ 140 s on 2 cores).
+XATLAS_ATTEMPTS = 3
+XATLAS_TIMEOUT_BASE, XATLAS_TIMEOUT_PER_TRIANGLE = 120.0, 1e-3
+_WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "xatlas_worker.py")
 #: Objects below this many covered texels get a warning: too few to show any lighting detail.
 FEW_TEXELS = 64
 
@@ -104,11 +112,13 @@ def unwrap(meshes: list[UnwrapMesh], settings: UnwrapSettings,
     for gi, (indices, resolution, density) in enumerate(groups):
         if progress:
             progress(gi / len(groups), f"xatlas: atlas {gi + 1} of {len(groups)}")
-        atlas, w, h = _pack([meshes[i] for i in indices], resolution, density, settings.padding)
+        atlas = _pack([meshes[i] for i in indices], resolution, density, settings.padding)
+        # a density-driven atlas is xatlas's own size; a fixed one is resolution² (charts fit in it)
+        w, h = (atlas["width"], atlas["height"]) if density is not None else (resolution, resolution)
         atlas_index = len(sizes)
         sizes.append((w, h))
-        utilisation.append(float(np.mean(atlas.utilization)) if np.ndim(atlas.utilization) else float(atlas.utilization))
-        charts += atlas.chart_count
+        utilisation.append(atlas["utilisation"])
+        charts += atlas["charts"]
         for k, i in enumerate(indices):
             objects[i] = _object_uv(meshes[i], atlas, k, atlas_index, w, h)
     for o in objects:
@@ -134,57 +144,53 @@ def _group(meshes, settings):
 
 
 def _pack(meshes, resolution, density, padding):
-    """Run xatlas; return (atlas, width, height) with everything in a single atlas."""
-    xatlas = deps.require("xatlas")
+    """Chart and pack `meshes` into one atlas with xatlas in a child process (see
+    `xatlas_worker`); returns the worker's result dict. A crashed or hung child is retried."""
+    deps.require("xatlas")          # a missing wheel is a clear message here, not in the child
     if density is None and not MIN_RESOLUTION <= resolution <= MAX_RESOLUTION:
         raise BakeError(f"lightmap resolution {resolution} is outside {MIN_RESOLUTION}–{MAX_RESOLUTION}")
     if density is not None and not density > 0:
         raise BakeError(f"texel density must be positive, got {density}")
+    job = {"meshes": [(np.asarray(m.positions, dtype=np.float32), np.asarray(m.triangles, dtype=np.uint32))
+                      for m in meshes],
+           "resolution": int(resolution), "density": density, "padding": int(padding),
+           "max_resolution": MAX_RESOLUTION}
+    payload = pickle.dumps(list(sys.path)) + pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
+    triangles = sum(len(m.triangles) for m in meshes)
+    timeout = XATLAS_TIMEOUT_BASE + XATLAS_TIMEOUT_PER_TRIANGLE * triangles
+    failures = []
+    for _ in range(XATLAS_ATTEMPTS):
+        try:
+            run = subprocess.run([sys.executable, "-I", _WORKER], input=payload, capture_output=True,
+                                 timeout=timeout)
+        except subprocess.TimeoutExpired:
+            failures.append(f"no answer after {timeout:.0f} s")
+            continue
+        if run.returncode == 0 and run.stdout:
+            result = pickle.loads(run.stdout)
+            if "error" in result:
+                raise BakeError(result["error"])
+            return result
+        failures.append(_describe_failure(run))
+    names = ", ".join(f"'{m.name}'" for m in meshes[:5]) + (" …" if len(meshes) > 5 else "")
+    raise BakeError(f"xatlas failed {XATLAS_ATTEMPTS} times unwrapping {names}: {'; '.join(failures)}")
 
-    def attempt(texels_per_unit, fixed_resolution):
-        atlas = xatlas.Atlas()
-        for m in meshes:
-            atlas.add_mesh(np.ascontiguousarray(m.positions, dtype=np.float32),
-                           np.ascontiguousarray(m.triangles, dtype=np.uint32))
-        pack = xatlas.PackOptions()
-        pack.padding = int(padding)
-        pack.bilinear = True
-        pack.texels_per_unit = float(texels_per_unit)
-        pack.resolution = int(fixed_resolution)
-        atlas.generate(pack_options=pack)
-        # xatlas's TaskScheduler destructor wakes its workers without taking their mutex: a
-        # worker still going idle after generate() can miss that wake-up, and Destroy then
-        # joins it forever (seen once in CI: the process hung in ~TaskScheduler). Workers are
-        # idle within microseconds; letting them settle before the atlas can be released
-        # closes that window (≈ 3-6 generate() calls per unwrap, so well under a second).
-        time.sleep(WORKER_SETTLE_SECONDS)
-        return atlas
 
-    if density is not None:
-        atlas = attempt(density, 0)
-        if max(atlas.width, atlas.height) > MAX_RESOLUTION or atlas.atlas_count > 1:
-            raise BakeError(f"texel density {density:g}/m needs an atlas larger than {MAX_RESOLUTION}²: "
-                            "lower the density or split the objects into several atlases")
-        return atlas, atlas.width, atlas.height
-    # Fixed resolution: let xatlas estimate the density, then shrink it by the measured overshoot
-    # until one atlas of exactly resolution² holds every chart. Each retry re-runs xatlas (its
-    # Python binding cannot re-pack alone), so scale by the overshoot: usually one retry.
-    atlas = attempt(0, resolution)
-    tpu = atlas.texels_per_unit
-    for _ in range(12):
-        if atlas.atlas_count == 1 and atlas.width <= resolution and atlas.height <= resolution:
-            return atlas, resolution, resolution
-        overshoot = max(atlas.width, atlas.height) / resolution if atlas.atlas_count == 1 else 1.0
-        tpu *= min(0.97, 0.98 / max(overshoot, 1e-9))
-        atlas = attempt(tpu, resolution)
-    raise BakeError(f"could not pack the charts into one {resolution}² atlas")
+def _describe_failure(run) -> str:
+    """One line on how the xatlas child ended: the signal that killed it or its last error line."""
+    if run.returncode < 0:
+        try:
+            return f"crashed ({signal.Signals(-run.returncode).name})"
+        except ValueError:
+            return f"crashed (signal {-run.returncode})"
+    lines = run.stderr.decode(errors="replace").strip().splitlines()
+    return f"exit code {run.returncode}" + (f": {lines[-1]}" if lines else "")
 
 
 def _object_uv(mesh, atlas, k, atlas_index, w, h):
-    vmapping, indices, uvs = atlas[k]
     # xatlas normalises UVs by its own width/height; rescale to the final atlas size.
-    scale = np.array([atlas.width / w, atlas.height / h], dtype=np.float64)
-    uv = (uvs[indices] * scale).astype(np.float32)                      # (T, 3, 2)
+    scale = np.array([atlas["width"] / w, atlas["height"] / h], dtype=np.float64)
+    uv = (atlas["uv"][k] * scale).astype(np.float32)                    # (T, 3, 2)
     areas = 0.5 * np.abs(np.cross(uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0])) * w * h
     live = areas > 0
     if live.any():
@@ -193,4 +199,4 @@ def _object_uv(mesh, atlas, k, atlas_index, w, h):
                 int(np.ceil(px[:, 0].max())), int(np.ceil(px[:, 1].max())))
     else:
         rect = (0, 0, 0, 0)
-    return ObjectUV(mesh.name, uv, atlas_index, float(areas.sum()), rect, int(atlas.get_mesh_chart_count(k)))
+    return ObjectUV(mesh.name, uv, atlas_index, float(areas.sum()), rect, atlas["mesh_charts"][k])

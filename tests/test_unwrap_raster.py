@@ -198,3 +198,28 @@ def test_closed_box_pushed_into_the_floor_is_dark_inside():
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     t, prim, ng = scene.intersect(pts.origins()[under], d)
     assert (prim >= 0).all() and (np.einsum("ri,ri->r", d, ng) > 0).all()   # all inner (back) faces
+
+
+def _crashing_worker(tmp_path, crashes):
+    """A worker script that dies of SIGSEGV on its first `crashes` runs, then runs the real one."""
+    script = tmp_path / "worker.py"
+    script.write_text(
+        "import os, pathlib, runpy, signal\n"
+        f"count = pathlib.Path({str(tmp_path / 'runs')!r})\n"
+        "runs = int(count.read_text()) if count.exists() else 0\n"
+        "count.write_text(str(runs + 1))\n"
+        f"if runs < {crashes}:\n"
+        "    os.kill(os.getpid(), signal.SIGSEGV)\n"
+        f"runpy.run_path({unwrap._WORKER!r}, run_name='__main__')\n")
+    return str(script)
+
+
+def test_a_crashing_xatlas_child_is_retried_then_named(tmp_path, monkeypatch):
+    v, f = meshes.cube()
+    monkeypatch.setattr(unwrap, "_WORKER", _crashing_worker(tmp_path, crashes=1))
+    res = unwrap.unwrap([unwrap.UnwrapMesh("cube", v, f)], unwrap.UnwrapSettings(resolution=256))
+    assert (tmp_path / "runs").read_text() == "2" and res.objects[0].texels > 0
+    (tmp_path / "runs").unlink()
+    monkeypatch.setattr(unwrap, "_WORKER", _crashing_worker(tmp_path, crashes=99))
+    with pytest.raises(BakeError, match=r"xatlas failed 3 times unwrapping 'cube'.*SIGSEGV"):
+        unwrap.unwrap([unwrap.UnwrapMesh("cube", v, f)], unwrap.UnwrapSettings(resolution=256))
