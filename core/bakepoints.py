@@ -73,13 +73,14 @@ class BakePoints:
     def sample_origins(self, rng: np.random.Generator, idx: np.ndarray, k: int) -> np.ndarray:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the texel's footprint on its
         chosen triangle (points outside the triangle are clamped onto it), offset along the
-        face normal: a texel's value is the average over its footprint, as Cycles bakes it."""
-        tri = np.repeat(self.triangle[idx], k)
-        corner = np.repeat(np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1), k, axis=0)
-        uv = corner + rng.random((len(tri), 2))
-        bary = _barycentric(uv, self.tri_texel_uv[tri])
-        pos = np.einsum("rk,rki->ri", bary, self.tri_positions[tri])
-        return pos + np.repeat(self.face_normal[idx], k, axis=0) * self.offset
+        face normal: a texel's value is the average over its footprint, as Cycles bakes it.
+        Per-texel data is gathered once and broadcast over the k samples."""
+        tri = self.triangle[idx]
+        corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1)
+        uv = corner[:, None, :] + rng.random((len(idx), k, 2))                 # (n, k, 2)
+        bary = _barycentric_grouped(uv, self.tri_texel_uv[tri])               # (n, k, 3)
+        pos = np.matmul(bary, self.tri_positions[tri])                        # (n, k, 3)
+        return (pos + self.face_normal[idx][:, None, :] * self.offset).reshape(-1, 3)
 
     def image(self, values: np.ndarray, fill=0.0) -> np.ndarray:
         """Scatter per-point values `(P, ...)` into a `(height, width, ...)` image."""
@@ -131,6 +132,18 @@ def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     w2 = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
     bary = np.clip(np.stack([1.0 - w1 - w2, w1, w2], axis=1), 0.0, 1.0)
     return bary / bary.sum(axis=1, keepdims=True)
+
+
+def _barycentric_grouped(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """`_barycentric` for k points per triangle: p (n, k, 2), tri (n, 3, 2) -> (n, k, 3)."""
+    a = tri[:, None, 0]
+    v0, v1, v2 = tri[:, None, 1] - a, tri[:, None, 2] - a, p - a
+    den = v0[..., 0] * v1[..., 1] - v1[..., 0] * v0[..., 1]
+    den = np.where(den == 0.0, 1.0, den)
+    w1 = (v2[..., 0] * v1[..., 1] - v1[..., 0] * v2[..., 1]) / den
+    w2 = (v0[..., 0] * v2[..., 1] - v2[..., 0] * v0[..., 1]) / den
+    bary = np.clip(np.stack([1.0 - w1 - w2, w1, w2], axis=-1), 0.0, 1.0)
+    return bary / bary.sum(axis=-1, keepdims=True)
 
 
 def _normalise(v: np.ndarray) -> np.ndarray:

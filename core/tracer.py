@@ -245,20 +245,20 @@ class _Tracer:
         k = self.settings.pass_samples
         local, pdf = _mixture_directions(rng, len(idx), k)               # (n·k, 3), (n·k,)
         texel = np.repeat(np.arange(len(idx)), k)
-        dirs = np.einsum("rij,rj->ri", self.frames[idx][texel], local)
+        dirs = np.matmul(local.reshape(len(idx), k, 3), self.frames[idx].transpose(0, 2, 1)).reshape(-1, 3)
         origins = self.points.sample_origins(rng, idx, k)
         radiance = self._path_radiance(rng, origins, dirs, pdf)          # (n·k, 3)
         mixture = _sh.accumulate_grouped(dirs, radiance / (pdf * k)[:, None], k)
         # I_z's coefficient (band 1 along n_v) from the cosine half alone: zero variance for
-        # constant radiance (the furnace test is exact), lower variance in general.
-        odd = slice(1, None, 2)                                          # the cosine samples
-        cosine = _sh.accumulate_grouped(dirs[odd], radiance[odd] * (np.pi / (local[odd, 2] * (k // 2)))[:, None], k // 2)
-        estimate = _replace_zonal_band1(mixture, cosine, self.points.normal[idx])
+        # constant radiance (the furnace test is exact), lower variance in general. With
+        # p = cosθ/π its estimate Σ L·C1·cosθ/(p·K) is C1·π·(mean L over the cosine samples).
+        cosine_mean = radiance.reshape(len(idx), k, 3)[:, 1::2].mean(axis=1)
+        estimate = _set_zonal_band1(mixture, _sh.C1 * np.pi * cosine_mean, self.points.normal[idx])
         return estimate + self._direct_sh(rng, idx, texel, origins, k)
 
     def _path_radiance(self, rng, origins, dirs, pdf) -> np.ndarray:
         """Radiance arriving at `origins` from directions `dirs` (R, 3) sampled with density `pdf`
-        (R,) per steradian: wavefront over bounces."""
+        (R,) per steradian: wavefront over bounces, the arrays compacted to the live paths."""
         scene = self.scene
         radiance = np.zeros((len(origins), 3))
         live = np.arange(len(origins))
@@ -266,12 +266,13 @@ class _Tracer:
         o, d = origins, dirs
         for bounce in range(self.settings.bounces + 1):
             t, prim, ng, bu, bv = self._intersect(o, d, barycentrics=True)
-            miss = prim < 0
-            if miss.any():
-                radiance[live[miss]] += throughput[miss] * self._escaped(d[miss], pdf[miss])
-            hit = ~miss
-            live, throughput, o, d, t, prim, ng, bu, bv, pdf = (
-                a[hit] for a in (live, throughput, o, d, t, prim, ng, bu, bv, pdf))
+            hit = np.flatnonzero(prim >= 0)
+            if len(hit) < len(prim):
+                if scene.world is not None or scene.environment is not None:
+                    miss = np.flatnonzero(prim < 0)
+                    radiance[live[miss]] += throughput[miss] * self._escaped(d[miss], pdf[miss])
+                live, throughput, o, d, t, prim, ng, bu, bv, pdf = (
+                    a[hit] for a in (live, throughput, o, d, t, prim, ng, bu, bv, pdf))
             if len(live) == 0:
                 break
             if self.emitters:
@@ -280,19 +281,20 @@ class _Tracer:
                 radiance[live] += throughput * scene.emission[prim] * weight[:, None]
             if bounce == self.settings.bounces:
                 break
-            n = ng / np.linalg.norm(ng, axis=1, keepdims=True)
-            n *= np.where(np.einsum("ri,ri->r", n, d) > 0.0, -1.0, 1.0)[:, None]   # face the ray: two-sided
-            x = o + d * t[:, None].astype(np.float64) + n * self.offset
-            throughput = throughput * scene.albedo_at(prim, bu.astype(np.float64), bv.astype(np.float64))
+            n = ng.astype(np.float64)
+            # unit normal facing the ray (surfaces are two-sided): scale by -sign(n·d)/|n|
+            n *= (np.where(np.einsum("ri,ri->r", n, d) > 0.0, -1.0, 1.0) / np.sqrt(np.einsum("ri,ri->r", n, n)))[:, None]
+            x = o + d * t[:, None] + n * self.offset
+            throughput *= scene.albedo_at(prim, bu, bv)
             radiance[live] += throughput * self._irradiance_at(rng, x, n)
             # continue with a cosine-distributed direction: BRDF·cos/pdf = albedo (already applied)
             local = _cosine_directions(rng, len(live))
-            d = np.einsum("rij,rj->ri", _sh.tangent_frames(n), local)
+            d = _sh.frame_directions(n, local)
             pdf = local[:, 2] / np.pi
             o = x
             if bounce + 1 >= RR_START:
                 survive = np.minimum(throughput.max(axis=1), RR_MAX_SURVIVAL)
-                keep = rng.random(len(live)) < survive
+                keep = np.flatnonzero(rng.random(len(live)) < survive)
                 throughput = throughput[keep] / survive[keep, None]
                 live, o, d, pdf = live[keep], o[keep], d[keep], pdf[keep]
             if len(live) == 0:
@@ -336,12 +338,13 @@ class _Tracer:
         samples = [self._sample_light(rng, light, x) for light in self.scene.lights]
         for dirs, value, dist in samples + list(self._mis_light_samples(rng, x, cosine_pdf)):
             cos = np.einsum("ri,ri->r", dirs, n)
-            facing = cos > 0.0
-            if not facing.any():
-                continue
-            visible = self._unoccluded(x[facing], dirs[facing], dist[facing])
-            total[facing] += (visible * cos[facing])[:, None] * value[facing] / np.pi
-        return total
+            facing = np.flatnonzero(cos > 0.0)
+            if len(facing) == len(x):
+                total += (self._unoccluded(x, dirs, dist) * cos)[:, None] * value
+            elif len(facing):
+                visible = self._unoccluded(x[facing], dirs[facing], dist[facing])
+                total[facing] += (visible * cos[facing])[:, None] * value[facing]
+        return total * (1.0 / np.pi)
 
     def _sample_light(self, rng, light, x):
         """Directions (R, 3) to one sample point of the light, its radiance·solid angle per
@@ -384,9 +387,10 @@ class _Tracer:
         return _cone_directions(rng, axis, cos_a), value, np.maximum(dist - light.radius, 0.0)
 
     def _unoccluded(self, o, d, dist) -> np.ndarray:
+        """1.0 where nothing lies between o and the light at distance dist (inf: a direction)."""
         tmax = np.where(np.isfinite(dist), dist * (1.0 - 1e-4) - self.offset, np.float32(3e38))
-        t, prim, _ = self._intersect(o, d, np.maximum(tmax, 0.0))
-        return (prim < 0).astype(np.float64)
+        self._count(len(o))
+        return 1.0 - self.rays_scene.occluded(o, d, np.maximum(tmax, 0.0))
 
     def _direct_sh(self, rng, idx, texel, origins, k) -> np.ndarray:
         """Next-event estimation at the bake point: one shadow ray per light from each of the
@@ -406,17 +410,20 @@ class _Tracer:
                 continue
             vis = np.zeros(len(origins))
             vis[above] = self._unoccluded(origins[above], dirs[above], dist[above])
-            out += _sh.accumulate_grouped(dirs, value * (vis / k)[:, None], k)
+            weighted = value * (vis / k)[:, None]
+            if dirs.strides[0] == 0:        # one direction for every row (a sun without angle)
+                out += _sh.evaluate(dirs[:1])[:, :, None] * weighted.reshape(len(idx), k, 3).sum(axis=1)[:, None, :]
+            else:
+                out += _sh.accumulate_grouped(dirs, weighted, k)
         return out
 
 
-def _replace_zonal_band1(sh_all: np.ndarray, sh_from: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """sh_all with its band-1 component along n (per row) taken from sh_from."""
-    v_all = np.stack([-sh_all[:, 3], -sh_all[:, 1], sh_all[:, 2]], axis=1)     # (N, 3, C)
-    v_from = np.stack([-sh_from[:, 3], -sh_from[:, 1], sh_from[:, 2]], axis=1)
-    along = np.einsum("nic,ni->nc", v_from - v_all, n)
-    v = v_all + n[:, :, None] * along[:, None, :]
-    out = sh_all.copy()
+def _set_zonal_band1(sh: np.ndarray, along: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """sh (N, 9, C) with its band-1 component along n (N, 3) set to `along` (N, C). Band 1 is
+    C1·(v·ω) with v = (-r_1^1, -r_1^-1, r_1^0), so the component along n is v·n."""
+    v = np.stack([-sh[:, 3], -sh[:, 1], sh[:, 2]], axis=1)                    # (N, 3, C)
+    v += n[:, :, None] * (along - np.einsum("nic,ni->nc", v, n))[:, None, :]
+    out = sh.copy()
     out[:, 1], out[:, 2], out[:, 3] = -v[:, 1], v[:, 2], -v[:, 0]
     return out
 
