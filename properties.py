@@ -69,7 +69,7 @@ class HHDSettings(bpy.types.PropertyGroup):
         description="Samples, bounces and noise target from the measured speed/accuracy presets "
                     "(README: Speed vs accuracy)")
     samples: IntProperty(
-        name="Samples", default=256, min=2, max=65536, update=_mark_custom,
+        name="Samples", default=256, min=4, max=65536, update=_mark_custom,
         description="Hemisphere samples per lightmap texel")
     bounces: IntProperty(
         name="Bounces", default=8, min=0, max=16, update=_mark_custom,

@@ -83,8 +83,8 @@ def _check_receivers(objects, uv_layer: str) -> None:
 
 
 def pipeline_settings(settings) -> core_bake.PipelineSettings:
-    samples, bounces = max(2, settings.samples), settings.bounces
-    trace = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples + samples % 2),
+    samples, bounces = max(4, settings.samples), settings.bounces
+    trace = tracer.BakeSettings(samples=samples, pass_samples=min(16, -(-samples // 4) * 4),
                                 bounces=bounces, seed=settings.seed, noise_target=settings.noise_target / 100.0,
                                 time_budget=settings.time_budget)
     return core_bake.PipelineSettings(trace=trace, encoder=encoder_settings(settings))

@@ -82,7 +82,7 @@ def test_buried_texels_bake_black_and_odd_pass_sizes_are_refused():
     assert (result.sh[points.buried] == 0).all()
     clear = np.abs(points.position[:, 0]) > 0.015 + 3 * points.texel_size   # away from the wall
     assert (hhd.irradz(result.sh, points.normal)[clear] > 0).all()
-    with pytest.raises(BakeError, match="even"):
+    with pytest.raises(BakeError, match="multiple of 4"):
         tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5)), tracer.BakeSettings(pass_samples=15))
 
 

@@ -87,6 +87,39 @@ def test_bake_points_cover_every_texel_and_lie_on_the_surface(mesh_fn):
     assert (np.einsum("pi,pi->p", pts.normal, pts.face_normal) >= 0).all()
 
 
+@pytest.mark.parametrize("mesh_fn", [meshes.cube, meshes.uv_sphere])
+def test_sample_origins_cover_the_central_half_of_the_texel_inside_its_triangle(mesh_fn):
+    """Cycles' bake footprint: uniform over the central ½ × ½ of the texel, restricted to the
+    texel's triangle (rejection sampling; only texels whose triangle barely reaches that square
+    fall back to clamping, at most a few samples)."""
+    v, f, result = unwrapped(mesh_fn)
+    uv = result.objects[0].uv.astype(np.float64)
+    surface = bakepoints.SurfaceTriangles(v[f], meshes.vertex_normals(v, f)[f], uv, np.zeros(len(f), int),
+                                          np.full((len(f), 3), 0.5))
+    pts = bakepoints.build(surface, 256, 256)
+    k = 64
+    origins = pts.sample_origins(np.random.default_rng(0), np.arange(len(pts.texel)), k)
+    tri = np.repeat(pts.triangle, k)
+    p = origins - np.repeat(pts.face_normal, k, axis=0) * pts.offset
+    # barycentrics of each origin in its triangle (3D), then its lightmap UV in texels
+    corners = v[f][tri]
+    e1, e2, d = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0], p - corners[:, 0]
+    g = np.stack([np.einsum("ri,ri->r", e1, e1), np.einsum("ri,ri->r", e1, e2), np.einsum("ri,ri->r", e2, e2)], 1)
+    r1, r2 = np.einsum("ri,ri->r", d, e1), np.einsum("ri,ri->r", d, e2)
+    det = g[:, 0] * g[:, 2] - g[:, 1] ** 2
+    b1, b2 = (g[:, 2] * r1 - g[:, 1] * r2) / det, (g[:, 0] * r2 - g[:, 1] * r1) / det
+    assert min(b1.min(), b2.min(), (1 - b1 - b2).min()) > -1e-9                    # inside the triangle
+    t_uv = uv[tri] * 256
+    at = t_uv[:, 0] + b1[:, None] * (t_uv[:, 1] - t_uv[:, 0]) + b2[:, None] * (t_uv[:, 2] - t_uv[:, 0])
+    local = at - np.repeat(np.stack([pts.texel % 256, pts.texel // 256], 1), k, axis=0)
+    inside = ((local >= 0.25 - 1e-6) & (local <= 0.75 + 1e-6)).all(axis=1)
+    assert inside.mean() > 0.995
+    # uniform within the square on fully covered texels: mean offset at the centre, spread ±¼
+    full = np.repeat(pts.coverage >= 1.0 - 1e-9, k)
+    assert np.abs(local[full].mean(axis=0) - 0.5).max() < 0.01
+    assert np.abs(local[full].std(axis=0) - 0.5 / np.sqrt(12)).max() < 0.01
+
+
 def test_choice_between_overlapping_triangles_is_deterministic():
     uv = np.array([[[0.1, 0.1], [0.6, 0.1], [0.1, 0.6]], [[0.1, 0.1], [0.6, 0.1], [0.1, 0.6]]])
     cov = raster.rasterise(uv, 16, 16)
