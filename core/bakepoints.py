@@ -81,21 +81,23 @@ class BakePoints:
     def sample_origins(self, rng: np.random.Generator, idx: np.ndarray, k: int) -> np.ndarray:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
         footprint (FOOTPRINT) inside its chosen triangle, as Cycles bakes a texel: rejection
-        sampling, JITTER_TRIES tries, then clamped onto the triangle; offset along the face
-        normal. Per-texel data is gathered once and broadcast over the k samples."""
+        sampling, JITTER_TRIES tries, then as many over the whole texel, then the bake point
+        (the centroid of texel ∩ triangle); offset along the face normal. Per-texel data is gathered once and broadcast over the k samples."""
         tri = self.triangle[idx]
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1)
         tri_uv = self.tri_texel_uv[tri]
-        bary = _barycentric_grouped(corner[:, None, :] + _footprint(rng, (len(idx), k, 2)), tri_uv, clamp=False)
-        for _ in range(JITTER_TRIES - 1):
+        bary = _barycentric_grouped(corner[:, None, :] + _footprint(rng, (len(idx), k, 2), FOOTPRINT), tri_uv, clamp=False)
+        # retries: first in the footprint, then (a texel its triangle only grazes, at a chart's
+        # edge) anywhere in the texel, which the triangle overlaps by construction
+        for width in [FOOTPRINT] * (JITTER_TRIES - 1) + [1.0] * JITTER_TRIES:
             outside = np.nonzero((bary < 0.0).any(axis=-1))
             if len(outside[0]) == 0:
                 break
-            retry = corner[outside[0], None, :] + _footprint(rng, (len(outside[0]), 1, 2))
+            retry = corner[outside[0], None, :] + _footprint(rng, (len(outside[0]), 1, 2), width)
             bary[outside] = _barycentric_grouped(retry, tri_uv[outside[0]], clamp=False)[:, 0]
-        bary = np.clip(bary, 0.0, 1.0)
-        bary /= bary.sum(axis=-1, keepdims=True)
         pos = np.matmul(bary, self.tri_positions[tri])                        # (n, k, 3)
+        outside = np.nonzero((bary < 0.0).any(axis=-1))
+        pos[outside] = self.position[idx[outside[0]]]     # the overlap's centroid, as Cycles gives up
         return (pos + self.face_normal[idx][:, None, :] * self.offset).reshape(-1, 3)
 
     def image(self, values: np.ndarray, fill=0.0) -> np.ndarray:
@@ -150,9 +152,9 @@ def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return bary / bary.sum(axis=1, keepdims=True)
 
 
-def _footprint(rng, shape) -> np.ndarray:
-    """Uniform offsets (shape, last axis 2) from a texel's corner within FOOTPRINT around its centre."""
-    return 0.5 * (1.0 - FOOTPRINT) + FOOTPRINT * rng.random(shape)
+def _footprint(rng, shape, width: float) -> np.ndarray:
+    """Uniform offsets (shape, last axis 2) from a texel's corner within `width` around its centre."""
+    return 0.5 * (1.0 - width) + width * rng.random(shape)
 
 
 def _barycentric_grouped(p: np.ndarray, tri: np.ndarray, clamp: bool = True) -> np.ndarray:

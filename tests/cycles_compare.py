@@ -178,8 +178,9 @@ def compare(receivers, samples=64, bounces=1, cycles_samples=64):
     keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
     o, c = 0.5 * (o1 + o2)[keep], 0.5 * (c1 + c2)[keep]
     # Each mean of two runs has variance (σ²)/2 per texel, and σ² ≈ E[(run1 - run2)²]/2.
-    noise = np.mean((o1 - o2)[keep] ** 2) / 4 + np.mean((c1 - c2)[keep] ** 2) / 4
-    return dict(points=points, keep=keep, ours=o, cycles=c, mean=float(np.mean(c)),
+    texel_noise = ((o1 - o2)[keep] ** 2 + (c1 - c2)[keep] ** 2) / 4    # per texel, each channel
+    noise = np.mean(texel_noise)
+    return dict(points=points, keep=keep, ours=o, cycles=c, mean=float(np.mean(c)), texel_noise=texel_noise,
                 bias=float(np.mean(o - c)), rms=float(np.sqrt(np.mean((o - c) ** 2))),
                 noise_rms=float(np.sqrt(noise)), se_mean=float(np.sqrt(noise / o.size)))
 
