@@ -22,7 +22,8 @@ from .rays import RayScene, ray_offset
 #: Fraction of a texel's short probe rays that must hit back faces for it to count as buried
 #: (its hemisphere is closed by geometry, e.g. a wall pushed into the floor).
 BURIED_FRACTION = 0.5
-#: Tries at a sample point inside the texel's triangle before clamping onto it (Cycles uses 10).
+#: Tries at a sample point inside the texel's triangle, in the footprint and then in the whole
+#: texel, before the sample falls back to the bake point (Cycles tries 10 times).
 JITTER_TRIES = 10
 #: Width of the square around the texel centre that a texel's samples cover, in texels. Cycles'
 #: bake jitters by its UV differentials, which are half the texel-to-barycentric derivative
@@ -82,7 +83,8 @@ class BakePoints:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
         footprint (FOOTPRINT) inside its chosen triangle, as Cycles bakes a texel: rejection
         sampling, JITTER_TRIES tries, then as many over the whole texel, then the bake point
-        (the centroid of texel ∩ triangle); offset along the face normal. Per-texel data is gathered once and broadcast over the k samples."""
+        (the centroid of texel ∩ triangle); offset along the face normal. Per-texel data is
+        gathered once and broadcast over the k samples."""
         tri = self.triangle[idx]
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1)
         tri_uv = self.tri_texel_uv[tri]
