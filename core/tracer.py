@@ -15,9 +15,9 @@ exact for constant radiance, every sample used by every coefficient.
 Every sample's origin is jittered over the texel's footprint (`BakePoints.sample_origins`: the
 central ½ × ½ of the texel within its triangle), so a texel is an area average as Cycles bakes
 it. Lights (not geometry, never hit by rays) are added by next-event estimation only, so nothing
-is counted twice: at the bake point one shadow ray per light per sample, projected to SH along the light's direction (a delta light
-— sun without angle, point without radius — has an exact direction: an unshadowed sun adds
-exactly s·Y(l), no noise). A constant world is reached by the sampled rays only. Emitting
+is counted twice: at the bake point one shadow ray per light per sample, projected to SH along
+the light's direction (a delta light — sun without angle, point without radius — has an exact
+direction: an unshadowed sun adds exactly s·Y(l), no noise). A constant world is reached by the sampled rays only. Emitting
 triangles (picked ∝ power, `emitters.py`) and an HDRI world (`environment`) are both
 light-sampled (one sample per path vertex, the bake point included) and reached by the sampled
 rays; the two are combined with the power heuristic (MIS), against the mixture pdf at the bake
