@@ -88,7 +88,7 @@ class BakePoints:
         tri = self.triangle[idx]
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1)
         tri_uv = self.tri_texel_uv[tri]
-        bary = _barycentric_grouped(corner[:, None, :] + _footprint(rng, (len(idx), k, 2), FOOTPRINT), tri_uv, clamp=False)
+        bary = _barycentric_grouped(corner[:, None, :] + _footprint(rng, (len(idx), k, 2), FOOTPRINT), tri_uv)
         # retries: first in the footprint, then (a texel its triangle only grazes, at a chart's
         # edge) anywhere in the texel, which the triangle overlaps by construction
         for width in [FOOTPRINT] * (JITTER_TRIES - 1) + [1.0] * JITTER_TRIES:
@@ -96,7 +96,7 @@ class BakePoints:
             if len(outside[0]) == 0:
                 break
             retry = corner[outside[0], None, :] + _footprint(rng, (len(outside[0]), 1, 2), width)
-            bary[outside] = _barycentric_grouped(retry, tri_uv[outside[0]], clamp=False)[:, 0]
+            bary[outside] = _barycentric_grouped(retry, tri_uv[outside[0]])[:, 0]
         pos = np.matmul(bary, self.tri_positions[tri])                        # (n, k, 3)
         outside = np.nonzero((bary < 0.0).any(axis=-1))
         pos[outside] = self.position[idx[outside[0]]]     # the overlap's centroid, as Cycles gives up
@@ -144,13 +144,7 @@ def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScen
 def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     """Barycentric coordinates `(P, 3)` of 2D points in 2D triangles `(P, 3, 2)`, clamped to
     the triangle (the centroid is inside up to rounding)."""
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    v0, v1, v2 = b - a, c - a, p - a
-    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
-    den = np.where(den == 0.0, 1.0, den)
-    w1 = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
-    w2 = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
-    bary = np.clip(np.stack([1.0 - w1 - w2, w1, w2], axis=1), 0.0, 1.0)
+    bary = np.clip(_barycentric_grouped(p[:, None, :], tri)[:, 0], 0.0, 1.0)
     return bary / bary.sum(axis=1, keepdims=True)
 
 
@@ -159,20 +153,16 @@ def _footprint(rng, shape, width: float) -> np.ndarray:
     return 0.5 * (1.0 - width) + width * rng.random(shape)
 
 
-def _barycentric_grouped(p: np.ndarray, tri: np.ndarray, clamp: bool = True) -> np.ndarray:
-    """`_barycentric` for k points per triangle: p (n, k, 2), tri (n, 3, 2) -> (n, k, 3);
-    clamp=False leaves points outside the triangle with a negative coordinate."""
+def _barycentric_grouped(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates of k points per triangle: p (n, k, 2), tri (n, 3, 2) ->
+    (n, k, 3), not clamped (a point outside the triangle has a negative coordinate)."""
     a = tri[:, None, 0]
     v0, v1, v2 = tri[:, None, 1] - a, tri[:, None, 2] - a, p - a
     den = v0[..., 0] * v1[..., 1] - v1[..., 0] * v0[..., 1]
     den = np.where(den == 0.0, 1.0, den)
     w1 = (v2[..., 0] * v1[..., 1] - v1[..., 0] * v2[..., 1]) / den
     w2 = (v0[..., 0] * v2[..., 1] - v2[..., 0] * v0[..., 1]) / den
-    bary = np.stack([1.0 - w1 - w2, w1, w2], axis=-1)
-    if not clamp:
-        return bary
-    bary = np.clip(bary, 0.0, 1.0)
-    return bary / bary.sum(axis=-1, keepdims=True)
+    return np.stack([1.0 - w1 - w2, w1, w2], axis=-1)
 
 
 def _normalise(v: np.ndarray) -> np.ndarray:
