@@ -108,7 +108,7 @@ def _unwrap(context, args) -> str:
 
 
 def _bake(context, args) -> str:
-    from .core.console import ConsoleProgress
+    from .core.console import ConsoleProgress, interrupt_as_cancel
     from .operators import bake_session
     if args.unwrap:
         print(_unwrap(context, args), flush=True)
@@ -118,7 +118,8 @@ def _bake(context, args) -> str:
     print(f"bake: {session.describe()}", flush=True)
     progress = ConsoleProgress()
     try:
-        session.run(progress=progress)
+        with interrupt_as_cancel() as cancel:
+            session.run(progress=progress, cancel=cancel)
     finally:
         progress.close()
     return session.finish()

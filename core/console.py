@@ -2,7 +2,10 @@
 few percent when stdout is a log file (build machines), so either way the log shows progress."""
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
+import threading
 import time
 
 
@@ -36,3 +39,33 @@ class ConsoleProgress:
         if self.tty and self.last_fraction < 1.0:
             self.stream.write("\n")
             self.stream.flush()
+
+
+@contextlib.contextmanager
+def interrupt_as_cancel():
+    """Yield a `cancel()` callable that turns True on Ctrl-C (SIGINT) inside the block.
+
+    The bake polls it between chunks and stops cleanly within one. A KeyboardInterrupt raised
+    wherever the main thread happens to be is not safe here: inside a finalizer it is swallowed
+    ("Exception ignored") and the bake runs on, and inside a thread pool's wait it can leave a
+    lock held. A second Ctrl-C raises KeyboardInterrupt as usual. The previous handler comes back
+    afterwards; one Python cannot reinstall (Blender's own, under `blender --background`, which
+    only sets an internal break flag the bake cannot see) is replaced by the default, which ends
+    the process on Ctrl-C as Blender's second Ctrl-C does. Off the main thread signals cannot be
+    handled, so nothing is installed and `cancel()` stays False."""
+    flag = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag.is_set
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def on_sigint(signum, frame):
+        if flag.is_set():
+            raise KeyboardInterrupt
+        flag.set()
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield flag.is_set
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)

@@ -127,20 +127,21 @@ def bake(points: BakePoints, scene: BakeScene, settings: BakeSettings = BakeSett
         for p in range(max_passes):
             chunks = [active[s:s + settings.chunk_texels] for s in range(0, len(active), settings.chunk_texels)]
             futures = [pool.submit(tracer.trace_pass, p, c, idx) for c, idx in enumerate(chunks)]
-            for c, (future, idx) in enumerate(zip(futures, chunks)):
-                if cancel is not None and cancel():
-                    _cancel_all(futures)
-                    raise BakeCancelled("bake cancelled")
-                acc.add(idx, future.result())
-                elapsed = time.perf_counter() - start
-                if progress:
-                    progress(_fraction(p, (c + 1) / len(chunks), max_passes, settings, elapsed),
-                             _status(p, max_passes, len(active), n, tracer.rays, acc.texel_passes,
-                                     settings.pass_samples, elapsed))
-                if settings.time_budget and elapsed >= settings.time_budget and p > 0:
-                    _cancel_all(futures)
-                    stopped_by = "time_budget"
-                    break
+            try:
+                for c, (future, idx) in enumerate(zip(futures, chunks)):
+                    if cancel is not None and cancel():
+                        raise BakeCancelled("bake cancelled")
+                    acc.add(idx, future.result())
+                    elapsed = time.perf_counter() - start
+                    if progress:
+                        progress(_fraction(p, (c + 1) / len(chunks), max_passes, settings, elapsed),
+                                 _status(p, max_passes, len(active), n, tracer.rays, acc.texel_passes,
+                                         settings.pass_samples, elapsed))
+                    if settings.time_budget and elapsed >= settings.time_budget and p > 0:
+                        stopped_by = "time_budget"
+                        break
+            finally:                    # cancelled, stopped early or failed: no chunk left queued
+                _cancel_all(futures)
             if stopped_by == "time_budget":
                 break
             if settings.noise_target and p + 1 >= MIN_ADAPTIVE_PASSES:
