@@ -48,7 +48,10 @@ def interrupt_as_cancel():
     The bake polls it between chunks and stops cleanly within one. A KeyboardInterrupt raised
     wherever the main thread happens to be is not safe here: inside a finalizer it is swallowed
     ("Exception ignored") and the bake runs on, and inside a thread pool's wait it can leave a
-    lock held. A second Ctrl-C raises KeyboardInterrupt as usual. The previous handler comes back
+    lock held. A second Ctrl-C raises KeyboardInterrupt as usual. It is installed even when the
+    process started with SIGINT ignored: a shell without job control (a CI runner, a script's
+    `cmd &`) starts background commands that way, and Python then never raises
+    KeyboardInterrupt, so a SIGINT sent to the bake would be lost. The previous handler comes back
     afterwards; one Python cannot reinstall (Blender's own, under `blender --background`, which
     only sets an internal break flag the bake cannot see) is replaced by the default, which ends
     the process on Ctrl-C as Blender's second Ctrl-C does. Off the main thread signals cannot be

@@ -29,3 +29,15 @@ def test_first_ctrl_c_sets_the_cancel_flag_second_interrupts_and_the_handler_com
             for _ in range(1000):               # give the interpreter a bytecode boundary
                 pass
     assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_ctrl_c_cancels_even_when_the_process_started_with_sigint_ignored():
+    """CI runners and `cmd &` in scripts start commands with SIGINT ignored (POSIX, no job control)."""
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with interrupt_as_cancel() as cancel:
+            os.kill(os.getpid(), signal.SIGINT)
+            assert cancel()
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)

@@ -163,9 +163,12 @@ def test_command_line_exit_codes(baked_scene, tmp_path):
     nodep = run_cli(blend, "bake", "--out", str(tmp_path / "nodep"), "--objects", "Floor", "--samples", "2", env=env)
     assert nodep.returncode == cli.EXIT_DEPENDENCY and "'OpenEXR'" in nodep.stderr
 
+    # Started with SIGINT ignored, as a shell without job control (CI) starts background commands:
+    # the bake must still stop on a SIGINT sent to it.
     proc = subprocess.Popen([sys.executable, "-m", "hhd_lightmapper.cli", str(blend), "bake", "--out",
                              str(tmp_path / "interrupted"), "--objects", "Floor", "Cube", "--samples", "4096"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     for line in proc.stdout:
         if "texel-samples/s" in line:          # tracing has started
             proc.send_signal(signal.SIGINT)
