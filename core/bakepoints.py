@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import raster
+from .covers import CoverProbe
 from .errors import BakeError
 from .rays import RayScene, ray_offset
 
@@ -58,6 +59,7 @@ class SurfaceTriangles:
 class BakePoints:
     """position, normal (n_v), face_normal, albedo: (P, 3) float64; coverage (P,) in (0, 1];
     texel, triangle, object_index (P,) int; buried (P,) bool (hemisphere closed by geometry);
+    near_cover (P,) bool (part of the texel may lie under a coplanar face: core.covers);
     offset: ray origin offset, scene units; texel_size (P,) world size of a texel, metres."""
     width: int
     height: int
@@ -74,6 +76,7 @@ class BakePoints:
     buried: np.ndarray
     tri_texel_uv: np.ndarray = None      # (T, 3, 2) every triangle's UVs in texel units
     tri_positions: np.ndarray = None     # (T, 3, 3) every triangle's world corners
+    near_cover: np.ndarray = None
 
     def origins(self) -> np.ndarray:
         """Ray origins `(P, 3)`: positions pushed off the surface along the face normal."""
@@ -101,6 +104,15 @@ class BakePoints:
         outside = np.nonzero((bary < 0.0).any(axis=-1))
         pos[outside] = self.position[idx[outside[0]]]     # the overlap's centroid, as Cycles gives up
         return (pos + self.face_normal[idx][:, None, :] * self.offset).reshape(-1, 3)
+
+    def texel_points(self, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Ray origins `(len(idx), k, 3)` at `offsets` (k, 2) texel units from each texel's corner,
+        clamped into the texel's triangle."""
+        corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1)
+        tri = self.triangle[idx]
+        bary = np.clip(_barycentric_grouped(corner[:, None, :] + offsets[None], self.tri_texel_uv[tri]), 0.0, None)
+        bary /= np.maximum(bary.sum(axis=-1, keepdims=True), 1e-300)
+        return np.matmul(bary, self.tri_positions[tri]) + self.face_normal[idx][:, None, :] * self.offset
 
     def image(self, values: np.ndarray, fill=0.0) -> np.ndarray:
         """Scatter per-point values `(P, ...)` into a `(height, width, ...)` image."""
@@ -136,8 +148,10 @@ def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScen
         texel_size=_texel_world_size(pos, np.asarray(surface.uv, dtype=np.float64), tri, width, height),
         offset=ray_offset(pos), buried=np.zeros(len(tri), bool),
         tri_texel_uv=np.asarray(surface.uv, dtype=np.float64) * [width, height], tri_positions=pos)
+    points.near_cover = np.zeros(len(tri), bool)
     if occluders is not None:
         points.buried = find_buried(points, occluders, check=check)
+        points.near_cover = find_near_cover(points, CoverProbe(occluders.triangles, points.offset), check=check)
     return points
 
 
@@ -190,6 +204,25 @@ def _albedo(surface: SurfaceTriangles, tri: np.ndarray, bary: np.ndarray) -> np.
         if len(rows):
             albedo[rows] = image.sample(uv[rows])
     return albedo
+
+
+def find_near_cover(points: BakePoints, probe: CoverProbe, check=None, chunk: int = 1 << 16) -> np.ndarray:
+    """Texels part of whose samples may start under a coplanar face (core.covers): the bake point,
+    the footprint's corners and the texel's corners (where the samples' fallback can reach),
+    mapped into the texel's triangle, are probed. The tracer probes every sample of the texels
+    flagged here, so the flag only has to be conservative at the scale of a texel. (P,) bool."""
+    corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    offsets = np.concatenate([0.5 + FOOTPRINT * (corners - 0.5), corners])   # texel units from its corner
+    flags = np.zeros(len(points.texel), bool)
+    centres = points.origins()
+    for s in range(0, len(flags), chunk):
+        if check is not None:
+            check()
+        idx = np.arange(s, min(s + chunk, len(flags)))
+        origins = np.concatenate([centres[idx, None, :], points.texel_points(idx, offsets)], axis=1)
+        normals = np.repeat(points.face_normal[idx], origins.shape[1], axis=0)
+        flags[idx] = probe.covered(origins.reshape(-1, 3), normals).reshape(len(idx), -1).any(axis=1)
+    return flags
 
 
 def _probe_directions(n: int) -> np.ndarray:

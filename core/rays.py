@@ -34,6 +34,7 @@ class RayScene:
         self._scene = rtcore_scene.EmbreeScene()
         self._mesh = TriangleMesh(self._scene, tri, faces)
         self.n_triangles = len(faces)
+        self.triangles = tri.reshape(-1, 3, 3)       # float32 (T, 3, 3), as Embree has them
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None,
                   barycentrics: bool = False):

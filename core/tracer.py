@@ -41,6 +41,7 @@ import numpy as np
 from . import hhd as _hhd
 from . import sh as _sh
 from .bakepoints import BakePoints
+from .covers import CoverProbe
 from .emitters import EmitterSampler
 from .errors import BakeCancelled, BakeError
 from .rays import RayScene, ray_offset
@@ -230,6 +231,8 @@ class _Tracer:
         self.offset = max(points.offset, ray_offset(scene.triangles))
         self.frames = _sh.tangent_frames(points.normal)
         self.emitters = EmitterSampler(scene.triangles, scene.emission) if scene.emission is not None else None
+        flagged = points.near_cover is not None and points.near_cover.any()
+        self.covers = CoverProbe(scene.triangles, points.offset) if flagged else None
         self._lock = threading.Lock()
         self.rays = 0
 
@@ -250,18 +253,34 @@ class _Tracer:
         texel = np.repeat(np.arange(len(idx)), k)
         dirs = np.matmul(local.reshape(len(idx), k, 3), self.frames[idx].transpose(0, 2, 1)).reshape(-1, 3)
         origins = self.points.sample_origins(rng, idx, k)
-        radiance = self._path_radiance(rng, origins, dirs, pdf)          # (n·k, 3)
+        uncovered = self._uncovered(idx, texel, origins)
+        radiance = self._path_radiance(rng, origins, dirs, pdf, uncovered)   # (n·k, 3)
         estimate = _control_variate_sh(dirs, radiance, pdf, k, self.points.normal[idx])
-        return estimate + self._direct_sh(rng, idx, texel, origins, k)
+        return estimate + self._direct_sh(rng, idx, texel, origins, k, uncovered)
 
-    def _path_radiance(self, rng, origins, dirs, pdf) -> np.ndarray:
+    def _uncovered(self, idx, texel, origins) -> np.ndarray | None:
+        """(n·k,) bool, False for samples starting on a part of the texel a coplanar face covers
+        (core.covers: no light reaches it, as in Cycles), probed for the texels flagged
+        near_cover; None when no texel of the chunk is flagged."""
+        if self.covers is None:
+            return None
+        rows = np.flatnonzero(self.points.near_cover[idx][texel])
+        if len(rows) == 0:
+            return None
+        self._count(len(rows))
+        uncovered = np.ones(len(origins), bool)
+        uncovered[rows] = ~self.covers.covered(origins[rows], self.points.face_normal[idx[texel[rows]]])
+        return uncovered
+
+    def _path_radiance(self, rng, origins, dirs, pdf, start=None) -> np.ndarray:
         """Radiance arriving at `origins` from directions `dirs` (R, 3) sampled with density `pdf`
-        (R,) per steradian: wavefront over bounces, the arrays compacted to the live paths."""
+        (R,) per steradian: wavefront over bounces, the arrays compacted to the live paths.
+        `start` (R,) bool, if given: only those paths are traced (the others receive nothing)."""
         scene = self.scene
         radiance = np.zeros((len(origins), 3))
-        live = np.arange(len(origins))
-        throughput = np.ones((len(origins), 3))
-        o, d = origins, dirs
+        live = np.arange(len(origins)) if start is None else np.flatnonzero(start)
+        throughput = np.ones((len(live), 3))
+        o, d, pdf = origins[live], dirs[live], pdf[live]
         for bounce in range(self.settings.bounces + 1):
             t, prim, ng, bu, bv = self._intersect(o, d, barycentrics=True)
             hit = np.flatnonzero(prim >= 0)
@@ -390,11 +409,11 @@ class _Tracer:
         self._count(len(o))
         return 1.0 - self.rays_scene.occluded(o, d, np.maximum(tmax, 0.0))
 
-    def _direct_sh(self, rng, idx, texel, origins, k) -> np.ndarray:
+    def _direct_sh(self, rng, idx, texel, origins, k, uncovered=None) -> np.ndarray:
         """Next-event estimation at the bake point: one shadow ray per light from each of the
-        pass's k origins; light arriving from below n_v's horizon is not part of the
-        hemisphere's SH. For a delta light the direction is exact, so an unshadowed sun adds
-        exactly s·Y(l) (no noise); penumbrae average over the texel's footprint."""
+        pass's k origins (those `uncovered`, if given); light arriving from below n_v's horizon
+        is not part of the hemisphere's SH. For a delta light the direction is exact, so an
+        unshadowed sun adds exactly s·Y(l) (no noise); penumbrae average over the footprint."""
         out = np.zeros((len(idx), 9, 3))
         normal = self.points.normal[idx][texel]
 
@@ -404,6 +423,8 @@ class _Tracer:
         samples = [self._sample_light(rng, light, origins) for light in self.scene.lights]
         for dirs, value, dist in samples + list(self._mis_light_samples(rng, origins, mixture_pdf)):
             above = np.einsum("ri,ri->r", dirs, normal) > 0.0
+            if uncovered is not None:
+                above &= uncovered
             if not above.any():
                 continue
             vis = np.zeros(len(origins))

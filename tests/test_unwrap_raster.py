@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper.core import bakepoints, raster, rays, textures, unwrap
+from hhd_lightmapper.core.covers import CoverProbe
 from hhd_lightmapper.core.errors import BakeError
 import meshes
 
@@ -232,6 +233,43 @@ def test_closed_box_pushed_into_the_floor_is_dark_inside():
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     t, prim, ng = scene.intersect(pts.origins()[under], d)
     assert (prim >= 0).all() and (np.einsum("ri,ri->r", d, ng) > 0).all()   # all inner (back) faces
+
+
+def _patch(x0, x1, y0, y1, z, up):
+    v = np.array([[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]], float)
+    return v[[0, 1, 2, 0, 2, 3]].reshape(2, 3, 3) if up else v[[0, 2, 1, 0, 3, 2]].reshape(2, 3, 3)
+
+
+@pytest.mark.parametrize("scale,shift", [(1e-3, 0.0), (1.0, 0.0), (1e3, 0.0), (1.0, 1e4)])
+def test_cover_probe_finds_faces_on_or_just_above_the_surface_only(scale, shift):
+    """From millimetre to kilometre scenes and far from the origin: a face in the floor's plane
+    facing down (an open tray's bottom) and one thinner than the ray offset above it cover the
+    floor; the tray's walls beside a point, a same-facing duplicate of the floor and a face a
+    few offsets above do not."""
+    v, f = meshes.cube(1.0, centre=(0.0, 0.0, 0.5))
+    tray = v[f[[0, 1] + list(range(4, 12))]]                     # no top: faces 2, 3 are the lid
+    floor = _patch(-2, 2, -2, 2, 0.0, up=True)
+    off = rays.ray_offset(np.concatenate([floor, tray]) * scale + shift)
+    rel = off / scale
+    extra = [_patch(1.0, 1.5, -0.5, 0.5, 0.0, up=True),            # duplicate of the floor
+             _patch(-1.5, -1.0, -0.5, 0.5, 3.0 * rel, up=False),   # a few offsets above
+             _patch(-1.5, -1.0, 1.0, 1.5, 0.5 * rel, up=False)]    # within the offset
+    tris = np.concatenate([floor, tray] + extra) * scale + shift
+    probe = CoverProbe(tris, off)
+    at = np.array([[0.0, 0.0], [0.49, 0.0], [0.51, 0.0], [1.25, 0.0], [-1.25, 0.0], [-1.25, 1.25], [1.5, 1.5]])
+    p = np.column_stack([at, np.zeros(len(at))]) * scale + shift
+    up = np.tile([0.0, 0.0, 1.0], (len(at), 1))
+    covered = probe.covered(p + up * off, up)
+    assert covered.tolist() == [True, True, False, False, False, True, False]
+
+
+def test_texels_under_an_open_tray_resting_on_the_floor_are_flagged_near_cover():
+    v, f = meshes.cube(1.0, centre=(0.0, 0.0, 0.5))
+    pts, _ = floor_with(v, f[[0, 1] + list(range(4, 12))])
+    inner = np.maximum(np.abs(pts.position[:, 0]), np.abs(pts.position[:, 1]))
+    assert pts.near_cover[inner < 0.5 - pts.texel_size].all()
+    assert not pts.near_cover[inner > 0.5 + pts.texel_size].any()
+    assert not pts.buried[inner < 0.4].any()          # open: the buried test does not catch it
 
 
 def _crashing_worker(tmp_path, crashes):
