@@ -94,15 +94,16 @@ class BakePoints:
         bary = _barycentric_grouped(corner[:, None, :] + _footprint(rng, (len(idx), k, 2), FOOTPRINT), tri_uv)
         # retries: first in the footprint, then (a texel its triangle only grazes, at a chart's
         # edge) anywhere in the texel, which the triangle overlaps by construction
+        rows, cols = np.nonzero((bary < 0.0).any(axis=-1))                 # samples outside
         for width in [FOOTPRINT] * (JITTER_TRIES - 1) + [1.0] * JITTER_TRIES:
-            outside = np.nonzero((bary < 0.0).any(axis=-1))
-            if len(outside[0]) == 0:
+            if len(rows) == 0:
                 break
-            retry = corner[outside[0], None, :] + _footprint(rng, (len(outside[0]), 1, 2), width)
-            bary[outside] = _barycentric_grouped(retry, tri_uv[outside[0]])[:, 0]
+            retry = corner[rows, None, :] + _footprint(rng, (len(rows), 1, 2), width)
+            bary[rows, cols] = retried = _barycentric_grouped(retry, tri_uv[rows])[:, 0]
+            still = (retried < 0.0).any(axis=-1)
+            rows, cols = rows[still], cols[still]
         pos = np.matmul(bary, self.tri_positions[tri])                        # (n, k, 3)
-        outside = np.nonzero((bary < 0.0).any(axis=-1))
-        pos[outside] = self.position[idx[outside[0]]]     # the overlap's centroid, as Cycles gives up
+        pos[rows, cols] = self.position[idx[rows]]     # the overlap's centroid, as Cycles gives up
         return (pos + self.face_normal[idx][:, None, :] * self.offset).reshape(-1, 3)
 
     def texel_points(self, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:

@@ -106,9 +106,13 @@ def tangent_frames(normals: np.ndarray) -> np.ndarray:
 def frame_directions(normals: np.ndarray, local: np.ndarray) -> np.ndarray:
     """Local directions `(N, 3)` (z along the normal) to world space in the frame of
     `tangent_frames(normals)`, without building the (N, 3, 3) frames: ~2× faster in the tracer."""
+    return frame_directions_xyz(normals, local[:, 0], local[:, 1], local[:, 2])
+
+
+def frame_directions_xyz(normals: np.ndarray, lx, ly, lz) -> np.ndarray:
+    """`frame_directions` with the local coordinates as three (N,) arrays."""
     n = np.asarray(normals, dtype=np.float64)
     nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
-    lx, ly, lz = local[:, 0], local[:, 1], local[:, 2]
     sign = np.where(nz >= 0.0, 1.0, -1.0)
     a = -1.0 / (sign + nz)
     b = nx * ny * a

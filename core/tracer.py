@@ -275,27 +275,31 @@ class _Tracer:
     def _path_radiance(self, rng, origins, dirs, pdf, start=None) -> np.ndarray:
         """Radiance arriving at `origins` from directions `dirs` (R, 3) sampled with density `pdf`
         (R,) per steradian: wavefront over bounces, the arrays compacted to the live paths.
-        `start` (R,) bool, if given: only those paths are traced (the others receive nothing)."""
+        `start` (R,) bool, if given: only those paths are traced (the others receive nothing).
+        Each live path gathers into its own row of `acc` (compacted with it), written out once
+        when the path ends: cheaper than scattering into the (R, 3) result every bounce."""
         scene = self.scene
         radiance = np.zeros((len(origins), 3))
         live = np.arange(len(origins)) if start is None else np.flatnonzero(start)
+        acc = np.zeros((len(live), 3))
         throughput = np.ones((len(live), 3))
-        o, d, pdf = origins[live], dirs[live], pdf[live]
+        o, d, pdf = _rows(origins, live), _rows(dirs, live), pdf[live]
         for bounce in range(self.settings.bounces + 1):
             t, prim, ng, bu, bv = self._intersect(o, d, barycentrics=True)
             hit = np.flatnonzero(prim >= 0)
             if len(hit) < len(prim):
+                miss = np.flatnonzero(prim < 0)
                 if scene.world is not None or scene.environment is not None:
-                    miss = np.flatnonzero(prim < 0)
-                    radiance[live[miss]] += throughput[miss] * self._escaped(d[miss], pdf[miss])
-                live, throughput, o, d, t, prim, ng, bu, bv, pdf = (
-                    a[hit] for a in (live, throughput, o, d, t, prim, ng, bu, bv, pdf))
+                    acc[miss] += throughput[miss] * self._escaped(d[miss], pdf[miss])
+                radiance[live[miss]] = acc[miss]
+                live, acc, throughput, o, d, t, prim, ng, bu, bv, pdf = (
+                    _rows(a, hit) for a in (live, acc, throughput, o, d, t, prim, ng, bu, bv, pdf))
             if len(live) == 0:
-                break
+                return radiance
             if self.emitters:
                 p_light = self.emitters.pdf(prim, d, t.astype(np.float64))
                 weight = pdf * pdf / np.maximum(pdf * pdf + p_light * p_light, 1e-300)
-                radiance[live] += throughput * scene.emission[prim] * weight[:, None]
+                acc += throughput * scene.emission[prim] * weight[:, None]
             if bounce == self.settings.bounces:
                 break
             n = ng.astype(np.float64)
@@ -303,19 +307,22 @@ class _Tracer:
             n *= (np.where(np.einsum("ri,ri->r", n, d) > 0.0, -1.0, 1.0) / np.sqrt(np.einsum("ri,ri->r", n, n)))[:, None]
             x = o + d * t[:, None] + n * self.offset
             throughput *= scene.albedo_at(prim, bu, bv)
-            radiance[live] += throughput * self._irradiance_at(rng, x, n)
+            acc += throughput * self._irradiance_at(rng, x, n)
             # continue with a cosine-distributed direction: BRDF·cos/pdf = albedo (already applied)
-            local = _cosine_directions(rng, len(live))
-            d = _sh.frame_directions(n, local)
-            pdf = local[:, 2] / np.pi
+            d, cos = _cosine_directions_around(rng, n)
+            pdf = cos / np.pi
             o = x
             if bounce + 1 >= RR_START:
                 survive = np.minimum(throughput.max(axis=1), RR_MAX_SURVIVAL)
-                keep = np.flatnonzero(rng.random(len(live)) < survive)
-                throughput = throughput[keep] / survive[keep, None]
-                live, o, d, pdf = live[keep], o[keep], d[keep], pdf[keep]
+                alive = rng.random(len(live)) < survive
+                ended = np.flatnonzero(~alive)
+                radiance[live[ended]] = acc[ended]
+                keep = np.flatnonzero(alive)
+                throughput = _rows(throughput, keep) / survive[keep, None]
+                live, acc, o, d, pdf = (_rows(a, keep) for a in (live, acc, o, d, pdf))
             if len(live) == 0:
-                break
+                return radiance
+        radiance[live] = acc
         return radiance
 
     def _escaped(self, d, pdf) -> np.ndarray:
@@ -357,10 +364,13 @@ class _Tracer:
             cos = np.einsum("ri,ri->r", dirs, n)
             facing = np.flatnonzero(cos > 0.0)
             if len(facing) == len(x):
-                total += (self._unoccluded(x, dirs, dist) * cos)[:, None] * value
+                weight = self._unoccluded(x, dirs, dist) * cos
             elif len(facing):
-                visible = self._unoccluded(x[facing], dirs[facing], dist[facing])
-                total[facing] += (visible * cos[facing])[:, None] * value[facing]
+                weight = np.zeros(len(x))
+                weight[facing] = self._unoccluded(_rows(x, facing), _rows(dirs, facing), dist[facing]) * cos[facing]
+            else:
+                continue
+            total += weight[:, None] * value
         return total * (1.0 / np.pi)
 
     def _sample_light(self, rng, light, x):
@@ -428,7 +438,8 @@ class _Tracer:
             if not above.any():
                 continue
             vis = np.zeros(len(origins))
-            vis[above] = self._unoccluded(origins[above], dirs[above], dist[above])
+            rows = np.flatnonzero(above)
+            vis[rows] = self._unoccluded(_rows(origins, rows), _rows(dirs, rows), dist[rows])
             weighted = value * (vis / k)[:, None]
             if dirs.strides[0] == 0:        # one direction for every row (a sun without angle)
                 out += _sh.evaluate(dirs[:1])[:, :, None] * weighted.reshape(len(idx), k, 3).sum(axis=1)[:, None, :]
@@ -490,10 +501,18 @@ def _hemisphere_sh(n: np.ndarray) -> np.ndarray:
     return out
 
 
-def _cosine_directions(rng, n: int) -> np.ndarray:
-    u1, u2 = rng.random(n), rng.random(n)
+def _cosine_directions_around(rng, normals: np.ndarray):
+    """Cosine-distributed world directions (R, 3) around unit `normals` (R, 3), and their cosθ
+    (R,); the same frame as `sh.frame_directions`, without the intermediate local array."""
+    u1, u2 = rng.random(len(normals)), rng.random(len(normals))
     r, phi = np.sqrt(u1), 2.0 * np.pi * u2
-    return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u1, 0.0))], axis=1)
+    lx, ly, lz = r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u1, 0.0))
+    return _sh.frame_directions_xyz(normals, lx, ly, lz), lz
+
+
+def _rows(a: np.ndarray, i: np.ndarray) -> np.ndarray:
+    """a[i] along the first axis; np.take is ~4× faster than fancy indexing for 2-D rows."""
+    return a[i] if a.ndim == 1 else np.take(a, i, axis=0)
 
 
 def _cone_directions(rng, axis: np.ndarray, cos_max) -> np.ndarray:
