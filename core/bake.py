@@ -89,9 +89,12 @@ def _check_cancel(cancel) -> None:
         raise BakeCancelled("bake cancelled")
 
 
-def build_points(atlases: list[AtlasInput], scene: BakeScene, progress: Progress, cancel=None):
-    """Bake points of every atlas; raises BakeError naming an object whose UVs cover no texel."""
-    occluders = RayScene(scene.triangles) if len(scene.triangles) else None
+def build_points(atlases: list[AtlasInput], scene: BakeScene, progress: Progress, cancel=None,
+                 occluders: RayScene | None = None):
+    """Bake points of every atlas; raises BakeError naming an object whose UVs cover no texel.
+    `occluders`: the scene's RayScene if already built (else built here)."""
+    if occluders is None and len(scene.triangles):
+        occluders = RayScene(scene.triangles)
     out = []
     for i, atlas in enumerate(atlases):
         _check_cancel(cancel)
@@ -118,7 +121,10 @@ def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings,
     out_dir = Path(out_dir)
     report = Progress(progress)
     t0 = time.perf_counter()
-    points = build_points(atlases, scene, report, cancel)
+    # one Embree scene for the bake points' tests and every atlas's tracing (a 1M-triangle
+    # scene takes ~2 s to build: embreex copies vertices one by one)
+    ray_scene = RayScene(scene.triangles) if len(scene.triangles) else None
+    points = build_points(atlases, scene, report, cancel, ray_scene)
     t_points = time.perf_counter() - t0
     total_texels = sum(len(p.texel) for p in points)
     baked, done_texels = [], 0
@@ -128,7 +134,7 @@ def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings,
             frac = (base + f * n) / total_texels
             report.report(_STAGES[0] + _STAGES[1] * frac, f"'{atlas.name}': {msg}")
         trace = _atlas_settings(settings.trace, time.perf_counter() - t_trace, len(pts.texel), total_texels - done_texels)
-        baked.append(tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel))
+        baked.append(tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene))
         done_texels += len(pts.texel)
     return _write(atlases, points, baked, settings, out_dir, report, cancel, t_points, extra_sidecar or {})
 

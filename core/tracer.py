@@ -108,17 +108,18 @@ class BakeResult:
 
 def bake(points: BakePoints, scene: BakeScene, settings: BakeSettings = BakeSettings(),
          progress: Callable[[float, str], None] | None = None,
-         cancel: Callable[[], bool] | None = None) -> BakeResult:
+         cancel: Callable[[], bool] | None = None, ray_scene: RayScene | None = None) -> BakeResult:
     """Trace every bake point; progressive passes of `pass_samples` each, each pass over the
     texels still converging (all of them unless `settings.noise_target` is set).
     `progress(fraction, message)` is called after every chunk; `cancel()` returning True stops
-    within one chunk and raises BakeCancelled."""
+    within one chunk and raises BakeCancelled. `ray_scene`: the Embree scene of
+    `scene.triangles`, if the caller has built it already."""
     if settings.pass_samples < 4 or settings.pass_samples % 4:
         raise BakeError(f"samples per pass must be a multiple of 4, got {settings.pass_samples}")
     if settings.noise_target < 0 or settings.time_budget < 0 or not np.isfinite(settings.noise_target):
         raise BakeError("the noise target and the time budget must be ≥ 0 (0 switches them off)")
     start = time.perf_counter()
-    tracer = _Tracer(points, scene, settings)
+    tracer = _Tracer(points, scene, settings, ray_scene)
     n = len(points.texel)
     max_passes = max(1, -(-settings.samples // settings.pass_samples))
     acc = _Accumulator(n, points.normal)
@@ -195,13 +196,16 @@ class _Accumulator:
         self.texel_passes = 0
 
     def add(self, idx: np.ndarray, estimate: np.ndarray) -> None:
+        """Add one pass's estimate for the texels idx (sorted, unique: a chunk of `active`)."""
+        self.texel_passes += len(idx)
+        if len(idx) and idx[-1] - idx[0] == len(idx) - 1:      # a run of texels (no noise target)
+            idx = slice(int(idx[0]), int(idx[-1]) + 1)           # views, not fancy-index copies
         self.total[idx] += estimate
         self.total_sq[idx] += estimate * estimate
         iz = _hhd.irradz(estimate, self.normals[idx]) @ _hhd.LUMINANCE
         self.iz[idx] += iz
         self.iz_sq[idx] += iz * iz
         self.passes[idx] += 1
-        self.texel_passes += len(idx)
 
     def converged(self, idx: np.ndarray, target: float) -> np.ndarray:
         """Which of the texels idx have a standard error of I_z below the target (see BakeSettings)."""
@@ -221,13 +225,13 @@ class _Accumulator:
 
 
 class _Tracer:
-    def __init__(self, points: BakePoints, scene: BakeScene, settings: BakeSettings):
+    def __init__(self, points: BakePoints, scene: BakeScene, settings: BakeSettings, ray_scene=None):
         if len(scene.triangles) == 0:
             raise BakeError("the bake scene has no geometry")
         self.points = points
         self.scene = scene
         self.settings = settings
-        self.rays_scene = RayScene(scene.triangles)
+        self.rays_scene = ray_scene if ray_scene is not None else RayScene(scene.triangles)
         self.offset = max(points.offset, ray_offset(scene.triangles))
         self.frames = _sh.tangent_frames(points.normal)
         self.emitters = EmitterSampler(scene.triangles, scene.emission) if scene.emission is not None else None
