@@ -103,14 +103,10 @@ def tangent_frames(normals: np.ndarray) -> np.ndarray:
     return np.stack([t, bt, n], axis=-1)
 
 
-def frame_directions(normals: np.ndarray, local: np.ndarray) -> np.ndarray:
-    """Local directions `(N, 3)` (z along the normal) to world space in the frame of
-    `tangent_frames(normals)`, without building the (N, 3, 3) frames: ~2× faster in the tracer."""
-    return frame_directions_xyz(normals, local[:, 0], local[:, 1], local[:, 2])
-
-
-def frame_directions_xyz(normals: np.ndarray, lx, ly, lz) -> np.ndarray:
-    """`frame_directions` with the local coordinates as three (N,) arrays."""
+def frame_directions(normals: np.ndarray, lx, ly, lz) -> np.ndarray:
+    """Local directions (z along the normal), given as three (N,) coordinate arrays, to world
+    space `(N, 3)` in the frame of `tangent_frames(normals)`, without building the (N, 3, 3)
+    frames: ~2× faster in the tracer."""
     n = np.asarray(normals, dtype=np.float64)
     nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
     sign = np.where(nz >= 0.0, 1.0, -1.0)

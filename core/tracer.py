@@ -284,10 +284,13 @@ class _Tracer:
         when the path ends: cheaper than scattering into the (R, 3) result every bounce."""
         scene = self.scene
         radiance = np.zeros((len(origins), 3))
-        live = np.arange(len(origins)) if start is None else np.flatnonzero(start)
+        if start is None:
+            live, o, d = np.arange(len(origins)), origins, dirs
+        else:
+            live = np.flatnonzero(start)
+            o, d, pdf = _rows(origins, live), _rows(dirs, live), pdf[live]
         acc = np.zeros((len(live), 3))
         throughput = np.ones((len(live), 3))
-        o, d, pdf = _rows(origins, live), _rows(dirs, live), pdf[live]
         for bounce in range(self.settings.bounces + 1):
             t, prim, ng, bu, bv = self._intersect(o, d, barycentrics=True)
             hit = np.flatnonzero(prim >= 0)
@@ -475,7 +478,7 @@ def _control_variate_sh(dirs, radiance, pdf, k, n) -> np.ndarray:
 def _mixture_directions(rng, n_texels: int, k: int):
     """k directions per texel over the local upper hemisphere in two independent halves, each
     k/4 uniform then k/4 cosine-weighted samples; each of the four groups Latin-hypercube
-    stratified in (u1, u2) on its own (halves independent: see `_control_variate`).
+    stratified in (u1, u2) on its own (halves independent: see `_control_variate_sh`).
     Returns (n·k, 3) and the mixture pdf (n·k,)."""
     q = k // 4
     def lhs():
@@ -507,11 +510,11 @@ def _hemisphere_sh(n: np.ndarray) -> np.ndarray:
 
 def _cosine_directions_around(rng, normals: np.ndarray):
     """Cosine-distributed world directions (R, 3) around unit `normals` (R, 3), and their cosθ
-    (R,); the same frame as `sh.frame_directions`, without the intermediate local array."""
+    (R,); in the frame of `sh.tangent_frames` (`sh.frame_directions`), without a local (R, 3) array."""
     u1, u2 = rng.random(len(normals)), rng.random(len(normals))
     r, phi = np.sqrt(u1), 2.0 * np.pi * u2
     lx, ly, lz = r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u1, 0.0))
-    return _sh.frame_directions_xyz(normals, lx, ly, lz), lz
+    return _sh.frame_directions(normals, lx, ly, lz), lz
 
 
 def _rows(a: np.ndarray, i: np.ndarray) -> np.ndarray:
