@@ -67,6 +67,7 @@ def main() -> int:
     t = time.perf_counter()
     with tempfile.TemporaryDirectory() as out:
         data = bake.lightmap_files.TexelData.from_points(points, result.sh)
+        del result                       # as bake.run: the SH lives on as float32 images only
         from hhd_lightmapper.core import exr
         with exr.Staging() as staging:
             bake.lightmap_files.stage_atlas(staging, bake.lightmap_files.AtlasFiles(Path(out), "Lightmap"), data,

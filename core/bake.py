@@ -127,16 +127,26 @@ def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings,
     points = build_points(atlases, scene, report, cancel, ray_scene)
     t_points = time.perf_counter() - t0
     total_texels = sum(len(p.texel) for p in points)
-    baked, done_texels = [], 0
+    results, done_texels = [], 0
     t_trace = time.perf_counter()
-    for atlas, pts in zip(atlases, points):
-        def on_trace(f, msg, base=done_texels, n=len(pts.texel)):
-            frac = (base + f * n) / total_texels
-            report.report(_STAGES[0] + _STAGES[1] * frac, f"'{atlas.name}': {msg}")
-        trace = _atlas_settings(settings.trace, time.perf_counter() - t_trace, len(pts.texel), total_texels - done_texels)
-        baked.append(tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene))
-        done_texels += len(pts.texel)
-    return _write(atlases, points, baked, settings, out_dir, report, cancel, t_points, extra_sidecar or {})
+    with exr.Staging() as staging:
+        for i, (atlas, pts) in enumerate(zip(atlases, points)):
+            def on_trace(f, msg, base=done_texels, n=len(pts.texel), written=i / len(atlases)):
+                frac = (base + f * n) / total_texels
+                report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{atlas.name}': {msg}")
+            trace = _atlas_settings(settings.trace, time.perf_counter() - t_trace, len(pts.texel),
+                                    total_texels - done_texels)
+            result = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
+            done_texels += len(pts.texel)
+            _check_cancel(cancel)
+            # each atlas is staged as soon as it is traced: its SH lives on only as float32 images
+            results.append(_stage(staging, atlas, pts, result, settings, out_dir, t_points, extra_sidecar or {}))
+            del result
+            report.report(_STAGES[0] + _STAGES[1] * done_texels / total_texels
+                          + _STAGES[2] * (i + 1) / len(atlases), f"wrote '{atlas.name}'")
+        _check_cancel(cancel)
+        staging.commit()
+    return results
 
 
 def _atlas_settings(trace: tracer.BakeSettings, spent: float, texels: int, texels_left: int) -> tracer.BakeSettings:
@@ -148,30 +158,23 @@ def _atlas_settings(trace: tracer.BakeSettings, spent: float, texels: int, texel
     return replace(trace, time_budget=max(share, 1e-3))
 
 
-def _write(atlases, points, baked, settings, out_dir, report, cancel, t_points, extra) -> list[AtlasResult]:
-    results = []
-    with exr.Staging() as staging:
-        for i, (atlas, pts, result) in enumerate(zip(atlases, points, baked)):
-            _check_cancel(cancel)
-            t = time.perf_counter()
-            files = lightmap_files.AtlasFiles(out_dir, atlas.name)
-            seconds = {"bake_points": t_points, "trace": result.seconds}
-            sidecar = dict(extra)
-            sidecar.update({
-                "bake": {**asdict(settings.trace), "samples_taken": result.samples, "passes": result.passes,
-                         "mean_samples_per_texel": result.mean_samples, "stopped_by": result.stopped_by,
-                         "rays": result.rays},
-                "objects": lightmap_files.object_rects(pts, atlas.objects),
-                "timings_seconds": seconds,
-            })
-            data = lightmap_files.TexelData.from_points(pts, result.sh)
-            lightmap_files.stage_atlas(staging, files, data, settings.encoder.kwargs(), sidecar)
-            seconds["encode_and_write"] = time.perf_counter() - t
-            results.append(AtlasResult(atlas.name, files, len(pts.texel), result.rays, seconds))
-            report.report(sum(_STAGES[:2]) + _STAGES[2] * (i + 1) / len(atlases), f"wrote '{atlas.name}'")
-        _check_cancel(cancel)
-        staging.commit()
-    return results
+def _stage(staging, atlas, pts, result, settings, out_dir, t_points, extra) -> AtlasResult:
+    """Encode one traced atlas and stage its files (committed with the others at the end)."""
+    t = time.perf_counter()
+    files = lightmap_files.AtlasFiles(out_dir, atlas.name)
+    seconds = {"bake_points": t_points, "trace": result.seconds}
+    sidecar = dict(extra)
+    sidecar.update({
+        "bake": {**asdict(settings.trace), "samples_taken": result.samples, "passes": result.passes,
+                 "mean_samples_per_texel": result.mean_samples, "stopped_by": result.stopped_by,
+                 "rays": result.rays},
+        "objects": lightmap_files.object_rects(pts, atlas.objects),
+        "timings_seconds": seconds,
+    })
+    data = lightmap_files.TexelData.from_points(pts, result.sh)
+    lightmap_files.stage_atlas(staging, files, data, settings.encoder.kwargs(), sidecar)
+    seconds["encode_and_write"] = time.perf_counter() - t
+    return AtlasResult(atlas.name, files, len(pts.texel), result.rays, seconds)
 
 
 def reencode(files: lightmap_files.AtlasFiles, encoder: EncoderSettings) -> float:

@@ -78,9 +78,10 @@ class BakePoints:
     tri_positions: np.ndarray = None     # (T, 3, 3) every triangle's world corners
     near_cover: np.ndarray = None
 
-    def origins(self) -> np.ndarray:
-        """Ray origins `(P, 3)`: positions pushed off the surface along the face normal."""
-        return self.position + self.face_normal * self.offset
+    def origins(self, rows=slice(None)) -> np.ndarray:
+        """Ray origins `(P, 3)` (of the texels `rows`, if given): positions pushed off the
+        surface along the face normal."""
+        return self.position[rows] + self.face_normal[rows] * self.offset
 
     def sample_origins(self, rng: np.random.Generator, idx: np.ndarray, k: int) -> np.ndarray:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
@@ -115,45 +116,62 @@ class BakePoints:
         bary /= np.maximum(bary.sum(axis=-1, keepdims=True), 1e-300)
         return np.matmul(bary, self.tri_positions[tri]) + self.face_normal[idx][:, None, :] * self.offset
 
-    def image(self, values: np.ndarray, fill=0.0) -> np.ndarray:
-        """Scatter per-point values `(P, ...)` into a `(height, width, ...)` image."""
+    def image(self, values: np.ndarray, fill=0.0, dtype=np.float64) -> np.ndarray:
+        """Scatter per-point values `(P, ...)` into a `(height, width, ...)` image of `dtype`."""
         values = np.asarray(values)
-        out = np.full((self.height * self.width,) + values.shape[1:], fill, dtype=np.float64)
+        out = np.full((self.height * self.width,) + values.shape[1:], fill, dtype=dtype)
         out[self.texel] = values
         return out.reshape((self.height, self.width) + values.shape[1:])
 
 
 def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScene | None = None,
-          check=None) -> BakePoints:
+          check=None, chunk: int = 1 << 18) -> BakePoints:
     """Bake points of every covered texel. `occluders` (all geometry that casts shadows, the
     receivers included) enables the buried-texel test; without it nothing is flagged.
-    `check()`, if given, is called between chunks of work (it raises to stop: a cancel)."""
+    `check()`, if given, is called between chunks of work (it raises to stop: a cancel).
+    Per-texel quantities are computed `chunk` texels at a time, so the temporaries stay small
+    next to the result (~170 bytes per texel)."""
     pos = np.asarray(surface.positions, dtype=np.float64)
     if not np.isfinite(pos).all() or not np.isfinite(surface.uv).all():
         raise BakeError("lightmap bake points: NaN or infinite positions or UVs in the input")
-    cov = raster.rasterise(surface.uv, width, height, check)
+    uv = np.asarray(surface.uv, dtype=np.float64)
+    cov = raster.rasterise(uv, width, height, check)
     chosen, coverage = raster.choose_per_texel(cov)
-    tri = cov.triangle[chosen]
-    bary = _barycentric(cov.point[chosen], np.asarray(surface.uv, dtype=np.float64)[tri] * [width, height])
-    position = np.einsum("pk,pki->pi", bary, pos[tri])
-    normal = _normalise(np.einsum("pk,pki->pi", bary, np.asarray(surface.normals, dtype=np.float64)[tri]))
-    face = _normalise(np.cross(pos[tri, 1] - pos[tri, 0], pos[tri, 2] - pos[tri, 0]))
-    # A vertex normal of zero length (degenerate input) falls back to the face normal.
-    bad = ~np.isfinite(normal).all(axis=1) | (np.linalg.norm(normal, axis=1) < 0.5)
-    normal[bad] = face[bad]
-    face *= np.where(np.einsum("pi,pi->p", face, normal) < 0.0, -1.0, 1.0)[:, None]
+    tri, texel, centroid = cov.triangle[chosen], cov.texel[chosen], cov.point[chosen]
+    del cov
+    n = len(tri)
     points = BakePoints(
-        width=width, height=height, texel=cov.texel[chosen], position=position, normal=normal,
-        face_normal=face, albedo=_albedo(surface, tri, bary), coverage=coverage, triangle=tri,
-        object_index=np.asarray(surface.object_index)[tri],
-        texel_size=_texel_world_size(pos, np.asarray(surface.uv, dtype=np.float64), tri, width, height),
-        offset=ray_offset(pos), buried=np.zeros(len(tri), bool),
-        tri_texel_uv=np.asarray(surface.uv, dtype=np.float64) * [width, height], tri_positions=pos)
-    points.near_cover = np.zeros(len(tri), bool)
+        width=width, height=height, texel=texel, position=np.empty((n, 3)), normal=np.empty((n, 3)),
+        face_normal=np.empty((n, 3)), albedo=np.empty((n, 3)), coverage=coverage, triangle=tri,
+        object_index=np.asarray(surface.object_index)[tri], texel_size=np.empty(n),
+        offset=ray_offset(pos), buried=np.zeros(n, bool), tri_texel_uv=uv * [width, height],
+        tri_positions=pos, near_cover=np.zeros(n, bool))
+    for s in range(0, n, chunk):
+        if check is not None:
+            check()
+        _fill_points(points, surface, slice(s, s + chunk), centroid[s:s + chunk])
     if occluders is not None:
         points.buried = find_buried(points, occluders, check=check)
         points.near_cover = find_near_cover(points, CoverProbe(occluders.triangles, points.offset), check=check)
     return points
+
+
+def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, centroid: np.ndarray) -> None:
+    """Position, n_v, face normal, albedo and texel size of the texels `rows`, whose overlap
+    centroids (texel space) are `centroid`."""
+    tri = points.triangle[rows]
+    pos = points.tri_positions[tri]                                             # (n, 3, 3)
+    bary = _barycentric(centroid, points.tri_texel_uv[tri])
+    points.position[rows] = np.einsum("pk,pki->pi", bary, pos)
+    normal = _normalise(np.einsum("pk,pki->pi", bary, np.asarray(surface.normals, dtype=np.float64)[tri]))
+    face = _normalise(np.cross(pos[:, 1] - pos[:, 0], pos[:, 2] - pos[:, 0]))
+    # A vertex normal of zero length (degenerate input) falls back to the face normal.
+    bad = ~np.isfinite(normal).all(axis=1) | (np.linalg.norm(normal, axis=1) < 0.5)
+    normal[bad] = face[bad]
+    face *= np.where(np.einsum("pi,pi->p", face, normal) < 0.0, -1.0, 1.0)[:, None]
+    points.normal[rows], points.face_normal[rows] = normal, face
+    points.albedo[rows] = _albedo(surface, tri, bary)
+    points.texel_size[rows] = _texel_world_size(pos, points.tri_texel_uv[tri])
 
 
 def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -185,10 +203,11 @@ def _normalise(v: np.ndarray) -> np.ndarray:
         return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def _texel_world_size(pos, uv, tri, width, height):
-    """World-space edge length of one texel on each chosen triangle: √(world area / texel area)."""
-    world = 0.5 * np.linalg.norm(np.cross(pos[tri, 1] - pos[tri, 0], pos[tri, 2] - pos[tri, 0]), axis=1)
-    t = uv[tri] * [width, height]
+def _texel_world_size(pos: np.ndarray, texel_uv: np.ndarray) -> np.ndarray:
+    """World-space edge length of one texel on each triangle `pos (n, 3, 3)` whose UVs in texel
+    units are `texel_uv (n, 3, 2)`: √(world area / texel area)."""
+    world = 0.5 * np.linalg.norm(np.cross(pos[:, 1] - pos[:, 0], pos[:, 2] - pos[:, 0]), axis=1)
+    t = texel_uv
     texels = 0.5 * np.abs((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1])
                           - (t[:, 2, 0] - t[:, 0, 0]) * (t[:, 1, 1] - t[:, 0, 1]))
     return np.sqrt(world / np.maximum(texels, 1e-12))
@@ -215,12 +234,11 @@ def find_near_cover(points: BakePoints, probe: CoverProbe, check=None, chunk: in
     corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
     offsets = np.concatenate([0.5 + FOOTPRINT * (corners - 0.5), corners])   # texel units from its corner
     flags = np.zeros(len(points.texel), bool)
-    centres = points.origins()
     for s in range(0, len(flags), chunk):
         if check is not None:
             check()
         idx = np.arange(s, min(s + chunk, len(flags)))
-        origins = np.concatenate([centres[idx, None, :], points.texel_points(idx, offsets)], axis=1)
+        origins = np.concatenate([points.origins(idx)[:, None, :], points.texel_points(idx, offsets)], axis=1)
         normals = np.repeat(points.face_normal[idx], origins.shape[1], axis=0)
         flags[idx] = probe.covered(origins.reshape(-1, 3), normals).reshape(len(idx), -1).any(axis=1)
     return flags
@@ -244,14 +262,13 @@ def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES
     (bounded memory), calling `check()` before each."""
     from .sh import tangent_frames
     buried = np.zeros(len(points.texel), bool)
-    origins_all = points.origins()
     local = _probe_directions(probes)
     for s in range(0, len(buried), chunk):
         if check is not None:
             check()
         sl = slice(s, s + chunk)
         dirs = np.einsum("pij,kj->pki", tangent_frames(points.face_normal[sl]), local).reshape(-1, 3)
-        origins = np.repeat(origins_all[sl], probes, axis=0)
+        origins = np.repeat(points.origins(sl), probes, axis=0)
         reach = np.repeat(4.0 * points.texel_size[sl] + 4.0 * points.offset, probes)
         t, prim, ng = scene.intersect(origins, dirs, reach)
         back = (prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)

@@ -35,15 +35,36 @@ def nearest_source(valid: np.ndarray, rings: int) -> np.ndarray:
     return index
 
 
+class Fill:
+    """The dilation of one `(H, W)` mask of source texels, found once and applied to any number
+    of images or single channels (each costs one gather). `black` `(H, W)` bool, optional:
+    texels `apply(..., keep_black=True)` sets to zero after filling (buried texels)."""
+
+    def __init__(self, valid: np.ndarray, rings: int = 16, black: np.ndarray | None = None):
+        self.shape = valid.shape
+        self.valid = np.flatnonzero(valid)
+        source = nearest_source(valid, rings).reshape(-1)
+        self.empty = np.flatnonzero(~valid.reshape(-1))
+        self.source = source[self.empty]              # -1: no source within `rings`
+        self.black = np.flatnonzero(black) if black is not None else np.zeros(0, np.int64)
+
+    def apply(self, image: np.ndarray, keep_black: bool = False) -> np.ndarray:
+        """Filled copy of `image` `(H, W, ...)` (same dtype): empty texels take their nearest
+        source's value, those out of reach the mean of all sources (0 if there are none)."""
+        h, w = self.shape
+        flat = image.reshape((h * w,) + image.shape[2:])
+        out = flat.copy()
+        reached = self.source >= 0
+        out[self.empty[reached]] = flat[self.source[reached]]
+        if not reached.all():
+            fill = flat[self.valid].mean(axis=0, dtype=np.float64) if len(self.valid) else 0.0
+            out[self.empty[~reached]] = fill
+        if keep_black:
+            out[self.black] = 0.0
+        return out.reshape(image.shape)
+
+
 def dilate(image: np.ndarray, valid: np.ndarray, rings: int = 16) -> np.ndarray:
     """Copy of `image` `(H, W, ...)` with non-`valid` texels filled from the nearest valid one
     (within `rings`), the rest with the mean of the valid texels (0 if there are none)."""
-    h, w = valid.shape
-    flat = image.reshape((h * w,) + image.shape[2:])
-    source = nearest_source(valid, rings).reshape(-1)
-    out = flat.copy()
-    reached = source >= 0
-    out[reached] = flat[source[reached]]
-    fill = flat[valid.reshape(-1)].mean(axis=0) if valid.any() else 0.0
-    out[~reached] = fill
-    return out.reshape(image.shape)
+    return Fill(valid, rings).apply(image)

@@ -113,16 +113,21 @@ def directional_lobe(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # Input handling
 
+def _check_shapes(sh, n_v) -> None:
+    shape, n_shape = np.shape(sh), np.shape(n_v)
+    if len(shape) not in (2, 3) or shape[1] != 9:
+        raise ValueError(f"sh must have shape (N, 9, C), got {shape}")
+    if n_shape != (shape[0], 3):
+        raise ValueError(f"n_v must have shape ({shape[0]}, 3), got {n_shape}")
+
+
 def _sanitise(sh: np.ndarray, n_v: np.ndarray):
     """float64 copies with non-finite rows zeroed and normals normalised; plus the invalid mask."""
+    _check_shapes(sh, n_v)
     sh = np.asarray(sh, dtype=np.float64)
     n_v = np.asarray(n_v, dtype=np.float64)
     if sh.ndim == 2:
         sh = sh[..., None]
-    if sh.ndim != 3 or sh.shape[1] != 9:
-        raise ValueError(f"sh must have shape (N, 9, C), got {sh.shape}")
-    if n_v.shape != (sh.shape[0], 3):
-        raise ValueError(f"n_v must have shape ({sh.shape[0]}, 3), got {n_v.shape}")
     with np.errstate(invalid="ignore", over="ignore"):
         length = np.linalg.norm(n_v, axis=1)
     invalid = (~np.isfinite(sh).reshape(len(sh), -1).all(axis=1) | ~np.isfinite(length)
@@ -354,10 +359,10 @@ def encode(sh, n_v, model: str = "hhd", direction: str = "searched", gram: str =
                    searched=direction == "searched", luminance=ambient == "luminance",
                    hemisphere_sampled=hemisphere_sampled, phi_search=phi_search,
                    theta_max=float(np.arccos(min_cos)), iterations=max(0, int(golden_iterations)))
-    world_sh, n, invalid = _sanitise(sh, n_v)
-    parts = [_encode_chunk(world_sh[s:s + CHUNK], n[s:s + CHUNK], **options)
-             for s in range(0, len(n), CHUNK)] or [_encode_chunk(world_sh, n, **options)]
-    iz, w, d, clamped = (np.concatenate(x) for x in zip(*parts))
+    _check_shapes(sh, n_v)
+    parts = [_encode_chunk(*_sanitise(sh[s:s + CHUNK], n_v[s:s + CHUNK]), **options)
+             for s in range(0, len(n_v), CHUNK)] or [_encode_chunk(*_sanitise(sh, n_v), **options)]
+    iz, w, d, clamped, invalid = (np.concatenate(x) for x in zip(*parts))
     return HHDParams(irradz=iz, ambient_weight=w, direction=d, model=model,
                      invalid=invalid, clamped_irradz=clamped)
 
@@ -387,8 +392,8 @@ def _prepare(world_sh, n, *, a, g, luminance, hemisphere_sampled):
     return fit, frames, local, iz, clamped, lum_fit
 
 
-def _encode_chunk(world_sh, n, *, searched, phi_search, theta_max, iterations, **prepare):
-    """encode() on one chunk of sanitised texels -> (I_z, w_a, d_world, clamped)."""
+def _encode_chunk(world_sh, n, invalid, *, searched, phi_search, theta_max, iterations, **prepare):
+    """encode() on one chunk of sanitised texels -> (I_z, w_a, d_world, clamped, invalid)."""
     fit, frames, local, iz, clamped, lum_fit = _prepare(world_sh, n, **prepare)
     theta, phi = optimal_linear_angles(local, lum_fit, theta_max)
     if searched:
@@ -407,7 +412,7 @@ def _encode_chunk(world_sh, n, *, searched, phi_search, theta_max, iterations, *
     d_local = np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=1)
     d_world = np.einsum("nij,nj->ni", frames, d_local)
     d_world /= np.linalg.norm(d_world, axis=1, keepdims=True)
-    return iz, (w[:, 0] if prepare["luminance"] else w), d_world, clamped
+    return iz, (w[:, 0] if prepare["luminance"] else w), d_world, clamped, invalid
 
 
 def fit_error(sh, n_v, direction, model: str = "hhd", gram: str = "hemisphere",

@@ -86,8 +86,9 @@ class AtlasFiles:
 
 @dataclass
 class TexelData:
-    """An atlas's per-texel inputs to the encoder, as images `(H, W, ...)` (rows bottom-up):
-    sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried)."""
+    """An atlas's per-texel inputs to the encoder, as float32 images `(H, W, ...)` (rows
+    bottom-up): sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried).
+    float32 as in the files, so encoding a fresh bake and re-encoding its files agree exactly."""
     sh: np.ndarray
     normal: np.ndarray
     coverage: np.ndarray
@@ -100,53 +101,66 @@ class TexelData:
     @classmethod
     def from_points(cls, points: BakePoints, sh: np.ndarray) -> "TexelData":
         coverage = np.where(points.buried, -1.0, points.coverage)
-        return cls(sh=points.image(np.asarray(sh, np.float64)), normal=points.image(points.normal),
-                   coverage=points.image(coverage))
+        return cls(sh=points.image(sh, dtype=np.float32), normal=points.image(points.normal, dtype=np.float32),
+                   coverage=points.image(coverage, dtype=np.float32))
+
+    def fill(self) -> _dilate.Fill:
+        """The dilation of this atlas: empty texels from the baked ones, buried texels black."""
+        return _dilate.Fill(self.baked, DILATE_RINGS, black=self.coverage < 0.0)
 
 
-def encode_image(data: TexelData, encoder: dict) -> tuple[dict, hhd.HHDParams]:
-    """Encode the baked texels with `hhd.encode(**encoder)`; returns the HHD EXR channels (dilated,
-    bottom-up rows) and the params of the baked texels."""
+#: Texels encoded per call of hhd.encode: bounds the encoder's float64 temporaries (~2 KB per texel).
+ENCODE_CHUNK = 1 << 17
+
+
+def encode_image(data: TexelData, encoder: dict, fill: _dilate.Fill | None = None) -> tuple[dict, dict]:
+    """Encode the baked texels with `hhd.encode(**encoder)`, ENCODE_CHUNK at a time; returns the
+    HHD EXR channels (dilated, EXR rows: top-down) and statistics of the baked texels."""
     h, w = data.coverage.shape
-    baked = data.baked
-    params = hhd.encode(data.sh[baked], data.normal[baked], **encoder)
-    rgb_weight = params.ambient_weight.ndim == 2
-    iz = np.zeros((h, w, 3))
-    wa = np.ones((h, w, 3 if rgb_weight else 1))
-    direction = np.zeros((h, w, 3))
-    direction[..., 2] = 1.0
-    iz[baked] = params.irradz
-    wa[baked] = params.ambient_weight.reshape(len(params.irradz), -1)
-    direction[baked] = params.direction
-    iz = _dilate_keep_buried(iz, data)
-    wa = _dilate.dilate(wa, baked, DILATE_RINGS)
-    direction = _dilate.dilate(direction, baked, DILATE_RINGS)
-    oct_uv = octahedral.encode(direction.reshape(-1, 3)).reshape(h, w, 2)
-    channels = {}
+    fill = fill or data.fill()
+    baked = fill.valid
+    sh, normal = data.sh.reshape(h * w, 9, -1), data.normal.reshape(h * w, 3)
+    rgb_weight = encoder.get("ambient", "luminance") == "rgb"
+    iz = np.zeros((h * w, 3), np.float32)
+    wa = np.ones((h * w, 3 if rgb_weight else 1), np.float32)
+    direction = np.zeros((h * w, 3), np.float32)
+    direction[:, 2] = 1.0
+    invalid, iz_max, lum_sum = 0, 0.0, 0.0
+    for s in range(0, len(baked), ENCODE_CHUNK):
+        rows = baked[s:s + ENCODE_CHUNK]
+        params = hhd.encode(sh[rows], normal[rows], **encoder)
+        iz[rows], direction[rows] = params.irradz, params.direction
+        wa[rows] = params.ambient_weight.reshape(len(rows), -1)
+        invalid += params.n_invalid
+        iz_max = max(iz_max, float(params.irradz.max(initial=0.0)))
+        lum_sum += float((params.irradz @ hhd.LUMINANCE).sum())
+    iz = fill.apply(iz.reshape(h, w, 3), keep_black=True)
+    wa = fill.apply(wa.reshape(h, w, -1))
+    oct_uv = octahedral.encode(fill.apply(direction.reshape(h, w, 3)).reshape(-1, 3)).reshape(h, w, 2)
     iz_type = np.float16 if exr.fits_half(iz) else np.float32
-    for c, name in enumerate("RGB"):
-        channels[f"Iz.{name}"] = iz[..., c].astype(iz_type)
-    for c, name in enumerate("RGB" if rgb_weight else "V"):
-        channels[f"Wa.{name}"] = wa[..., c].astype(np.float16)
-    channels["Direction.X"] = oct_uv[..., 0].astype(np.float16)
-    channels["Direction.Y"] = oct_uv[..., 1].astype(np.float16)
-    return channels, params
+    channels = {f"Iz.{name}": exr.to_exr_rows(iz[..., c]).astype(iz_type) for c, name in enumerate("RGB")}
+    channels.update({f"Wa.{name}": exr.to_exr_rows(wa[..., c]).astype(np.float16)
+                     for c, name in enumerate("RGB" if rgb_weight else "V")})
+    channels["Direction.X"] = exr.to_exr_rows(oct_uv[..., 0]).astype(np.float16)
+    channels["Direction.Y"] = exr.to_exr_rows(oct_uv[..., 1]).astype(np.float16)
+    stats = {"texels_baked": int(len(baked)), "texels_buried": int(len(fill.black)), "texels_invalid": invalid,
+             "irradz_max": iz_max, "irradz_mean_luminance": lum_sum / len(baked) if len(baked) else 0.0}
+    return channels, stats
 
 
-def _dilate_keep_buried(image: np.ndarray, data: TexelData) -> np.ndarray:
-    out = _dilate.dilate(image, data.baked, DILATE_RINGS)
-    out[data.coverage < 0.0] = 0.0
-    return out
-
-
-def sh_channels(data: TexelData) -> dict:
-    sh = _dilate_keep_buried(data.sh, data).reshape(data.sh.shape[:2] + (27,))
-    return {name: sh[..., k].astype(np.float32) for k, name in enumerate(SH_CHANNELS)}
+def sh_channels(data: TexelData, fill: _dilate.Fill | None = None) -> dict:
+    """The SH EXR's 27 float32 channels (dilated, buried texels black, EXR rows), one at a time."""
+    fill = fill or data.fill()
+    h, w = data.coverage.shape
+    flat = data.sh.reshape(h, w, 27)
+    return {name: exr.to_exr_rows(fill.apply(flat[..., k], keep_black=True)).astype(np.float32, copy=False)
+            for k, name in enumerate(SH_CHANNELS)}
 
 
 def texel_channels(data: TexelData) -> dict:
-    out = {f"Normal.{a}": data.normal[..., k].astype(np.float32) for k, a in enumerate("XYZ")}
-    out["Coverage.V"] = data.coverage.astype(np.float32)
+    out = {f"Normal.{a}": exr.to_exr_rows(data.normal[..., k]).astype(np.float32, copy=False)
+           for k, a in enumerate("XYZ")}
+    out["Coverage.V"] = exr.to_exr_rows(data.coverage).astype(np.float32, copy=False)
     return out
 
 
@@ -165,41 +179,37 @@ MEANINGS = {
 MEANINGS.update({f"SH{k}": MEANINGS["SH0"] for k in range(9)})
 
 
-def _to_rows(channels: dict) -> dict:
-    return {k: exr.to_exr_rows(v) for k, v in channels.items()}
-
-
 def stage_atlas(staging: exr.Staging, files: AtlasFiles, data: TexelData, encoder: dict,
-                sidecar: dict, write_sh: bool = True) -> hhd.HHDParams:
+                sidecar: dict, write_sh: bool = True) -> dict:
     """Encode and stage every file of one atlas (nothing is replaced until `staging.commit()`).
     `sidecar` carries the bake's settings/objects/timings; channel tables and encoder settings
-    are added here. Returns the encoded params of the baked texels."""
-    hhd_ch, params = encode_image(data, encoder)
+    are added here. Returns the statistics of the encoded texels (also in the sidecar).
+    Memory: the images of `data` plus one SH file's worth of channels (~110 bytes per texel)."""
+    fill = data.fill()
+    hhd_ch, stats = encode_image(data, encoder, fill)
     h, w = data.coverage.shape
     attributes = {"hhdFormat": FORMAT, "hhdFormatVersion": FORMAT_VERSION, "hhdAtlas": files.name}
-    exr.write_file(staging.stage(files.hhd), _to_rows(hhd_ch), attributes)
+    exr.write_file(staging.stage(files.hhd), hhd_ch, attributes)
     tables = {"hhd": channel_table(hhd_ch, MEANINGS)}
+    sh_ch = None
     if write_sh:
-        sh_ch, tx_ch = sh_channels(data), texel_channels(data)
-        exr.write_file(staging.stage(files.sh), _to_rows(sh_ch), attributes)
-        exr.write_file(staging.stage(files.texels), _to_rows(tx_ch), attributes)
+        sh_ch, tx_ch = sh_channels(data, fill), texel_channels(data)
+        exr.write_file(staging.stage(files.sh), sh_ch, attributes)
+        exr.write_file(staging.stage(files.texels), tx_ch, attributes)
         tables.update(sh=channel_table(sh_ch, MEANINGS), texels=channel_table(tx_ch, MEANINGS))
     else:
         tables.update({k: v for k, v in sidecar.get("channels", {}).items() if k != "hhd"})
-    lum = params.irradz @ hhd.LUMINANCE
     doc = dict(sidecar)
     doc.update({
         "format": FORMAT, "format_version": FORMAT_VERSION, "atlas": files.name, "width": w, "height": h,
         "files": {"hhd": files.hhd.name, "sh": files.sh.name, "texels": files.texels.name},
         "channels": tables, "conventions": CONVENTIONS,
         "encoder": {k: v for k, v in encoder.items()},
-        "stats": {"texels_baked": int(data.baked.sum()), "texels_buried": int((data.coverage < 0).sum()),
-                  "texels_invalid": params.n_invalid, "irradz_max": float(params.irradz.max(initial=0.0)),
-                  "irradz_mean_luminance": float(lum.mean()) if len(lum) else 0.0},
+        "stats": stats,
     })
     staging.write_text(files.sidecar, json.dumps(doc, indent=2, ensure_ascii=False))
-    stage_preview(staging, files, hhd_ch, data if write_sh else None)
-    return params
+    stage_preview(staging, files, hhd_ch, sh_ch)
+    return stats
 
 
 def _rgb(channels: list[np.ndarray]) -> dict:
@@ -208,18 +218,17 @@ def _rgb(channels: list[np.ndarray]) -> dict:
     return {c: np.asarray(a, np.float32) for c, a in zip("RGB", channels)}
 
 
-def stage_preview(staging: exr.Staging, files: AtlasFiles, hhd_ch: dict, data: TexelData | None) -> None:
-    """Stage the preview's plain RGB EXRs (rows top-down like every file here): I_z, w_a (three
-    equal channels in luminance mode), the octahedral direction, and with `data` the SH."""
+def stage_preview(staging: exr.Staging, files: AtlasFiles, hhd_ch: dict, sh_ch: dict | None) -> None:
+    """Stage the preview's plain RGB EXRs from the channels of the HHD and (if given) SH files
+    (EXR rows, as every file here): I_z, w_a (three equal channels in luminance mode), the
+    octahedral direction, and the SH."""
     wa = [hhd_ch[f"Wa.{c}"] for c in "RGB"] if "Wa.R" in hhd_ch else [hhd_ch["Wa.V"]] * 3
     images = {"iz": _rgb([hhd_ch[f"Iz.{c}"] for c in "RGB"]), "wa": _rgb(wa),
               "dir": _rgb([hhd_ch["Direction.X"], hhd_ch["Direction.Y"]])}
-    if data is not None:
-        sh = _dilate_keep_buried(data.sh, data)
-        for k in range(9):
-            images[f"sh{k}"] = _rgb([sh[..., k, c] for c in range(3)])
     for key, channels in images.items():
-        exr.write_file(staging.stage(files.preview_image(key)), _to_rows(channels))
+        exr.write_file(staging.stage(files.preview_image(key)), channels)
+    for k in range(9 if sh_ch is not None else 0):
+        exr.write_file(staging.stage(files.preview_image(f"sh{k}")), _rgb([sh_ch[f"SH{k}.{c}"] for c in "RGB"]))
 
 
 def read_sidecar(path) -> dict:
@@ -242,10 +251,10 @@ def read_texel_data(files: AtlasFiles) -> TexelData:
     missing = [n for n in SH_CHANNELS if n not in sh_ch]
     if missing:
         raise BakeError(f"{files.sh} lacks SH channels {missing[:3]}…")
-    sh = np.stack([exr.from_exr_rows(sh_ch[n]) for n in SH_CHANNELS], axis=-1).astype(np.float64)
+    sh = np.stack([exr.from_exr_rows(sh_ch[n]) for n in SH_CHANNELS], axis=-1).astype(np.float32, copy=False)
     h, w = sh.shape[:2]
-    normal = np.stack([exr.from_exr_rows(tx_ch[f"Normal.{a}"]) for a in "XYZ"], axis=-1).astype(np.float64)
-    coverage = exr.from_exr_rows(tx_ch["Coverage.V"]).astype(np.float64)
+    normal = np.stack([exr.from_exr_rows(tx_ch[f"Normal.{a}"]) for a in "XYZ"], axis=-1).astype(np.float32, copy=False)
+    coverage = exr.from_exr_rows(tx_ch["Coverage.V"]).astype(np.float32, copy=False)
     return TexelData(sh=sh.reshape(h, w, 9, 3), normal=normal, coverage=coverage)
 
 

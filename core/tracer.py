@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
@@ -127,24 +128,15 @@ def bake(points: BakePoints, scene: BakeScene, settings: BakeSettings = BakeSett
     stopped_by = "samples"
     with ThreadPoolExecutor(max_workers=max(1, settings.threads)) as pool:
         for p in range(max_passes):
-            chunks = [active[s:s + settings.chunk_texels] for s in range(0, len(active), settings.chunk_texels)]
-            futures = [pool.submit(tracer.trace_pass, p, c, idx) for c, idx in enumerate(chunks)]
-            try:
-                for c, (future, idx) in enumerate(zip(futures, chunks)):
-                    if cancel is not None and cancel():
-                        raise BakeCancelled("bake cancelled")
-                    acc.add(idx, future.result())
-                    elapsed = time.perf_counter() - start
-                    if progress:
-                        progress(_fraction(p, (c + 1) / len(chunks), max_passes, settings, elapsed),
-                                 _status(p, max_passes, len(active), n, tracer.rays, acc.texel_passes,
-                                         settings.pass_samples, elapsed))
-                    if settings.time_budget and elapsed >= settings.time_budget and p > 0:
-                        stopped_by = "time_budget"
-                        break
-            finally:                    # cancelled, stopped early or failed: no chunk left queued
-                _cancel_all(futures)
-            if stopped_by == "time_budget":
+            def on_chunk(done, of):
+                elapsed = time.perf_counter() - start
+                if progress:
+                    progress(_fraction(p, done / of, max_passes, settings, elapsed),
+                             _status(p, max_passes, len(active), n, tracer.rays, acc.texel_passes,
+                                     settings.pass_samples, elapsed))
+                return not (settings.time_budget and elapsed >= settings.time_budget and p > 0)
+            if not _trace_pass(pool, tracer, acc, p, active, on_chunk, cancel):
+                stopped_by = "time_budget"
                 break
             if settings.noise_target and p + 1 >= MIN_ADAPTIVE_PASSES:
                 active = active[~acc.converged(active, settings.noise_target)]
@@ -157,6 +149,31 @@ def bake(points: BakePoints, scene: BakeScene, settings: BakeSettings = BakeSett
                       passes=int(acc.passes.max(initial=0)), rays=tracer.rays,
                       seconds=time.perf_counter() - start,
                       texel_samples=acc.passes * settings.pass_samples, stopped_by=stopped_by)
+
+
+def _trace_pass(pool, tracer: "_Tracer", acc: "_Accumulator", p: int, active: np.ndarray, on_chunk, cancel) -> bool:
+    """Pass p over the texels `active`, in chunks on the pool, added to `acc` in chunk order.
+    Only a few chunks are queued ahead of the one being added (enough to keep every worker
+    busy), so finished estimates never pile up: memory stays bounded whatever the atlas size.
+    `on_chunk(done, of)` after each chunk returns False to end the pass early (returns False
+    then); `cancel()` returning True raises BakeCancelled."""
+    size = tracer.settings.chunk_texels
+    chunks = [active[s:s + size] for s in range(0, len(active), size)]
+    ahead = 2 * max(1, tracer.settings.threads)
+    queued: deque = deque()
+    try:
+        for c, idx in enumerate(chunks):
+            while len(queued) < ahead and c + len(queued) < len(chunks):
+                k = c + len(queued)
+                queued.append(pool.submit(tracer.trace_pass, p, k, chunks[k]))
+            if cancel is not None and cancel():
+                raise BakeCancelled("bake cancelled")
+            acc.add(idx, queued.popleft().result())
+            if not on_chunk(c + 1, len(chunks)):
+                return False
+    finally:                    # cancelled, stopped early or failed: no chunk left queued
+        _cancel_all(queued)
+    return True
 
 
 def _cancel_all(futures) -> None:
@@ -183,13 +200,15 @@ def _status(p, max_passes, active, n, rays, texel_passes, pass_samples, elapsed)
 
 
 class _Accumulator:
-    """Running sums of the pass estimates per texel (each texel may have its own pass count):
-    the SH (N, 9, 3), their squares, and I_z's luminance for the noise target."""
+    """Running statistics of the pass estimates per texel (each texel may have its own pass
+    count): the SH sum (N, 9, 3) float64, the SH's sum of squared deviations from the running
+    mean (Welford; float32 is enough, being a sum of squares, not a difference of two), and the
+    sum and square sum of I_z's luminance for the noise target: 336 bytes per texel."""
 
     def __init__(self, n: int, normals: np.ndarray):
         self.normals = normals
         self.total = np.zeros((n, 9, 3))
-        self.total_sq = np.zeros((n, 9, 3))
+        self.m2 = np.zeros((n, 9, 3), np.float32)
         self.iz = np.zeros(n)
         self.iz_sq = np.zeros(n)
         self.passes = np.zeros(n, dtype=np.int64)
@@ -200,8 +219,10 @@ class _Accumulator:
         self.texel_passes += len(idx)
         if len(idx) and idx[-1] - idx[0] == len(idx) - 1:      # a run of texels (no noise target)
             idx = slice(int(idx[0]), int(idx[-1]) + 1)           # views, not fancy-index copies
+        k = self.passes[idx][:, None, None].astype(np.float64)
+        before = np.where(k > 0, self.total[idx] / np.maximum(k, 1.0), estimate)
         self.total[idx] += estimate
-        self.total_sq[idx] += estimate * estimate
+        self.m2[idx] += (estimate - before) * (estimate - self.total[idx] / (k + 1.0))
         iz = _hhd.irradz(estimate, self.normals[idx]) @ _hhd.LUMINANCE
         self.iz[idx] += iz
         self.iz_sq[idx] += iz * iz
@@ -217,11 +238,15 @@ class _Accumulator:
         ok = np.sqrt(var) <= target * np.maximum(mean, floor)
         return ok & np.isfinite(var)
 
-    def result(self):
-        k = np.maximum(self.passes, 1).astype(np.float64)[:, None, None]
-        mean = self.total / k
-        var = np.maximum(self.total_sq / k - mean * mean, 0.0) / np.maximum(k - 1.0, 1.0)
-        return mean, np.sqrt(var)
+    def result(self, chunk: int = 1 << 16):
+        """(mean (N, 9, 3) float64, its standard error (N, 9, 3) float32), computed in place over
+        the running statistics (the accumulator is spent afterwards), a chunk of texels at a time."""
+        for s in range(0, len(self.passes), chunk):
+            k = np.maximum(self.passes[s:s + chunk], 1).astype(np.float64)[:, None, None]
+            self.total[s:s + chunk] /= k
+            self.m2[s:s + chunk] /= k * np.maximum(k - 1.0, 1.0)     # variance of the mean
+            np.sqrt(self.m2[s:s + chunk], out=self.m2[s:s + chunk])
+        return self.total, self.m2
 
 
 class _Tracer:
@@ -233,7 +258,6 @@ class _Tracer:
         self.settings = settings
         self.rays_scene = ray_scene if ray_scene is not None else RayScene(scene.triangles)
         self.offset = max(points.offset, ray_offset(scene.triangles))
-        self.frames = _sh.tangent_frames(points.normal)
         self.emitters = EmitterSampler(scene.triangles, scene.emission) if scene.emission is not None else None
         flagged = points.near_cover is not None and points.near_cover.any()
         self.covers = CoverProbe(scene.triangles, points.offset) if flagged else None
@@ -255,7 +279,8 @@ class _Tracer:
         k = self.settings.pass_samples
         local, pdf = _mixture_directions(rng, len(idx), k)               # (n·k, 3), (n·k,)
         texel = np.repeat(np.arange(len(idx)), k)
-        dirs = np.matmul(local.reshape(len(idx), k, 3), self.frames[idx].transpose(0, 2, 1)).reshape(-1, 3)
+        frames = _sh.tangent_frames(self.points.normal[idx])
+        dirs = np.matmul(local.reshape(len(idx), k, 3), frames.transpose(0, 2, 1)).reshape(-1, 3)
         origins = self.points.sample_origins(rng, idx, k)
         uncovered = self._uncovered(idx, texel, origins)
         radiance = self._path_radiance(rng, origins, dirs, pdf, uncovered)   # (n·k, 3)
