@@ -9,8 +9,9 @@ ground plane, sun + sky; receivers: the ground). For each: (a) raw embreex close
 (incoherent, 2 threads, same run), (b) our bake's rays/s (all rays, shadow rays included) and
 texel-samples/s, (c) I_z RMSE against a long Cycles Diffuse bake (Direct + Indirect, Color off,
 3 bounces) for our bake and Cycles at increasing sample counts, and the time each needs to reach
-three error levels (log-log interpolation). Peak memory of a 4096² atlas bake is measured by
-`--memory` (tracemalloc of numpy allocations + RSS). Writes bench/results/time_to_error.json.
+three error levels (log-log interpolation); our time counts the Embree scene, the bake points and
+the tracing (Cycles' counts its whole bake operator). The peak RSS of this run is recorded; a 4096² atlas's
+peak memory is bench/memory.py's job. Writes bench/results/time_to_error.json.
 """
 from __future__ import annotations
 
@@ -151,11 +152,13 @@ def measure(receivers, args) -> dict:
     mean = float(reference[keep].mean())
     out["ours"], out["cycles"] = [], []
     for samples in args.ours:
-        iz, seconds, result = our_bake(points, bake_scene, samples)
-        out["ours"].append({"samples": samples, "seconds": seconds, "rays_per_s": result.rays / result.seconds,
+        iz, seconds, result = our_bake(surface, bake_scene, samples, points)
+        out["ours"].append({"samples": samples, "seconds": seconds, "setup_seconds": result.setup_seconds,
+                            "rays_per_s": result.rays / result.seconds,
                             "texel_samples_per_s": len(points.texel) * result.samples / result.seconds,
                             "rmse": rmse(iz, reference, keep, mean)})
-        print(f"  ours   {samples:5d} spp {seconds:7.1f} s  RMSE {out['ours'][-1]['rmse']:.4f}", flush=True)
+        print(f"  ours   {samples:5d} spp {seconds:7.1f} s (scene + bake points {result.setup_seconds:.1f} s)  "
+              f"RMSE {out['ours'][-1]['rmse']:.4f}", flush=True)
     for samples in args.cycles:
         t = time.perf_counter()
         iz = cycles_bake(receivers, points, samples)
@@ -193,13 +196,22 @@ def raw_rate(ray_scene, tris, batch=1_000_000, rounds=2) -> float:
     return len(batches) * batch / (time.perf_counter() - t)
 
 
-def our_bake(points, bake_scene, samples):
-    from hhd_lightmapper.core import hhd, tracer
+def our_bake(surface, bake_scene, samples, points_before):
+    """Everything our Bake button does after reading the scene, except writing files: the Embree
+    scene, the bake points (rasterisation, buried and cover probes) and the tracing, timed
+    together, as Cycles' time includes its scene sync, BVH and texel setup. Returns (I_z,
+    seconds, tracer result)."""
+    from hhd_lightmapper.core import bakepoints, hhd, rays, tracer
     t = time.perf_counter()
+    ray_scene = rays.RayScene(bake_scene.triangles)
+    points = bakepoints.build(surface, points_before.width, points_before.height, occluders=ray_scene)
     result = tracer.bake(points, bake_scene, tracer.BakeSettings(samples=samples, pass_samples=min(16, samples),
-                                                                 bounces=BOUNCES))
+                                                                 bounces=BOUNCES), ray_scene=ray_scene)
     iz = hhd.irradz(result.sh, points.normal)
-    return iz, time.perf_counter() - t, result
+    seconds = time.perf_counter() - t
+    assert np.array_equal(points.texel, points_before.texel)
+    result.setup_seconds = seconds - result.seconds          # Embree scene + bake points
+    return iz, seconds, result
 
 
 def cycles_bake(receivers, points, samples, seed=0) -> np.ndarray:

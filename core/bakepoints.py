@@ -11,6 +11,8 @@ width × height image (flat index y · width + x, y = v · height).
 """
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +36,8 @@ JITTER_TRIES = 10
 FOOTPRINT = 0.5
 #: Probe directions per texel for the buried test (fixed, rotated per texel).
 BURIED_PROBES = 12
+#: Worker threads of the probe passes (buried, near cover): results do not depend on it.
+THREADS = max(1, min(os.cpu_count() or 1, 8))
 
 
 @dataclass
@@ -59,7 +63,8 @@ class SurfaceTriangles:
 class BakePoints:
     """position, normal (n_v), face_normal, albedo: (P, 3) float64; coverage (P,) in (0, 1];
     texel, triangle, object_index (P,) int; buried (P,) bool (hemisphere closed by geometry);
-    near_cover (P,) bool (part of the texel may lie under a coplanar face: core.covers);
+    near_cover (P,) bool (part of the texel may lie under a coplanar face: core.covers), found
+    with cover_probe;
     offset: ray origin offset, scene units; texel_size (P,) world size of a texel, metres."""
     width: int
     height: int
@@ -77,6 +82,7 @@ class BakePoints:
     tri_texel_uv: np.ndarray = None      # (T, 3, 2) every triangle's UVs in texel units
     tri_positions: np.ndarray = None     # (T, 3, 3) every triangle's world corners
     near_cover: np.ndarray = None
+    cover_probe: CoverProbe | None = None   # the probe near_cover came from (the tracer reuses it)
 
     def origins(self, rows=slice(None)) -> np.ndarray:
         """Ray origins `(P, 3)` (of the texels `rows`, if given): positions pushed off the
@@ -152,7 +158,8 @@ def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScen
         _fill_points(points, surface, slice(s, s + chunk), centroid[s:s + chunk])
     if occluders is not None:
         points.buried = find_buried(points, occluders, check=check)
-        points.near_cover = find_near_cover(points, CoverProbe(occluders.triangles, points.offset), check=check)
+        points.cover_probe = CoverProbe(occluders.triangles, points.offset, receivers=pos)
+        points.near_cover = find_near_cover(points, points.cover_probe, check=check)
     return points
 
 
@@ -226,7 +233,8 @@ def _albedo(surface: SurfaceTriangles, tri: np.ndarray, bary: np.ndarray) -> np.
     return albedo
 
 
-def find_near_cover(points: BakePoints, probe: CoverProbe, check=None, chunk: int = 1 << 16) -> np.ndarray:
+def find_near_cover(points: BakePoints, probe: CoverProbe, check=None, chunk: int = 1 << 15,
+                    threads: int = THREADS) -> np.ndarray:
     """Texels part of whose samples may start under a coplanar face (core.covers): the bake point,
     the footprint's corners and the texel's corners (where the samples' fallback can reach),
     mapped into the texel's triangle, are probed. The tracer probes every sample of the texels
@@ -234,14 +242,30 @@ def find_near_cover(points: BakePoints, probe: CoverProbe, check=None, chunk: in
     corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
     offsets = np.concatenate([0.5 + FOOTPRINT * (corners - 0.5), corners])   # texel units from its corner
     flags = np.zeros(len(points.texel), bool)
-    for s in range(0, len(flags), chunk):
-        if check is not None:
-            check()
-        idx = np.arange(s, min(s + chunk, len(flags)))
+
+    def probe_chunk(rows: slice):
+        idx = np.arange(rows.start, rows.stop)
         origins = np.concatenate([points.origins(idx)[:, None, :], points.texel_points(idx, offsets)], axis=1)
         normals = np.repeat(points.face_normal[idx], origins.shape[1], axis=0)
         flags[idx] = probe.covered(origins.reshape(-1, 3), normals).reshape(len(idx), -1).any(axis=1)
+    _for_chunks(probe_chunk, len(flags), chunk, check, threads)
     return flags
+
+
+def _for_chunks(work, n: int, chunk: int, check=None, threads: int = THREADS) -> None:
+    """work(rows) for consecutive slices of range(n), `chunk` long, on `threads` workers (Embree
+    releases the GIL); `check()` before each chunk's result is taken (it raises to stop: the
+    chunks not started are dropped)."""
+    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
+        futures = [pool.submit(work, slice(s, min(s + chunk, n))) for s in range(0, n, chunk)]
+        try:
+            for future in futures:
+                if check is not None:
+                    check()
+                future.result()
+        finally:
+            for future in futures:
+                future.cancel()
 
 
 def _probe_directions(n: int) -> np.ndarray:
@@ -253,24 +277,23 @@ def _probe_directions(n: int) -> np.ndarray:
 
 
 def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES, check=None,
-                chunk: int = 1 << 16) -> np.ndarray:
+                chunk: int = 1 << 15, threads: int = THREADS) -> np.ndarray:
     """Texels whose hemisphere is closed by nearby geometry seen from behind (the inside of a
     box pushed into the floor): at least BURIED_FRACTION of short probe rays (length 4 texels)
     hit back faces. The bake stores such texels black and never uses them as dilation sources,
     so light cannot leak into them. (Deeper inside a closed volume texels are dark anyway: all
     their rays end on the volume's inner faces.) Returns (P,) bool. Works in chunks of texels
-    (bounded memory), calling `check()` before each."""
+    (bounded memory) on `threads` workers, calling `check()` between chunks."""
     from .sh import tangent_frames
     buried = np.zeros(len(points.texel), bool)
     local = _probe_directions(probes)
-    for s in range(0, len(buried), chunk):
-        if check is not None:
-            check()
-        sl = slice(s, s + chunk)
+
+    def probe_chunk(sl: slice):
         dirs = np.einsum("pij,kj->pki", tangent_frames(points.face_normal[sl]), local).reshape(-1, 3)
         origins = np.repeat(points.origins(sl), probes, axis=0)
         reach = np.repeat(4.0 * points.texel_size[sl] + 4.0 * points.offset, probes)
         t, prim, ng = scene.intersect(origins, dirs, reach)
         back = (prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)
         buried[sl] = back.reshape(-1, probes).mean(axis=1) >= BURIED_FRACTION
+    _for_chunks(probe_chunk, len(buried), chunk, check, threads)
     return buried

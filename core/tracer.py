@@ -260,7 +260,11 @@ class _Tracer:
         self.offset = max(points.offset, ray_offset(scene.triangles))
         self.emitters = EmitterSampler(scene.triangles, scene.emission) if scene.emission is not None else None
         flagged = points.near_cover is not None and points.near_cover.any()
-        self.covers = CoverProbe(scene.triangles, points.offset) if flagged else None
+        self.covers = None
+        if flagged:
+            probe = points.cover_probe
+            reuse = probe is not None and probe.probes(self.rays_scene.triangles, points.offset)
+            self.covers = probe if reuse else CoverProbe(scene.triangles, points.offset, points.tri_positions)
         self._lock = threading.Lock()
         self.rays = 0
 

@@ -258,3 +258,29 @@ def test_bake_point_stage_checks_for_cancel_between_chunks():
     with pytest.raises(BakeCancelled):
         bakepoints.build(surface, 1024, 1024, occluders=rays.RayScene(v[f]), check=cancel_on_third)
     assert len(calls) == 3
+
+
+def test_running_statistics_match_the_passes_mean_and_standard_error():
+    """The accumulator (float64 sum, Welford's float32 squared deviations) against numpy over the
+    stored passes: texels with different pass counts (a noise target's fancy-indexed chunks), a
+    texel whose passes agree exactly (error 0, as an unshadowed sun), and values of 1e6 ± 1
+    (where a float32 sum of squares minus the squared mean would lose everything)."""
+    rng = np.random.default_rng(3)
+    n = 6
+    acc = tracer._Accumulator(n, np.tile([0.0, 0.0, 1.0], (n, 1)))
+    passes = {t: [] for t in range(n)}
+    for p in range(7):
+        idx = np.arange(n) if p < 3 else np.array([0, 2, 3, 5])        # later passes skip texels 1, 4
+        est = 1e6 + rng.normal(size=(len(idx), 9, 3))
+        est[idx == 3] = 2.5                                             # texel 3: every pass agrees
+        acc.add(idx, est)
+        for row, t in enumerate(idx):
+            passes[t].append(est[row])
+    mean, error = acc.result()
+    for t, values in passes.items():
+        values = np.array(values)
+        k = len(values)
+        assert acc.passes[t] == k
+        np.testing.assert_allclose(mean[t], values.mean(axis=0), rtol=1e-14)
+        np.testing.assert_allclose(error[t], values.std(axis=0, ddof=1) / np.sqrt(k), rtol=1e-5, atol=1e-30)
+    assert (error[3] == 0.0).all()

@@ -2,9 +2,10 @@
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bakepoints, raster, rays, textures, unwrap
+from hhd_lightmapper.core import bakepoints, raster, rays, textures, tracer, unwrap
 from hhd_lightmapper.core.covers import CoverProbe
 from hhd_lightmapper.core.errors import BakeError
+from hhd_lightmapper.core.scene import BakeScene
 import meshes
 
 
@@ -265,11 +266,24 @@ def test_cover_probe_finds_faces_on_or_just_above_the_surface_only(scale, shift)
 
 def test_texels_under_an_open_tray_resting_on_the_floor_are_flagged_near_cover():
     v, f = meshes.cube(1.0, centre=(0.0, 0.0, 0.5))
-    pts, _ = floor_with(v, f[[0, 1] + list(range(4, 12))])
+    pts, scene = floor_with(v, f[[0, 1] + list(range(4, 12))])
     inner = np.maximum(np.abs(pts.position[:, 0]), np.abs(pts.position[:, 1]))
     assert pts.near_cover[inner < 0.5 - pts.texel_size].all()
     assert not pts.near_cover[inner > 0.5 + pts.texel_size].any()
     assert not pts.buried[inner < 0.4].any()          # open: the buried test does not catch it
+    # the probe keeps only triangles near the receivers (the floor): a box 5 m up is left out,
+    # and the flags are those of a probe over every triangle
+    far_v, far_f = meshes.cube(1.0, centre=(0.0, 0.0, 5.0))
+    with_far = np.concatenate([scene.triangles, far_v[far_f].astype(np.float32)])
+    near = CoverProbe(with_far, pts.offset, receivers=pts.tri_positions)
+    assert near.scene.n_triangles == len(scene.triangles)
+    np.testing.assert_array_equal(bakepoints.find_near_cover(pts, near),
+                                  bakepoints.find_near_cover(pts, CoverProbe(with_far, pts.offset)))
+    # the tracer reuses the bake points' probe when it traces the same Embree scene, else builds its own
+    bake_scene = BakeScene(scene.triangles.astype(float), np.full((len(scene.triangles), 3), 0.5))
+    assert tracer._Tracer(pts, bake_scene, tracer.BakeSettings(), scene).covers is pts.cover_probe
+    own = tracer._Tracer(pts, bake_scene, tracer.BakeSettings()).covers
+    assert own is not None and own is not pts.cover_probe
 
 
 def _crashing_worker(tmp_path, crashes):
