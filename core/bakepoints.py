@@ -170,7 +170,7 @@ def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, cen
     pos = points.tri_positions[tri]                                             # (n, 3, 3)
     bary = _barycentric(centroid, points.tri_texel_uv[tri])
     points.position[rows] = np.einsum("pk,pki->pi", bary, pos)
-    normal = _normalise(np.einsum("pk,pki->pi", bary, np.asarray(surface.normals, dtype=np.float64)[tri]))
+    normal = _normalise(np.einsum("pk,pki->pi", bary, np.asarray(surface.normals)[tri].astype(np.float64)))
     face = _normalise(np.cross(pos[:, 1] - pos[:, 0], pos[:, 2] - pos[:, 0]))
     # A vertex normal of zero length (degenerate input) falls back to the face normal.
     bad = ~np.isfinite(normal).all(axis=1) | (np.linalg.norm(normal, axis=1) < 0.5)
@@ -221,11 +221,11 @@ def _texel_world_size(pos: np.ndarray, texel_uv: np.ndarray) -> np.ndarray:
 
 
 def _albedo(surface: SurfaceTriangles, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    albedo = np.asarray(surface.albedo, dtype=np.float64)[tri].copy()
+    albedo = np.asarray(surface.albedo)[tri].astype(np.float64)   # gather first: called per chunk
     if surface.texture_index is None or not surface.textures:
         return albedo
     tex_index = np.asarray(surface.texture_index)[tri]
-    uv = np.einsum("pk,pki->pi", bary, np.asarray(surface.texture_uv, dtype=np.float64)[tri])
+    uv = np.einsum("pk,pki->pi", bary, np.asarray(surface.texture_uv)[tri].astype(np.float64))
     for k, image in enumerate(surface.textures):
         rows = np.nonzero(tex_index == k)[0]
         if len(rows):
