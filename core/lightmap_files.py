@@ -109,7 +109,7 @@ class TexelData:
         return _dilate.Fill(self.baked, DILATE_RINGS, black=self.coverage < 0.0)
 
 
-#: Texels encoded per call of hhd.encode: bounds the encoder's float64 temporaries (~2 KB per texel).
+#: Texels encoded per call of hhd.encode: bounds the float64 copy it makes of its input.
 ENCODE_CHUNK = 1 << 17
 
 
