@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rays import RayScene
+from .rays import RayScene, bounds
 
 #: How far every triangle is pushed back for the probe, as a fraction of the ray offset: far
 #: enough to break the coplanar tie at float32 precision (the offset is ≥ 32 ulps), near enough
@@ -43,7 +43,7 @@ class CoverProbe:
         self.offset = offset
         tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
         if receivers is not None:
-            tri = tri[_near_box(tri, np.asarray(receivers, dtype=np.float64).reshape(-1, 3), 2.0 * offset)]
+            tri = tri[_near_box(tri, receivers, 2.0 * offset)]
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         length = np.linalg.norm(n, axis=1, keepdims=True)
         n = np.divide(n, length, out=np.zeros_like(n), where=length > 0.0)   # degenerate: no push
@@ -62,9 +62,9 @@ class CoverProbe:
 
 
 def _near_box(tri: np.ndarray, points: np.ndarray, margin: float) -> np.ndarray:
-    """(T,) bool: triangles whose bounding box overlaps that of `points` grown by `margin`."""
-    lo = np.array([points[:, i].min() for i in range(3)]) - margin
-    hi = np.array([points[:, i].max() for i in range(3)]) + margin
+    """(T,) bool: triangles whose bounding box overlaps that of `points` (..., 3) grown by `margin`."""
+    lo, hi = bounds(points)
+    lo, hi = lo - margin, hi + margin
     keep = np.ones(len(tri), bool)
     for i in range(3):                 # per axis: column reductions are ~10× faster in numpy
         c = tri[:, :, i]

@@ -16,13 +16,19 @@ def ray_offset(positions: np.ndarray) -> float:
     """Origin offset (scene units) for rays leaving surfaces: 1e-5 of the scene's extent plus a
     margin of 32 float32 ulps at its largest coordinate, so it works from millimetre to
     kilometre scenes and far from the origin."""
-    p = np.asarray(positions).reshape(-1, 3)
-    # per column: a reduction along axis 0 of an (N, 3) array is ~10× slower in numpy
-    lo = np.array([p[:, i].min() for i in range(3)], dtype=np.float64)
-    hi = np.array([p[:, i].max() for i in range(3)], dtype=np.float64)
+    lo, hi = bounds(positions)
     extent = float(np.linalg.norm(hi - lo))
     magnitude = float(np.maximum(np.abs(lo), np.abs(hi)).max())
     return 1e-5 * extent + 32.0 * FLOAT32_EPS * magnitude
+
+
+def bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounding box (lo (3,), hi (3,)) float64 of points (..., 3)."""
+    p = np.asarray(points).reshape(-1, 3)
+    # per column: a reduction along axis 0 of an (N, 3) array is ~10× slower in numpy
+    lo = np.array([p[:, i].min() for i in range(3)], dtype=np.float64)
+    hi = np.array([p[:, i].max() for i in range(3)], dtype=np.float64)
+    return lo, hi
 
 
 class RayScene:
