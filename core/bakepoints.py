@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import raster
+from . import kernels, raster
 from .covers import CoverProbe
 from .errors import BakeError
 from .rays import RayScene, ray_offset
@@ -96,22 +96,10 @@ class BakePoints:
         (the centroid of texel ∩ triangle); offset along the face normal. Per-texel data is
         gathered once and broadcast over the k samples."""
         tri = self.triangle[idx]
-        corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1)
-        tri_uv = self.tri_texel_uv[tri]
-        bary = _barycentric_grouped(corner[:, None, :] + _footprint(rng, (len(idx), k, 2), FOOTPRINT), tri_uv)
-        # retries: first in the footprint, then (a texel its triangle only grazes, at a chart's
-        # edge) anywhere in the texel, which the triangle overlaps by construction
-        rows, cols = np.nonzero((bary < 0.0).any(axis=-1))                 # samples outside
-        for width in [FOOTPRINT] * (JITTER_TRIES - 1) + [1.0] * JITTER_TRIES:
-            if len(rows) == 0:
-                break
-            retry = corner[rows, None, :] + _footprint(rng, (len(rows), 1, 2), width)
-            bary[rows, cols] = retried = _barycentric_grouped(retry, tri_uv[rows])[:, 0]
-            still = (retried < 0.0).any(axis=-1)
-            rows, cols = rows[still], cols[still]
-        pos = np.matmul(bary, self.tri_positions[tri])                        # (n, k, 3)
-        pos[rows, cols] = self.position[idx[rows]]     # the overlap's centroid, as Cycles gives up
-        return (pos + self.face_normal[idx][:, None, :] * self.offset).reshape(-1, 3)
+        corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1).astype(np.float64)
+        return kernels.get().texel_origins(corner, self.tri_texel_uv[tri], self.tri_positions[tri], self.position[idx],
+                                           self.face_normal[idx], self.offset, k, FOOTPRINT, JITTER_TRIES,
+                                           int(rng.integers(1 << 63)))
 
     def texel_points(self, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Ray origins `(len(idx), k, 3)` at `offsets` (k, 2) texel units from each texel's corner,

@@ -15,6 +15,7 @@ COMPILED = {
     "embreex": ("embreex", "ray tracing the bake"),
     "xatlas": ("xatlas", "unwrapping lightmap UVs"),
     "OpenEXR": ("OpenEXR", "writing and reading EXR files"),
+    "numba": ("numba", "the compiled per-sample kernels of the bake"),
 }
 
 

@@ -7,10 +7,10 @@ coefficient then has finite variance (pure cosine sampling gives r_0 infinite va
 1/cosθ weight at the horizon) while I_z keeps most of the cosine-sampling benefit. The radiance
 L arriving along ω is the path traced from the texel: world radiance if the ray escapes,
 emission plus reflected light at surfaces (diffuse, two-sided, next-event estimation to every
-light at each vertex, Russian roulette after RR_START bounces, at most `bounces` reflections),
+light at each vertex, Russian roulette from RR_START bounces on, at most `bounces` reflections),
 and Σ (L(ω) − β) Y(ω) / (K p(ω)) + β·∫Y estimates the radiance SH over the hemisphere, with a
-constant β per half of the samples taken from the other half (`_control_variate_sh`): unbiased,
-exact for constant radiance, every sample used by every coefficient.
+constant β per half of the samples taken from the other half (`kernels.project_hemisphere`):
+unbiased, exact for constant radiance, every sample used by every coefficient.
 
 Every sample's origin is jittered over the texel's footprint (`BakePoints.sample_origins`: the
 central ½ × ½ of the texel within its triangle), so a texel is an area average as Cycles bakes
@@ -24,9 +24,12 @@ rays; the two are combined with the power heuristic (MIS), against the mixture p
 point and the cosine pdf at bounces.
 Weights sum to one per direction, so every SH coefficient stays unbiased.
 
-Work is split into fixed chunks of texels; each chunk of each pass draws its random numbers
-from its own generator seeded by (seed, pass, chunk), so results do not depend on the thread
-count. Chunks run on a thread pool: embreex releases the GIL inside its queries.
+The per-sample work between Embree queries (camera rays over a texel, a hit turned into the next
+bounce, the SH projection) runs in compiled kernels (`kernels`); this module drives them and
+samples the lights. Work is split into fixed chunks of texels; each chunk of each pass draws
+its random numbers from its own generator seeded by (seed, pass, chunk), which also seeds the
+kernels it calls, so results do not depend on the thread count. Chunks run on a thread pool:
+embreex and the kernels release the GIL.
 """
 from __future__ import annotations
 
@@ -40,6 +43,7 @@ from typing import Callable
 import numpy as np
 
 from . import hhd as _hhd
+from . import kernels as _kernels
 from . import sh as _sh
 from .bakepoints import BakePoints
 from .covers import CoverProbe
@@ -49,6 +53,8 @@ from .rays import RayScene, ray_offset
 from .scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
 
 RR_START = 2            # bounces before Russian roulette may end a path
+_BLACK = np.zeros((1, 3))
+_NO_ROWS = np.zeros((0, 3))
 RR_MAX_SURVIVAL = 0.95
 
 
@@ -59,7 +65,7 @@ class BakeSettings:
     pass (the progressive step); bounces: diffuse reflections after the first hit (0 = direct
     light only); seed: makes the bake reproducible; threads: worker threads; chunk_texels:
     texels per work item (bounds memory: ~1 KB per texel-sample). pass_samples is a multiple of
-    4 (two independent halves of uniform + cosine samples, see `_mixture_directions`).
+    4 (two independent halves of uniform + cosine samples, see `kernels.hemisphere_rays`).
 
     noise_target: 0 (off) or the relative standard error of I_z (luminance) at which a texel
     stops: after at least MIN_ADAPTIVE_PASSES passes a texel whose pass-to-pass standard error
@@ -265,6 +271,7 @@ class _Tracer:
             probe = points.cover_probe
             reuse = probe is not None and probe.probes(self.rays_scene.triangles, points.offset)
             self.covers = probe if reuse else CoverProbe(scene.triangles, points.offset, points.tri_positions)
+        self.kernels = _kernels.get()
         self._lock = threading.Lock()
         self.rays = 0
 
@@ -281,15 +288,14 @@ class _Tracer:
         """Radiance SH estimate `(len(idx), 9, 3)` from this pass's samples of the texels idx."""
         rng = np.random.default_rng([self.settings.seed, pass_index, chunk_index])
         k = self.settings.pass_samples
-        local, pdf = _mixture_directions(rng, len(idx), k)               # (n·k, 3), (n·k,)
+        normals = self.points.normal[idx]
+        dirs, pdf = self.kernels.hemisphere_rays(normals, k, _seed(rng))   # (n·k, 3), (n·k,)
         texel = np.repeat(np.arange(len(idx)), k)
-        frames = _sh.tangent_frames(self.points.normal[idx])
-        dirs = np.matmul(local.reshape(len(idx), k, 3), frames.transpose(0, 2, 1)).reshape(-1, 3)
         origins = self.points.sample_origins(rng, idx, k)
         uncovered = self._uncovered(idx, texel, origins)
         radiance = self._path_radiance(rng, origins, dirs, pdf, uncovered)   # (n·k, 3)
-        estimate = _control_variate_sh(dirs, radiance, pdf, k, self.points.normal[idx])
-        return estimate + self._direct_sh(rng, idx, texel, origins, k, uncovered)
+        estimate = self.kernels.project_hemisphere(dirs, radiance, pdf, normals, k)
+        return estimate + self._direct_sh(rng, idx, origins, k, uncovered)
 
     def _uncovered(self, idx, texel, origins) -> np.ndarray | None:
         """(n·k,) bool, False for samples starting on a part of the texel a coplanar face covers
@@ -322,44 +328,48 @@ class _Tracer:
         throughput = np.ones((len(live), 3))
         for bounce in range(self.settings.bounces + 1):
             t, prim, ng, bu, bv = self._intersect(o, d, barycentrics=True)
-            hit = np.flatnonzero(prim >= 0)
-            if len(hit) < len(prim):
-                miss = np.flatnonzero(prim < 0)
-                if scene.world is not None or scene.environment is not None:
-                    acc[miss] += throughput[miss] * self._escaped(d[miss], pdf[miss])
-                radiance[live[miss]] = acc[miss]
-                live, acc, throughput, o, d, t, prim, ng, bu, bv, pdf = (
-                    _rows(a, hit) for a in (live, acc, throughput, o, d, t, prim, ng, bu, bv, pdf))
-            if len(live) == 0:
-                return radiance
             if self.emitters:
-                p_light = self.emitters.pdf(prim, d, t.astype(np.float64))
-                weight = pdf * pdf / np.maximum(pdf * pdf + p_light * p_light, 1e-300)
-                acc += throughput * scene.emission[prim] * weight[:, None]
+                hit = np.flatnonzero(prim >= 0)
+                acc[hit] += throughput[hit] * self._emitted(prim[hit], d[hit], t[hit], pdf[hit])
+            sky = self._sky(prim, d, pdf)
             if bounce == self.settings.bounces:
-                break
-            n = ng.astype(np.float64)
-            # unit normal facing the ray (surfaces are two-sided): scale by -sign(n·d)/|n|
-            n *= (np.where(np.einsum("ri,ri->r", n, d) > 0.0, -1.0, 1.0) / np.sqrt(np.einsum("ri,ri->r", n, n)))[:, None]
-            x = o + d * t[:, None] + n * self.offset
-            throughput *= scene.albedo_at(prim, bu, bv)
-            acc += throughput * self._irradiance_at(rng, x, n)
-            # continue with a cosine-distributed direction: BRDF·cos/pdf = albedo (already applied)
-            d, cos = _cosine_directions_around(rng, n)
-            pdf = cos / np.pi
-            o = x
-            if bounce + 1 >= RR_START:
-                survive = np.minimum(throughput.max(axis=1), RR_MAX_SURVIVAL)
-                alive = rng.random(len(live)) < survive
-                ended = np.flatnonzero(~alive)
-                radiance[live[ended]] = acc[ended]
-                keep = np.flatnonzero(alive)
-                throughput = _rows(throughput, keep) / survive[keep, None]
-                live, acc, o, d, pdf = (_rows(a, keep) for a in (live, acc, o, d, pdf))
+                hit, miss = prim >= 0, prim < 0
+                radiance[live[hit]] = acc[hit]
+                radiance[live[miss]] = acc[miss] + throughput[miss] * (sky[miss] if len(sky) > 1 else sky)
+                return radiance
+            row_albedo = _NO_ROWS
+            if scene.textures:
+                row_albedo = np.zeros((len(prim), 3))
+                hit = np.flatnonzero(prim >= 0)
+                row_albedo[hit] = scene.albedo_at(prim[hit], bu[hit], bv[hit])
+            # misses and roulette victims end (written to radiance); survivors continue with a
+            # cosine-distributed direction (BRDF·cos/pdf = albedo, applied to the throughput).
+            # Roulette comes before this vertex's light sampling: still unbiased, one compaction.
+            live, acc, throughput, o, n, d, pdf, _ = self.kernels.advance_paths(
+                live, acc, throughput, o, d, t, prim, ng, scene.albedo, row_albedo, sky, radiance,
+                self.offset, bounce + 1 >= RR_START, RR_MAX_SURVIVAL, _seed(rng))
             if len(live) == 0:
                 return radiance
-        radiance[live] = acc
+            acc += throughput * self._irradiance_at(rng, o, n)
         return radiance
+
+    def _sky(self, prim, d, pdf) -> np.ndarray:
+        """Radiance brought by the rays that missed (prim < 0): (R, 3) with a row per ray (an
+        HDRI, weighted by MIS), or (1, 3) for all (the constant world, or black)."""
+        scene = self.scene
+        if scene.environment is None:
+            return _BLACK if scene.world is None else scene.world[None, :]
+        sky = np.zeros((len(prim), 3))
+        miss = np.flatnonzero(prim < 0)
+        sky[miss] = self._escaped(d[miss], pdf[miss])
+        return sky
+
+    def _emitted(self, prim, d, t, pdf) -> np.ndarray:
+        """Emitted radiance (R, 3) seen by rays hitting triangles prim along d at distance t,
+        sampled with density pdf: MIS-weighted (power heuristic) against emitter sampling."""
+        p_light = self.emitters.pdf(prim, d, t.astype(np.float64))
+        weight = pdf * pdf / np.maximum(pdf * pdf + p_light * p_light, 1e-300)
+        return self.scene.emission[prim] * weight[:, None]
 
     def _escaped(self, d, pdf) -> np.ndarray:
         """Radiance (R, 3) of rays leaving the scene along d, sampled with density pdf: the
@@ -455,95 +465,38 @@ class _Tracer:
         self._count(len(o))
         return 1.0 - self.rays_scene.occluded(o, d, np.maximum(tmax, 0.0))
 
-    def _direct_sh(self, rng, idx, texel, origins, k, uncovered=None) -> np.ndarray:
+    def _direct_sh(self, rng, idx, origins, k, uncovered=None) -> np.ndarray:
         """Next-event estimation at the bake point: one shadow ray per light from each of the
         pass's k origins (those `uncovered`, if given); light arriving from below n_v's horizon
         is not part of the hemisphere's SH. For a delta light the direction is exact, so an
         unshadowed sun adds exactly s·Y(l) (no noise); penumbrae average over the footprint."""
         out = np.zeros((len(idx), 9, 3))
-        normal = self.points.normal[idx][texel]
+        normal = np.repeat(self.points.normal[idx], k, axis=0)
 
         def mixture_pdf(w):
-            cos = np.einsum("ri,ri->r", w, normal)
-            return _mixture_pdf(cos)
+            return _mixture_pdf(np.einsum("ri,ri->r", w, normal))
         samples = [self._sample_light(rng, light, origins) for light in self.scene.lights]
         for dirs, value, dist in samples + list(self._mis_light_samples(rng, origins, mixture_pdf)):
             above = np.einsum("ri,ri->r", dirs, normal) > 0.0
             if uncovered is not None:
                 above &= uncovered
-            if not above.any():
-                continue
-            vis = np.zeros(len(origins))
             rows = np.flatnonzero(above)
-            vis[rows] = self._unoccluded(_rows(origins, rows), _rows(dirs, rows), dist[rows])
-            weighted = value * (vis / k)[:, None]
-            if dirs.strides[0] == 0:        # one direction for every row (a sun without angle)
-                out += _sh.evaluate(dirs[:1])[:, :, None] * weighted.reshape(len(idx), k, 3).sum(axis=1)[:, None, :]
-            else:
-                out += _sh.accumulate_grouped(dirs, weighted, k)
+            if len(rows) == 0:
+                continue
+            weight = np.zeros(len(origins))
+            weight[rows] = self._unoccluded(_rows(origins, rows), _rows(dirs, rows), dist[rows]) * (1.0 / k)
+            self.kernels.accumulate_grouped(dirs, value, weight, k, out)
         return out
 
 
-def _control_variate_sh(dirs, radiance, pdf, k, n) -> np.ndarray:
-    """Radiance SH (N, 9, 3) of the sampled hemispheres, with a constant as control variate.
-
-    Plain estimate: Σ L Y / (k p) over all k samples (balance heuristic over the two
-    strategies: every coefficient, I_z's included, uses every sample). Each half subtracts a
-    constant β and adds back its exact integral β·∫Y (`_hemisphere_sh`), with β the mean
-    radiance of the *other* half's cosine samples: independent of this half's samples, so the
-    estimate stays unbiased, and constant radiance is reproduced exactly (the furnace test)
-    while near-constant skies lose most of the pdf-shape noise. Per-texel I_z noise at 32 spp,
-    3 bounces (classroom / demo room / outdoor bench scene): 7.8 / 4.8 / 1.9%, against
-    10.3 / 6.0 / 2.3% when I_z came from the cosine half alone (RMS difference of two seeds,
-    measured when this estimator replaced that one)."""
-    r = radiance.reshape(len(n), k, 3)
-    q = k // 4
-    beta_a, beta_b = r[:, 3 * q:].mean(axis=1), r[:, q:2 * q].mean(axis=1)   # from cosine B, cosine A
-    adjusted = np.concatenate([r[:, :2 * q] - beta_a[:, None], r[:, 2 * q:] - beta_b[:, None]], axis=1)
-    estimate = _sh.accumulate_grouped(dirs, adjusted.reshape(-1, 3) / (pdf * k)[:, None], k)
-    return estimate + _hemisphere_sh(n)[:, :, None] * (0.5 * (beta_a + beta_b))[:, None, :]
-
-
-def _mixture_directions(rng, n_texels: int, k: int):
-    """k directions per texel over the local upper hemisphere in two independent halves, each
-    k/4 uniform then k/4 cosine-weighted samples; each of the four groups Latin-hypercube
-    stratified in (u1, u2) on its own (halves independent: see `_control_variate_sh`).
-    Returns (n·k, 3) and the mixture pdf (n·k,)."""
-    q = k // 4
-    def lhs():
-        u1 = (np.arange(q)[None, :] + rng.random((n_texels, q))) / q
-        perm = np.argsort(rng.random((n_texels, q)), axis=1)
-        return u1, (perm + rng.random((n_texels, q))) / q
-    groups = [lhs() for _ in range(4)]                 # uniform A, cosine A, uniform B, cosine B
-    z = np.concatenate([u1 if g % 2 == 0 else np.sqrt(1.0 - u1) for g, (u1, _) in enumerate(groups)], axis=1).ravel()
-    phi = 2.0 * np.pi * np.concatenate([u2 for _, u2 in groups], axis=1).ravel()
-    s = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    local = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=1)
-    return local, _mixture_pdf(z)
-
-
 def _mixture_pdf(cos):
-    """Density per steradian of `_mixture_directions` (half uniform, half cosine) at cosθ."""
+    """Density per steradian of `kernels.hemisphere_rays` (half uniform, half cosine) at cosθ."""
     return np.where(cos > 0.0, 0.5 / (2.0 * np.pi) + 0.5 * cos / np.pi, 0.0)
 
 
-def _hemisphere_sh(n: np.ndarray) -> np.ndarray:
-    """∫ Y(ω) dω over the hemisphere of each n (N, 3) -> (N, 9): the SH of a masked constant
-    hemisphere of radiance 1 (band 0: 2π·Y00; band 1: π·C1·n; band 2: 0, its basis functions
-    being traceless quadratic forms and ∫ ωωᵀ dω = (2π/3)·I over a hemisphere)."""
-    out = np.zeros((len(n), 9))
-    out[:, 0] = 2.0 * np.pi * _sh.Y00
-    out[:, 1], out[:, 2], out[:, 3] = -_sh.C1 * np.pi * n[:, 1], _sh.C1 * np.pi * n[:, 2], -_sh.C1 * np.pi * n[:, 0]
-    return out
-
-
-def _cosine_directions_around(rng, normals: np.ndarray):
-    """Cosine-distributed world directions (R, 3) around unit `normals` (R, 3), and their cosθ
-    (R,); in the frame of `sh.tangent_frames` (`sh.frame_directions`), without a local (R, 3) array."""
-    u1, u2 = rng.random(len(normals)), rng.random(len(normals))
-    r, phi = np.sqrt(u1), 2.0 * np.pi * u2
-    lx, ly, lz = r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u1, 0.0))
-    return _sh.frame_directions(normals, lx, ly, lz), lz
+def _seed(rng: np.random.Generator) -> int:
+    """A 64-bit seed for a compiled kernel's own random stream, drawn from the chunk's generator."""
+    return int(rng.integers(1 << 63))
 
 
 def _rows(a: np.ndarray, i: np.ndarray) -> np.ndarray:

@@ -30,14 +30,6 @@ def test_project_then_evaluate_round_trips(rng):
     np.testing.assert_allclose(sh.project(dirs, values, w), coeffs, atol=1e-12)
 
 
-def test_grouped_accumulation_equals_project_per_texel(rng):
-    dirs = quad.random_dirs(rng, 12 * 8)
-    values = rng.random((12 * 8, 3))
-    acc = sh.accumulate_grouped(dirs, values, 8)
-    for t in range(12):
-        np.testing.assert_allclose(acc[t], sh.project(dirs[t * 8:(t + 1) * 8], values[t * 8:(t + 1) * 8]), atol=1e-12)
-
-
 def test_cosine_convolution_matches_quadrature_of_clamped_cosine(rng):
     """E(n) = (1/π)∫ L(ω) max(n·ω,0) dω for band-limited L; the kink limits accuracy to ~1e-5."""
     r = rng.normal(size=(1, 9, 3))

@@ -33,6 +33,14 @@ SHA256 = {
     "openexr-3.5.3-cp311-cp311-macosx_11_0_arm64.whl": "1d50c03e12baa9a469f71e33aab890c5cc897a0d4abe3eae90b32b8555ce4cd2",
     "openexr-3.5.3-cp311-cp311-macosx_10_15_x86_64.whl": "649385e6ffa310098c0d6df44f6b3afe6d38e43c3d91f89f898b73a0b36eb4d2",
     "openexr-3.5.3-cp311-cp311-manylinux_2_28_x86_64.whl": "45a35cb35b38b83635dc149d82627a618f8537f339753dc045f409b6dec0ac4c",
+    "numba-0.60.0-cp311-cp311-win_amd64.whl": "cac02c041e9b5bc8cf8f2034ff6f0dbafccd1ae9590dc146b3a02a45e53af4e2",
+    "numba-0.60.0-cp311-cp311-macosx_11_0_arm64.whl": "3fb02b344a2a80efa6f677aa5c40cd5dd452e1b35f8d1c2af0dfd9ada9978e4b",
+    "numba-0.60.0-cp311-cp311-macosx_10_9_x86_64.whl": "a17b70fc9e380ee29c42717e8cc0bfaa5556c416d94f9aa96ba13acb41bdece8",
+    "numba-0.60.0-cp311-cp311-manylinux2014_x86_64.manylinux_2_17_x86_64.whl": "4142d7ac0210cc86432b818338a2bc368dc773a2f5cf1e32ff7c5b378bd63ee8",
+    "llvmlite-0.43.0-cp311-cp311-win_amd64.whl": "d5bd550001d26450bd90777736c69d68c487d17bf371438f975229b2b8241a91",
+    "llvmlite-0.43.0-cp311-cp311-macosx_11_0_arm64.whl": "e0a9a1a39d4bf3517f2af9d23d479b4175ead205c592ceeb8b89af48a327ea57",
+    "llvmlite-0.43.0-cp311-cp311-macosx_10_9_x86_64.whl": "3e8d0618cb9bfe40ac38a9633f2493d4d4e9fcc2f438d39a4e854f39cc0f5f98",
+    "llvmlite-0.43.0-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl": "977525a1e5f4059316b183fb4fd34fa858c9eade31f165427a3977c95e3ee749",
 }
 
 

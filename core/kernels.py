@@ -1,0 +1,326 @@
+"""Compiled per-sample kernels of the tracer (numba). No bpy.
+
+The tracer is a wavefront over numpy batches with Embree queries in between; what happens per
+sample between two queries (making camera rays over a texel, turning a hit into the next
+bounce, projecting radiance to SH) is written here as loops over samples and compiled, one
+pass over memory instead of a dozen numpy temporaries: the numpy form spent ~2× Embree's
+time on this work. Compiled with `nogil`, so the tracer's threads run them in parallel, and
+`cache`, so only the first bake after an install compiles (a few seconds).
+
+Randomness: a kernel that samples takes a 64-bit `seed` (drawn by the caller from the chunk's
+numpy Generator) and runs its own SplitMix64 stream from it (`uniform`: 1.5 ns a number here,
+numba's Mersenne Twister 6 ns), so results depend only on the seed, never on the thread.
+
+Conventions: directions world space, unit; SH basis and frames as `core.sh` (`sh_basis` is
+`sh.evaluate` for one direction; `local_to_world` is `sh.frame_directions`).
+Nothing here compiles until `get()` is first called: numba is imported lazily (`deps`).
+"""
+from __future__ import annotations
+
+import math
+import threading
+from types import SimpleNamespace
+
+import numpy as np
+
+from . import deps
+
+_Y00 = 0.5 / math.sqrt(math.pi)
+_C1 = math.sqrt(3.0 / (4.0 * math.pi))
+_C2 = 0.5 * math.sqrt(15.0 / math.pi)
+_C20 = 0.25 * math.sqrt(5.0 / math.pi)
+_C22 = 0.25 * math.sqrt(15.0 / math.pi)
+_INV_PI = 1.0 / math.pi
+_TWO_PI = 2.0 * math.pi
+
+
+# ---- helpers (compiled first, so the kernels call the compiled versions) -------------------
+def uniform(state):
+    """SplitMix64 (Steele et al. 2014): the next state and a uniform float in [0, 1) from its
+    top 53 bits. state is a numpy uint64."""
+    state = state + np.uint64(0x9E3779B97F4A7C15)
+    z = state
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    return state, float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+def radical_inverse(i):
+    """Van der Corput's radical inverse of i in base 2: its binary digits mirrored about the point."""
+    out = 0.0
+    scale = 0.5
+    while i > 0:
+        if i & 1:
+            out += scale
+        i >>= 1
+        scale *= 0.5
+    return out
+
+
+def sh_basis(x, y, z):
+    """The 9 real SH basis values at direction (x, y, z), as a tuple: `sh.evaluate`. (Tuples,
+    not array arguments: a view per call costs more than the arithmetic.)"""
+    return (_Y00, -_C1 * y, _C1 * z, -_C1 * x, _C2 * x * y, -_C2 * y * z, _C20 * (3.0 * z * z - 1.0),
+            -_C2 * x * z, _C22 * (x * x - y * y))
+
+
+def local_to_world(nx, ny, nz, lx, ly, lz):
+    """Local (lx, ly, lz), z along the unit normal n, to world space (a tuple), in the frame
+    of `sh.tangent_frames` (Duff et al. 2017)."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (lx * (1.0 + sign * nx * nx * a) + ly * b + lz * nx,
+            lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny,
+            lz * nz - (lx * sign * nx + ly * ny))
+
+
+# ---- kernels ---------------------------------------------------------------------------------
+def hemisphere_rays(normals, k, seed):
+    """k directions per texel over the hemisphere of its unit normal (normals (n, 3)), in two
+    independent halves of k/4 uniform then k/4 cosine-weighted samples; each group of k/4
+    Latin-hypercube stratified in (u1, u2). Returns directions (n·k, 3) and the mixture pdf
+    per steradian (n·k,) = ½/(2π) + ½·cosθ/π (see tracer._control_variate_sh for why)."""
+    state = np.uint64(seed)
+    n = normals.shape[0]
+    q = k // 4
+    dirs = np.empty((n * k, 3))
+    pdf = np.empty(n * k)
+    perm = np.empty(q, np.int64)
+    for t in range(n):
+        nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
+        for g in range(4):
+            for i in range(q):                                  # a random permutation of 0..q-1
+                state, u = uniform(state)
+                j = min(int(u * (i + 1)), i)
+                perm[i] = perm[j]
+                perm[j] = i
+            for i in range(q):
+                s = t * k + g * q + i
+                state, u1 = uniform(state)
+                state, u2 = uniform(state)
+                u1 = (i + u1) / q
+                u2 = (perm[i] + u2) / q
+                z = u1 if g % 2 == 0 else math.sqrt(1.0 - u1)
+                r = math.sqrt(max(1.0 - z * z, 0.0))
+                phi = _TWO_PI * u2
+                dirs[s, 0], dirs[s, 1], dirs[s, 2] = local_to_world(nx, ny, nz, r * math.cos(phi), r * math.sin(phi), z)
+                pdf[s] = 0.25 * _INV_PI + 0.5 * z * _INV_PI
+    return dirs, pdf
+
+
+def texel_origins(corner, tri_uv, tri_pos, centroid, face_normal, offset, k, footprint, tries, seed):
+    """k ray origins per texel (n·k, 3), uniform over the part of the texel's central
+    `footprint` × `footprint` square (texel units) inside its triangle: rejection sampling,
+    `tries` tries, then as many over the whole texel, then `centroid` (n, 3); pushed off the
+    surface by `offset` along `face_normal` (n, 3). corner (n, 2): the texel's corner in texel
+    units; tri_uv (n, 3, 2): its triangle in texel units; tri_pos (n, 3, 3): in world space.
+
+    The k first tries of a texel are a Hammersley set (j/k, radical inverse of j) shifted by
+    one random offset per texel, modulo 1 (Cranley–Patterson): each try is uniform on its
+    own, so the rejection sampling stays exact, but together they cover the square evenly,
+    so a shadow edge across a texel is far less noisy than with independent tries."""
+    state = np.uint64(seed)
+    n = corner.shape[0]
+    out = np.empty((n * k, 3))
+    for t in range(n):
+        ax, ay = tri_uv[t, 0, 0], tri_uv[t, 0, 1]
+        v0x, v0y = tri_uv[t, 1, 0] - ax, tri_uv[t, 1, 1] - ay
+        v1x, v1y = tri_uv[t, 2, 0] - ax, tri_uv[t, 2, 1] - ay
+        den = v0x * v1y - v1x * v0y
+        if den == 0.0:
+            den = 1.0
+        state, shift_x = uniform(state)
+        state, shift_y = uniform(state)
+        for j in range(k):
+            s = t * k + j
+            found = False
+            for attempt in range(2 * tries):
+                width = footprint if attempt < tries else 1.0
+                if attempt == 0:
+                    ux = (j / k + shift_x) % 1.0
+                    uy = (radical_inverse(j) + shift_y) % 1.0
+                else:
+                    state, ux = uniform(state)
+                    state, uy = uniform(state)
+                px = corner[t, 0] + 0.5 * (1.0 - width) + width * ux - ax
+                py = corner[t, 1] + 0.5 * (1.0 - width) + width * uy - ay
+                w1 = (px * v1y - v1x * py) / den
+                w2 = (v0x * py - px * v0y) / den
+                w0 = 1.0 - w1 - w2
+                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                    for c in range(3):
+                        out[s, c] = w0 * tri_pos[t, 0, c] + w1 * tri_pos[t, 1, c] + w2 * tri_pos[t, 2, c]
+                    found = True
+                    break
+            if not found:                       # the overlap's centroid, as Cycles gives up
+                for c in range(3):
+                    out[s, c] = centroid[t, c]
+            for c in range(3):
+                out[s, c] += face_normal[t, c] * offset
+    return out
+
+
+def advance_paths(live, acc, throughput, o, d, t, prim, ng, tri_albedo, row_albedo, sky,
+                  radiance, offset, roulette, max_survival, seed):
+    """One wavefront step after a closest-hit query of the rays o + t·d (R, 3), (R,), one row per
+    live path: `live` (R,) its sample index, `acc` (R, 3) radiance gathered so far, `throughput`
+    (R, 3). A ray that missed (prim < 0) adds throughput × `sky` (its row of sky (R, 3), or
+    sky[0] for all if sky has one row) and its path ends; a path that ends writes acc into
+    `radiance[live]` (in place). At a hit: throughput × albedo (`row_albedo` (R, 3) if it has
+    rows, else tri_albedo[prim]); then, if `roulette`, the path survives with probability
+    min(max(throughput), max_survival) and is reweighted by its inverse; a survivor gets the unit
+    normal n facing the ray (surfaces are two-sided; ng (R, 3) is Embree's, not unit), the next
+    origin x = hit + offset·n and a cosine-distributed direction around n, pdf cosθ/π.
+
+    Returns the survivors, compacted: (live, acc, throughput, x, n, directions, pdf, rows),
+    rows being their indices in the input (for per-hit data such as barycentrics)."""
+    state = np.uint64(seed)
+    r = o.shape[0]
+    out_live = np.empty(r, live.dtype)
+    out_acc = np.empty((r, 3))
+    out_tp = np.empty((r, 3))
+    x = np.empty((r, 3))
+    n = np.empty((r, 3))
+    nd = np.empty((r, 3))
+    pdf = np.empty(r)
+    rows = np.empty(r, np.int64)
+    per_row_sky = sky.shape[0] == r and r > 1
+    per_row_albedo = row_albedo.shape[0] > 0
+    j = 0
+    for i in range(r):
+        if prim[i] < 0:
+            s = i if per_row_sky else 0
+            for c in range(3):
+                radiance[live[i], c] = acc[i, c] + throughput[i, c] * sky[s, c]
+            continue
+        tp0, tp1, tp2 = throughput[i, 0], throughput[i, 1], throughput[i, 2]
+        if per_row_albedo:
+            tp0, tp1, tp2 = tp0 * row_albedo[i, 0], tp1 * row_albedo[i, 1], tp2 * row_albedo[i, 2]
+        else:
+            p = prim[i]
+            tp0, tp1, tp2 = tp0 * tri_albedo[p, 0], tp1 * tri_albedo[p, 1], tp2 * tri_albedo[p, 2]
+        if roulette:
+            survive = min(max(tp0, tp1, tp2), max_survival)
+            state, u = uniform(state)
+            if u >= survive:
+                for c in range(3):
+                    radiance[live[i], c] = acc[i, c]
+                continue
+            tp0, tp1, tp2 = tp0 / survive, tp1 / survive, tp2 / survive
+        out_live[j] = live[i]
+        rows[j] = i
+        for c in range(3):
+            out_acc[j, c] = acc[i, c]
+        out_tp[j, 0], out_tp[j, 1], out_tp[j, 2] = tp0, tp1, tp2
+        gx, gy, gz = float(ng[i, 0]), float(ng[i, 1]), float(ng[i, 2])
+        length = math.sqrt(gx * gx + gy * gy + gz * gz)
+        if length == 0.0:                       # a degenerate triangle: face the ray
+            gx, gy, gz, length = d[i, 0], d[i, 1], d[i, 2], 1.0
+        scale = 1.0 / length
+        if gx * d[i, 0] + gy * d[i, 1] + gz * d[i, 2] > 0.0:
+            scale = -scale
+        gx, gy, gz = gx * scale, gy * scale, gz * scale
+        n[j, 0], n[j, 1], n[j, 2] = gx, gy, gz
+        ti = float(t[i])
+        x[j, 0] = o[i, 0] + d[i, 0] * ti + gx * offset
+        x[j, 1] = o[i, 1] + d[i, 1] * ti + gy * offset
+        x[j, 2] = o[i, 2] + d[i, 2] * ti + gz * offset
+        state, u1 = uniform(state)
+        state, u2 = uniform(state)
+        rr = math.sqrt(u1)
+        phi = _TWO_PI * u2
+        lz = math.sqrt(max(1.0 - u1, 0.0))
+        nd[j, 0], nd[j, 1], nd[j, 2] = local_to_world(gx, gy, gz, rr * math.cos(phi), rr * math.sin(phi), lz)
+        pdf[j] = lz * _INV_PI
+        j += 1
+    return out_live[:j], out_acc[:j], out_tp[:j], x[:j], n[:j], nd[:j], pdf[:j], rows[:j]
+
+
+def project_hemisphere(dirs, radiance, pdf, normals, k):
+    """Radiance SH (n, 9, 3) of each texel's k samples (directions (n·k, 3), radiance (n·k, 3),
+    pdf (n·k,) in the group order of `hemisphere_rays`), with a constant as control variate.
+
+    Plain estimate: Σ L Y / (k p) over all k samples (balance heuristic over the two
+    strategies: every coefficient, I_z's included, uses every sample). Each half subtracts a
+    constant β and adds back its exact integral β·∫Y over the hemisphere of the texel's normal
+    (normals (n, 3); ∫Y: band 0 2π·Y00, band 1 π·C1·n, band 2 zero, its basis functions being
+    traceless quadratic forms and ∫ ωωᵀ dω = (2π/3)·I over a hemisphere), with β the mean
+    radiance of the *other* half's cosine samples: independent of this half's samples, so the
+    estimate stays unbiased, and constant radiance is reproduced exactly (the furnace test)
+    while near-constant skies lose most of the pdf-shape noise. Per-texel I_z noise at 32 spp,
+    3 bounces (classroom / demo room / outdoor bench scene): 7.8 / 4.8 / 1.9%, against
+    10.3 / 6.0 / 2.3% when I_z came from the cosine half alone (RMS difference of two seeds,
+    measured when this estimator replaced that one)."""
+    n = normals.shape[0]
+    q = k // 4
+    out = np.zeros((n, 9, 3))
+    beta = np.empty((2, 3))
+    for t in range(n):
+        base = t * k
+        for c in range(3):
+            sa = 0.0
+            sb = 0.0
+            for i in range(q):
+                sa += radiance[base + 3 * q + i, c]      # cosine half B: β for half A
+                sb += radiance[base + q + i, c]          # cosine half A: β for half B
+            beta[0, c] = sa / q
+            beta[1, c] = sb / q
+        for j in range(k):
+            s = base + j
+            h = 0 if j < 2 * q else 1
+            w = 1.0 / (pdf[s] * k)
+            y = sh_basis(dirs[s, 0], dirs[s, 1], dirs[s, 2])
+            for c in range(3):
+                v = (radiance[s, c] - beta[h, c]) * w
+                for m in range(9):
+                    out[t, m, c] += y[m] * v
+        nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
+        band0 = _TWO_PI * _Y00
+        band1 = _C1 * math.pi
+        for c in range(3):
+            b = 0.5 * (beta[0, c] + beta[1, c])
+            out[t, 0, c] += band0 * b
+            out[t, 1, c] += -band1 * ny * b
+            out[t, 2, c] += band1 * nz * b
+            out[t, 3, c] += -band1 * nx * b
+    return out
+
+
+def accumulate_grouped(dirs, values, weights, k, out):
+    """out[t] += Σ_{s<k} weights[s'] values[s'] Y(dirs[s']), s' = t·k + s: dirs (n·k, 3), values
+    (n·k, 3), weights (n·k,), out (n, 9, 3) (in place); dirs and values may be broadcast rows
+    (stride 0: a sun's direction and irradiance). Samples of weight 0 cost nothing."""
+    for s in range(dirs.shape[0]):
+        w = weights[s]
+        if w == 0.0:
+            continue
+        v0, v1, v2 = values[s, 0] * w, values[s, 1] * w, values[s, 2] * w
+        y = sh_basis(dirs[s, 0], dirs[s, 1], dirs[s, 2])
+        t = s // k
+        for m in range(9):
+            out[t, m, 0] += y[m] * v0
+            out[t, m, 1] += y[m] * v1
+            out[t, m, 2] += y[m] * v2
+
+
+_HELPERS = ("uniform", "radical_inverse", "sh_basis", "local_to_world")
+_KERNELS = ("hemisphere_rays", "texel_origins", "advance_paths", "project_hemisphere", "accumulate_grouped")
+_compiled: SimpleNamespace | None = None
+_lock = threading.Lock()
+
+
+def get() -> SimpleNamespace:
+    """The compiled kernels (numba.njit, nogil, cached on disk), by name. Raises
+    DependencyMissing naming numba if it is not installed."""
+    global _compiled
+    with _lock:
+        if _compiled is None:
+            numba = deps.require("numba")
+            jit = numba.njit(nogil=True, cache=True, error_model="numpy")
+            module = globals()
+            for name in _HELPERS:           # rebinding the globals: kernels then call compiled helpers
+                module[name] = jit(module[name])
+            _compiled = SimpleNamespace(**{name: jit(module[name]) for name in _KERNELS})
+    return _compiled

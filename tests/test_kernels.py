@@ -1,0 +1,192 @@
+"""The tracer's compiled kernels against numpy references written from their definitions."""
+import numpy as np
+import pytest
+
+from hhd_lightmapper.core import kernels, sh
+
+import quadrature as quad
+
+K = kernels.get()
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(5)
+
+
+def unit(rng, n):
+    return quad.random_dirs(rng, n)
+
+
+def sh_reference(dirs, values, weights, k):
+    """Σ_s w v Y per group of k, with sh.evaluate."""
+    y = sh.evaluate(dirs).reshape(-1, k, 9)
+    v = (values * weights[:, None]).reshape(-1, k, 3)
+    return np.einsum("tsm,tsc->tmc", y, v)
+
+
+def test_grouped_accumulation_matches_the_sh_basis_with_broadcast_rows_and_zero_weights(rng):
+    dirs, values, weights = unit(rng, 12 * 8), rng.random((12 * 8, 3)), rng.random(12 * 8)
+    weights[::3] = 0.0
+    out = np.zeros((12, 9, 3))
+    K.accumulate_grouped(dirs, values, weights, 8, out)
+    np.testing.assert_allclose(out, sh_reference(dirs, values, weights, 8), atol=1e-12)
+    K.accumulate_grouped(dirs, values, weights, 8, out)                       # adds in place
+    np.testing.assert_allclose(out, 2 * sh_reference(dirs, values, weights, 8), atol=1e-12)
+    sun, irradiance = np.broadcast_to(unit(rng, 1), (96, 3)), np.broadcast_to([1.0, 2.0, 3.0], (96, 3))
+    out = np.zeros((12, 9, 3))
+    K.accumulate_grouped(sun, irradiance, weights, 8, out)
+    np.testing.assert_allclose(out, sh_reference(np.array(sun), np.array(irradiance), weights, 8), atol=1e-12)
+
+
+def hemisphere_rays(n_texels, k, seed=3):
+    normals = unit(np.random.default_rng(seed), n_texels)
+    dirs, pdf = K.hemisphere_rays(normals, k, seed)
+    return normals, dirs, pdf
+
+
+def test_hemisphere_rays_are_unit_above_the_normal_with_the_mixture_density():
+    normals, dirs, pdf = hemisphere_rays(500, 16)
+    cos = np.einsum("ri,ri->r", dirs, np.repeat(normals, 16, axis=0))
+    np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-12)
+    assert cos.min() >= 0.0
+    np.testing.assert_allclose(pdf, 0.5 / (2 * np.pi) + 0.5 * cos / np.pi, atol=1e-12)
+
+
+def test_hemisphere_ray_groups_are_stratified_uniform_and_cosine():
+    """Groups of k/4 in the order uniform A, cosine A, uniform B, cosine B: each is one sample
+    per stratum of u1 (cosθ for uniform groups, 1 − cos²θ for cosine ones), and the azimuths
+    (in the frame of sh.tangent_frames) one per stratum of φ."""
+    k, q = 16, 4
+    normals, dirs, _ = hemisphere_rays(300, k)
+    frames = sh.tangent_frames(normals)
+    local = np.einsum("tji,tsj->tsi", frames, dirs.reshape(-1, k, 3))          # world -> (t, b, n)
+    z, phi = local[..., 2], np.mod(np.arctan2(local[..., 1], local[..., 0]), 2 * np.pi)
+    for g in range(4):
+        zg, pg = z[:, g * q:(g + 1) * q], phi[:, g * q:(g + 1) * q]
+        u1 = zg if g % 2 == 0 else 1.0 - zg * zg
+        np.testing.assert_array_equal(np.sort(np.floor(u1 * q), axis=1), np.tile(np.arange(q), (300, 1)))
+        np.testing.assert_array_equal(np.sort(np.floor(pg / (2 * np.pi) * q), axis=1), np.tile(np.arange(q), (300, 1)))
+    # the densities: E[cosθ] is 1/2 under uniform sampling, 2/3 under cosine sampling
+    assert abs(z[:, [0, 1, 2, 3, 8, 9, 10, 11]].mean() - 0.5) < 0.01
+    assert abs(z[:, [4, 5, 6, 7, 12, 13, 14, 15]].mean() - 2 / 3) < 0.01
+
+
+def test_kernels_depend_on_the_seed_only():
+    a, b, c = hemisphere_rays(50, 8, 1), hemisphere_rays(50, 8, 1), hemisphere_rays(50, 8, 2)
+    np.testing.assert_array_equal(a[1], b[1])
+    assert not np.array_equal(a[1], c[1])
+
+
+def project_reference(dirs, radiance, pdf, normals, k):
+    """The control-variate estimator of kernels.project_hemisphere, from its docstring."""
+    q = k // 4
+    r = radiance.reshape(-1, k, 3)
+    beta_a, beta_b = r[:, 3 * q:].mean(axis=1), r[:, q:2 * q].mean(axis=1)
+    adjusted = np.concatenate([r[:, :2 * q] - beta_a[:, None], r[:, 2 * q:] - beta_b[:, None]], axis=1)
+    estimate = sh_reference(dirs, adjusted.reshape(-1, 3), 1.0 / (pdf * k), k)
+    hemisphere = np.zeros((len(normals), 9))
+    hemisphere[:, 0] = 2 * np.pi * sh.Y00
+    hemisphere[:, 1:4] = sh.C1 * np.pi * normals[:, [1, 2, 0]] * [-1, 1, -1]
+    return estimate + hemisphere[:, :, None] * (0.5 * (beta_a + beta_b))[:, None, :]
+
+
+def test_projection_matches_the_control_variate_estimator(rng):
+    normals, dirs, pdf = hemisphere_rays(40, 16)
+    radiance = rng.random((len(dirs), 3)) * 5.0
+    np.testing.assert_allclose(K.project_hemisphere(dirs, radiance, pdf, normals, 16),
+                               project_reference(dirs, radiance, pdf, normals, 16), atol=1e-10)
+
+
+def test_projection_of_constant_radiance_is_the_exact_masked_hemisphere():
+    """∫ over the hemisphere of n of Y(ω) dω, by quadrature, for every texel, whatever its samples."""
+    normals, dirs, pdf = hemisphere_rays(6, 8)
+    got = K.project_hemisphere(dirs, np.full((len(dirs), 3), 2.5), pdf, normals, 8)
+    qd, w = quad.hemisphere(n_z=200, n_phi=400)
+    for t, n in enumerate(normals):
+        world = qd @ sh.tangent_frames(n[None])[0].T                      # local (t, b, n) -> world
+        np.testing.assert_allclose(got[t], 2.5 * (w @ sh.evaluate(world))[:, None] * np.ones(3), atol=1e-4)
+
+
+def hits(rng, r=4000):
+    """Rays from random points towards a plane z = 0 hit from either side, half of them missing."""
+    o = rng.normal(size=(r, 3)) + [0.0, 0.0, 0.0]
+    o[:, 2] = np.where(rng.random(r) < 0.5, 1.0, -1.0) * (0.5 + rng.random(r))
+    d = unit(rng, r)
+    d[:, 2] = -np.sign(o[:, 2]) * np.abs(d[:, 2])
+    t = (-o[:, 2] / d[:, 2]).astype(np.float32)
+    prim = np.where(rng.random(r) < 0.5, 0, -1).astype(np.int32)
+    ng = np.tile(np.array([0.0, 0.0, 3.0], np.float32), (r, 1))          # not unit, CCW up
+    return o, d, t, prim, ng
+
+
+def advance(rng, roulette=False, throughput=None, row_albedo=np.zeros((0, 3)), sky=np.array([[0.2, 0.3, 0.4]])):
+    o, d, t, prim, ng = hits(rng)
+    r = len(o)
+    live = np.arange(r) * 2
+    acc = rng.random((r, 3))
+    tp = np.full((r, 3), 0.5) if throughput is None else throughput
+    radiance = np.full((2 * r, 3), -1.0)
+    tri_albedo = np.array([[0.8, 0.6, 0.4]])
+    out = K.advance_paths(live, acc, tp, o, d, t, prim, ng, tri_albedo, row_albedo, sky, radiance,
+                          1e-3, roulette, 0.95, 7)
+    return (o, d, t, prim, live, acc, tp, radiance), out
+
+
+def test_advance_ends_misses_with_the_sky_and_continues_hits_from_the_facing_side(rng):
+    (o, d, t, prim, live, acc, tp, radiance), out = advance(rng)
+    new_live, new_acc, new_tp, x, n, nd, pdf, rows = out
+    miss = prim < 0
+    np.testing.assert_allclose(radiance[live[miss]], acc[miss] + tp[miss] * [0.2, 0.3, 0.4])
+    np.testing.assert_array_equal(rows, np.flatnonzero(~miss))          # no roulette: every hit
+    np.testing.assert_array_equal(new_live, live[rows])
+    np.testing.assert_array_equal(new_acc, acc[rows])
+    np.testing.assert_allclose(new_tp, tp[rows] * [0.8, 0.6, 0.4])
+    assert (radiance[live[rows]] == -1.0).all()                         # continuing paths not written
+    facing = -np.sign(d[rows, 2])                                       # the side the ray came from
+    np.testing.assert_allclose(n, np.stack([0 * facing, 0 * facing, facing], 1))
+    np.testing.assert_allclose(x, o[rows] + d[rows] * t[rows, None].astype(np.float64) + n * 1e-3, atol=1e-6)
+    cos = np.einsum("ri,ri->r", nd, n)
+    assert cos.min() >= 0.0
+    np.testing.assert_allclose(pdf, cos / np.pi, atol=1e-12)
+    assert abs(cos.mean() - 2 / 3) < 0.02                               # cosine-distributed
+
+
+def test_advance_roulette_is_unbiased_and_per_row_sky_and_albedo_are_used(rng):
+    r = 4000
+    tp = np.full((r, 3), 0.3)
+    albedo = np.tile([0.5, 1.0, 0.25], (r, 1))
+    sky = rng.random((r, 3))
+    (o, d, t, prim, live, acc, _, radiance), out = advance(rng, True, tp, albedo, sky)
+    new_live, new_acc, new_tp, *_, rows = out
+    miss = prim < 0
+    np.testing.assert_allclose(radiance[live[miss]], acc[miss] + 0.3 * sky[miss])
+    hit = np.flatnonzero(~miss)
+    survive = 0.3                                                       # max(0.3 × albedo)
+    assert abs(len(rows) / len(hit) - survive) < 4 * np.sqrt(survive * (1 - survive) / len(hit))
+    np.testing.assert_allclose(new_tp, np.tile([0.15, 0.3, 0.075], (len(rows), 1)) / survive)
+    ended = np.setdiff1d(hit, rows)
+    np.testing.assert_array_equal(radiance[live[ended]], acc[ended])     # victims keep what they gathered
+
+
+def test_texel_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(rng):
+    """Inside a big triangle every first try is accepted: a texel's k origins then hit each of
+    the k columns of its footprint once (a shifted Hammersley set). A triangle covering part
+    of the footprint gets origins inside it only, uniform over the overlap."""
+    n, k = 200, 16
+    corner = rng.integers(0, 50, (n, 2)).astype(float)
+    big = np.array([[-100.0, -100.0], [300.0, -100.0], [-100.0, 300.0]])
+    tri_pos = np.concatenate([np.tile(big, (n, 1, 1)), np.zeros((n, 3, 1))], axis=2)      # world = texel space
+    up = np.tile([0.0, 0.0, 1.0], (n, 1))
+    out = K.texel_origins(corner, np.tile(big, (n, 1, 1)), tri_pos, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 3)
+    local = out[:, :2].reshape(n, k, 2) - corner[:, None, :]
+    assert local.min() >= 0.25 and local.max() <= 0.75
+    np.testing.assert_array_equal(np.sort(np.floor((local[..., 0] - 0.25) * 2 * k), axis=1), np.tile(np.arange(k), (n, 1)))
+    # half the footprint: the triangle x + y ≤ 1 through the texel's centre (corner at 0)
+    half = np.array([[-5.0, 6.0], [6.0, -5.0], [-5.0, -5.0]])
+    tri = np.tile(half, (n, 1, 1))
+    tri_pos = np.concatenate([tri, np.zeros((n, 3, 1))], axis=2)
+    out = K.texel_origins(np.zeros((n, 2)), tri, tri_pos, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 4)
+    assert (out[:, 0] + out[:, 1] <= 1.0 + 1e-12).all() and out[:, :2].min() >= 0.0
+    assert (out[:, :2].min(axis=1) >= 0.25).mean() > 0.99         # 10 misses in a row (2⁻¹⁰): whole texel
+    assert abs(out[:, 0].mean() - (0.25 + 0.5 / 3)) < 0.01          # centroid of the lower-left half
