@@ -167,53 +167,68 @@ def advance_paths(live, acc, throughput, o, d, t, prim, ng, tri_albedo, row_albe
     """One wavefront step after a closest-hit query of the rays o + t·d (R, 3), (R,), one row per
     live path: `live` (R,) its sample index, `acc` (R, 3) radiance gathered so far, `throughput`
     (R, 3). A ray that missed (prim < 0) adds throughput × `sky` (its row of sky (R, 3), or
-    sky[0] for all if sky has one row) and its path ends; a path that ends writes acc into
-    `radiance[live]` (in place). At a hit: throughput × albedo (`row_albedo` (R, 3) if it has
-    rows, else tri_albedo[prim]); then, if `roulette`, the path survives with probability
-    min(max(throughput), max_survival) and is reweighted by its inverse; a survivor gets the unit
-    normal n facing the ray (surfaces are two-sided; ng (R, 3) is Embree's, not unit), the next
-    origin x = hit + offset·n and a cosine-distributed direction around n, pdf cosθ/π.
+    sky[0] for all if sky has one row), its path ends and writes acc into `radiance[live]` (in
+    place). At a hit: throughput × albedo (`row_albedo` (R, 3) if it has rows, else
+    tri_albedo[prim]), the unit normal n facing the ray (surfaces are two-sided; ng (R, 3) is
+    Embree's, not unit) and the next origin x = hit + offset·n; then, if `roulette`, the path
+    survives with probability p = min(max(throughput), max_survival). A survivor gets a
+    cosine-distributed direction around n (pdf cosθ/π) and the weight 1/p for what follows.
 
-    Returns the survivors, compacted: (live, acc, throughput, x, n, directions, pdf, rows),
-    rows being their indices in the input (for per-hit data such as barycentrics)."""
+    Returns the hits compacted, survivors first: (live, acc, throughput, x, n, directions, pdf,
+    weight, s) with s survivors; directions and pdf are set for survivors only, weight (s,).
+    The caller adds this vertex's light for every hit, then ends the rows from s on (roulette
+    decided before but applied after the vertex's light: its victims keep that light too)."""
     state = np.uint64(seed)
     r = o.shape[0]
-    out_live = np.empty(r, live.dtype)
-    out_acc = np.empty((r, 3))
-    out_tp = np.empty((r, 3))
-    x = np.empty((r, 3))
-    n = np.empty((r, 3))
-    nd = np.empty((r, 3))
-    pdf = np.empty(r)
-    rows = np.empty(r, np.int64)
     per_row_sky = sky.shape[0] == r and r > 1
     per_row_albedo = row_albedo.shape[0] > 0
-    j = 0
+    tp = np.empty((r, 3))
+    survive = np.zeros(r)                     # 0: missed; > 0 survives with it; < 0: roulette victim
+    survivors = 0
+    victims = 0
     for i in range(r):
         if prim[i] < 0:
             s = i if per_row_sky else 0
             for c in range(3):
                 radiance[live[i], c] = acc[i, c] + throughput[i, c] * sky[s, c]
             continue
-        tp0, tp1, tp2 = throughput[i, 0], throughput[i, 1], throughput[i, 2]
-        if per_row_albedo:
-            tp0, tp1, tp2 = tp0 * row_albedo[i, 0], tp1 * row_albedo[i, 1], tp2 * row_albedo[i, 2]
-        else:
-            p = prim[i]
-            tp0, tp1, tp2 = tp0 * tri_albedo[p, 0], tp1 * tri_albedo[p, 1], tp2 * tri_albedo[p, 2]
+        for c in range(3):
+            albedo = row_albedo[i, c] if per_row_albedo else tri_albedo[prim[i], c]
+            tp[i, c] = throughput[i, c] * albedo
+        p = 1.0
         if roulette:
-            survive = min(max(tp0, tp1, tp2), max_survival)
+            p = min(max(tp[i, 0], tp[i, 1], tp[i, 2]), max_survival)
             state, u = uniform(state)
-            if u >= survive:
-                for c in range(3):
-                    radiance[live[i], c] = acc[i, c]
-                continue
-            tp0, tp1, tp2 = tp0 / survive, tp1 / survive, tp2 / survive
+            if u >= p:
+                p = -1.0
+        survive[i] = p
+        if p > 0.0:
+            survivors += 1
+        else:
+            victims += 1
+    m = survivors + victims
+    out_live = np.empty(m, live.dtype)
+    out_acc = np.empty((m, 3))
+    out_tp = np.empty((m, 3))
+    x = np.empty((m, 3))
+    n = np.empty((m, 3))
+    nd = np.zeros((m, 3))
+    pdf = np.zeros(m)
+    weight = np.empty(survivors)
+    js, jv = 0, survivors
+    for i in range(r):
+        if survive[i] == 0.0:
+            continue
+        if survive[i] > 0.0:
+            j = js
+            js += 1
+        else:
+            j = jv
+            jv += 1
         out_live[j] = live[i]
-        rows[j] = i
         for c in range(3):
             out_acc[j, c] = acc[i, c]
-        out_tp[j, 0], out_tp[j, 1], out_tp[j, 2] = tp0, tp1, tp2
+            out_tp[j, c] = tp[i, c]
         gx, gy, gz = float(ng[i, 0]), float(ng[i, 1]), float(ng[i, 2])
         length = math.sqrt(gx * gx + gy * gy + gz * gz)
         if length == 0.0:                       # a degenerate triangle: face the ray
@@ -227,6 +242,9 @@ def advance_paths(live, acc, throughput, o, d, t, prim, ng, tri_albedo, row_albe
         x[j, 0] = o[i, 0] + d[i, 0] * ti + gx * offset
         x[j, 1] = o[i, 1] + d[i, 1] * ti + gy * offset
         x[j, 2] = o[i, 2] + d[i, 2] * ti + gz * offset
+        if j >= survivors:
+            continue
+        weight[j] = 1.0 / survive[i]
         state, u1 = uniform(state)
         state, u2 = uniform(state)
         rr = math.sqrt(u1)
@@ -234,8 +252,7 @@ def advance_paths(live, acc, throughput, o, d, t, prim, ng, tri_albedo, row_albe
         lz = math.sqrt(max(1.0 - u1, 0.0))
         nd[j, 0], nd[j, 1], nd[j, 2] = local_to_world(gx, gy, gz, rr * math.cos(phi), rr * math.sin(phi), lz)
         pdf[j] = lz * _INV_PI
-        j += 1
-    return out_live[:j], out_acc[:j], out_tp[:j], x[:j], n[:j], nd[:j], pdf[:j], rows[:j]
+    return out_live, out_acc, out_tp, x, n, nd, pdf, weight, survivors
 
 
 def project_hemisphere(dirs, radiance, pdf, normals, k):

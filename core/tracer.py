@@ -342,15 +342,20 @@ class _Tracer:
                 row_albedo = np.zeros((len(prim), 3))
                 hit = np.flatnonzero(prim >= 0)
                 row_albedo[hit] = scene.albedo_at(prim[hit], bu[hit], bv[hit])
-            # misses and roulette victims end (written to radiance); survivors continue with a
-            # cosine-distributed direction (BRDF·cos/pdf = albedo, applied to the throughput).
-            # Roulette comes before this vertex's light sampling: still unbiased, one compaction.
-            live, acc, throughput, o, n, d, pdf, _ = self.kernels.advance_paths(
+            # misses end (written to radiance); every hit adds its light, then the roulette's
+            # victims end and the survivors continue with a cosine-distributed direction
+            # (BRDF·cos/pdf = albedo, applied to the throughput), reweighted by 1/p
+            live, acc, throughput, o, n, d, pdf, weight, s = self.kernels.advance_paths(
                 live, acc, throughput, o, d, t, prim, ng, scene.albedo, row_albedo, sky, radiance,
                 self.offset, bounce + 1 >= RR_START, RR_MAX_SURVIVAL, _seed(rng))
             if len(live) == 0:
                 return radiance
             acc += throughput * self._irradiance_at(rng, o, n)
+            radiance[live[s:]] = acc[s:]
+            live, acc, o, d, pdf = live[:s], acc[:s], o[:s], d[:s], pdf[:s]
+            throughput = throughput[:s] * weight[:, None]
+            if s == 0:
+                return radiance
         return radiance
 
     def _sky(self, prim, d, pdf) -> np.ndarray:

@@ -135,11 +135,12 @@ def advance(rng, roulette=False, throughput=None, row_albedo=np.zeros((0, 3)), s
 
 def test_advance_ends_misses_with_the_sky_and_continues_hits_from_the_facing_side(rng):
     (o, d, t, prim, live, acc, tp, radiance), out = advance(rng)
-    new_live, new_acc, new_tp, x, n, nd, pdf, rows = out
+    new_live, new_acc, new_tp, x, n, nd, pdf, weight, s = out
+    rows = new_live // 2                                                # live = 2 × input row
     miss = prim < 0
     np.testing.assert_allclose(radiance[live[miss]], acc[miss] + tp[miss] * [0.2, 0.3, 0.4])
-    np.testing.assert_array_equal(rows, np.flatnonzero(~miss))          # no roulette: every hit
-    np.testing.assert_array_equal(new_live, live[rows])
+    np.testing.assert_array_equal(rows, np.flatnonzero(~miss))          # no roulette: every hit survives
+    assert s == len(rows) and (weight == 1.0).all()
     np.testing.assert_array_equal(new_acc, acc[rows])
     np.testing.assert_allclose(new_tp, tp[rows] * [0.8, 0.6, 0.4])
     assert (radiance[live[rows]] == -1.0).all()                         # continuing paths not written
@@ -152,21 +153,25 @@ def test_advance_ends_misses_with_the_sky_and_continues_hits_from_the_facing_sid
     assert abs(cos.mean() - 2 / 3) < 0.02                               # cosine-distributed
 
 
-def test_advance_roulette_is_unbiased_and_per_row_sky_and_albedo_are_used(rng):
+def test_advance_roulette_keeps_victims_for_their_light_and_reweights_survivors(rng):
+    """Per-row sky and albedo; survival p = max(throughput × albedo) = 0.3: survivors first with
+    weight 1/p, victims after them (the caller adds their vertex's light, then ends them)."""
     r = 4000
     tp = np.full((r, 3), 0.3)
     albedo = np.tile([0.5, 1.0, 0.25], (r, 1))
     sky = rng.random((r, 3))
     (o, d, t, prim, live, acc, _, radiance), out = advance(rng, True, tp, albedo, sky)
-    new_live, new_acc, new_tp, *_, rows = out
+    new_live, new_acc, new_tp, x, n, nd, pdf, weight, s = out
     miss = prim < 0
     np.testing.assert_allclose(radiance[live[miss]], acc[miss] + 0.3 * sky[miss])
     hit = np.flatnonzero(~miss)
-    survive = 0.3                                                       # max(0.3 × albedo)
-    assert abs(len(rows) / len(hit) - survive) < 4 * np.sqrt(survive * (1 - survive) / len(hit))
-    np.testing.assert_allclose(new_tp, np.tile([0.15, 0.3, 0.075], (len(rows), 1)) / survive)
-    ended = np.setdiff1d(hit, rows)
-    np.testing.assert_array_equal(radiance[live[ended]], acc[ended])     # victims keep what they gathered
+    np.testing.assert_array_equal(np.sort(new_live // 2), hit)         # every hit, once
+    assert (radiance[new_live] == -1.0).all()                           # none written yet
+    survive = 0.3
+    assert abs(s / len(hit) - survive) < 4 * np.sqrt(survive * (1 - survive) / len(hit))
+    np.testing.assert_allclose(weight, 1 / survive)
+    np.testing.assert_allclose(new_tp, np.tile([0.15, 0.3, 0.075], (len(hit), 1)))
+    np.testing.assert_allclose(np.einsum("ri,ri->r", nd[:s], n[:s]), np.pi * pdf[:s], atol=1e-12)
 
 
 def test_texel_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(rng):
