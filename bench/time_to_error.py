@@ -6,7 +6,7 @@ Scenes: `classroom` (../shared/scenes/classroom, 104k triangles, OBJ; its enviro
 shipped, so it is lit by a sun and a sky colour through the windows; receivers: the 6 largest room
 meshes with few charts; the backdrop and furniture only occlude) and `field` (a procedural ~1M-triangle field of spheres on a
 ground plane, sun + sky; receivers: the ground). For each: (a) raw embreex closest-hit rays/s
-(incoherent, 2 threads, same run), (b) our bake's rays/s (all rays, shadow rays included) and
+(incoherent, 2 threads, median of 5, same run), (b) our bake's rays/s (all rays, shadow rays included) and
 texel-samples/s, (c) I_z RMSE against a long Cycles Diffuse bake (Direct + Indirect, Color off,
 3 bounces) for our bake and Cycles at increasing sample counts, and the time each needs to reach
 three error levels (log-log interpolation); our time counts the Embree scene, the bake points and
@@ -192,18 +192,24 @@ def warm_up(points, bake_scene, ray_scene) -> None:
     tracer._Tracer(points, bake_scene, tracer.BakeSettings(pass_samples=4), ray_scene).trace_pass(0, 0, few)
 
 
-def raw_rate(ray_scene, tris, batch=1_000_000, rounds=2) -> float:
+def raw_rate(ray_scene, tris, batch=1_000_000, rounds=5) -> float:
+    """Closest-hit rays/s of embreex alone on 2 threads: random origins in the scene's box,
+    random directions, 1M rays per call; the median of `rounds` timings of 2 calls per thread
+    (one timing swings from 8 to 14 M/s on the classroom on this machine)."""
     from concurrent.futures import ThreadPoolExecutor
     rng = np.random.default_rng(0)
     lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
     batches = []
-    for _ in range(2 * rounds):
+    for _ in range(4):
         d = rng.normal(size=(batch, 3))
         batches.append((rng.uniform(lo, hi, (batch, 3)), d / np.linalg.norm(d, axis=1, keepdims=True)))
-    t = time.perf_counter()
+    rates = []
     with ThreadPoolExecutor(2) as pool:
-        list(pool.map(lambda od: ray_scene.intersect(*od), batches))
-    return len(batches) * batch / (time.perf_counter() - t)
+        for _ in range(rounds):
+            t = time.perf_counter()
+            list(pool.map(lambda od: ray_scene.intersect(*od), batches))
+            rates.append(len(batches) * batch / (time.perf_counter() - t))
+    return float(np.median(rates))
 
 
 def our_bake(surface, bake_scene, samples, points_before):

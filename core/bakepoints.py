@@ -271,17 +271,29 @@ def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES
     hit back faces. The bake stores such texels black and never uses them as dilation sources,
     so light cannot leak into them. (Deeper inside a closed volume texels are dark anyway: all
     their rays end on the volume's inner faces.) Returns (P,) bool. Works in chunks of texels
-    (bounded memory) on `threads` workers, calling `check()` between chunks."""
+    (bounded memory) on `threads` workers, calling `check()` between chunks. Every texel gets
+    the first probes − need + 1 probes, only those with a back-face hit among them the rest:
+    the same answer (the others cannot reach `need`) for ~60% of the rays on open surfaces."""
     from .sh import tangent_frames
     buried = np.zeros(len(points.texel), bool)
     local = _probe_directions(probes)
+    need = int(np.ceil(BURIED_FRACTION * probes))      # back-face hits that make a texel buried
+    first = probes - need + 1     # with none in these, the rest cannot add up to `need`: not buried
+
+    def back_hits(sl, rows, directions):
+        """Back-face hits (len(rows),) of the probes `directions` from the texels sl[rows]."""
+        frames = tangent_frames(points.face_normal[sl][rows])
+        dirs = np.einsum("pij,kj->pki", frames, directions).reshape(-1, 3)
+        k = len(directions)
+        origins = np.repeat(points.origins(sl)[rows], k, axis=0)
+        reach = np.repeat(4.0 * points.texel_size[sl][rows] + 4.0 * points.offset, k)
+        t, prim, ng = scene.intersect(origins, dirs, reach)
+        return ((prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)).reshape(-1, k).sum(axis=1)
 
     def probe_chunk(sl: slice):
-        dirs = np.einsum("pij,kj->pki", tangent_frames(points.face_normal[sl]), local).reshape(-1, 3)
-        origins = np.repeat(points.origins(sl), probes, axis=0)
-        reach = np.repeat(4.0 * points.texel_size[sl] + 4.0 * points.offset, probes)
-        t, prim, ng = scene.intersect(origins, dirs, reach)
-        back = (prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)
-        buried[sl] = back.reshape(-1, probes).mean(axis=1) >= BURIED_FRACTION
+        hits = back_hits(sl, slice(None), local[:first])
+        rows = np.flatnonzero(hits > 0)               # most texels (open surfaces) stop here
+        hits[rows] += back_hits(sl, rows, local[first:])
+        buried[sl] = hits >= need
     _for_chunks(probe_chunk, len(buried), chunk, check, threads)
     return buried

@@ -220,6 +220,23 @@ def test_thin_wall_pushed_into_the_floor_buries_the_texels_under_it():
     assert not pts.buried[away].any()
 
 
+def test_buried_probes_in_two_stages_flag_exactly_what_all_probes_flag():
+    """find_buried skips the last probes of texels whose first ones hit no back face: the same
+    flags as every probe from every texel, over texels open (no back-face hit) and buried."""
+    v, f = meshes.cube(1.0)
+    v = v * [0.03, 2.0, 1.2] + [0.0, 0.0, 0.4]
+    pts, scene = floor_with(v, f)
+    local = bakepoints._probe_directions(bakepoints.BURIED_PROBES)
+    from hhd_lightmapper.core import sh
+    dirs = np.einsum("pij,kj->pki", sh.tangent_frames(pts.face_normal), local).reshape(-1, 3)
+    k = len(local)
+    reach = np.repeat(4.0 * pts.texel_size + 4.0 * pts.offset, k)
+    t, prim, ng = scene.intersect(np.repeat(pts.origins(), k, axis=0), dirs, reach)
+    hits = ((prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)).reshape(-1, k).sum(axis=1)
+    assert (hits == 0).any() and (hits >= k // 2).sum() > 50
+    np.testing.assert_array_equal(pts.buried, hits >= k * bakepoints.BURIED_FRACTION)
+
+
 def test_closed_box_pushed_into_the_floor_is_dark_inside():
     """Texels under a 1 m box: every shadow ray towards the sun ends on the box, and every probe
     ray on its inner faces, so no light reaches them whatever the flagging."""
