@@ -93,8 +93,8 @@ class BakePoints:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
         footprint (FOOTPRINT) inside its chosen triangle, as Cycles bakes a texel: rejection
         sampling, JITTER_TRIES tries, then as many over the whole texel, then the bake point
-        (the centroid of texel ∩ triangle); offset along the face normal. Per-texel data is
-        gathered once and broadcast over the k samples."""
+        (the centroid of texel ∩ triangle); offset along the face normal. A texel's first tries
+        cover the footprint evenly (`kernels.texel_origins`: a randomly shifted Hammersley set)."""
         tri = self.triangle[idx]
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1).astype(np.float64)
         return kernels.get().texel_origins(corner, self.tri_texel_uv[tri], self.tri_positions[tri], self.position[idx],
@@ -174,11 +174,6 @@ def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     the triangle (the centroid is inside up to rounding)."""
     bary = np.clip(_barycentric_grouped(p[:, None, :], tri)[:, 0], 0.0, 1.0)
     return bary / bary.sum(axis=1, keepdims=True)
-
-
-def _footprint(rng, shape, width: float) -> np.ndarray:
-    """Uniform offsets (shape, last axis 2) from a texel's corner within `width` around its centre."""
-    return 0.5 * (1.0 - width) + width * rng.random(shape)
 
 
 def _barycentric_grouped(p: np.ndarray, tri: np.ndarray) -> np.ndarray:

@@ -41,9 +41,10 @@ class CoverProbe:
     def __init__(self, triangles: np.ndarray, offset: float, receivers: np.ndarray | None = None):
         self.source = triangles
         self.offset = offset
-        tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
-        if receivers is not None:
+        tri = np.asarray(triangles).reshape(-1, 3, 3)
+        if receivers is not None:                     # filter first: convert only what is kept
             tri = tri[_near_box(tri, receivers, 2.0 * offset)]
+        tri = tri.astype(np.float64)
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         length = np.linalg.norm(n, axis=1, keepdims=True)
         n = np.divide(n, length, out=np.zeros_like(n), where=length > 0.0)   # degenerate: no push

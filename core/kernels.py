@@ -81,7 +81,7 @@ def hemisphere_rays(normals, k, seed):
     """k directions per texel over the hemisphere of its unit normal (normals (n, 3)), in two
     independent halves of k/4 uniform then k/4 cosine-weighted samples; each group of k/4
     Latin-hypercube stratified in (u1, u2). Returns directions (n·k, 3) and the mixture pdf
-    per steradian (n·k,) = ½/(2π) + ½·cosθ/π (see tracer._control_variate_sh for why)."""
+    per steradian (n·k,) = ½/(2π) + ½·cosθ/π (why: the tracer's module docstring)."""
     state = np.uint64(seed)
     n = normals.shape[0]
     q = k // 4

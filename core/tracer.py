@@ -53,9 +53,9 @@ from .rays import RayScene, ray_offset
 from .scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
 
 RR_START = 2            # bounces before Russian roulette may end a path
-_BLACK = np.zeros((1, 3))
-_NO_ROWS = np.zeros((0, 3))
 RR_MAX_SURVIVAL = 0.95
+_BLACK = np.zeros((1, 3))        # the sky of a scene without a world (kernels.advance_paths)
+_NO_ROWS = np.zeros((0, 3))      # no per-row albedo: the kernel takes the triangles' own
 
 
 @dataclass
