@@ -110,7 +110,7 @@ def test_projection_of_constant_radiance_is_the_exact_masked_hemisphere():
 
 def hits(rng, r=4000):
     """Rays from random points towards a plane z = 0 hit from either side, half of them missing."""
-    o = rng.normal(size=(r, 3)) + [0.0, 0.0, 0.0]
+    o = rng.normal(size=(r, 3))
     o[:, 2] = np.where(rng.random(r) < 0.5, 1.0, -1.0) * (0.5 + rng.random(r))
     d = unit(rng, r)
     d[:, 2] = -np.sign(o[:, 2]) * np.abs(d[:, 2])
