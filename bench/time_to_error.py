@@ -6,7 +6,8 @@ Scenes: `classroom` (../shared/scenes/classroom, 104k triangles, OBJ; its enviro
 shipped, so it is lit by a sun and a sky colour through the windows; receivers: the 6 largest room
 meshes with few charts; the backdrop and furniture only occlude) and `field` (a procedural ~1M-triangle field of spheres on a
 ground plane, sun + sky; receivers: the ground). For each: (a) raw embreex closest-hit rays/s
-(incoherent, 2 threads, median of 5, same run), (b) our bake's rays/s (all rays, shadow rays included) and
+(embreex's own TriangleMesh + run(); incoherent, 2 threads, median of 5, same run; and the same
+for our binding of the same Embree library, core.embree), (b) our bake's rays/s (all rays, shadow rays included) and
 texel-samples/s, (c) I_z RMSE against a long Cycles Diffuse bake (Direct + Indirect, Color off,
 3 bounces) for our bake and Cycles at increasing sample counts, and the time each needs to reach
 three error levels (log-log interpolation); our time counts the Embree scene, the bake points and
@@ -146,7 +147,8 @@ def measure(receivers, args) -> dict:
     points = bakepoints.build(surface, args.resolution, args.resolution, occluders=ray_scene)
     keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
     out = {"triangles": int(len(bake_scene.triangles)), "texels": int(len(points.texel)),
-           "raw_rays_per_s": raw_rate(ray_scene, bake_scene.triangles)}
+           "raw_rays_per_s": raw_rate(EmbreexRays(bake_scene.triangles), bake_scene.triangles, dtype=np.float32),
+           "raw_ours_rays_per_s": raw_rate(ray_scene, bake_scene.triangles)}
     warm_up(points, bake_scene, ray_scene)
     t = time.perf_counter()
     reference = cycles_bake(receivers, points, args.reference_samples, seed=9173)
@@ -192,17 +194,34 @@ def warm_up(points, bake_scene, ray_scene) -> None:
     tracer._Tracer(points, bake_scene, tracer.BakeSettings(pass_samples=4), ray_scene).trace_pass(0, 0, few)
 
 
-def raw_rate(ray_scene, tris, batch=1_000_000, rounds=5) -> float:
-    """Closest-hit rays/s of embreex alone on 2 threads: random origins in the scene's box,
-    random directions, 1M rays per call; the median of `rounds` timings of 2 calls per thread
-    (one timing swings from 8 to 14 M/s on the classroom on this machine)."""
+class EmbreexRays:
+    """embreex's own API on the same triangles (the issue's "raw embreex"): `TriangleMesh`
+    copies them into Embree, `run()` traces a float32 batch."""
+
+    def __init__(self, tris):
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+        self.scene = rtcore_scene.EmbreeScene()
+        self.mesh = TriangleMesh(self.scene, np.ascontiguousarray(tris, dtype=np.float32))
+
+    def intersect(self, origins, directions):
+        return self.scene.run(origins, directions, output=True)
+
+
+def raw_rate(ray_scene, tris, batch=1_000_000, rounds=5, dtype=np.float64) -> float:
+    """Closest-hit rays/s of a ray scene alone on 2 threads: random origins in the scene's box,
+    random directions (`dtype`, converted before timing), 1M rays per call; the median of
+    `rounds` timings of 2 calls per thread (one timing swings from 8 to 14 M/s on the classroom
+    on this machine)."""
     from concurrent.futures import ThreadPoolExecutor
     rng = np.random.default_rng(0)
     lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
     batches = []
     for _ in range(4):
         d = rng.normal(size=(batch, 3))
-        batches.append((rng.uniform(lo, hi, (batch, 3)), d / np.linalg.norm(d, axis=1, keepdims=True)))
+        batches.append((rng.uniform(lo, hi, (batch, 3)).astype(dtype),
+                        (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(dtype)))
+    ray_scene.intersect(*[a[:10] for a in batches[0]])              # builds a lazy BVH untimed
     rates = []
     with ThreadPoolExecutor(2) as pool:
         for _ in range(rounds):
@@ -270,7 +289,8 @@ def time_at(rows, level):
 
 def print_table(name, r, levels):
     ours = r["ours"][-1]
-    print(f"\n{name}: {r['triangles']} triangles, {r['texels']} texels; raw embreex {r['raw_rays_per_s'] / 1e6:.1f} M rays/s; "
+    print(f"\n{name}: {r['triangles']} triangles, {r['texels']} texels; raw embreex {r['raw_rays_per_s'] / 1e6:.1f} M rays/s "
+          f"(our binding alone {r['raw_ours_rays_per_s'] / 1e6:.1f}); "
           f"our bake {ours['rays_per_s'] / 1e6:.2f} M rays/s ({100 * ours['rays_per_s'] / r['raw_rays_per_s']:.0f}% of raw), "
           f"{ours['texel_samples_per_s'] / 1e6:.2f} M texel-samples/s; reference: Cycles {r['reference']['samples']} spp")
     print(f"{'I_z RMSE':>10s} {'ours (s)':>10s} {'Cycles (s)':>11s} {'ratio':>7s}")

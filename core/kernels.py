@@ -323,8 +323,34 @@ def accumulate_grouped(dirs, values, weights, k, out):
             out[t, m, 2] += y[m] * v2
 
 
+def add_pass(idx, estimate, normals, luminance, irradz_from_r10, total, m2, iz, iz_sq, passes):
+    """One pass's SH estimate (len(idx), 9, 3) into the running statistics of the texels idx
+    (unique), in place: total += estimate; m2 (float32) += (x - mean before)·(x - mean after)
+    (Welford, per coefficient; the first pass adds 0); iz / iz_sq += the estimate's I_z
+    luminance and its square (I_z = irradz_from_r10 · (v·n), v = (-r_1^1, -r_1^-1, r_1^0), as
+    `hhd.irradz`); passes += 1."""
+    for j in range(idx.shape[0]):
+        t = idx[j]
+        k = passes[t]
+        for m in range(9):
+            for c in range(3):
+                x = estimate[j, m, c]
+                before = total[t, m, c] / k if k > 0 else x
+                total[t, m, c] += x
+                m2[t, m, c] += (x - before) * (x - total[t, m, c] / (k + 1))
+        nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
+        lum = 0.0
+        for c in range(3):
+            r10 = -estimate[j, 3, c] * nx - estimate[j, 1, c] * ny + estimate[j, 2, c] * nz
+            lum += luminance[c] * irradz_from_r10 * r10
+        iz[t] += lum
+        iz_sq[t] += lum * lum
+        passes[t] = k + 1
+
+
 _HELPERS = ("uniform", "radical_inverse", "sh_basis", "local_to_world")
-_KERNELS = ("hemisphere_rays", "texel_origins", "advance_paths", "project_hemisphere", "accumulate_grouped")
+_KERNELS = ("hemisphere_rays", "texel_origins", "advance_paths", "project_hemisphere", "accumulate_grouped",
+            "add_pass")
 _compiled: SimpleNamespace | None = None
 _lock = threading.Lock()
 

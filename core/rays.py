@@ -1,13 +1,12 @@
-"""Embree (embreex) ray queries over world-space triangles. No bpy.
+"""Embree ray queries over world-space triangles. No bpy.
 
-embreex traces one ray at a time inside run() with tnear fixed at 0: callers offset origins
-themselves (`ray_offset`). Inputs are converted to contiguous float32 as Embree wants.
+Rays start at their origin (tnear 0): callers offset origins themselves (`ray_offset`).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from . import deps
+from . import embree
 
 FLOAT32_EPS = float(np.finfo(np.float32).eps)
 
@@ -32,46 +31,43 @@ def bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class RayScene:
-    """An Embree scene of triangles `(T, 3, 3)` (world space); primitive ids index them."""
+    """An Embree scene of triangles `(T, 3, 3)` (world space); primitive ids index them.
+    Built through `core.embree` (Embree shares the corner array; its BVH builds on Embree's
+    threads while the caller carries on; the first query waits for it)."""
 
     def __init__(self, triangles: np.ndarray):
-        deps.require("embreex")
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
         tri = np.ascontiguousarray(np.asarray(triangles, dtype=np.float32).reshape(-1, 3, 3))
-        self._scene = rtcore_scene.EmbreeScene()
-        # (T, 3, 3) unshared corners: embreex copies them a third faster than vertices + faces
-        # (1M triangles: 2.0 s against 3.0 s here), triangle i being primitive i either way
-        self._mesh = TriangleMesh(self._scene, tri)
+        self._scene = embree.Scene(tri)
         self.n_triangles = len(tri)
         self.triangles = tri                         # float32 (T, 3, 3), as Embree has them
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None,
                   barycentrics: bool = False):
         """Closest hits. Returns (t (R,) float32 distance or inf, prim (R,) int32 or -1,
-        ng (R, 3) float32 unnormalised geometric normal, CCW winding), plus (u, v) (R,) with
-        hit = (1-u-v)·p0 + u·p1 + v·p2 when `barycentrics`."""
-        o = np.ascontiguousarray(origins, dtype=np.float32)
-        d = np.ascontiguousarray(directions, dtype=np.float32)
-        if len(o) == 0:
-            empty = (np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros((0, 3), np.float32))
-            return empty + (np.zeros(0, np.float32), np.zeros(0, np.float32)) if barycentrics else empty
-        dists = None
-        if tmax is not None:
-            dists = np.array(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (len(o),)))  # run() writes it
-        out = self._scene.run(o, d, dists=dists, output=True)
-        prim = out["primID"]
-        t = np.where(prim >= 0, out["tfar"], np.inf).astype(np.float32)
-        if barycentrics:
-            return t, prim, out["Ng"], out["u"], out["v"]
-        return t, prim, out["Ng"]
+        ng (R, 3) float32 unnormalised geometric normal, CCW winding; zeros on a miss), plus
+        (u, v) (R,) with hit = (1-u-v)·p0 + u·p1 + v·p2 when `barycentrics`."""
+        o, d = _rays(origins), _rays(directions)
+        t, prim, ng, u, v = self._scene.intersect(o, d, _reach(tmax, len(o)))
+        return (t, prim, ng, u, v) if barycentrics else (t, prim, ng)
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float) -> np.ndarray:
         """Whether anything lies within `tmax` (R,) along each ray: (R,) bool. Embree's any-hit
         query (stops at the first hit found): ~1.6× the rate of `intersect` for shadow rays."""
-        o = np.ascontiguousarray(origins, dtype=np.float32)
-        d = np.ascontiguousarray(directions, dtype=np.float32)
-        if len(o) == 0:
-            return np.zeros(0, bool)
-        dists = np.array(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (len(o),)))
-        return self._scene.run(o, d, dists=dists, query="OCCLUDED") >= 0
+        o, d = _rays(origins), _rays(directions)
+        return self._scene.occluded(o, d, _reach(tmax, len(o)))
+
+
+def _rays(a: np.ndarray) -> np.ndarray:
+    """(R, 3) origins or directions, C-contiguous float64 or float32 as given (the query
+    kernels are compiled for both)."""
+    a = np.asarray(a)
+    if a.dtype not in (np.float32, np.float64):
+        a = a.astype(np.float64)
+    return np.ascontiguousarray(a.reshape(-1, 3))
+
+
+def _reach(tmax, n: int) -> np.ndarray:
+    """(n,) float32 ray lengths from None (unbounded), a scalar or an array; negative → 0."""
+    if tmax is None:
+        return np.full(n, np.inf, np.float32)
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (n,)))

@@ -195,3 +195,27 @@ def test_texel_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(r
     assert (out[:, 0] + out[:, 1] <= 1.0 + 1e-12).all() and out[:, :2].min() >= 0.0
     assert (out[:, :2].min(axis=1) >= 0.25).mean() > 0.99         # 10 misses in a row (2⁻¹⁰): whole texel
     assert abs(out[:, 0].mean() - (0.25 + 0.5 / 3)) < 0.01          # centroid of the lower-left half
+
+
+def test_add_pass_keeps_the_running_mean_variance_and_iz_of_each_texel(rng):
+    """Per-texel passes in any order and subset: total = Σ x, m2 = Σ (x - mean)² (two-pass
+    numpy), iz = Σ I_z luminance (hhd.irradz), passes counted."""
+    from hhd_lightmapper.core import hhd
+    n = 7
+    normals = unit(rng, n)
+    total, m2 = np.zeros((n, 9, 3)), np.zeros((n, 9, 3), np.float32)
+    iz, iz_sq, passes = np.zeros(n), np.zeros(n), np.zeros(n, np.int64)
+    seen = [[] for _ in range(n)]
+    for subset in ([0, 1, 2, 3, 4, 5, 6], [1, 3, 5], [0, 1, 2, 3, 4, 5, 6], [3], [2, 3, 6]):
+        idx = np.array(subset)
+        est = 1e3 * rng.normal(size=(len(idx), 9, 3)) + 5e3     # large mean: Welford's point
+        K.add_pass(idx, est, normals, hhd.LUMINANCE, hhd.IRRADZ_FROM_R10, total, m2, iz, iz_sq, passes)
+        for j, t in enumerate(idx):
+            seen[t].append(est[j])
+    for t in range(n):
+        x = np.array(seen[t])
+        assert passes[t] == len(x)
+        np.testing.assert_allclose(total[t], x.sum(axis=0), rtol=1e-12)
+        np.testing.assert_allclose(m2[t], ((x - x.mean(axis=0)) ** 2).sum(axis=0), rtol=1e-4, atol=1e-3)
+        lum = hhd.irradz(x, np.repeat(normals[t:t + 1], len(x), axis=0)) @ hhd.LUMINANCE
+        np.testing.assert_allclose([iz[t], iz_sq[t]], [lum.sum(), (lum ** 2).sum()], rtol=1e-12)

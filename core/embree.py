@@ -1,0 +1,272 @@
+"""Embree 4 through its C API: the library the embreex wheel ships, without embreex's Python layer. No bpy.
+
+Why not embreex's own classes: its `TriangleMesh` copies a mesh into Embree one Python-indexed
+float at a time with the GIL held (1M triangles: 2.0–2.3 s here) and its `run()` copies every
+ray batch into a fresh float32 layout. Embree itself can share our arrays (the same 1M
+triangles: 0.01 s) and be called per ray from compiled code. So:
+- the scene is built through ctypes (`Scene`), sharing a padded float32 vertex array and a
+  uint32 index array with Embree; ctypes releases the GIL, so Embree's own threads build the
+  BVH while Python does other work;
+- queries are numba kernels (`nogil`, cached like `core.kernels`) calling `rtcIntersect1` /
+  `rtcOccluded1` once per ray on an `RTCRayHit` in a small aligned scratch buffer.
+The library is found among embreex's installed files (`find_library`: `libembree4*.so*` on
+Linux, `libembree4*.dylib` on macOS, `embree4*.dll` on Windows), after importing embreex so
+that the platform's loader has already placed Embree and TBB in the process.
+
+Ray layout (Embree 4 `RTCRayHit`, 32-bit words, 16-byte aligned): org 0–2, tnear 3, dir 4–6,
+time 7, tfar 8, mask 9, id 10, flags 11; hit: Ng 12–14 (unnormalised, CCW winding), u 15, v 16,
+primID 17, geomID 18, instID 19. `rtcOccluded1` reads the first 12 words and sets tfar to -inf
+on a hit.
+"""
+from __future__ import annotations
+
+import ctypes
+import importlib
+import importlib.metadata
+import re
+import threading
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from . import deps
+from .errors import BakeError, DependencyMissing
+
+_LIBRARY_NAME = re.compile(r"^(lib)?embree4([-.][^/\\]*)?\.(so(\.\d+)*|dylib|dll)$")
+_INVALID = 0xFFFFFFFF
+_GEOMETRY_TRIANGLE = 0
+_BUFFER_INDEX, _BUFFER_VERTEX = 0, 1
+_FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
+_RAY_WORDS = 32                     # RTCRayHit is 80–96 bytes by build options; 128 is enough
+
+_HANDLE = ctypes.c_size_t          # Embree handles and pointers, passed as integers
+_ERRORS = {1: "unknown error", 2: "invalid argument", 3: "invalid operation", 4: "out of memory",
+           5: "unsupported CPU", 6: "cancelled"}
+
+
+def find_library(paths) -> str | None:
+    """The Embree 4 shared library among `paths` (a package's installed files), or None."""
+    found = sorted(str(p) for p in paths if _LIBRARY_NAME.match(Path(str(p)).name))
+    return found[0] if found else None
+
+
+def _embreex_files() -> list[Path]:
+    """embreex's installed files, absolute: from its distribution record, else its folders."""
+    try:
+        files = importlib.metadata.files("embreex") or []
+        paths = [Path(f.locate()) for f in files]
+    except importlib.metadata.PackageNotFoundError:
+        paths = []
+    if not paths:                          # no record (copied install): look where wheels put it
+        package = Path(deps.require("embreex").__file__).parent
+        for folder in (package, package / ".dylibs", package.parent / "embreex.libs"):
+            paths += list(folder.glob("*")) if folder.is_dir() else []
+    return paths
+
+
+# ---- the library (loaded once per process) -----------------------------------------------------
+_library: SimpleNamespace | None = None
+_library_lock = threading.Lock()
+
+
+def library() -> SimpleNamespace:
+    """The loaded Embree library: its C functions (ctypes), one device, and the query kernels
+    (compiled on first use, cached on disk). Raises DependencyMissing if embreex or numba is
+    missing, or if embreex ships no Embree 4 library."""
+    global _library
+    with _library_lock:
+        if _library is None:
+            _library = _load()
+    return _library
+
+
+def _load() -> SimpleNamespace:
+    deps.require("embreex")
+    importlib.import_module("embreex.rtcore_scene")   # the platform loads Embree and TBB its way
+    path = find_library(_embreex_files())
+    if path is None:
+        raise DependencyMissing(
+            "The installed 'embreex' package ships no Embree 4 library (looked for libembree4 / "
+            "embree4 among its files). Install the HHD Lightmapper build for your platform.")
+    lib = ctypes.CDLL(path)
+    c = SimpleNamespace()
+    for name, restype, argtypes in (
+            ("rtcNewDevice", _HANDLE, [ctypes.c_char_p]),
+            ("rtcGetDeviceError", ctypes.c_int, [_HANDLE]),
+            ("rtcNewScene", _HANDLE, [_HANDLE]),
+            ("rtcReleaseScene", None, [_HANDLE]),
+            ("rtcCommitScene", None, [_HANDLE]),
+            ("rtcNewGeometry", _HANDLE, [_HANDLE, ctypes.c_int]),
+            ("rtcSetSharedGeometryBuffer", None, [_HANDLE, ctypes.c_int, ctypes.c_uint, ctypes.c_int,
+                                                  _HANDLE, ctypes.c_size_t, ctypes.c_size_t, ctypes.c_size_t]),
+            ("rtcCommitGeometry", None, [_HANDLE]),
+            ("rtcAttachGeometry", ctypes.c_uint, [_HANDLE, _HANDLE]),
+            ("rtcReleaseGeometry", None, [_HANDLE])):
+        function = getattr(lib, name)
+        function.restype, function.argtypes = restype, argtypes
+        setattr(c, name, function)
+    device = c.rtcNewDevice(None)
+    if not device:
+        _check(c, 0, "start")
+        raise BakeError("Embree could not start.")
+    return SimpleNamespace(c=c, device=device, kernels=_compile(lib))
+
+
+# ---- query kernels (numba) ----------------------------------------------------------------------
+# Bound to numba ExternalFunctions by `_compile`: the compiled code calls Embree by symbol name,
+# which keeps the kernels cacheable on disk (a raw ctypes pointer would not be).
+rtc_intersect1 = None
+rtc_occluded1 = None
+
+
+def _ray_scratch():
+    """An RTCRayHit-sized uint32 buffer, its float32 view, the word offset that makes it 16-byte
+    aligned and the aligned address."""
+    words = np.zeros(_RAY_WORDS + 4, np.uint32)
+    base = ((16 - words.ctypes.data % 16) % 16) // 4
+    return words, words.view(np.float32), base, words.ctypes.data + 4 * base
+
+
+def _set_ray(f, w, b, origins, directions, tmax, i):
+    f[b + 0] = origins[i, 0]
+    f[b + 1] = origins[i, 1]
+    f[b + 2] = origins[i, 2]
+    f[b + 3] = 0.0                          # tnear: callers offset origins themselves
+    f[b + 4] = directions[i, 0]
+    f[b + 5] = directions[i, 1]
+    f[b + 6] = directions[i, 2]
+    f[b + 7] = 0.0
+    f[b + 8] = tmax[i]
+    w[b + 9] = 0xFFFFFFFF                   # mask: every geometry
+    w[b + 10] = 0
+    w[b + 11] = 0
+
+
+def intersect_rays(scene, origins, directions, tmax, t, prim, ng, u, v):
+    """Closest hit of each ray (R,) within [0, tmax]: writes t (inf on a miss), prim (-1), ng
+    (zeros), u, v (hit = (1-u-v)·p0 + u·p1 + v·p2)."""
+    w, f, b, address = _ray_scratch()
+    for i in range(origins.shape[0]):
+        _set_ray(f, w, b, origins, directions, tmax, i)
+        w[b + 17] = 0xFFFFFFFF
+        w[b + 18] = 0xFFFFFFFF
+        w[b + 19] = 0xFFFFFFFF
+        rtc_intersect1(scene, address, 0)
+        if w[b + 18] != 0xFFFFFFFF:
+            t[i] = f[b + 8]
+            prim[i] = w[b + 17]
+            ng[i, 0] = f[b + 12]
+            ng[i, 1] = f[b + 13]
+            ng[i, 2] = f[b + 14]
+            u[i] = f[b + 15]
+            v[i] = f[b + 16]
+        else:
+            t[i] = np.inf
+            prim[i] = -1
+            ng[i, 0] = 0.0
+            ng[i, 1] = 0.0
+            ng[i, 2] = 0.0
+            u[i] = 0.0
+            v[i] = 0.0
+
+
+def occluded_rays(scene, origins, directions, tmax, out):
+    """Whether anything lies within [0, tmax] along each ray (Embree's any-hit query)."""
+    w, f, b, address = _ray_scratch()
+    for i in range(origins.shape[0]):
+        _set_ray(f, w, b, origins, directions, tmax, i)
+        rtc_occluded1(scene, address, 0)
+        out[i] = f[b + 8] == -np.inf
+
+
+def _compile(lib) -> SimpleNamespace:
+    numba = deps.require("numba")
+    from llvmlite import binding as llvm
+    from numba import types
+    module = globals()
+    for symbol, name in (("rtcIntersect1", "rtc_intersect1"), ("rtcOccluded1", "rtc_occluded1")):
+        llvm.add_symbol(symbol, ctypes.cast(getattr(lib, symbol), ctypes.c_void_p).value)
+        module[name] = types.ExternalFunction(symbol, types.void(types.uintp, types.uintp, types.uintp))
+    jit = numba.njit(nogil=True, cache=True)
+    for name in ("_ray_scratch", "_set_ray"):
+        module[name] = jit(module[name])
+    return SimpleNamespace(intersect_rays=jit(intersect_rays), occluded_rays=jit(occluded_rays))
+
+
+# ---- scenes -----------------------------------------------------------------------------------
+class Scene:
+    """An Embree scene of one triangle geometry sharing `triangles` (T, 3, 3) float32 corners
+    (triangle i is primitive i). The BVH build starts at construction on Embree's threads;
+    queries wait for it."""
+
+    def __init__(self, triangles: np.ndarray):
+        self._lib = library()
+        c = self._lib.c
+        tri = np.asarray(triangles, dtype=np.float32).reshape(-1, 3, 3)
+        n = len(tri)
+        # Embree reads vertices with 16-byte loads: one float of padding after the last
+        self._vertices = np.empty(9 * n + 1, np.float32)
+        self._vertices[:9 * n] = tri.reshape(-1)
+        self._vertices[9 * n] = 0.0
+        self._indices = np.arange(3 * n, dtype=np.uint32)
+        self.handle = c.rtcNewScene(self._lib.device)
+        geometry = c.rtcNewGeometry(self._lib.device, _GEOMETRY_TRIANGLE)
+        c.rtcSetSharedGeometryBuffer(geometry, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3,
+                                     self._vertices.ctypes.data, 0, 12, 3 * n)
+        c.rtcSetSharedGeometryBuffer(geometry, _BUFFER_INDEX, 0, _FORMAT_UINT3,
+                                     self._indices.ctypes.data, 0, 12, n)
+        c.rtcCommitGeometry(geometry)
+        c.rtcAttachGeometry(self.handle, geometry)
+        c.rtcReleaseGeometry(geometry)
+        _check(c, self._lib.device, "set up the ray-tracing scene")
+        self._error = None
+        self._built = threading.Thread(target=self._commit, name="embree-build", daemon=True)
+        self._built.start()
+
+    def _commit(self) -> None:
+        try:
+            self._lib.c.rtcCommitScene(self.handle)
+            _check(self._lib.c, self._lib.device, "build the ray-tracing scene")
+        except BakeError as exc:            # Embree's error codes are per thread: read here
+            self._error = exc
+
+    def wait(self) -> None:
+        """Block until the BVH is built; raises BakeError if Embree reported an error."""
+        self._built.join()
+        if self._error is not None:
+            raise self._error
+
+    def intersect(self, origins, directions, tmax):
+        """Closest hits: (t, prim, ng, u, v) as `intersect_rays` writes them, float32/int32."""
+        self.wait()
+        r = len(origins)
+        t = np.empty(r, np.float32)
+        prim = np.empty(r, np.int32)
+        ng = np.empty((r, 3), np.float32)
+        u = np.empty(r, np.float32)
+        v = np.empty(r, np.float32)
+        self._lib.kernels.intersect_rays(self.handle, origins, directions, tmax, t, prim, ng, u, v)
+        return t, prim, ng, u, v
+
+    def occluded(self, origins, directions, tmax) -> np.ndarray:
+        """(R,) bool: anything within tmax along each ray."""
+        self.wait()
+        out = np.empty(len(origins), np.bool_)
+        self._lib.kernels.occluded_rays(self.handle, origins, directions, tmax, out)
+        return out
+
+    def __del__(self):
+        handle, self.handle = getattr(self, "handle", 0), 0
+        if handle:
+            if hasattr(self, "_built"):
+                self._built.join()
+            self._lib.c.rtcReleaseScene(handle)
+
+
+def _check(c, device, doing: str) -> None:
+    """Raise BakeError if Embree reported an error on this thread since the last check."""
+    code = c.rtcGetDeviceError(device)
+    if code:
+        raise BakeError(f"Embree could not {doing}: {_ERRORS.get(code, f'error {code}')}.")
+
