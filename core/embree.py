@@ -138,7 +138,7 @@ def _set_ray(f, w, b, origins, directions, tmax, i):
     f[b + 6] = directions[i, 2]
     f[b + 7] = 0.0
     f[b + 8] = tmax[i]
-    w[b + 9] = 0xFFFFFFFF                   # mask: every geometry
+    w[b + 9] = _INVALID                   # mask: every geometry
     w[b + 10] = 0
     w[b + 11] = 0
 
@@ -149,11 +149,11 @@ def intersect_rays(scene, origins, directions, tmax, t, prim, ng, u, v):
     w, f, b, address = _ray_scratch()
     for i in range(origins.shape[0]):
         _set_ray(f, w, b, origins, directions, tmax, i)
-        w[b + 17] = 0xFFFFFFFF
-        w[b + 18] = 0xFFFFFFFF
-        w[b + 19] = 0xFFFFFFFF
+        w[b + 17] = _INVALID
+        w[b + 18] = _INVALID
+        w[b + 19] = _INVALID
         rtc_intersect1(scene, address, 0)
-        if w[b + 18] != 0xFFFFFFFF:
+        if w[b + 18] != _INVALID:
             t[i] = f[b + 8]
             prim[i] = w[b + 17]
             ng[i, 0] = f[b + 12]
@@ -203,12 +203,13 @@ class Scene:
     def __init__(self, triangles: np.ndarray):
         self._lib = library()
         c = self._lib.c
-        tri = np.asarray(triangles, dtype=np.float32).reshape(-1, 3, 3)
+        tri = np.asarray(triangles).reshape(-1, 3, 3)
         n = len(tri)
         # Embree reads vertices with 16-byte loads: one float of padding after the last
-        self._vertices = np.empty(9 * n + 1, np.float32)
-        self._vertices[:9 * n] = tri.reshape(-1)
-        self._vertices[9 * n] = 0.0
+        self._vertices = np.zeros(9 * n + 1, np.float32)
+        self.triangles = self._vertices[:9 * n].reshape(n, 3, 3)     # (T, 3, 3) float32, Embree's
+        self.triangles[:] = tri
+        self.triangles.flags.writeable = False
         self._indices = np.arange(3 * n, dtype=np.uint32)
         self.handle = c.rtcNewScene(self._lib.device)
         geometry = c.rtcNewGeometry(self._lib.device, _GEOMETRY_TRIANGLE)

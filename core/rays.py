@@ -36,10 +36,9 @@ class RayScene:
     threads while the caller carries on; the first query waits for it)."""
 
     def __init__(self, triangles: np.ndarray):
-        tri = np.ascontiguousarray(np.asarray(triangles, dtype=np.float32).reshape(-1, 3, 3))
-        self._scene = embree.Scene(tri)
-        self.n_triangles = len(tri)
-        self.triangles = tri                         # float32 (T, 3, 3), as Embree has them
+        self._scene = embree.Scene(triangles)
+        self.triangles = self._scene.triangles      # float32 (T, 3, 3), Embree's own (read-only)
+        self.n_triangles = len(self.triangles)
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None,
                   barycentrics: bool = False):
