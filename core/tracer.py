@@ -29,7 +29,7 @@ bounce, the SH projection) runs in compiled kernels (`kernels`); this module dri
 samples the lights. Work is split into fixed chunks of texels; each chunk of each pass draws
 its random numbers from its own generator seeded by (seed, pass, chunk), which also seeds the
 kernels it calls, so results do not depend on the thread count. Chunks run on a thread pool:
-embreex and the kernels release the GIL.
+the Embree queries (`core.embree`) and the kernels release the GIL.
 """
 from __future__ import annotations
 
