@@ -129,6 +129,7 @@ def _ray_scratch():
 
 
 def _set_ray(f, w, b, origins, directions, tmax, i):
+    """Ray i into the scratch RTCRay at word b (f, w: its float32 and uint32 views)."""
     f[b + 0] = origins[i, 0]
     f[b + 1] = origins[i, 1]
     f[b + 2] = origins[i, 2]
