@@ -66,7 +66,8 @@ def _rays(a: np.ndarray) -> np.ndarray:
 
 
 def _reach(tmax, n: int) -> np.ndarray:
-    """(n,) float32 ray lengths from None (unbounded), a scalar or an array; negative → 0."""
+    """(n,) float32 ray lengths from None (unbounded), a scalar or an array (a ray of negative
+    or NaN length finds nothing)."""
     if tmax is None:
         return np.full(n, np.inf, np.float32)
     return np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float32), (n,)))
