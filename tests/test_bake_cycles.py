@@ -33,26 +33,39 @@ def test_sun(floor):
 def test_hard_shadow_edge_texels_average_the_same_footprint_as_cycles(floor, monkeypatch):
     """Texels a sharp shadow edge crosses: their value is the lit fraction of the area each
     renderer averages, so they agree only if the footprints agree (Cycles': the central ½ × ½
-    of the texel). Our footprint must match Cycles' clearly better than the whole texel does
-    (measured: residual 0.045 against 0.064 of a lit 0.81, 4 seeds at 64 spp), within the
-    edge texels' noise plus 6% of lit: a residual of ~5.5% of lit remains that neither the
-    footprint's size nor a shift of it explains (shifting it a quarter texel makes it 0.22-0.31),
-    exposed since the footprint is stratified (our edge-texel noise fell from 0.032 to 0.008,
-    Cycles' is 0.007)."""
+    of the texel). Our footprint must match Cycles' within the edge texels' noise plus 1% of
+    lit, and clearly better than the whole texel does (measured at 64 spp: 0.013 against 0.051).
+    Texels whose footprint straddles two triangles are left out: there Cycles mirrors its jitter
+    back into the texel's triangle (`bake_clamp_mirror_repeat` in its bake kernel) and we clip
+    the footprint to that triangle, so where a shadow edge also crosses them the two differ by
+    design (measured: 2 of 161 edge texels, on the quad's diagonal, residual 0.40 of a lit 0.81;
+    the other 159: 0.013 against a noise of 0.0095)."""
     cc.light('SUN', rotation=(math.radians(30), math.radians(10), 0), energy=3.0, angle=0.0)
     r = cc.compare([floor], samples=64, bounces=0)
     value = r["cycles"].mean(1)
     lit = np.percentile(value, 90)
     edge = (value > 0.05 * lit) & (value < 0.95 * lit)
-    assert edge.sum() > 50
+    straddling = footprint_straddles_triangles(r["points"], r["keep"])
+    assert edge.sum() > 50 and (edge & straddling).sum() <= 0.05 * edge.sum()
+    edge &= ~straddling
     residual = np.sqrt(np.mean((r["ours"][edge] - r["cycles"][edge]) ** 2))
     noise = np.sqrt(np.mean(r["texel_noise"][edge]))
-    assert residual <= 1.5 * noise + 0.06 * lit, (residual, noise, lit, edge.sum())
+    assert residual <= 1.5 * noise + 0.01 * lit, (residual, noise, lit, edge.sum())
     monkeypatch.setattr(bakepoints, "FOOTPRINT", 1.0)
     points, whole, _ = cc.ours([floor], 64, 0, seed=1)
     keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
     whole_residual = np.sqrt(np.mean((whole[keep][edge] - r["cycles"][edge]) ** 2))
-    assert residual < 0.85 * whole_residual, (residual, whole_residual)
+    assert residual < 0.5 * whole_residual, (residual, whole_residual)
+
+
+def footprint_straddles_triangles(points, keep):
+    """(kept texels,) bool: the footprint's corners are not all inside the texel's triangle."""
+    corners = 0.5 + bakepoints.FOOTPRINT * (np.array([[0, 0], [1, 0], [0, 1], [1, 1]]) - 0.5)
+    texel = points.texel[keep]
+    origin = np.stack([texel % points.width, texel // points.width], 1).astype(float)
+    tri_uv = points.tri_texel_uv[points.triangle[keep]]
+    bary = bakepoints._barycentric_grouped(origin[:, None, :] + corners[None], tri_uv)
+    return (bary < -1e-9).any(axis=(1, 2))
 
 
 def test_sun_with_angle(floor):
