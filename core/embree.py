@@ -3,7 +3,7 @@
 Why not embreex's own classes: its `TriangleMesh` copies a mesh into Embree one Python-indexed
 float at a time with the GIL held (1M triangles: 2.0–2.3 s here) and its `run()` copies every
 ray batch into a fresh float32 layout. Embree itself can share our arrays (the same 1M
-triangles: 0.01 s) and be called per ray from compiled code. So:
+triangles: 0.02 s) and be called per ray from compiled code. So:
 - the scene is built through ctypes (`Scene`), sharing a padded float32 vertex array and a
   uint32 index array with Embree; ctypes releases the GIL, so Embree's own threads build the
   BVH while Python does other work;
