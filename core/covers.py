@@ -34,8 +34,8 @@ class CoverProbe:
     (R, 3, 3), optional: the surfaces whose points will be probed. Only triangles whose bounding
     box comes within 2 × offset of the receivers' bounding box can cover one of their points, so
     only those are kept (a ground plane under a million-triangle field keeps the few that touch
-    it): a smaller probe scene builds faster (Embree's BVH build: ~0.3 s per million triangles
-    here). `source` keeps the array it was built from, so a user can tell
+    it): a smaller probe scene builds faster (Embree's BVH build: 0.2–0.6 s per million
+    triangles here). `source` keeps the array it was built from, so a user can tell
     whether it probes the scene it traces (`probes`)."""
 
     def __init__(self, triangles: np.ndarray, offset: float, receivers: np.ndarray | None = None):

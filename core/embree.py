@@ -1,7 +1,7 @@
 """Embree 4 through its C API: the library the embreex wheel ships, without embreex's Python layer. No bpy.
 
 Why not embreex's own classes: its `TriangleMesh` copies a mesh into Embree one Python-indexed
-float at a time with the GIL held (1M triangles: 2.0–2.3 s here) and its `run()` copies every
+float at a time with the GIL held (1M triangles: 1.5–2.3 s here) and its `run()` copies every
 ray batch into a fresh float32 layout. Embree itself can share our arrays (the same 1M
 triangles: 0.02 s) and be called per ray from compiled code. So:
 - the scene is built through ctypes (`Scene`), sharing a padded float32 vertex array and a
