@@ -1,31 +1,65 @@
-# Two commands on a fresh machine with Python 3.11 (see README):
-#   make demo   - create .venv with the pinned packages, bake the embedded demo into out/demo/
-#   make test   - the test suite (builds and installs the extension into an isolated Blender
-#                 user directory first); this is what .ci/run calls
-PYTHON ?= $(shell command -v python3.11 || command -v python3)
-VENV   := .venv
-PY     := $(VENV)/bin/python
-STAMP  := $(VENV)/.installed
+# Two commands on a fresh machine with Python 3.13 and 3.11 (see README):
+#   make demo   - create .venv (Python 3.13, bpy 5.3.0) with the pinned packages, bake the
+#                 embedded demo into out/demo/
+#   make test   - the test suite against the newest and the oldest supported Blender: bpy 5.3.0
+#                 in .venv (Python 3.13), then bpy 4.2 LTS in .venv-4.2 (Python 3.11); each
+#                 builds and installs the extension into an isolated Blender user directory
+#                 first. Fails if either fails. This is what .ci/run calls.
+# PYTHON / PYTHON_OLD pick the interpreters; by default python3.13 / python3.11 on PATH or pyenv's.
+PYTHON     ?= $(shell tools/find_python.sh 3.13)
+PYTHON_OLD ?= $(shell tools/find_python.sh 3.11)
+VENV       := .venv
+VENV_OLD   := .venv-4.2
+PY         := $(VENV)/bin/python
+PY_OLD     := $(VENV_OLD)/bin/python
+PYTEST_ARGS ?=
 
-.PHONY: setup demo test test-fast package bench clean
+.PHONY: setup setup-4.2 demo test test-new test-old test-fast package bench clean
 
-setup: $(STAMP)
+setup: $(VENV)/.installed
+setup-4.2: $(VENV_OLD)/.installed
 
-$(STAMP): requirements.txt pyproject.toml
-	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), "Python 3.11 is required (Blender 4.2-5.0 and the bpy wheel use it); set PYTHON=/path/to/python3.11"'
-	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet -r requirements.txt
-	$(PY) -m pip install --quiet --no-deps -e .
-	touch $(STAMP)
+# $(1): interpreter, $(2): major.minor it must be, $(3): venv, $(4): requirements, $(5): who uses it
+define make_venv
+	@test -n "$(1)" || { echo "Python $(2) not found: it is needed for $(5). Install it (e.g. pyenv install $(2)) or set $(if $(filter 3.13,$(2)),PYTHON,PYTHON_OLD)=/path/to/python$(2)." >&2; exit 1; }
+	@$(1) -c 'import sys; v = "%d.%d" % sys.version_info[:2]; sys.exit(0 if v == "$(2)" else "$(1) is Python " + v + ", not $(2) ($(5)); set $(if $(filter 3.13,$(2)),PYTHON,PYTHON_OLD)=/path/to/python$(2)")'
+	rm -rf $(3)
+	$(1) -m venv $(3)
+	$(3)/bin/python -m pip install --quiet --upgrade pip
+	$(3)/bin/python -m pip install --quiet -r $(4)
+	$(3)/bin/python -m pip install --quiet --no-deps -e .
+	touch $(3)/.installed
+endef
+
+$(VENV)/.installed: requirements.txt pyproject.toml
+	$(call make_venv,$(PYTHON),3.13,$(VENV),requirements.txt,bpy 5.3.0 / Blender 5.1+)
+
+$(VENV_OLD)/.installed: requirements-4.2.txt pyproject.toml
+	$(call make_venv,$(PYTHON_OLD),3.11,$(VENV_OLD),requirements-4.2.txt,bpy 4.2 LTS / Blender 4.2-5.0)
 
 demo: setup
 	$(PY) tools/demo.py --out out/demo
 
-test: setup
-	$(PY) -m pytest -q
+# Both suites always run; the target fails if either failed.
+test: setup setup-4.2
+	@status=0; \
+	start=$$(date +%s); \
+	echo "== bpy 5.3.0 (Python 3.13): $(PY) -m pytest"; \
+	$(PY) -m pytest -q $(PYTEST_ARGS) || status=1; \
+	mid=$$(date +%s); echo "== bpy 5.3.0 suite: $$((mid - start)) s"; \
+	echo "== bpy 4.2 LTS (Python 3.11): $(PY_OLD) -m pytest"; \
+	$(PY_OLD) -m pytest -q $(PYTEST_ARGS) || status=1; \
+	end=$$(date +%s); echo "== bpy 4.2 suite: $$((end - mid)) s"; \
+	exit $$status
+
+test-new: setup
+	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+test-old: setup-4.2
+	$(PY_OLD) -m pytest -q $(PYTEST_ARGS)
 
 test-fast: setup
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
 
 package: setup
 	$(PY) tools/build_extension.py --output-dir dist
@@ -34,4 +68,4 @@ bench: setup
 	$(PY) bench/encoder.py
 
 clean:
-	rm -rf $(VENV) dist out build wheels *.egg-info .pytest_cache
+	rm -rf $(VENV) $(VENV_OLD) dist out build wheels *.egg-info .pytest_cache

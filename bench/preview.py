@@ -145,7 +145,8 @@ def configure_output(scene):
 
 
 def eevee_render(bpy, scene, path: Path) -> np.ndarray:
-    scene.render.engine = 'BLENDER_EEVEE'
+    from hhd_lightmapper import blender_compat
+    scene.render.engine = blender_compat.eevee_engine()
     scene.eevee.taa_render_samples = 16
     configure_output(scene)
     return render(bpy, scene, path)

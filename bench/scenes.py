@@ -16,6 +16,7 @@ import bpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import demo_scene  # noqa: E402
+from hhd_lightmapper import blender_compat
 
 NAMES = ("outdoor", "interior", "emissive")
 #: objects that emit: occluders and lights, not lightmap receivers
@@ -39,7 +40,7 @@ def _sun(elevation_deg, azimuth_deg, strength, angle_deg):
 
 def _world(colour, strength):
     world = bpy.data.worlds.new("World")
-    world.use_nodes = True
+    blender_compat.ensure_node_tree(world)
     bg = world.node_tree.nodes["Background"]
     bg.inputs["Color"].default_value = (*colour, 1.0)
     bg.inputs["Strength"].default_value = strength
@@ -90,7 +91,7 @@ def emissive() -> None:
     demo_scene._box("Normal-mapped Panel", (-sx / 2, -1.0, 0.5), (-sx / 2 + 0.05, 1.0, 2.2), panel)
 
     ceiling_light = bpy.data.materials.new("Ceiling Light")
-    ceiling_light.use_nodes = True
+    blender_compat.ensure_node_tree(ceiling_light)
     nodes = ceiling_light.node_tree.nodes
     nodes.remove(nodes["Principled BSDF"])
     emission = nodes.new("ShaderNodeEmission")

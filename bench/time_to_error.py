@@ -70,23 +70,25 @@ def clear():
 
 def lighting(sun_rotation=(0.9, 0.0, 2.3), sky=(0.5, 0.7, 1.0)):
     import bpy
+    from hhd_lightmapper import blender_compat
     sun = bpy.data.lights.new("Sun", 'SUN')
     sun.energy, sun.angle = 4.0, 0.0
     obj = bpy.data.objects.new("Sun", sun)
     obj.rotation_euler = sun_rotation
     bpy.context.scene.collection.objects.link(obj)
     world = bpy.data.worlds.new("Sky")
-    world.use_nodes = True
+    blender_compat.ensure_node_tree(world)
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (*sky, 1.0)
     bpy.context.scene.world = world
 
 
 def build_classroom():
     import bpy
+    from hhd_lightmapper import blender_compat
     import xml.etree.ElementTree as ET
     clear()
     grey = bpy.data.materials.new("Diffuse")
-    grey.use_nodes = True
+    blender_compat.ensure_node_tree(grey)
     grey.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0
     root = ET.parse(CLASSROOM / "scene_v3.xml").getroot()
     meshes = []
@@ -110,6 +112,7 @@ def build_classroom():
 
 def build_field():
     import bpy
+    from hhd_lightmapper import blender_compat
     sys.path.insert(0, str(ROOT / "bench"))
     from unwrap_raster import sphere_field
     clear()
@@ -123,7 +126,7 @@ def build_field():
     ground.scale = ((hi[0] - lo[0]) * 1.2, (hi[1] - lo[1]) * 1.2, 1.0)
     bpy.context.scene.collection.objects.link(field)
     mat = bpy.data.materials.new("Diffuse")
-    mat.use_nodes = True
+    blender_compat.ensure_node_tree(mat)
     for o in (field, ground):
         o.data.materials.append(mat)
     lighting()

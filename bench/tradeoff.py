@@ -267,7 +267,8 @@ class Scene:
         s.output_dir, s.preview_mode = str(folder), mode
         assert bpy.ops.hhd.preview_show() == {'FINISHED'}
         try:
-            self.scene.render.engine = 'BLENDER_EEVEE'
+            from hhd_lightmapper import blender_compat
+            self.scene.render.engine = blender_compat.eevee_engine()
             self.scene.eevee.taa_render_samples = 8
             return render(bpy, self.scene, self.folder / f"eevee_{tag}.exr")
         finally:

@@ -191,7 +191,8 @@ def _object_uv(mesh, atlas, k, atlas_index, w, h):
     # xatlas normalises UVs by its own width/height; rescale to the final atlas size.
     scale = np.array([atlas["width"] / w, atlas["height"] / h], dtype=np.float64)
     uv = (atlas["uv"][k] * scale).astype(np.float32)                    # (T, 3, 2)
-    areas = 0.5 * np.abs(np.cross(uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0])) * w * h
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    areas = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * w * h     # texels²
     live = areas > 0
     if live.any():
         px = uv[live].reshape(-1, 2) * [w, h]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import blender_compat
 from ..core.errors import BakeError
 from ..core.unwrap import UnwrapMesh
 
@@ -93,7 +94,7 @@ def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> int:
 
 def surface_node(mat):
     """The node feeding the active Material Output's Surface, or None."""
-    if mat is None or not mat.use_nodes or mat.node_tree is None:
+    if mat is None or blender_compat.node_tree_of(mat) is None:
         return None
     output = next((n for n in mat.node_tree.nodes if n.type == 'OUTPUT_MATERIAL' and n.is_active_output), None)
     if output is None or not output.inputs["Surface"].is_linked:

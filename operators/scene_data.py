@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import blender_compat
 from ..core.errors import BakeError
 from ..core.scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
 from .mesh_data import TextureCache, read_triangles, surface_node, triangle_albedo
@@ -78,7 +79,7 @@ def _world(scene):
     world = scene.world
     if world is None:
         return None
-    if not world.use_nodes or world.node_tree is None:
+    if blender_compat.node_tree_of(world) is None:
         return np.array(world.color[:3], dtype=np.float64)
     output = next((n for n in world.node_tree.nodes if n.type == 'OUTPUT_WORLD' and n.is_active_output), None)
     if output is None or not output.inputs["Surface"].is_linked:

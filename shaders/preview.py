@@ -18,6 +18,7 @@ import json
 
 import bpy
 
+from .. import blender_compat
 from . import node_groups
 
 PREFIX = "HHD Preview"
@@ -66,9 +67,7 @@ def _image(tree, path, name, uv, x, y, frame):
 
 def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) -> str | None:
     """Insert the preview into one material; returns a note when a fallback was used."""
-    if mat.node_tree is None:
-        mat.use_nodes = True
-    tree = mat.node_tree
+    tree = mat.node_tree if mat.node_tree is not None else blender_compat.ensure_node_tree(mat)
     if RECORD in mat:
         hide_on_material(mat)
     output = _output(tree)

@@ -2,9 +2,17 @@
 Color off: irradiance in DESIGN.md's unit) and compare I_z texel by texel, with a tolerance
 derived from both estimators' measured noise."""
 import numpy as np
+from hhd_lightmapper import blender_compat
 
 LAYER = "HHD_Lightmap"
 RES = 256
+
+
+def cycles_footprint() -> float:
+    """Width (texels) of the square Cycles' Diffuse bake averages a texel over in the running
+    Blender: the whole texel from 5.2.1, the central ½ × ½ before (halved UV differentials)."""
+    import bpy
+    return 1.0 if bpy.app.version >= (5, 2, 1) else 0.5
 
 
 def clear_scene():
@@ -28,7 +36,7 @@ def clear_scene():
 def material(name, colour=(0.8, 0.8, 0.8), emission=None):
     import bpy
     mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
+    blender_compat.ensure_node_tree(mat)
     bsdf = mat.node_tree.nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
     bsdf.inputs["Roughness"].default_value = 1.0
@@ -60,7 +68,7 @@ def plane(name, centre, size, mat, rotation=(0, 0, 0)):
 def world(colour):
     import bpy
     w = bpy.data.worlds.new("World")
-    w.use_nodes = True
+    blender_compat.ensure_node_tree(w)
     w.node_tree.nodes["Background"].inputs["Color"].default_value = (*colour, 1.0)
     w.node_tree.nodes["Background"].inputs["Strength"].default_value = 1.0
     bpy.context.scene.world = w
@@ -88,7 +96,7 @@ def hdri_world(pixels, strength=1.0, rotation=None):
     image = bpy.data.images.new("sky", w, h, float_buffer=True, alpha=True)
     image.pixels.foreach_set(pixels.astype(np.float32).ravel())
     wld = bpy.data.worlds.new("HDRI")
-    wld.use_nodes = True
+    blender_compat.ensure_node_tree(wld)
     nodes, links = wld.node_tree.nodes, wld.node_tree.links
     env = nodes.new("ShaderNodeTexEnvironment")
     env.image = image

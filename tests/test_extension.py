@@ -28,6 +28,21 @@ def test_manifest_declares_licence_permissions_and_platform_wheels():
     assert set(by_platform) == set(m["platforms"])
     for plat, packages in by_platform.items():
         assert packages == {"embreex", "xatlas", "openexr", "numba", "llvmlite"}, plat
+    # every compiled package for both Pythons Blender ships: 3.11 (4.2-5.0) and 3.13 (5.1+)
+    tags = {}
+    for w in m["wheels"]:
+        name = Path(w).name
+        tags.setdefault((fetch_wheels.wheel_platform(name), name.split("-")[0]), set()).add(name.split("-")[-3])
+    assert all(t == {"cp311", "cp313"} for t in tags.values()), tags
+    assert m["blender_version_min"] >= "4.2.13"   # older 4.2 installers ignore the cpXY tag
+
+
+def test_every_manifest_wheel_is_hash_pinned_and_no_unlisted_wheel_ships():
+    import fetch_wheels
+    listed = fetch_wheels.manifest_wheels()
+    assert len(listed) == len(set(listed)) and set(listed) == set(fetch_wheels.SHA256)
+    assert all(len(h) == 64 for h in fetch_wheels.SHA256.values())
+    assert {fetch_wheels.python_version(n) for n in listed} == {"3.11", "3.13"}
 
 
 def test_each_platform_zip_holds_only_its_wheels_and_no_dev_files(built_zips):
@@ -39,7 +54,8 @@ def test_each_platform_zip_holds_only_its_wheels_and_no_dev_files(built_zips):
         assert "core/hhd.py" in names or "core/deps.py" in names
         assert not [n for n in names if n.startswith(("tests/", "bench/", "tools/", ".ci/", "docs/"))]
         wheels = [n for n in names if n.endswith(".whl")]
-        assert len(wheels) == 5, (z.name, wheels)
+        assert len(wheels) == 10, (z.name, wheels)                  # 5 packages x cp311, cp313
+        assert not [n for n in names if n.startswith(".venv")]
 
 
 def test_installed_extension_is_enabled_with_settings(extension):

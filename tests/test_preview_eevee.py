@@ -149,7 +149,8 @@ def test_eevee_render_equals_the_numpy_reconstruction(baked, tmp_path):
     cam.data.type, cam.data.ortho_scale = 'ORTHO', 1.2
     cam.location = (-0.9, -0.9, 3.0)              # a 1.2 m square of floor beside the cube's shadow
     scene.camera = cam
-    scene.render.engine = 'BLENDER_EEVEE'
+    from hhd_lightmapper import blender_compat
+    scene.render.engine = blender_compat.eevee_engine()
     scene.render.resolution_x = scene.render.resolution_y = 96
     scene.render.resolution_percentage = 100
     scene.render.filter_size = 0.0

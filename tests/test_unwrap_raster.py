@@ -90,10 +90,13 @@ def test_bake_points_cover_every_texel_and_lie_on_the_surface(mesh_fn):
 
 
 @pytest.mark.parametrize("mesh_fn", [meshes.cube, meshes.uv_sphere])
-def test_sample_origins_cover_the_central_half_of_the_texel_inside_its_triangle(mesh_fn):
-    """Cycles' bake footprint: uniform over the central ½ × ½ of the texel, restricted to the
+@pytest.mark.parametrize("footprint", [0.5, 1.0])
+def test_sample_origins_cover_the_footprint_of_the_texel_inside_its_triangle(mesh_fn, footprint, monkeypatch):
+    """The bake footprint (the whole texel, as Cycles from 5.2.1; the central ½ × ½ before):
+    uniform over the central footprint × footprint square of the texel, restricted to the
     texel's triangle (rejection sampling); texels whose triangle misses that square (partly
     covered texels at chart edges) sample the triangle's part of the whole texel instead."""
+    monkeypatch.setattr(bakepoints, "FOOTPRINT", footprint)
     v, f, result = unwrapped(mesh_fn)
     uv = result.objects[0].uv.astype(np.float64)
     surface = bakepoints.SurfaceTriangles(v[f], meshes.vertex_normals(v, f)[f], uv, np.zeros(len(f), int),
@@ -115,12 +118,13 @@ def test_sample_origins_cover_the_central_half_of_the_texel_inside_its_triangle(
     at = t_uv[:, 0] + b1[:, None] * (t_uv[:, 1] - t_uv[:, 0]) + b2[:, None] * (t_uv[:, 2] - t_uv[:, 0])
     local = at - np.repeat(np.stack([pts.texel % 256, pts.texel // 256], 1), k, axis=0)
     assert ((local >= -1e-6) & (local <= 1 + 1e-6)).all()
-    central = ((local >= 0.25 - 1e-6) & (local <= 0.75 + 1e-6)).all(axis=1)
+    lo, hi = 0.5 - footprint / 2, 0.5 + footprint / 2
+    central = ((local >= lo - 1e-6) & (local <= hi + 1e-6)).all(axis=1)
     assert central[np.repeat(pts.coverage >= 1.0 - 1e-9, k)].mean() > 0.999
-    # uniform within the square on fully covered texels: mean offset at the centre, spread ±¼
+    # uniform within the square on fully covered texels: mean offset at the centre, spread ±F/2
     full = np.repeat(pts.coverage >= 1.0 - 1e-9, k)
     assert np.abs(local[full].mean(axis=0) - 0.5).max() < 0.01
-    assert np.abs(local[full].std(axis=0) - 0.5 / np.sqrt(12)).max() < 0.01
+    assert np.abs(local[full].std(axis=0) - footprint / np.sqrt(12)).max() < 0.01
 
 
 def test_choice_between_overlapping_triangles_is_deterministic():

@@ -120,7 +120,8 @@ def show_preview(bpy, out: Path) -> str:
         o.select_set(o.type == "MESH")
     scene.hhd.preview_mode = 'HHD'
     assert bpy.ops.hhd.preview_show() == {'FINISHED'}
-    scene.render.engine = 'BLENDER_EEVEE'
+    from hhd_lightmapper import blender_compat
+    scene.render.engine = blender_compat.eevee_engine()
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 320, 200, 100
     scene.render.image_settings.file_format = "PNG"
     scene.render.filepath = str(out / "preview_eevee.png")

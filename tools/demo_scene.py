@@ -6,6 +6,7 @@ import math
 
 import bpy
 import numpy as np
+from hhd_lightmapper import blender_compat
 
 ROOM = (6.0, 4.0, 3.0)           # x, y, z extent in metres, floor at z = 0
 WINDOW = (-1.0, 1.0, 1.0, 2.2)   # in the +x wall: y range, z range
@@ -15,7 +16,7 @@ SKY_COLOUR = (0.35, 0.55, 1.0)
 
 def _material(name, colour, normal_image=None):
     mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
+    blender_compat.ensure_node_tree(mat)
     bsdf = mat.node_tree.nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
     bsdf.inputs["Roughness"].default_value = 1.0
@@ -95,7 +96,7 @@ def build() -> dict:
     objs["sun"] = sun
 
     world = bpy.data.worlds.new("Sky")
-    world.use_nodes = True
+    blender_compat.ensure_node_tree(world)
     bg = world.node_tree.nodes["Background"]
     bg.inputs["Color"].default_value = (*SKY_COLOUR, 1.0)
     bg.inputs["Strength"].default_value = 1.0
