@@ -261,7 +261,8 @@ class Scene:
     def __del__(self):
         handle, self.handle = getattr(self, "handle", 0), 0
         if handle:
-            if hasattr(self, "_built"):
+            # the last reference can die on the build thread itself (its frame holds `self`)
+            if hasattr(self, "_built") and self._built is not threading.current_thread():
                 self._built.join()
             self._lib.c.rtcReleaseScene(handle)
 

@@ -30,7 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 COMPILED = ("embreex", "xatlas", "OpenEXR", "numba", "llvmlite")
 MODULE = "bl_ext.user_default.hhd_lightmapper"
-RESOLUTION, SAMPLES, BOUNCES = 128, 8, 1
+RESOLUTION, SAMPLES, BOUNCES = 256, 8, 1
 
 
 def scene():
@@ -95,7 +95,7 @@ def install_and_bake(zip_path: Path, out: Path) -> dict:
     s = bpy.context.scene
     s.hhd.resolution, s.hhd.samples, s.hhd.bounces = RESOLUTION, SAMPLES, BOUNCES
     s.hhd.output_dir = str(out)
-    for ob in bpy.context.view_layer.objects:
+    for ob in s.objects:
         ob.select_set(ob in receivers)
     bpy.context.view_layer.objects.active = receivers[0]
     if bpy.ops.hhd.unwrap() != {"FINISHED"} or bpy.ops.hhd.bake() != {"FINISHED"}:
