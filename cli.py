@@ -17,6 +17,7 @@ import traceback
 
 import bpy
 
+from . import blender_compat
 from .core import presets
 from .core.errors import BakeError, DependencyMissing
 from .core.tracer import BakeCancelled
@@ -31,6 +32,18 @@ EXIT_CANCELLED = 5      # interrupted (Ctrl-C): no file replaced
 EXIT_INTERNAL = 70      # a bug: the traceback is printed
 
 
+def _thread_count(text: str) -> int:
+    """argparse type of --threads: a whole number ≥ 0 (0 = every core)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid thread count {text!r}: give a whole number ≥ 0 "
+                                         "(0 = all cores)") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"invalid thread count {value}: it must be ≥ 0 (0 = all cores)")
+    return value
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"blender -b FILE.blend --command {COMMAND}",
                                 description="HHD Lightmapper: unwrap, bake and encode directional lightmaps.")
@@ -40,6 +53,11 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("--objects", nargs="+", metavar="NAME", help="receiver objects (default: the scene's "
                        "Receivers setting: the saved selection or collection)")
         q.add_argument("--collection", metavar="NAME", help="receivers: the mesh objects of this collection")
+
+    def threads(q):
+        q.add_argument("--threads", type=_thread_count, default=None, metavar="N",
+                       help="worker threads, 0 = every core this process may use (default: the scene's "
+                            "Render > Performance > Threads, as a headless Cycles render; Auto = every core)")
 
     def encoder(q):
         q.add_argument("--model", choices=["hhd", "ahd"])
@@ -69,11 +87,13 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--resolution", type=int, help="atlas size for --unwrap")
     q.add_argument("--texel-density", type=float, help="texels per metre for --unwrap")
     q.add_argument("--save", action="store_true", help="save the .blend afterwards (keeps the loaded images)")
+    threads(q)
 
     q = sub.add_parser("encode", help="re-encode a finished bake from its SH EXR (no tracing)")
     receivers(q)
     encoder(q)
     q.add_argument("--out", metavar="DIR", help="folder of the bake (default: the scene's Output Folder)")
+    threads(q)
     return p
 
 
@@ -112,7 +132,7 @@ def _bake(context, args) -> str:
     from .operators import bake_session
     if args.unwrap:
         print(_unwrap(context, args), flush=True)
-    session = bake_session.BakeSession(context, args.objects, args.out)
+    session = bake_session.BakeSession(context, args.objects, args.out, threads=args.threads)
     for w in session.warnings:
         print(f"warning: {w}")
     print(f"bake: {session.describe()}", flush=True)
@@ -128,7 +148,8 @@ def _bake(context, args) -> str:
 def _encode(context, args) -> str:
     from .operators import bake_session, encode
     objects = bake_session.target_objects(context, args.objects)
-    return encode.reencode_objects(objects, context.scene.hhd, args.out)
+    threads = bake_session.scene_threads(context.scene) if args.threads is None else args.threads
+    return encode.reencode_objects(objects, context.scene.hhd, args.out, threads=threads)
 
 
 def main(argv: list[str]) -> int:
@@ -199,4 +220,4 @@ def unregister():
 
 
 if __name__ == "__main__":
-    sys.exit(standalone(sys.argv[1:]))
+    blender_compat.exit_process(standalone(sys.argv[1:]))

@@ -5,6 +5,11 @@ has read the scene into plain data (`AtlasInput`, `BakeScene`). It never touches
 only effect is the files of each atlas, which are staged under temporary names and renamed over
 any previous bake only once every atlas is finished. A cancel or an error leaves the previous
 files as they were.
+
+Threads: `settings.trace.threads` (0 = every core, `parallel`) is resolved once per run and used
+by every parallel stage: the bake points' probes, the tracer and the EXR compression (encoding
+itself stays on one thread: numpy holds the GIL for most of it, so a pool gained too little to
+keep). The sidecar records the count under `bake` → `threads`; the files do not depend on it.
 """
 from __future__ import annotations
 
@@ -15,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import bakepoints, exr, hhd, lightmap_files, tracer
+from . import bakepoints, exr, hhd, lightmap_files, parallel, tracer
 from .bakepoints import SurfaceTriangles
 from .errors import BakeCancelled, BakeError
 from .rays import RayScene
@@ -90,16 +95,17 @@ def _check_cancel(cancel) -> None:
 
 
 def build_points(atlases: list[AtlasInput], scene: BakeScene, progress: Progress, cancel=None,
-                 occluders: RayScene | None = None):
+                 occluders: RayScene | None = None, threads: int = 0):
     """Bake points of every atlas; raises BakeError naming an object whose UVs cover no texel.
-    `occluders`: the scene's RayScene if already built (else built here)."""
+    `occluders`: the scene's RayScene if already built (else built here); `threads`: workers of
+    the probe passes (0 = every core)."""
     if occluders is None and len(scene.triangles):
         occluders = RayScene(scene.triangles)
     out = []
     for i, atlas in enumerate(atlases):
         _check_cancel(cancel)
         points = bakepoints.build(atlas.surface, atlas.width, atlas.height, occluders=occluders,
-                                  check=lambda: _check_cancel(cancel))
+                                  check=lambda: _check_cancel(cancel), threads=threads)
         counts = np.bincount(points.object_index, minlength=len(atlas.objects))
         empty = [atlas.objects[k] for k in np.unique(atlas.surface.object_index) if counts[k] == 0]
         if empty:
@@ -115,16 +121,20 @@ def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings,
         extra_sidecar: dict | None = None) -> list[AtlasResult]:
     """Bake every atlas and write its files into `out_dir`. `progress(fraction, message)` is
     called often (at least once per tracer chunk); `cancel()` returning True stops within a chunk
-    (raises tracer.BakeCancelled) with no file replaced."""
+    (raises tracer.BakeCancelled) with no file replaced. Every stage uses
+    `parallel.resolve_threads(settings.trace.threads)` worker threads."""
     if not atlases:
         raise BakeError("nothing to bake: no target objects")
+    threads = parallel.resolve_threads(settings.trace.threads)
+    settings = replace(settings, trace=replace(settings.trace, threads=threads))
+    exr.set_threads(threads)
     out_dir = Path(out_dir)
     report = Progress(progress)
     t0 = time.perf_counter()
     # one Embree scene for the bake points' tests and every atlas's tracing; its BVH builds
     # (0.2–0.6 s per million triangles here) while the bake points are rasterised
     ray_scene = RayScene(scene.triangles) if len(scene.triangles) else None
-    points = build_points(atlases, scene, report, cancel, ray_scene)
+    points = build_points(atlases, scene, report, cancel, ray_scene, threads)
     t_points = time.perf_counter() - t0
     total_texels = sum(len(p.texel) for p in points)
     results, done_texels = [], 0
@@ -177,13 +187,17 @@ def _stage(staging, atlas, pts, result, settings, out_dir, t_points, extra) -> A
     return AtlasResult(atlas.name, files, len(pts.texel), result.rays, seconds)
 
 
-def reencode(files: lightmap_files.AtlasFiles, encoder: EncoderSettings) -> float:
+def reencode(files: lightmap_files.AtlasFiles, encoder: EncoderSettings, threads: int = 0) -> float:
     """Encode an atlas again from its SH and texel EXRs with other encoder settings (no tracing);
-    replaces the HHD EXR and the sidecar atomically. Returns the seconds it took."""
+    replaces the HHD EXR and the sidecar atomically. `threads` (0 = every core) read and compress
+    the EXRs; the sidecar records it as `reencode_threads`. Returns the seconds it took."""
     t = time.perf_counter()
+    threads = parallel.resolve_threads(threads)
+    exr.set_threads(threads)
     sidecar = lightmap_files.read_sidecar(files.sidecar)
     data = lightmap_files.read_texel_data(files)
     sidecar["reencoded_from_sh"] = True
+    sidecar["reencode_threads"] = threads
     with exr.Staging() as staging:
         lightmap_files.stage_atlas(staging, files, data, encoder.kwargs(), sidecar, write_sh=False)
         staging.commit()

@@ -11,13 +11,12 @@ width × height image (flat index y · width + x, y = v · height).
 """
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import kernels, raster
+from . import kernels, parallel, raster
 from .covers import CoverProbe
 from .errors import BakeError
 from .rays import RayScene, ray_offset
@@ -28,16 +27,13 @@ BURIED_FRACTION = 0.5
 #: Tries at a sample point inside the texel's triangle, in the footprint and then in the whole
 #: texel, before the sample falls back to the bake point (Cycles tries 10 times).
 JITTER_TRIES = 10
-#: Width of the square around the texel centre that a texel's samples cover, in texels. Cycles'
-#: bake jitters by its UV differentials, which are half the texel-to-barycentric derivative
-#: (0.5/A in Blender's bake_differentials): its texels average the central ½ × ½ of the texel.
-#: Matching it is what makes shadow-edge texels agree with Cycles (a spot light's hard shadow:
-#: residual 3.0× the noise with the full texel, 1.1× with this).
-FOOTPRINT = 0.5
+#: Width of the square around the texel centre that a texel's samples cover, in texels: the
+#: whole texel, the box the texel stands for, which is also what Cycles' Diffuse bake averages
+#: from Blender 5.2.1 on (up to 5.2.0 its UV differentials were halved and it averaged the
+#: central ½ × ½). Matching Cycles is what makes shadow-edge texels agree with it.
+FOOTPRINT = 1.0
 #: Probe directions per texel for the buried test (fixed, rotated per texel).
 BURIED_PROBES = 12
-#: Worker threads of the probe passes (buried, near cover): results do not depend on it.
-THREADS = max(1, min(os.cpu_count() or 1, 8))
 
 
 @dataclass
@@ -119,12 +115,13 @@ class BakePoints:
 
 
 def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScene | None = None,
-          check=None, chunk: int = 1 << 18) -> BakePoints:
+          check=None, chunk: int = 1 << 18, threads: int = 0) -> BakePoints:
     """Bake points of every covered texel. `occluders` (all geometry that casts shadows, the
     receivers included) enables the buried-texel test; without it nothing is flagged.
     `check()`, if given, is called between chunks of work (it raises to stop: a cancel).
     Per-texel quantities are computed `chunk` texels at a time, so the temporaries stay small
-    next to the result (~170 bytes per texel)."""
+    next to the result (~170 bytes per texel). `threads`: workers of the probe passes (buried,
+    near cover), 0 = every core (`parallel.resolve_threads`); the result does not depend on it."""
     pos = np.asarray(surface.positions, dtype=np.float64)
     if not np.isfinite(pos).all() or not np.isfinite(surface.uv).all():
         raise BakeError("lightmap bake points: NaN or infinite positions or UVs in the input")
@@ -145,9 +142,9 @@ def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScen
             check()
         _fill_points(points, surface, slice(s, s + chunk), centroid[s:s + chunk])
     if occluders is not None:
-        points.buried = find_buried(points, occluders, check=check)
+        points.buried = find_buried(points, occluders, check=check, threads=threads)
         points.cover_probe = CoverProbe(occluders.triangles, points.offset, receivers=pos)
-        points.near_cover = find_near_cover(points, points.cover_probe, check=check)
+        points.near_cover = find_near_cover(points, points.cover_probe, check=check, threads=threads)
     return points
 
 
@@ -217,7 +214,7 @@ def _albedo(surface: SurfaceTriangles, tri: np.ndarray, bary: np.ndarray) -> np.
 
 
 def find_near_cover(points: BakePoints, probe: CoverProbe, check=None, chunk: int = 1 << 15,
-                    threads: int = THREADS) -> np.ndarray:
+                    threads: int = 0) -> np.ndarray:
     """Texels part of whose samples may start under a coplanar face (core.covers): the bake point,
     the footprint's corners and the texel's corners (where the samples' fallback can reach),
     mapped into the texel's triangle, are probed. The tracer probes every sample of the texels
@@ -235,11 +232,12 @@ def find_near_cover(points: BakePoints, probe: CoverProbe, check=None, chunk: in
     return flags
 
 
-def _for_chunks(work, n: int, chunk: int, check=None, threads: int = THREADS) -> None:
-    """work(rows) for consecutive slices of range(n), `chunk` long, on `threads` workers (Embree
-    releases the GIL); `check()` before each chunk's result is taken (it raises to stop: the
-    chunks not started are dropped)."""
-    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
+def _for_chunks(work, n: int, chunk: int, check=None, threads: int = 0) -> None:
+    """work(rows) for consecutive slices of range(n), `chunk` long, on `threads` workers (0 = every
+    core; Embree releases the GIL); `check()` before each chunk's result is taken (it raises to
+    stop: the chunks not started are dropped). Each chunk writes only its own rows, so the result
+    does not depend on the thread count."""
+    with ThreadPoolExecutor(max_workers=parallel.resolve_threads(threads)) as pool:
         futures = [pool.submit(work, slice(s, min(s + chunk, n))) for s in range(0, n, chunk)]
         try:
             for future in futures:
@@ -260,13 +258,13 @@ def _probe_directions(n: int) -> np.ndarray:
 
 
 def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES, check=None,
-                chunk: int = 1 << 15, threads: int = THREADS) -> np.ndarray:
+                chunk: int = 1 << 15, threads: int = 0) -> np.ndarray:
     """Texels whose hemisphere is closed by nearby geometry seen from behind (the inside of a
     box pushed into the floor): at least BURIED_FRACTION of short probe rays (length 4 texels)
     hit back faces. The bake stores such texels black and never uses them as dilation sources,
     so light cannot leak into them. (Deeper inside a closed volume texels are dark anyway: all
     their rays end on the volume's inner faces.) Returns (P,) bool. Works in chunks of texels
-    (bounded memory) on `threads` workers, calling `check()` between chunks. Every texel gets
+    (bounded memory) on `threads` workers (0 = every core), calling `check()` between chunks. Every texel gets
     the first probes − need + 1 probes, only those with a back-face hit among them the rest:
     the same answer (the others cannot reach `need`) for ~60% of the rays on open surfaces."""
     from .sh import tangent_frames

@@ -44,6 +44,17 @@ def _temporary_name(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
 
 
+def set_threads(threads: int) -> None:
+    """Compress and decompress with `threads` workers (≥ 1; 1 = on the calling thread). Sets the
+    OpenEXR binding's process-wide pool, shared by every EXR read and write in this process (not
+    Blender's own OpenEXR). ZIP blocks are compressed independently, so the bytes written do not
+    depend on it."""
+    openexr = deps.require("OpenEXR")
+    count = threads if threads > 1 else 0           # 0: OpenEXR's single-threaded mode
+    if openexr.global_thread_count() != count:
+        openexr.set_global_thread_count(count)
+
+
 def write_file(path, channels: dict[str, np.ndarray], attributes: dict | None = None) -> None:
     """Write one scanline EXR (ZIP compression) directly to `path`. Channel arrays are
     `(height, width)` float16 (HALF) or float32 (FLOAT); `attributes` are string header fields."""

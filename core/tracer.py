@@ -28,8 +28,9 @@ The per-sample work between Embree queries (camera rays over a texel, a hit turn
 bounce, the SH projection) runs in compiled kernels (`kernels`); this module drives them and
 samples the lights. Work is split into fixed chunks of texels; each chunk of each pass draws
 its random numbers from its own generator seeded by (seed, pass, chunk), which also seeds the
-kernels it calls, so results do not depend on the thread count. Chunks run on a thread pool:
-the Embree queries (`core.embree`) and the kernels release the GIL.
+kernels it calls, so results do not depend on the thread count. Chunks run on a thread pool of
+`settings.threads` workers (0: every core, `parallel.machine_threads`): the Embree queries
+(`core.embree`) and the kernels release the GIL.
 """
 from __future__ import annotations
 
@@ -37,13 +38,14 @@ import threading
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
 from . import hhd as _hhd
 from . import kernels as _kernels
+from . import parallel as _parallel
 from . import sh as _sh
 from .bakepoints import BakePoints
 from .covers import CoverProbe
@@ -63,7 +65,8 @@ class BakeSettings:
     """samples: hemisphere samples per texel, rounded up to whole passes (the most a texel gets
     when a noise target or time budget stops it earlier); pass_samples: samples per texel per
     pass (the progressive step); bounces: diffuse reflections after the first hit (0 = direct
-    light only); seed: makes the bake reproducible; threads: worker threads; chunk_texels:
+    light only); seed: makes the bake reproducible; threads: worker threads, 0 = every core this
+    process may use (`parallel.resolve_threads`; the result does not depend on it); chunk_texels:
     texels per work item (bounds memory: ~1 KB per texel-sample). pass_samples is a multiple of
     4 (two independent halves of uniform + cosine samples, see `kernels.hemisphere_rays`).
 
@@ -77,7 +80,7 @@ class BakeSettings:
     pass_samples: int = 16
     bounces: int = 3
     seed: int = 0
-    threads: int = 2
+    threads: int = 0
     chunk_texels: int = 8192
     noise_target: float = 0.0
     time_budget: float = 0.0
@@ -98,7 +101,7 @@ class BakeResult:
     available, reported as 0, after a single pass); samples: the most samples a texel took;
     texel_samples (P,) samples each texel took (they differ under a noise target or time
     budget); passes: the most passes; rays traced; seconds of wall time; stopped_by: "samples",
-    "noise_target" (every texel converged) or "time_budget"."""
+    "noise_target" (every texel converged) or "time_budget"; threads: the worker threads used."""
     sh: np.ndarray
     sh_error: np.ndarray
     samples: int
@@ -107,6 +110,7 @@ class BakeResult:
     seconds: float
     texel_samples: np.ndarray | None = None
     stopped_by: str = "samples"
+    threads: int = 1
 
     @property
     def mean_samples(self) -> float:
@@ -126,13 +130,14 @@ def bake(points: BakePoints, scene: BakeScene, settings: BakeSettings = BakeSett
     if settings.noise_target < 0 or settings.time_budget < 0 or not np.isfinite(settings.noise_target):
         raise BakeError("the noise target and the time budget must be ≥ 0 (0 switches them off)")
     start = time.perf_counter()
+    settings = replace(settings, threads=_parallel.resolve_threads(settings.threads))
     tracer = _Tracer(points, scene, settings, ray_scene)
     n = len(points.texel)
     max_passes = max(1, -(-settings.samples // settings.pass_samples))
     acc = _Accumulator(n, points.normal)
     active = np.arange(n)
     stopped_by = "samples"
-    with ThreadPoolExecutor(max_workers=max(1, settings.threads)) as pool:
+    with ThreadPoolExecutor(max_workers=settings.threads) as pool:
         for p in range(max_passes):
             def on_chunk(done, of):
                 elapsed = time.perf_counter() - start
@@ -154,7 +159,8 @@ def bake(points: BakePoints, scene: BakeScene, settings: BakeSettings = BakeSett
     return BakeResult(sh=sh, sh_error=sh_error, samples=int(acc.passes.max(initial=0)) * settings.pass_samples,
                       passes=int(acc.passes.max(initial=0)), rays=tracer.rays,
                       seconds=time.perf_counter() - start,
-                      texel_samples=acc.passes * settings.pass_samples, stopped_by=stopped_by)
+                      texel_samples=acc.passes * settings.pass_samples, stopped_by=stopped_by,
+                      threads=settings.threads)
 
 
 def _trace_pass(pool, tracer: "_Tracer", acc: "_Accumulator", p: int, active: np.ndarray, on_chunk, cancel) -> bool:
@@ -165,7 +171,7 @@ def _trace_pass(pool, tracer: "_Tracer", acc: "_Accumulator", p: int, active: np
     then); `cancel()` returning True raises BakeCancelled."""
     size = tracer.settings.chunk_texels
     chunks = [active[s:s + size] for s in range(0, len(active), size)]
-    ahead = 2 * max(1, tracer.settings.threads)
+    ahead = 2 * tracer.settings.threads
     queued: deque = deque()
     try:
         for c, idx in enumerate(chunks):

@@ -12,7 +12,7 @@ import os
 import bpy
 
 from ..core import bake as core_bake
-from ..core import tracer
+from ..core import parallel, tracer
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles
 from . import mesh_data, scene_data
@@ -82,11 +82,18 @@ def _check_receivers(objects, uv_layer: str) -> None:
             raise BakeError(f"'{obj.name}' has no '{uv_layer}' UV layer: run Unwrap first")
 
 
-def pipeline_settings(settings) -> core_bake.PipelineSettings:
+def scene_threads(scene) -> int:
+    """The bake's thread setting (0 = every core) from Blender's Render > Performance > Threads
+    of `scene` (`parallel.blender_threads`)."""
+    return parallel.blender_threads(scene.render.threads_mode, scene.render.threads)
+
+
+def pipeline_settings(settings, threads: int = 0) -> core_bake.PipelineSettings:
+    """The core settings from the scene's HHD settings; `threads`: worker threads, 0 = every core."""
     samples, bounces = max(4, settings.samples), settings.bounces
     trace = tracer.BakeSettings(samples=samples, pass_samples=min(16, -(-samples // 4) * 4),
                                 bounces=bounces, seed=settings.seed, noise_target=settings.noise_target / 100.0,
-                                time_budget=settings.time_budget)
+                                time_budget=settings.time_budget, threads=threads)
     return core_bake.PipelineSettings(trace=trace, encoder=encoder_settings(settings))
 
 
@@ -106,11 +113,16 @@ def _samples_text(trace) -> str:
 
 
 class BakeSession:
-    """Everything one bake needs, read from Blender at construction (see the module doc)."""
+    """Everything one bake needs, read from Blender at construction (see the module doc).
+    `threads`: worker threads (0 = every core); None takes the scene's Render > Performance >
+    Threads (`scene_threads`)."""
 
-    def __init__(self, context, objects: list[str] | None = None, out_dir: str | None = None):
+    def __init__(self, context, objects: list[str] | None = None, out_dir: str | None = None,
+                 threads: int | None = None):
         settings = context.scene.hhd
-        self.settings = pipeline_settings(settings)
+        if threads is None:
+            threads = scene_threads(context.scene)
+        self.settings = pipeline_settings(settings, parallel.resolve_threads(threads))
         self.out_dir = output_folder(settings, out_dir)
         self.receivers = target_objects(context, objects)
         _check_receivers(self.receivers, settings.uv_layer)
@@ -132,7 +144,8 @@ class BakeSession:
     def describe(self) -> str:
         n_occ = len(self.scene.triangles)
         return (f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es); {n_occ} occluder triangles; "
-                f"{_samples_text(self.settings.trace)}, {self.settings.trace.bounces} bounces")
+                f"{_samples_text(self.settings.trace)}, {self.settings.trace.bounces} bounces, "
+                f"{self.settings.trace.threads} threads")
 
     def run(self, progress=None, cancel=None) -> list[core_bake.AtlasResult]:
         """The core bake and file output; touches no bpy data (worker-thread safe)."""

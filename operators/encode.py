@@ -29,7 +29,7 @@ class HHD_OT_encode(bpy.types.Operator):
         settings = context.scene.hhd
         try:
             objects = bake_session.target_objects(context)
-            summary = reencode_objects(objects, settings)
+            summary = reencode_objects(objects, settings, threads=bake_session.scene_threads(context.scene))
         except (BakeError, OSError) as exc:
             self.report({'ERROR'}, f"Re-encode failed: {exc}")
             return {'CANCELLED'}
@@ -37,8 +37,9 @@ class HHD_OT_encode(bpy.types.Operator):
         return {'FINISHED'}
 
 
-def reencode_objects(objects, settings, out_dir: str | None = None) -> str:
-    """Re-encode the atlases of `objects` found in the output folder; returns a summary line."""
+def reencode_objects(objects, settings, out_dir: str | None = None, threads: int = 0) -> str:
+    """Re-encode the atlases of `objects` found in the output folder with `threads` workers
+    (0 = every core); returns a summary line."""
     if not objects:
         raise BakeError("no mesh objects to re-encode: select baked objects")
     folder = bake_session.output_folder(settings, out_dir)
@@ -47,7 +48,7 @@ def reencode_objects(objects, settings, out_dir: str | None = None) -> str:
     done = []
     for name, *_ in groups:
         files = AtlasFiles(Path(folder), name)
-        seconds = core_bake.reencode(files, encoder)
+        seconds = core_bake.reencode(files, encoder, threads)
         bake_session.load_atlas_images(files, settings.pack_images)
         done.append(f"'{name}' {seconds:.1f} s")
     return f"Re-encoded ({encoder.model}, {encoder.direction}, {encoder.ambient} ambient): {', '.join(done)}"

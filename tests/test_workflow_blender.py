@@ -102,6 +102,7 @@ def test_errors_name_the_object_and_the_problem(baked_scene):
     with pytest.raises(RuntimeError, match="'Empty Mesh' has no faces"):
         bpy.ops.hhd.bake()
     floor.data.uv_layers[cc.LAYER].data.foreach_set("uv", np.zeros(len(floor.data.loops) * 2, np.float32))
+    floor.data.update()         # 4.x does not re-evaluate the mesh after a raw foreach_set
     cc.select([floor])
     with pytest.raises(RuntimeError, match="'Floor': the lightmap UVs cover no texel"):
         bpy.ops.hhd.bake()
@@ -181,3 +182,57 @@ def test_command_line_exit_codes(baked_scene, tmp_path):
 def test_in_process_entry_point_reports_input_errors(baked_scene):
     assert cli.main(["bake", "--collection", "Nope"]) == cli.EXIT_INPUT
     assert cli.main(["frobnicate"]) == cli.EXIT_USAGE
+
+
+def exr_bytes(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*.exr"))}
+
+
+def test_bake_and_reencode_honour_blenders_render_threads_setting(baked_scene):
+    import bpy
+    from hhd_lightmapper.core import parallel
+    scene, receivers, folder = baked_scene
+    cc.select(receivers)
+    out, sidecar = folder / "lightmaps", folder / "lightmaps" / "Lightmap.json"
+    scene.render.threads_mode, scene.render.threads = 'FIXED', 1
+    assert bpy.ops.hhd.bake() == {'FINISHED'}
+    assert json.loads(sidecar.read_text())["bake"]["threads"] == 1
+    one = exr_bytes(out)
+    scene.render.threads_mode = 'AUTO'
+    assert bpy.ops.hhd.bake() == {'FINISHED'}
+    assert json.loads(sidecar.read_text())["bake"]["threads"] == parallel.machine_threads()
+    assert exr_bytes(out) == one
+    scene.render.threads_mode, scene.render.threads = 'FIXED', 3
+    assert bpy.ops.hhd.encode() == {'FINISHED'}
+    assert json.loads(sidecar.read_text())["reencode_threads"] == 3
+
+
+def test_command_line_refuses_a_negative_thread_count(baked_scene, capsys):
+    assert cli.main(["bake", "--threads", "-1"]) == cli.EXIT_USAGE
+    assert "invalid thread count -1: it must be ≥ 0 (0 = all cores)" in capsys.readouterr().err
+    assert cli.main(["encode", "--threads", "two"]) == cli.EXIT_USAGE
+
+
+@pytest.mark.slow
+def test_command_line_threads_follow_the_scene_or_the_flag_and_files_are_identical(baked_scene, tmp_path):
+    import bpy
+    from hhd_lightmapper.core import parallel
+    scene, receivers, folder = baked_scene
+    scene.render.threads_mode, scene.render.threads = 'FIXED', 1       # saved in the .blend
+    blend = folder / "scene.blend"
+    bpy.ops.wm.save_mainfile()
+    args = ("--objects", "Floor", "Cube", "--preset", "draft")
+    default = run_cli(blend, "bake", "--out", str(tmp_path / "default"), *args)
+    assert default.returncode == cli.EXIT_OK, default.stderr
+    every = run_cli(blend, "bake", "--out", str(tmp_path / "every"), "--threads", "0", *args)
+    assert every.returncode == cli.EXIT_OK, every.stderr
+    assert exr_bytes(tmp_path / "default") == exr_bytes(tmp_path / "every")
+    assert len(exr_bytes(tmp_path / "default")) == 15
+    threads = [json.loads((tmp_path / k / "Lightmap.json").read_text())["bake"]["threads"] for k in ("default", "every")]
+    assert threads == [1, parallel.machine_threads()]
+    encode = run_cli(blend, "encode", "--out", str(tmp_path / "default"), "--objects", "Floor", "Cube", "--threads", "2")
+    assert encode.returncode == cli.EXIT_OK, encode.stderr
+    assert json.loads((tmp_path / "default" / "Lightmap.json").read_text())["reencode_threads"] == 2
+    encode = run_cli(blend, "encode", "--out", str(tmp_path / "every"), "--objects", "Floor", "Cube")
+    assert encode.returncode == cli.EXIT_OK, encode.stderr
+    assert json.loads((tmp_path / "every" / "Lightmap.json").read_text())["reencode_threads"] == 1
