@@ -2,45 +2,81 @@
 
 Input meshes are triangle lists in world space (metres), so texel density is per metre of the
 object as it stands in the scene (object scale included; negative scale is fine: only lengths
-and areas matter). Output UVs are per triangle corner in [0, 1]² of the object's atlas, with
-texel centres at (i + 0.5)/width. xatlas keeps the input triangle order; triangles with zero
-area get no chart (xatlas puts them at UV (0, 0)) and are skipped by the rasteriser. xatlas runs
-in a child process (`xatlas_worker`), so a crash in its threads is a retry, not a lost session.
+and areas matter), with the polygon (quad, n-gon) each triangle comes from. Output UVs are per
+triangle corner in [0, 1]² of the object's atlas, with texel centres at (i + 0.5)/width; the
+triangles of one polygon are always in one chart and the corners of one polygon that share a
+vertex always get the same UV, so the UVs can be written per loop exactly. Polygons with no area
+get no chart (UV (0, 0), skipped by the rasteriser).
+
+Two stages, each in child processes (`xatlas_worker`, so a crash in xatlas's threads is a retry,
+not a lost session): charting, once per mesh content and cached (`chart_key`), in parallel
+processes when there is enough work; then packing of the cached charts, re-packed with a smaller
+density (never re-charted) until they fit the atlas.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import pickle
 import signal
 import subprocess
 import sys
+import time
+from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
-from . import deps
+from . import deps, xatlas_worker
 from .errors import BakeError
 
 MIN_RESOLUTION, MAX_RESOLUTION = 256, 8192
-#: xatlas runs in a child process (`xatlas_worker`): tries before giving up, and the time after
-#: which a child counts as hung (1M triangles take ≈ 140 s on 2 cores).
+#: xatlas runs in child processes (`xatlas_worker`): tries before giving up, and the time after
+#: which a child counts as hung (generous: several times the measured charting time, see
+#: bench/results/unwrap.md).
 XATLAS_ATTEMPTS = 3
-XATLAS_TIMEOUT_BASE, XATLAS_TIMEOUT_PER_TRIANGLE = 120.0, 1e-3
+XATLAS_TIMEOUT_BASE, XATLAS_TIMEOUT_PER_TRIANGLE = 120.0, 2e-4
 _WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "xatlas_worker.py")
 #: Objects below this many covered texels get a warning: too few to show any lighting detail.
 FEW_TEXELS = 64
+#: Charting child processes run at once, never more than the cores this process may use. Each
+#: charts some of the meshes, or of the connected parts of a large one. xatlas has threads of
+#: its own, but they leave cores idle (small meshes, one mesh's last charts), and its Python
+#: binding holds the GIL, so threads of ours could not chart side by side: measured gains are
+#: in bench/results/unwrap.md.
+CHART_PROCESSES = 4
+#: Charting work below this many triangles per process stays in fewer processes (starting one
+#: costs a Python start-up and the imports of numpy and xatlas; below it, xatlas's own threads
+#: did as well).
+TRIANGLES_PER_PROCESS = 100_000
+#: Bytes of charts kept for re-unwrapping unchanged meshes (least recently used dropped first):
+#: 28 bytes or less per triangle, so several million triangles.
+CHART_CACHE_BYTES = 256 << 20
+#: Part of the cache key: bump when the charting (xatlas options, polygon rule) changes.
+CHART_VERSION = b"charts-1"
+#: Packed atlases kept for re-unwrapping the same charts with the same settings: at most this
+#: many, and this many bytes of UVs (24 per triangle).
+PACK_CACHE_ENTRIES, PACK_CACHE_BYTES = 8, 128 << 20
+#: Fitting packs below this many triangles run in one child, one after another (starting a
+#: child costs more than such a pack); larger ones are packed two at a time in parallel children
+#: when there are two cores or more (`xatlas_worker.fit`).
+ONE_CHILD_TRIANGLES = 50_000
 
 
 @dataclass
 class UnwrapMesh:
     """name: object name (for messages); positions (V, 3) world space, metres; triangles (T, 3)
-    vertex indices; resolution / texel_density: per-object overrides (None = the settings')."""
+    vertex indices; resolution / texel_density: per-object overrides (None = the settings');
+    polygons: (T,) index ≥ 0 of the polygon each triangle belongs to (its triangles stay in one
+    chart, its corners on one vertex share one UV); None: every triangle is its own polygon."""
     name: str
     positions: np.ndarray
     triangles: np.ndarray
     resolution: int | None = None
     texel_density: float | None = None
+    polygons: np.ndarray | None = None
 
 
 @dataclass
@@ -69,11 +105,32 @@ class ObjectUV:
 
 @dataclass
 class UnwrapResult:
+    """stats: how the unwrap went ("charted" / "cached" meshes, "chart_s" / "pack_s" seconds,
+    "chart_processes", "packs": packs summed over atlases, "tries": per atlas, the densities
+    packed and whether they fitted [(texels per metre, fitted)])."""
     objects: list[ObjectUV]
     atlas_sizes: list[tuple[int, int]]      # (width, height) per atlas
-    utilisation: list[float]               # fraction of each atlas covered by charts
+    utilisation: list[float]               # fraction of each atlas covered by charts (padding included)
     charts: int
     warnings: list[str] = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Charts:
+    """One mesh cut into charts, in metres (see `xatlas_worker`): chart (T,) int32 chart id per
+    triangle (-1: no area); corner (T, 3) int32 index into uv of each corner (-1 likewise), one
+    per (chart, vertex); uv (U, 2) float32 chart-local coordinates; folded: polygons that overlap
+    themselves however they are flattened (e.g. self-intersecting n-gons). Read-only (shared by
+    the cache)."""
+    chart: np.ndarray
+    corner: np.ndarray
+    uv: np.ndarray
+    folded: int = 0
+
+    @property
+    def nbytes(self) -> int:
+        return self.chart.nbytes + self.corner.nbytes + self.uv.nbytes
 
 
 def padding_for_mips(mip_levels: int, base: int = 2) -> int:
@@ -87,10 +144,18 @@ def validate(mesh: UnwrapMesh) -> None:
     t = np.asarray(mesh.triangles)
     if t.size == 0:
         raise BakeError(f"'{mesh.name}' has no faces to unwrap")
+    if p.ndim != 2 or p.shape[1] != 3 or t.ndim != 2 or t.shape[1] != 3:
+        raise BakeError(f"'{mesh.name}': positions must be (V, 3) and triangles (T, 3), got "
+                        f"{p.shape} and {t.shape}")
     if not np.isfinite(p).all():
         raise BakeError(f"'{mesh.name}' has NaN or infinite vertex coordinates")
     if t.min() < 0 or t.max() >= len(p):
         raise BakeError(f"'{mesh.name}' has faces that reference missing vertices")
+    if mesh.polygons is not None:
+        poly = np.asarray(mesh.polygons)
+        if poly.shape != (len(t),) or not np.issubdtype(poly.dtype, np.integer) or poly.min() < 0:
+            raise BakeError(f"'{mesh.name}': polygons must give one polygon index ≥ 0 per triangle "
+                            f"({len(t)}), got an array of shape {poly.shape} and type {poly.dtype}")
     if not (triangle_areas(p, t) > 0).any():
         raise BakeError(f"'{mesh.name}' has only zero-area faces: nothing to bake")
 
@@ -108,26 +173,50 @@ def unwrap(meshes: list[UnwrapMesh], settings: UnwrapSettings,
     for m in meshes:
         validate(m)
     groups = _group(meshes, settings)
-    objects, sizes, utilisation, warnings, charts = [None] * len(meshes), [], [], [], 0
+    for _, resolution, density in groups:
+        _check_scale(resolution, density)
+    deps.require("xatlas")          # a missing wheel is a clear message here, not in the child
+    stats = {"packs": 0, "tries": []}
+    t0 = time.perf_counter()
+    keys = [chart_key(m) for m in meshes]
+    charts = chart_meshes(meshes, stats, _stage(progress, 0.0, 0.8), keys)
+    stats["chart_s"] = time.perf_counter() - t0
+    objects, sizes, utilisation, n_charts = [None] * len(meshes), [], [], 0
     for gi, (indices, resolution, density) in enumerate(groups):
-        if progress:
-            progress(gi / len(groups), f"xatlas: atlas {gi + 1} of {len(groups)}")
-        atlas = _pack([meshes[i] for i in indices], resolution, density, settings.padding)
+        stage = _stage(progress, 0.8 + 0.2 * gi / len(groups), 0.2 / len(groups))
+        if stage:
+            stage(0.0, f"xatlas: packing atlas {gi + 1} of {len(groups)}")
+        atlas = _pack([meshes[i] for i in indices], [charts[i] for i in indices], [keys[i] for i in indices],
+                      resolution, density, settings.padding, stage)
         # a density-driven atlas is xatlas's own size; a fixed one is resolution² (charts fit in it)
         w, h = (atlas["width"], atlas["height"]) if density is not None else (resolution, resolution)
-        atlas_index = len(sizes)
         sizes.append((w, h))
         utilisation.append(atlas["utilisation"])
-        charts += atlas["charts"]
+        n_charts += atlas["charts"]
+        stats["packs"] += atlas["packs"]
+        stats["tries"].append(atlas.get("tries", []))
         for k, i in enumerate(indices):
-            objects[i] = _object_uv(meshes[i], atlas, k, atlas_index, w, h)
-    for o in objects:
-        if o.texels < FEW_TEXELS:
-            warnings.append(f"'{o.name}' gets only {o.texels:.0f} lightmap texels: raise the resolution "
-                            "or its texel density to see lighting detail on it")
+            objects[i] = _object_uv(meshes[i], atlas, k, len(sizes) - 1, w, h)
+    stats["pack_s"] = time.perf_counter() - t0 - stats["chart_s"]
     if progress:
         progress(1.0, "xatlas: done")
-    return UnwrapResult(objects, sizes, utilisation, charts, warnings)
+    return UnwrapResult(objects, sizes, utilisation, n_charts, _warnings(meshes, charts, objects), stats)
+
+
+def _warnings(meshes, charts, objects) -> list[str]:
+    """Objects with polygons that fold over themselves, and objects with too few texels."""
+    out = [f"'{m.name}': {c.folded} polygon(s) overlap themselves when flattened (twisted or "
+           "self-intersecting faces), so their lightmap texels overlap: triangulate them (Face > "
+           "Triangulate Faces) or fix their shape" for m, c in zip(meshes, charts) if c.folded]
+    return out + [f"'{o.name}' gets only {o.texels:.0f} lightmap texels: raise the resolution or its texel "
+                  "density to see lighting detail on it" for o in objects if o.texels < FEW_TEXELS]
+
+
+def _stage(progress, start, span):
+    """A progress callback mapping [0, 1] onto [start, start + span] of `progress` (or None)."""
+    if progress is None:
+        return None
+    return lambda f, msg: progress(start + span * f, msg)
 
 
 def _group(meshes, settings):
@@ -143,20 +232,275 @@ def _group(meshes, settings):
     return groups
 
 
-def _pack(meshes, resolution, density, padding):
-    """Chart and pack `meshes` into one atlas with xatlas in a child process (see
-    `xatlas_worker`); returns the worker's result dict. A crashed or hung child is retried."""
-    deps.require("xatlas")          # a missing wheel is a clear message here, not in the child
+def _check_scale(resolution, density):
     if density is None and not MIN_RESOLUTION <= resolution <= MAX_RESOLUTION:
         raise BakeError(f"lightmap resolution {resolution} is outside {MIN_RESOLUTION}–{MAX_RESOLUTION}")
     if density is not None and not density > 0:
         raise BakeError(f"texel density must be positive, got {density}")
-    job = {"meshes": [(np.asarray(m.positions, dtype=np.float32), np.asarray(m.triangles, dtype=np.uint32))
-                      for m in meshes],
-           "resolution": int(resolution), "density": density, "padding": int(padding),
-           "max_resolution": MAX_RESOLUTION}
-    payload = pickle.dumps(list(sys.path)) + pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+# --- charting: once per mesh content, cached, in parallel child processes ---
+_CACHE: OrderedDict[bytes, Charts] = OrderedDict()            # chart_key → charts
+_PACKED: OrderedDict[tuple, dict] = OrderedDict()              # (keys, settings) → pack result
+
+
+def clear_chart_cache() -> None:
+    """Forget every cached chart set and packed atlas (the next unwrap charts every mesh again)."""
+    _CACHE.clear()
+    _PACKED.clear()
+
+
+def chart_key(mesh: UnwrapMesh) -> bytes:
+    """Cache key of a mesh's charts: a hash of its vertex positions (float32, centred on their
+    mean, so moving an object keeps its charts; rotating or scaling it does not), its triangles,
+    its polygon indices and CHART_VERSION. The packing settings (resolution, density, padding)
+    play no part: charts are in metres and re-packed for any atlas."""
+    h = hashlib.blake2b(CHART_VERSION, digest_size=20)
+    for a in (_centred(mesh.positions).astype(np.float32), np.ascontiguousarray(mesh.triangles, dtype=np.uint32)):
+        h.update(repr(a.shape).encode())
+        h.update(a.tobytes())
+    if mesh.polygons is not None:
+        h.update(np.ascontiguousarray(mesh.polygons, dtype=np.int64).tobytes())
+    return h.digest()
+
+
+def _centred(positions) -> np.ndarray:
+    """Positions (V, 3) float64 minus their mean: charted in float32 by xatlas, a mesh far from
+    the origin would lose its small details (and xatlas's choices change with them)."""
+    p = np.asarray(positions, dtype=np.float64)
+    return p - p.mean(axis=0)
+
+
+def chart_meshes(meshes: list[UnwrapMesh], stats: dict | None = None,
+                 progress: Callable[[float, str], None] | None = None,
+                 keys: list[bytes] | None = None) -> list[Charts]:
+    """Charts of every mesh: from the cache when a mesh with the same content was charted
+    before in this session, else charted now (identical meshes once), in up to CHART_PROCESSES
+    child processes at once. keys: the meshes' `chart_key`s, if already computed."""
+    keys = keys if keys is not None else [chart_key(m) for m in meshes]
+    todo = {}
+    for key, m in zip(keys, meshes):
+        if key not in _CACHE:
+            todo.setdefault(key, m)
+    if stats is not None:
+        stats.update(charted=len(todo), cached=len(meshes) - sum(k in todo for k in keys))
+    if todo:
+        for key, charts in zip(todo, _chart_uncached(list(todo.values()), stats, progress)):
+            _remember(key, charts)
+    out = []
+    for key in keys:
+        _CACHE.move_to_end(key)
+        out.append(_CACHE[key])
+    return out
+
+
+def _remember(key, charts):
+    for a in (charts.chart, charts.corner, charts.uv):
+        a.flags.writeable = False
+    _CACHE[key] = charts
+    total = sum(c.nbytes for c in _CACHE.values())
+    while total > CHART_CACHE_BYTES and len(_CACHE) > 1:
+        total -= _CACHE.popitem(last=False)[1].nbytes
+
+
+def _chart_uncached(meshes, stats, progress):
+    """Chart `meshes` in parallel children: [Charts] in order."""
+    jobs = _chart_jobs(meshes)
+    if stats is not None:
+        stats["chart_processes"] = len(jobs)
+
+    def run(job):
+        payload = [(_centred(meshes[i].positions)[used], tri, poly) for i, _, used, tri, poly in job]
+        names = [meshes[i].name for i, *_ in job]
+        triangles = sum(len(tri) for *_, tri, _ in job)
+        return _run_worker({"task": "chart", "meshes": payload}, names, triangles)["charts"]
+
+    if progress:
+        progress(0.0, f"xatlas: charting {sum(len(m.triangles) for m in meshes)} triangles")
+    results = [None] * len(jobs)
+    with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
+        futures = {pool.submit(run, job): k for k, job in enumerate(jobs)}
+        for done, future in enumerate(as_completed(futures), 1):   # progress from this thread only
+            results[futures[future]] = future.result()
+            if progress:
+                progress(done / len(jobs), f"xatlas: charted {done} of {len(jobs)} parts")
+    pieces: dict[int, list] = {}
+    for job, result in zip(jobs, results):
+        for (i, rows, *_), charts in zip(job, result):
+            pieces.setdefault(i, []).append((rows, charts))
+    return [_join(pieces[i], len(m.triangles)) for i, m in enumerate(meshes)]
+
+
+def _chart_jobs(meshes):
+    """Work for each charting child: [[(mesh index, triangle rows (t,) or None, vertices used
+    (v,), triangles (t, 3) uint32 renumbered, polygons (t,) or None)]], balanced by triangles.
+    A mesh larger than one child's share is split between its connected parts (charts never
+    cross from one connected part to another, so this gives the same kind of charts)."""
+    total = sum(len(m.triangles) for m in meshes)
+    n = max(1, min(CHART_PROCESSES, _cores(), -(-total // TRIANGLES_PER_PROCESS)))
+    share = total / n
+    items = []
+    for i, m in enumerate(meshes):
+        tri = np.asarray(m.triangles, dtype=np.int64)
+        pieces = _connected_pieces(tri, len(m.positions), share) if n > 1 and len(tri) > share else [None]
+        for rows in pieces:
+            items.append(_piece(i, m, tri, rows))
+    bins, load = [[] for _ in range(n)], [0] * n
+    for item in sorted(items, key=lambda it: -len(it[3])):
+        k = load.index(min(load))
+        bins[k].append(item)
+        load[k] += len(item[3])
+    return [b for b in bins if b]
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:          # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def _piece(i, mesh, tri, rows):
+    """(mesh index, rows, vertices used, renumbered triangles uint32, polygons) of a piece."""
+    sub = tri if rows is None else tri[rows]
+    used, inverse = np.unique(sub, return_inverse=True)
+    poly = None if mesh.polygons is None else np.asarray(mesh.polygons, dtype=np.int64)
+    if poly is not None and rows is not None:
+        poly = poly[rows]
+    return i, rows, used, inverse.reshape(-1, 3).astype(np.uint32), poly
+
+
+def _connected_pieces(triangles, n_vertices, share):
+    """Triangle rows of the connected parts of a mesh, gathered into pieces of about `share`
+    triangles (largest parts first); a single connected part stays whole."""
+    label = connected_parts(triangles, n_vertices)
+    ids, inverse, counts = np.unique(label, return_inverse=True, return_counts=True)
+    k = max(1, min(len(ids), int(round(len(triangles) / share))))
+    if k == 1:
+        return [None]
+    piece_of, load = np.zeros(len(ids), dtype=np.int64), np.zeros(k)
+    for c in np.argsort(-counts, kind="stable"):
+        piece_of[c] = int(np.argmin(load))
+        load[piece_of[c]] += counts[c]
+    tri_piece = piece_of[inverse.ravel()]
+    return [np.nonzero(tri_piece == p)[0] for p in range(k) if load[p] > 0]
+
+
+def connected_parts(triangles: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Label (T,) per triangle, equal for triangles connected through shared vertices (the
+    smallest vertex index of the part). Union by hooking roots onto smaller roots, then
+    pointer jumping, until no triangle edge joins two roots."""
+    parent = np.arange(n_vertices)
+    a, b = triangles.ravel(), np.roll(triangles, 1, axis=1).ravel()
+    while True:
+        ra, rb = parent[a], parent[b]
+        join = ra != rb
+        if not join.any():
+            return parent[triangles[:, 0]]
+        np.minimum.at(parent, np.maximum(ra[join], rb[join]), np.minimum(ra[join], rb[join]))
+        while True:
+            nxt = parent[parent]
+            if (nxt == parent).all():
+                break
+            parent = nxt
+
+
+def _join(pieces, n_triangles):
+    """One mesh's Charts from its pieces' worker results [(rows or None, (chart, corner, uv))]."""
+    if len(pieces) == 1 and pieces[0][0] is None:
+        return Charts(*pieces[0][1])
+    chart = np.full(n_triangles, -1, dtype=np.int32)
+    corner = np.full((n_triangles, 3), -1, dtype=np.int32)
+    uvs, n_charts, n_uv, folded = [], 0, 0, 0
+    for rows, (c, k, uv, f) in pieces:
+        chart[rows] = np.where(c >= 0, c + n_charts, -1)
+        corner[rows] = np.where(k >= 0, k + n_uv, -1)
+        n_charts += int(c.max()) + 1 if len(c) else 0
+        n_uv += len(uv)
+        uvs.append(uv)
+        folded += f
+    return Charts(chart, corner, np.concatenate(uvs), folded)
+
+
+# --- packing ---
+def _pack(meshes, charts, keys, resolution, density, padding, progress=None):
+    """Pack the charts of `meshes` into one atlas (see `xatlas_worker.pack`); returns the
+    worker's result dict plus "texels_per_metre" and "packs" (pack runs). A fixed density is
+    packed once into an atlas of the size it needs; a fixed resolution is fitted by `_fit`.
+    The same charts packed with the same settings before in this session are not packed again."""
+    cache_key = (tuple(keys), int(resolution), density, int(padding))
+    if cache_key in _PACKED:
+        _PACKED.move_to_end(cache_key)
+        return dict(_PACKED[cache_key], packs=0)
+    if density is not None:
+        result = _pack_at([density], charts, meshes, 0, padding, density * xatlas_worker.PACK_UNITS_PER_TEXEL)[0]
+        if max(result["width"], result["height"]) > MAX_RESOLUTION:
+            raise BakeError(f"texel density {density:g}/m needs a {result['width']}×{result['height']} atlas for "
+                            f"{_names(meshes)}, larger than {MAX_RESOLUTION}²: lower the density or give some "
+                            "objects their own atlas")
+        result.update(texels_per_metre=density, packs=1)
+    else:
+        result = _fit(meshes, charts, resolution, padding, progress)
+    _PACKED[cache_key] = result
+    while len(_PACKED) > 1 and (len(_PACKED) > PACK_CACHE_ENTRIES or
+                                sum(sum(u.nbytes for u in r["uv"]) for r in _PACKED.values()) > PACK_CACHE_BYTES):
+        _PACKED.popitem(last=False)
+    return result
+
+
+def _fit(meshes, charts, resolution, padding, progress=None):
+    """Pack at the largest density found that fits one resolution² atlas (`xatlas_worker.fit`):
+    in one child when the charts are few or there is one core, else driven from here with two
+    densities packed side by side in parallel children each round."""
+    payload = [(c.chart, c.corner, c.uv) for c in charts]
+    _, boxes = xatlas_worker.chart_boxes(payload)
+    q, fill = 2 * padding + 2, min(xatlas_worker.FIRST_FILL)
+    if xatlas_worker.box_density(boxes, resolution, padding, fill) is None:
+        raise BakeError(f"{_names(meshes)}: {len(boxes)} charts with padding {padding} need at least "
+                        f"{len(boxes) * q * q:.0f} texels for their padding alone, more than {fill:.0%} of a "
+                        f"{resolution}² atlas: raise the resolution, lower the padding, or give some objects "
+                        "their own atlas")
     triangles = sum(len(m.triangles) for m in meshes)
+    if _cores() < 2 or triangles <= ONE_CHILD_TRIANGLES:
+        job = {"task": "fit", "charts": payload, "resolution": int(resolution), "padding": int(padding),
+               "fills": (float(np.mean(xatlas_worker.FIRST_FILL)),)}
+        result = _run_worker(job, [m.name for m in meshes], triangles)
+    else:
+        def pack_at(densities, units):
+            return _pack_at(densities, charts, meshes, resolution, padding, units)
+        result = xatlas_worker.fit(pack_at, boxes, resolution, padding, xatlas_worker.FIRST_FILL, True, progress)
+    if not result["fits"]:
+        raise BakeError(f"could not fit the {len(boxes)} charts of {_names(meshes)} into one {resolution}² atlas "
+                        f"with padding {padding}: raise the resolution, lower the padding, or give some objects "
+                        "their own atlas")
+    return result
+
+
+def _pack_at(densities, charts, meshes, resolution, padding, units):
+    """Worker pack results, one per density (texels per metre), packed in parallel children."""
+    payload = [(c.chart, c.corner, c.uv) for c in charts]
+    names = [m.name for m in meshes]
+    triangles = sum(len(m.triangles) for m in meshes)
+
+    def run(density):
+        job = {"task": "pack", "charts": payload, "texels_per_metre": float(density),
+               "resolution": int(resolution), "padding": int(padding), "units": float(units)}
+        return _run_worker(job, names, triangles)
+
+    if len(densities) == 1:
+        return [run(densities[0])]
+    with ThreadPoolExecutor(max_workers=len(densities)) as pool:
+        return list(pool.map(run, densities))
+
+
+def _names(meshes) -> str:
+    shown = ", ".join(f"'{m.name}'" for m in meshes[:5])
+    return shown + (f" and {len(meshes) - 5} more" if len(meshes) > 5 else "")
+
+
+def _run_worker(job, names, triangles):
+    """Run one xatlas_worker task in a child process; a crashed or hung child is retried."""
+    payload = pickle.dumps(list(sys.path)) + pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
     timeout = XATLAS_TIMEOUT_BASE + XATLAS_TIMEOUT_PER_TRIANGLE * triangles
     failures = []
     for _ in range(XATLAS_ATTEMPTS):
@@ -172,8 +516,8 @@ def _pack(meshes, resolution, density, padding):
                 raise BakeError(result["error"])
             return result
         failures.append(_describe_failure(run))
-    names = ", ".join(f"'{m.name}'" for m in meshes[:5]) + (" …" if len(meshes) > 5 else "")
-    raise BakeError(f"xatlas failed {XATLAS_ATTEMPTS} times unwrapping {names}: {'; '.join(failures)}")
+    shown = ", ".join(f"'{n}'" for n in names[:5]) + (" …" if len(names) > 5 else "")
+    raise BakeError(f"xatlas failed {XATLAS_ATTEMPTS} times unwrapping {shown}: {'; '.join(failures)}")
 
 
 def _describe_failure(run) -> str:
@@ -188,7 +532,7 @@ def _describe_failure(run) -> str:
 
 
 def _object_uv(mesh, atlas, k, atlas_index, w, h):
-    # xatlas normalises UVs by its own width/height; rescale to the final atlas size.
+    # the worker's UVs are normalised by xatlas's atlas size; rescale to the final atlas size.
     scale = np.array([atlas["width"] / w, atlas["height"] / h], dtype=np.float64)
     uv = (atlas["uv"][k] * scale).astype(np.float32)                    # (T, 3, 2)
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]

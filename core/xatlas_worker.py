@@ -1,80 +1,691 @@
-"""xatlas charting and packing, run in a child process by `unwrap`. No bpy, no package imports.
+"""xatlas charting and packing, run in child processes by `unwrap`. No bpy, no package imports.
 
 Why a child process: xatlas's worker threads are not robust on small machines. On 2 cores we have
 seen, rarely, a SIGSEGV inside Atlas.generate() and a hang in its TaskScheduler's destructor
 (both in CI, both gone on re-run; xatlas users report the same on 2-core CI machines). In a child
 a crash costs one retry instead of Blender and the artist's unsaved work, and the child leaves
-with os._exit() as soon as its result is written, so the destructor never runs.
+with os._exit() as soon as its result is written, so no destructor ever runs (every Atlas is kept
+alive until then).
+
+Two tasks, each a separate run:
+
+- "chart": cut meshes into charts (`chart`). xatlas charts the triangles; a polygon (quad,
+  n-gon) whose triangles xatlas put in different charts, or that has a triangle xatlas left out
+  (zero area), becomes a chart of its own, flattened onto the plane of its area vector. A chart
+  whose triangles overlap (xatlas can lay out a ring whose inner edge falls inside its own outer
+  part) is broken up the same way, one polygon per chart. Every chart is then scaled to metres
+  (its u and v scales fitted to its 3D edge lengths, then its UV area made its 3D area), so
+  charts depend on no atlas size and can be cached and re-packed.
+- "pack": place the charts of several meshes at a given density with xatlas's UV-mesh packer
+  (`pack`); the parent (`unwrap._fit`) chooses the densities.
+
+Charts are stored per mesh as (chart (T,) int32 chart id per triangle, -1 for a polygon with no
+area; corner (T, 3) int32 index of each triangle corner into uv, -1 likewise; uv (U, 2) float32
+chart-local coordinates in metres). A corner index stands for one (chart, vertex) pair, so all
+the loops of a vertex in one polygon share one UV vertex: the UVs written per loop are exact.
 
 This file runs as a script (`python -I xatlas_worker.py`), so it imports only numpy and xatlas.
 Protocol: stdin = two pickles, the parent's sys.path (a plain list, read before anything is
-imported) and {"meshes": [(positions (V, 3) float32, triangles (T, 3) uint32)], "resolution",
-"density", "padding", "max_resolution"}; stdout = pickle of `pack`'s result.
+imported) and a job dict: {"task": "chart", "meshes": [(positions (V, 3) float64, triangles
+(T, 3) uint32, polygons (T,) int64 or None)]} → {"charts": [(chart, corner, uv, folded)]}, or
+{"task": "pack", "charts": [(chart, corner, uv)], "texels_per_metre", "resolution", "padding",
+"units"} → `pack`'s result; stdout = pickle of the result.
 """
 import os
 import pickle
 import sys
 
+#: The charting pass packs each mesh into an atlas of about this many texels across; only its
+#: chart shapes are kept (rescaled to metres), so it only needs to be fine enough for float32.
+CHART_PASS_RESOLUTION = 1024
+#: xatlas's ChartOptions.max_iterations (its default: 1).
+CHART_ITERATIONS = 1
+#: Area (in xatlas's input units, squared) below which triangles are scaled up for charting
+#: (`_chart_scale`): well above FLT_EPSILON, xatlas's zero-area threshold.
+SMALL_TRIANGLE = 1e-5
+#: Candidate pairs tested at once when checking charts for overlaps (bounds the memory used).
+MAX_PAIRS = 1 << 22
+#: Fitting (`fit`): rounds before giving up on fitting the charts into the atlas.
+PACK_ROUNDS = 12
+#: First densities tried: those at which the charts' padded bounding boxes would cover these
+#: shares of the atlas (`box_density`); both side by side, or their mean alone.
+FIRST_FILL = (0.95, 0.75)
+#: After a round where every density spilled, the next packs at `_shrunk` of the smallest and,
+#: side by side, also at SECOND_TRY times that.
+SHRINK_MARGIN, SHRINK_MIN, SECOND_TRY = 0.985, 0.98, 0.95
+#: Once a density fits, rounds quicker than REFINE_SECONDS are followed by up to REFINE_ROUNDS
+#: rounds at densities between it and the smallest that spilled (or REFINE_REACH times it),
+#: until those two are within REFINE_TOLERANCE of each other.
+REFINE_SECONDS, REFINE_ROUNDS, REFINE_REACH, REFINE_TOLERANCE = 3.0, 3, 1.15, 0.015
+#: Pack input units per texel at the first density: large, so that no triangle with any area
+#: falls under xatlas's zero-area threshold (FLT_EPSILON in input units), which would drop it.
+PACK_UNITS_PER_TEXEL = 1024.0
+_NONE = 0xFFFFFFFF
+_ATLASES = []       # every Atlas (and its input arrays) stays alive until os._exit: no destructor runs
 
-def pack(meshes, resolution, density, padding, max_resolution):
-    """Chart and pack `meshes` into one atlas. Returns {"error": message} or {"width", "height"
-    (xatlas's own atlas size), "uv": [(T, 3, 2) float32 per mesh, normalised by xatlas's size],
-    "mesh_charts": [charts per mesh], "charts", "utilisation"}.
 
-    density (texels per unit) fixes the scale; otherwise the atlas is resolution² and the density
-    is found: xatlas's estimate, shrunk by the measured overshoot until every chart fits in one
-    atlas of that size (each retry re-runs xatlas: its binding cannot re-pack alone; usually one)."""
+def chart(meshes):
+    """Charts of each mesh: [(chart, corner, uv, folded)] (see the module docstring and
+    `_finish_charts`)."""
     import numpy as np
     import xatlas
-
-    def attempt(texels_per_unit, fixed_resolution):
+    out = []
+    for positions, triangles, polygons in meshes:
+        positions = np.asarray(positions, dtype=np.float64)
+        triangles = np.ascontiguousarray(triangles, dtype=np.uint32)
+        scaled = np.ascontiguousarray(positions * _chart_scale(positions, triangles), dtype=np.float32)
         atlas = xatlas.Atlas()
-        for positions, triangles in meshes:
-            atlas.add_mesh(np.ascontiguousarray(positions, dtype=np.float32),
-                           np.ascontiguousarray(triangles, dtype=np.uint32))
-        options = xatlas.PackOptions()
-        options.padding = int(padding)
-        options.bilinear = True
-        options.texels_per_unit = float(texels_per_unit)
-        options.resolution = int(fixed_resolution)
-        atlas.generate(pack_options=options)
-        return atlas
-
-    if density is not None:
-        atlas = attempt(density, 0)
-        if max(atlas.width, atlas.height) > max_resolution or atlas.atlas_count > 1:
-            return {"error": f"texel density {density:g}/m needs an atlas larger than {max_resolution}²: "
-                             "lower the density or split the objects into several atlases"}
-        return _result(atlas, len(meshes))
-    atlas = attempt(0, resolution)
-    tpu = atlas.texels_per_unit
-    for _ in range(12):
-        if atlas.atlas_count == 1 and atlas.width <= resolution and atlas.height <= resolution:
-            return _result(atlas, len(meshes))
-        overshoot = max(atlas.width, atlas.height) / resolution if atlas.atlas_count == 1 else 1.0
-        tpu *= min(0.97, 0.98 / max(overshoot, 1e-9))
-        atlas = attempt(tpu, resolution)
-    return {"error": f"could not pack the charts into one {resolution}² atlas"}
+        _ATLASES.append((atlas, scaled, triangles))
+        tri_chart, corner_uv, corner_vertex = _xatlas_charts(atlas, scaled, triangles)
+        if polygons is None:
+            polygons = np.arange(len(triangles), dtype=np.int64)
+        else:                                           # numbered 0 … P-1
+            polygons = np.unique(np.asarray(polygons, dtype=np.int64), return_inverse=True)[1].ravel()
+        out.append(_finish_charts(positions, triangles.astype(np.int64), polygons, tri_chart, corner_uv,
+                                  corner_vertex))
+    return out
 
 
-def _result(atlas, n_meshes):
+def _chart_scale(positions, triangles):
+    """Factor to scale a mesh by for xatlas. Its zero-area test is absolute (FLT_EPSILON in its
+    input units: in metres, triangles under about half a millimetre square would get no chart)
+    and its charts change a little with the scale, so meshes keep their size (in metres) unless
+    their smaller triangles (the 1st percentile by area) are under SMALL_TRIANGLE: then they are
+    scaled up to that size."""
+    import numpy as np
+    areas = _areas(positions, triangles.astype(np.int64))
+    areas = areas[areas > 0]
+    small = float(np.percentile(areas, 1)) if len(areas) else SMALL_TRIANGLE
+    return float(np.sqrt(SMALL_TRIANGLE / small)) if small < SMALL_TRIANGLE else 1.0
+
+
+def _xatlas_charts(atlas, positions, triangles):
+    """Chart one mesh with xatlas: (chart (T,) int64, -1 where xatlas made none or its chart is
+    invalid; corner UVs (T, 3, 2) float64 in the charting pass's texels; corner output vertex
+    (T, 3) int64, one per (chart, vertex))."""
+    import numpy as np
+    import xatlas
+    atlas.add_mesh(positions, triangles)
+    area = _areas(positions.astype(np.float64), triangles.astype(np.int64)).sum()
+    options = xatlas.PackOptions()
+    options.padding, options.bilinear, options.rotate_charts = 0, False, False
+    options.resolution = 0
+    options.texels_per_unit = float(np.sqrt(0.75 * CHART_PASS_RESOLUTION ** 2 / max(area, 1e-30)))
+    chart_options = xatlas.ChartOptions()
+    chart_options.max_iterations = CHART_ITERATIONS
+    atlas.generate(chart_options=chart_options, pack_options=options)
+    _, indices, uvs = atlas[0]
+    _, vertex_chart = atlas.get_mesh_vertex_assignment(0)
+    vertex_chart = np.where(vertex_chart == _NONE, -1, vertex_chart.astype(np.int64))
+    invalid = [c for c in range(atlas.get_mesh_chart_count(0))
+               if atlas.get_mesh_chart(0, c).type == xatlas.ChartType.Invalid]
+    tri_chart = vertex_chart[indices[:, 0]]
+    if invalid:
+        tri_chart[np.isin(tri_chart, invalid)] = -1          # overlapping: redone per polygon
+    corner_uv = uvs.astype(np.float64)[indices] * [atlas.width, atlas.height]
+    return tri_chart, corner_uv, indices.astype(np.int64)
+
+
+def _finish_charts(positions, triangles, polygons, tri_chart, corner_uv, corner_vertex):
+    """Give polygons xatlas split, and charts that fold over themselves, one chart per polygon;
+    scale every chart to metres; number the UV vertices. Returns (chart (T,) int32, corner
+    (T, 3) int32, uv (U, 2) float32, folded: polygons that overlap themselves even flattened
+    alone, e.g. self-intersecting n-gons)."""
+    import numpy as np
+    bad_poly = _split_polygons(triangles, polygons, tri_chart, corner_vertex)
+    while True:
+        chart, key, uv, planar = _assemble(positions, triangles, polygons, tri_chart, corner_uv,
+                                           corner_vertex, bad_poly)
+        invalid = _invalid_charts(uv, chart, key, len(planar))
+        redo = invalid & ~planar
+        if not redo.any():
+            break
+        bad_poly[polygons[(chart >= 0) & redo[np.maximum(chart, 0)]]] = True
+    chart, corner, uv_vertices = _uv_vertices(chart, key, uv)
+    return chart, corner, uv_vertices, int((invalid & planar).sum())
+
+
+def _assemble(positions, triangles, polygons, tri_chart, corner_uv, corner_vertex, bad_poly):
+    """xatlas's charts, with the polygons flagged in bad_poly (P,) flattened one per chart.
+    Returns (chart (T,) numbered from 0, -1 for no area; corner key (T, 3), one per (chart,
+    vertex); corner UVs (T, 3, 2) in metres; planar (C,) bool: the chart is one polygon)."""
+    import numpy as np
+    bad = bad_poly[polygons]
+    chart = tri_chart.copy()
+    uv = corner_uv.copy()
+    key = np.where(bad[:, None], -1, corner_vertex)              # xatlas's (chart, vertex)
+    first = int(tri_chart.max()) + 1 if (tri_chart >= 0).any() else 0
+    if bad.any():
+        p_chart, p_uv = _planar_charts(positions, triangles[bad], polygons[bad])
+        chart[bad] = np.where(p_chart >= 0, p_chart + first, -1)
+        uv[bad] = p_uv
+        # (polygon, vertex) pairs numbered after xatlas's output vertices
+        pv = polygons[bad][:, None] * (int(triangles.max()) + 1) + triangles[bad]
+        _, pv_index = np.unique(pv.ravel(), return_inverse=True)
+        key[bad] = int(corner_vertex.max()) + 1 + pv_index.reshape(-1, 3)
+    live = chart >= 0
+    key[~live] = -1
+    ids, chart = _renumber(chart)
+    uv[live] = _to_metres(positions[triangles[live]], uv[live], chart[live], len(ids))
+    return chart, key, uv, ids >= first
+
+
+def _invalid_charts(uv, chart, key, n_charts):
+    """(C,) bool: charts whose triangles overlap. A chart is valid when its triangles all wind
+    one way, no edge has more than two triangles, no two boundary edges cross, and next to
+    every boundary loop, on its triangles' side, the boundary winds once around (twice: a
+    second layer, e.g. a ring whose inner edge xatlas laid inside its own outer part)."""
+    import numpy as np
+    live = chart >= 0
+    uv, chart, key = uv[live], chart[live], key[live]
+    invalid = np.zeros(n_charts, dtype=bool)
+    signed = _signed_area(uv)
+    total = np.bincount(chart, weights=signed, minlength=n_charts)
+    size = np.bincount(chart, weights=np.abs(signed), minlength=n_charts)
+    against = signed * np.sign(total)[chart] < -1e-9 * size[chart]
+    invalid[chart[against]] = True
+    directed = np.stack([key, np.roll(key, -1, axis=1)], axis=-1).reshape(-1, 2)
+    ends = np.stack([uv, np.roll(uv, -1, axis=1)], axis=2).reshape(-1, 2, 2)
+    undirected = np.sort(directed, axis=1)
+    _, inverse, counts = np.unique(undirected[:, 0] * (int(key.max()) + 1) + undirected[:, 1],
+                                   return_inverse=True, return_counts=True)
+    counts = counts[inverse.ravel()]
+    edge_chart = np.repeat(chart, 3)
+    invalid[edge_chart[counts > 2]] = True
+    boundary = counts == 1
+    ends, directed, edge_chart = ends[boundary], directed[boundary], edge_chart[boundary]
+    invalid[_crossing_charts(ends, directed, edge_chart, n_charts)] = True
+    invalid[_layered_charts(ends, directed, edge_chart, np.sign(total))] = True
+    return invalid
+
+
+def _layered_charts(ends, directed, chart, orientation):
+    """Chart ids where, beside some boundary loop on its triangles' side, the chart's boundary
+    winds around more or less than once. Boundary edges (ends (E, 2, 2), vertex ids (E, 2),
+    chart (E,)) are linked into loops; one point per loop is tested against its chart's whole
+    boundary. orientation (C,): +1 counter-clockwise charts, -1 mirrored ones."""
+    import numpy as np
+    if len(ends) == 0:
+        return np.zeros(0, dtype=np.int64)
+    # pair each vertex's incoming edges with its outgoing ones: a permutation of the edges
+    out_order = np.lexsort((directed[:, 0], chart))
+    in_order = np.lexsort((directed[:, 1], chart))
+    if not (directed[out_order, 0] == directed[in_order, 1]).all():
+        return np.unique(chart)                          # ragged boundary: check every chart
+    succ = np.empty(len(ends), dtype=np.int64)
+    succ[in_order] = out_order
+    loop = np.arange(len(ends))
+    step = succ.copy()
+    for _ in range(int(np.ceil(np.log2(len(ends) + 1)))):       # smallest edge index per loop
+        loop = np.minimum(loop, loop[step])
+        step = step[step]
+    sample = np.unique(loop)
+    several = np.bincount(chart[sample])[chart[sample]] > 1    # one simple loop winds once
+    sample = sample[several]
+    if len(sample) == 0:
+        return np.zeros(0, dtype=np.int64)
+    a, b = ends[sample, 0], ends[sample, 1]
+    left = np.stack([-(b - a)[:, 1], (b - a)[:, 0]], axis=1)
+    point = 0.5 * (a + b) + 1e-6 * orientation[chart[sample]][:, None] * left   # triangles' side
+    edges = np.nonzero(np.isin(chart, chart[sample]))[0]
+    wind = np.zeros(len(sample))
+    for who, edge in _rows_at_height(chart[sample], point[:, 1], chart[edges], ends[edges, :, 1]):
+        np.add.at(wind, who, _winding(point[who], ends[edges[edge], 0], ends[edges[edge], 1]))
+    c = chart[sample]
+    return np.unique(c[wind * orientation[c] != 1])
+
+
+def _rows_at_height(point_chart, y, edge_chart, edge_y):
+    """(point, edge) index pairs of the same chart where min(edge y) ≤ point y < max(edge y):
+    the only edges that can add to a point's winding number, in chunks (see `_chunks`).
+    edge_y (E, 2)."""
+    import numpy as np
+    lo, hi = edge_y.min(axis=1), edge_y.max(axis=1)
+    rank = np.unique(np.concatenate([y, lo, hi]), return_inverse=True)[1].ravel()
+    n = len(rank) + 1
+    key = point_chart * n + rank[:len(y)]
+    order = np.argsort(key, kind="stable")
+    start = np.searchsorted(key[order], edge_chart * n + rank[len(y):len(y) + len(lo)])
+    stop = np.searchsorted(key[order], edge_chart * n + rank[len(y) + len(lo):])
+    count = stop - start
+    for rows in _chunks(count):
+        edge = np.repeat(rows, count[rows])
+        first = np.repeat(start[rows], count[rows])
+        yield order[first + np.arange(len(edge)) - np.repeat(np.cumsum(count[rows]) - count[rows], count[rows])], edge
+
+
+def _winding(p, a, b):
+    """Winding contributions (n,) of edges a→b around points p (each (n, 2)): ±1 where the
+    edge crosses the horizontal line through p on p's right, upwards or downwards (Sunday's
+    rule). Summed over a closed boundary: its winding number around p."""
+    import numpy as np
+    side = _orient(a, b, p)
+    up = (a[:, 1] <= p[:, 1]) & (b[:, 1] > p[:, 1]) & (side > 0)
+    down = (a[:, 1] > p[:, 1]) & (b[:, 1] <= p[:, 1]) & (side < 0)
+    return up.astype(np.float64) - down
+
+
+def _crossing_charts(ends, vertices, chart, n_charts):
+    """Chart ids in which two of the given edges (ends (E, 2, 2), vertex ids (E, 2), chart
+    (E,)) properly cross. Edges are binned into a grid per chart (cells about one mean edge
+    long, or 1/√E of the chart's size if larger, doubled while the bins would hold too many
+    entries); edges sharing a cell and no vertex are tested with strict orientation signs."""
+    import numpy as np
+    if len(ends) < 2:
+        return np.zeros(0, dtype=np.int64)
+    length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+    count = np.maximum(np.bincount(chart, minlength=n_charts), 1)
+    extent = np.zeros(n_charts)
+    np.maximum.at(extent, chart, ends.max(axis=(1, 2)))
+    cell = np.maximum(np.bincount(chart, weights=length, minlength=n_charts) / count, extent / np.sqrt(count))
+    cell = np.maximum(cell, 1e-12)[chart]
+    while True:
+        lo = np.floor(ends.min(axis=1) / cell[:, None]).astype(np.int64)
+        hi = np.floor(ends.max(axis=1) / cell[:, None]).astype(np.int64)
+        nx, ny = hi[:, 0] - lo[:, 0] + 1, hi[:, 1] - lo[:, 1] + 1
+        if (nx * ny).sum() <= max(MAX_PAIRS, 8 * len(ends)):
+            break
+        cell = cell * 2.0
+    count = nx * ny
+    edge = np.repeat(np.arange(len(ends)), count)
+    k = np.arange(len(edge)) - np.repeat(np.cumsum(count) - count, count)
+    cx, cy = lo[edge, 0] + k % nx[edge], lo[edge, 1] + k // nx[edge]
+    cell_key = (chart[edge] << 42) + ((cx & 0x1FFFFF) << 21) + (cy & 0x1FFFFF)
+    order = np.argsort(cell_key, kind="stable")
+    edge, cell_key = edge[order], cell_key[order]
+    found = []
+    for i, j in _pairs_in_runs(cell_key):
+        a, b = edge[i], edge[j]
+        shared = (vertices[a][:, :, None] == vertices[b][:, None, :]).any(axis=(1, 2))
+        a, b = a[~shared], b[~shared]
+        p1, q1, p2, q2 = ends[a, 0], ends[a, 1], ends[b, 0], ends[b, 1]
+        cross = ((_orient(p1, q1, p2) * _orient(p1, q1, q2) < 0) &
+                 (_orient(p2, q2, p1) * _orient(p2, q2, q1) < 0))
+        found.append(np.unique(chart[a[cross]]))
+    return np.unique(np.concatenate(found)) if found else np.zeros(0, dtype=np.int64)
+
+
+def _pairs_in_runs(keys):
+    """Index pairs (i, j), i < j, of entries in the same run of equal sorted `keys`, yielded in
+    chunks of about MAX_PAIRS pairs (memory stays bounded whatever the runs' sizes)."""
+    import numpy as np
+    start = np.concatenate([[True], keys[1:] != keys[:-1]])
+    run_start = np.maximum.accumulate(np.where(start, np.arange(len(keys)), 0))
+    run_id = np.cumsum(start) - 1
+    run_end = np.bincount(run_id) + run_start[start]                        # exclusive, per run
+    after = run_end[run_id] - np.arange(len(keys)) - 1                      # partners after i
+    for rows in _chunks(after):
+        i = np.repeat(rows, after[rows])
+        j = i + 1 + np.arange(len(i)) - np.repeat(np.cumsum(after[rows]) - after[rows], after[rows])
+        yield i, j
+
+
+def _chunks(counts):
+    """Consecutive index ranges (as arrays) of `counts` each summing to about MAX_PAIRS at most
+    (a single larger count is a chunk of its own)."""
+    import numpy as np
+    total = np.cumsum(counts)
+    start = 0
+    while start < len(counts):
+        base = total[start - 1] if start else 0
+        stop = max(start + 1, int(np.searchsorted(total, base + MAX_PAIRS, side="right")))
+        yield np.arange(start, stop)
+        start = stop
+
+
+def _orient(a, b, c):
+    """Twice the signed area (n,) of triangles (a, b, c), each (n, 2)."""
+    return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+
+
+def _split_polygons(triangles, polygons, tri_chart, corner_vertex):
+    """(P,) bool: polygons xatlas did not keep whole: a triangle without a chart, or a vertex
+    that is two different chart vertices (different charts or a seam) inside the polygon."""
+    import numpy as np
+    n_poly = int(polygons.max()) + 1
+    bad = np.zeros(n_poly, dtype=bool)
+    bad[polygons[tri_chart < 0]] = True
+    lo, hi = np.full(n_poly, np.iinfo(np.int64).max), np.full(n_poly, -1)
+    np.minimum.at(lo, polygons, tri_chart)
+    np.maximum.at(hi, polygons, tri_chart)
+    bad |= (hi >= 0) & (lo != hi)
+    pv = (np.repeat(polygons, 3) * (int(triangles.max()) + 1) + triangles.ravel())
+    order = np.argsort(pv, kind="stable")
+    pv_sorted, out_sorted = pv[order], corner_vertex.ravel()[order]
+    differs = (pv_sorted[1:] == pv_sorted[:-1]) & (out_sorted[1:] != out_sorted[:-1])
+    bad[np.repeat(polygons, 3)[order][1:][differs]] = True
+    return bad
+
+
+def _planar_charts(positions, triangles, polygons):
+    """One chart per polygon, flattened onto the plane of its area vector (as Blender
+    triangulates it). Returns (chart (t,) int64 numbered from 0, -1 for polygons without area;
+    corner UVs (t, 3, 2) in metres)."""
+    import numpy as np
+    p = positions[triangles]                                                 # (t, 3, 3)
+    ids, poly_index = np.unique(polygons, return_inverse=True)
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    normal = np.zeros((len(ids), 3))
+    np.add.at(normal, poly_index, cross)
+    length = np.linalg.norm(normal, axis=1)
+    flat = length <= 1e-12 * np.maximum(_extent(p, poly_index, len(ids)) ** 2, 1e-300)
+    n = normal / np.where(flat, 1.0, length)[:, None]
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(n, helper)
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    v = np.cross(n, u)
+    origin = np.zeros((len(ids), 3))
+    origin[poly_index[::-1]] = p[::-1, 0]                    # a vertex of each polygon
+    local = p - origin[poly_index][:, None, :]
+    uv = np.stack([np.einsum("tki,ti->tk", local, u[poly_index]),
+                   np.einsum("tki,ti->tk", local, v[poly_index])], axis=-1)
+    chart = np.where(flat[poly_index], -1, poly_index)
+    return chart, uv
+
+
+def _extent(p, index, n):
+    """Bounding-box diagonal (n,) of the triangles `p (t, 3, 3)` grouped by `index`."""
+    import numpy as np
+    lo = np.full((n, 3), np.inf)
+    hi = np.full((n, 3), -np.inf)
+    np.minimum.at(lo, index, p.min(axis=1))
+    np.maximum.at(hi, index, p.max(axis=1))
+    return np.linalg.norm(hi - lo, axis=1)
+
+
+def _renumber(chart):
+    """Chart ids made consecutive from 0 (-1 kept): (old id (C,) of each new id, chart (T,))."""
+    import numpy as np
+    ids, inverse = np.unique(chart, return_inverse=True)
+    inverse = inverse.reshape(chart.shape)
+    if len(ids) and ids[0] < 0:
+        return ids[1:], np.where(chart < 0, -1, inverse - 1)
+    return ids, inverse
+
+
+def _to_metres(p, uv, chart, n_charts):
+    """Corner UVs `(t, 3, 2)` rescaled per chart so that one UV unit is one metre: u and v
+    scales fitted (least squares) to the 3D lengths of the chart's edges, which undoes the
+    stretch xatlas's charting pass gives small charts, then a uniform scale making the chart's
+    UV area its 3D area. Charts are moved to start at (0, 0)."""
+    import numpy as np
+    d_uv = np.roll(uv, -1, axis=1) - uv                                    # (t, 3, 2) edges
+    d_p = np.roll(p, -1, axis=1) - p
+    d_len2 = np.einsum("tki,tki->tk", d_p, d_p)
+    ok = d_len2 > 0
+    # a·du² + b·dv² ≈ length² for every edge, relative: a·x + b·y ≈ 1
+    x = np.where(ok, d_uv[..., 0] ** 2 / np.where(ok, d_len2, 1.0), 0.0)
+    y = np.where(ok, d_uv[..., 1] ** 2 / np.where(ok, d_len2, 1.0), 0.0)
+    edge_chart = np.repeat(chart, 3)
+
+    def total(w):
+        return np.bincount(edge_chart, weights=w.ravel(), minlength=n_charts)
+    sxx, sxy, syy, sx, sy = total(x * x), total(x * y), total(y * y), total(x), total(y)
+    det = sxx * syy - sxy * sxy
+    solvable = det > 1e-9 * np.maximum(sxx * syy, 1e-300)
+    safe = np.where(solvable, det, 1.0)
+    a, b = (syy * sx - sxy * sy) / safe, (sxx * sy - sxy * sx) / safe
+    iso = total(x + y) / np.maximum(total((x + y) ** 2), 1e-300)            # one scale for both
+    fit = solvable & (a > 0) & (b > 0)
+    a, b = np.where(fit, a, iso), np.where(fit, b, iso)
+    scaled = uv * np.stack([np.sqrt(a), np.sqrt(b)], axis=1)[chart][:, None, :]
+    area_uv = np.bincount(chart, weights=np.abs(_signed_area(scaled)), minlength=n_charts)
+    area_3d = np.bincount(chart, weights=_areas3(p), minlength=n_charts)
+    has_area = (area_uv > 0) & (area_3d > 0)                     # a needle: its edge lengths only
+    factor = np.sqrt(np.where(has_area, area_3d, 1.0) / np.where(has_area, area_uv, 1.0))
+    scaled *= factor[chart][:, None, None]
+    lo = np.full((n_charts, 2), np.inf)
+    np.minimum.at(lo, chart, scaled.min(axis=1))
+    return scaled - lo[chart][:, None, :]
+
+
+def _uv_vertices(chart, key, uv):
+    """Number the UV vertices: one per distinct corner key. Returns (chart (T,) int32, corner
+    (T, 3) int32, -1 on triangles without a chart; uv (U, 2) float32 of each UV vertex)."""
+    import numpy as np
+    live = key >= 0
+    ids, first, inverse = np.unique(key[live], return_index=True, return_inverse=True)
+    corner = np.full(key.shape, -1, dtype=np.int64)
+    corner[live] = inverse.ravel()
+    return (chart.astype(np.int32), corner.astype(np.int32),
+            np.ascontiguousarray(uv[live][first], dtype=np.float32))
+
+
+def _areas(positions, triangles):
+    """Area (T,) of each triangle of a mesh."""
+    return _areas3(positions[triangles])
+
+
+def _areas3(p):
+    """Area (t,) of triangles given by their corners `(t, 3, 3)`."""
+    import numpy as np
+    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+
+def _signed_area(uv):
+    """Signed area (t,) of UV triangles `(t, 3, 2)`, positive counter-clockwise."""
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+
+def pack(charts, texels_per_metre, resolution, padding, units):
+    """Pack the charts of several meshes, [(chart, corner, uv)], at texels_per_metre into one
+    atlas of resolution² (0: an atlas as large as the charts need). Returns {"fits": False,
+    "spilled": share of the used area that went to further atlases} when they did not fit, else
+    {"fits": True, "width", "height" (the atlas size), "uv": [(T, 3, 2) float32 per mesh in
+    [0, 1]²], "mesh_charts": [charts per mesh], "charts", "utilisation"}. units: pack input units
+    per metre (see PACK_UNITS_PER_TEXEL)."""
+    import numpy as np
+    inputs = [_uv_mesh(chart, corner, uv, units) for chart, corner, uv in charts]
+    atlas = _pack_once(inputs, texels_per_metre / units, resolution, padding)
+    if resolution and atlas.atlas_count > 1:
+        used = np.array([atlas.get_utilization(i) for i in range(atlas.atlas_count)])
+        return {"fits": False, "spilled": float(used[1:].sum() / max(used.sum(), 1e-30))}
+    return _result(atlas, inputs)
+
+
+def fit(pack_at, boxes, resolution, padding, fills, side_by_side, progress=None):
+    """Search the largest density (texels per metre) at which the charts fit one resolution²
+    atlas. pack_at(densities, units) packs the charts at each density (`pack`) and returns the
+    results; boxes (C, 2): the charts' bounding boxes in metres. Rounds: first at the densities
+    whose padded boxes fill `fills` of the atlas; while all spilled, at the smallest shrunk by
+    the share of its used area that spilled; once one fits, while rounds are quick, between it
+    and the smallest that spilled (see the constants above). side_by_side: two densities per
+    round after the first, else one. Returns the best fitting pack result plus
+    "texels_per_metre", "packs" and "tries" [(density, fitted)], or {"fits": False, "tries"}."""
+    import time
+
+    import numpy as np
+    tries = [box_density(boxes, resolution, padding, fill) for fill in fills]
+    units = tries[0] * PACK_UNITS_PER_TEXEL
+    best, spilled, log, refined = None, np.inf, [], 0
+    for round_ in range(PACK_ROUNDS + REFINE_ROUNDS):
+        if progress:
+            progress(min(round_ / 4, 0.9), f"xatlas: packing at {tries[0]:.4g} texels/m")
+        start = time.perf_counter()
+        results = pack_at(tries, units)
+        seconds = time.perf_counter() - start
+        log += [(float(t), bool(r["fits"])) for t, r in zip(tries, results)]
+        for t, r in zip(tries, results):
+            if r["fits"] and (best is None or t > best[0]):
+                best = (t, r)
+            elif not r["fits"]:
+                spilled = min(spilled, t)
+        if best is None:
+            if round_ + 1 >= PACK_ROUNDS:
+                break
+            t = _shrunk(boxes, padding, tries[-1], results[-1]["spilled"])
+            tries = [t, t * SECOND_TRY] if side_by_side else [t]
+            continue
+        upper = spilled if np.isfinite(spilled) else best[0] * REFINE_REACH
+        if upper <= best[0] * (1.0 + REFINE_TOLERANCE) or seconds > REFINE_SECONDS or refined >= REFINE_ROUNDS:
+            return dict(best[1], texels_per_metre=float(best[0]), packs=len(log), tries=log)
+        n = 2 if side_by_side else 1
+        tries = [best[0] * (upper / best[0]) ** ((n - k) / (n + 1)) for k in range(n)]   # largest first
+        refined += 1
+    return {"fits": False, "tries": log}
+
+
+def chart_boxes(charts):
+    """(total UV area in m², bounding boxes (C, 2) in metres, width and height, of every chart)
+    of the charts [(chart, corner, uv)] of several meshes; each chart starts at (0, 0)."""
+    import numpy as np
+    area, boxes = 0.0, [np.zeros((0, 2))]
+    for chart, corner, uv in charts:
+        live = chart >= 0
+        if not live.any():
+            continue
+        uv = uv.astype(np.float64)
+        area += float(np.abs(_signed_area(uv[corner[live]])).sum())
+        vertex_chart = np.zeros(len(uv), dtype=np.int64)
+        vertex_chart[corner[live].ravel()] = np.repeat(chart[live], 3)
+        box = np.zeros((int(chart.max()) + 1, 2))
+        np.maximum.at(box, vertex_chart, uv)
+        boxes.append(box)
+    return area, np.concatenate(boxes)
+
+
+def box_density(boxes, resolution, padding, fill):
+    """Texels per metre at which the charts' bounding boxes (C, 2) in metres, each grown by its
+    padding on both sides and a texel, cover `fill` of a resolution² atlas (see `_box_area`).
+    None when the padding alone needs that much."""
+    return _density_for_area(boxes, padding, fill * resolution * resolution)
+
+
+def _box_area(boxes, padding, t):
+    """Texels covered by the charts' bounding boxes (C, 2) at t texels per metre, each grown by
+    its padding on both sides and a texel: Σ (w·t + q)(h·t + q), q = 2·padding + 2."""
+    q = 2.0 * padding + 2.0
+    return float(((boxes[:, 0] * t + q) * (boxes[:, 1] * t + q)).sum())
+
+
+def _density_for_area(boxes, padding, texels):
+    """The density t ≥ 0 at which `_box_area` is `texels` (the positive root of a quadratic in
+    t), or None when even t = 0 needs more."""
+    import numpy as np
+    q = 2.0 * padding + 2.0
+    a = float((boxes[:, 0] * boxes[:, 1]).sum())
+    b = q * float(boxes.sum())
+    c = len(boxes) * q * q - texels
+    if c >= 0 or a <= 0:
+        return None
+    return float((-b + np.sqrt(b * b - 4.0 * a * c)) / (2.0 * a))
+
+
+def _shrunk(boxes, padding, t, spilled):
+    """The density to try after t spilled a share `spilled` of its used area into further
+    atlases: where the padded boxes cover (1 - spilled)·SHRINK_MARGIN² of what they cover at t
+    (so the padding, which does not shrink with t, is accounted for), and t·SHRINK_MIN at most."""
+    target = max(1.0 - spilled, 0.25) * SHRINK_MARGIN ** 2 * _box_area(boxes, padding, t)
+    shrunk = _density_for_area(boxes, padding, target)
+    return min(t * SHRINK_MIN, shrunk if shrunk is not None else 0.5 * t)
+
+
+def _uv_mesh(chart, corner, uv, units):
+    """xatlas UV-mesh arrays of one mesh's charts: (uv (U, 2) float32 in pack units, live corner
+    indices (L, 3) uint32, chart per live triangle (L, 1) uint32 as the 'material' that keeps
+    charts apart, live triangle mask (T,), corner (T, 3), uv in metres)."""
+    import numpy as np
+    live = chart >= 0
+    return {"uv": np.ascontiguousarray(uv.astype(np.float64) * units, dtype=np.float32),
+            "indices": np.ascontiguousarray(corner[live], dtype=np.uint32),
+            "materials": np.ascontiguousarray(chart[live, None], dtype=np.uint32),
+            "live": live, "corner": corner, "chart": chart}
+
+
+
+
+def _pack_once(inputs, texels_per_unit, resolution, padding):
+    import xatlas
+    atlas = xatlas.Atlas()
+    _ATLASES.append((atlas, inputs))
+    for m in inputs:
+        atlas.add_uv_mesh(m["uv"], m["indices"], m["materials"])
+    options = xatlas.PackOptions()
+    options.padding = int(padding)
+    options.bilinear = True
+    options.texels_per_unit = float(texels_per_unit)
+    options.resolution = int(resolution)
+    atlas.generate(pack_options=options)
+    return atlas
+
+
+def _result(atlas, inputs):
     import numpy as np
     uv, mesh_charts = [], []
-    for k in range(n_meshes):
-        _, indices, uvs = atlas[k]
-        uv.append(np.ascontiguousarray(uvs[indices], dtype=np.float32))
+    for k, m in enumerate(inputs):
+        _, _, out = atlas[k]
+        _, vertex_chart = atlas.get_mesh_vertex_assignment(k)
+        vertex_uv = _place_dropped_vertices(out.astype(np.float64), m["uv"].astype(np.float64),
+                                            np.where(vertex_chart == _NONE, -1, vertex_chart.astype(np.int64)),
+                                            m["corner"][m["live"]])
+        corners = np.zeros(m["corner"].shape + (2,), dtype=np.float32)
+        corners[m["live"]] = vertex_uv[m["corner"][m["live"]]]
+        uv.append(corners)
         mesh_charts.append(int(atlas.get_mesh_chart_count(k)))
-    utilisation = atlas.utilization
-    utilisation = float(np.mean(utilisation)) if np.ndim(utilisation) else float(utilisation)
-    return {"width": int(atlas.width), "height": int(atlas.height), "uv": uv,
-            "mesh_charts": mesh_charts, "charts": int(atlas.chart_count), "utilisation": utilisation}
+    return {"fits": True, "width": int(atlas.width), "height": int(atlas.height), "uv": uv,
+            "mesh_charts": mesh_charts, "charts": int(atlas.chart_count),
+            "utilisation": float(atlas.get_utilization(0))}
+
+
+def _place_dropped_vertices(out, uv_in, vertex_chart, corner):
+    """Packed UVs `(U, 2)` with the vertices xatlas left out (only on triangles too small for
+    it, which it drops) moved by the same affine map as the packed chart they touch, so such
+    triangles stay in place and every loop of the vertex keeps one UV. `vertex_chart` (U,) is
+    xatlas's packed chart per vertex (-1: left out); corner (L, 3) the triangles packed."""
+    import numpy as np
+    used = np.zeros(len(out), dtype=bool)
+    used[corner.ravel()] = True
+    missing = used & (vertex_chart < 0)
+    if not missing.any():
+        return out
+    chart = vertex_chart.copy()
+    for _ in range(16):                   # spread chart ids to left-out corners of the same triangle
+        tri = chart[corner].max(axis=1)
+        fill = (chart[corner] < 0) & (tri[:, None] >= 0)
+        if not fill.any():
+            break
+        chart[corner[fill]] = np.broadcast_to(tri[:, None], corner.shape)[fill]
+    out = out.copy()
+    out[(chart < 0) & missing] = 0.0      # a chart xatlas dropped whole: it has no area
+    todo = missing & (chart >= 0)
+    if todo.any():
+        known = (vertex_chart >= 0) & np.isin(vertex_chart, np.unique(chart[todo]))
+        maps, centre = _affine_fits(uv_in[known], out[known], vertex_chart[known])
+        x = np.column_stack([uv_in[todo] - centre[chart[todo]], np.ones(todo.sum())])
+        out[todo] = np.einsum("ni,nij->nj", x, maps[chart[todo]])
+    return out
+
+
+def _affine_fits(src, dst, group):
+    """Least-squares affine maps taking src (n, 2) to dst (n, 2) per group id: (maps (G, 3, 2)
+    acting on [src - centre, 1], centre (G, 2) of each group's src points)."""
+    import numpy as np
+    n = int(group.max()) + 1
+    count = np.maximum(np.bincount(group, minlength=n), 1)
+    centre = np.stack([np.bincount(group, weights=src[:, k], minlength=n) for k in range(2)], axis=1)
+    centre /= count[:, None]
+    x = np.column_stack([src - centre[group], np.ones(len(src))])
+    xtx = np.zeros((n, 3, 3))
+    xty = np.zeros((n, 3, 2))
+    np.add.at(xtx, group, x[:, :, None] * x[:, None, :])
+    np.add.at(xty, group, x[:, :, None] * dst[:, None, :])
+    return np.linalg.pinv(xtx) @ xty, centre
 
 
 def main():
     stdin = sys.stdin.buffer
     sys.path[:0] = [p for p in pickle.load(stdin) if p not in sys.path]
     job = pickle.load(stdin)
-    result = pack(job["meshes"], job["resolution"], job["density"], job["padding"], job["max_resolution"])
+    if job["task"] == "chart":
+        result = {"charts": chart(job["meshes"])}
+    elif job["task"] == "fit":
+        charts, resolution, padding = job["charts"], job["resolution"], job["padding"]
+        _, boxes = chart_boxes(charts)
+        result = fit(lambda densities, units: [pack(charts, t, resolution, padding, units) for t in densities],
+                     boxes, resolution, padding, job["fills"], False)
+    else:
+        result = pack(job["charts"], job["texels_per_metre"], job["resolution"], job["padding"], job["units"])
     sys.stdout.buffer.write(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
     sys.stdout.buffer.flush()
     os._exit(0)     # skip xatlas's destructors (see the module docstring)

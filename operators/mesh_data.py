@@ -40,7 +40,8 @@ def make_single_user(objects) -> int:
 
 
 def read_unwrap_mesh(obj) -> tuple[UnwrapMesh, np.ndarray]:
-    """(UnwrapMesh in world space, loop indices (T, 3) of each triangle corner) for obj.data."""
+    """(UnwrapMesh in world space with each triangle's polygon, loop indices (T, 3) of each
+    triangle corner) for obj.data."""
     mesh = obj.data
     mesh.calc_loop_triangles()
     n_tri, n_vert = len(mesh.loop_triangles), len(mesh.vertices)
@@ -52,19 +53,30 @@ def read_unwrap_mesh(obj) -> tuple[UnwrapMesh, np.ndarray]:
     mesh.loop_triangles.foreach_get("vertices", tri)
     loops = np.zeros(n_tri * 3, dtype=np.int64)
     mesh.loop_triangles.foreach_get("loops", loops)
+    polygons = np.zeros(n_tri, dtype=np.int64)
+    mesh.loop_triangles.foreach_get("polygon_index", polygons)
     m = np.array(obj.matrix_world, dtype=np.float64)
     world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
     overrides = obj.hhd
     return UnwrapMesh(obj.name, world, tri.reshape(-1, 3),
                       resolution=overrides.resolution or None,
-                      texel_density=overrides.texel_density or None), loops.reshape(-1, 3)
+                      texel_density=overrides.texel_density or None,
+                      polygons=polygons), loops.reshape(-1, 3)
 
 
-def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> int:
+def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> None:
     """Write per-corner UVs `(T, 3, 2)` into the layer `name` (created if missing), leaving every
-    other layer and the active/render-active choice untouched. Returns the number of polygons
-    whose triangles landed in different charts (their loops can hold only one UV)."""
+    other layer and the active/render-active choice untouched. The unwrap gives every corner of
+    a loop one UV (a polygon's triangles share a chart), so the layer holds exactly `uv`; a
+    loop given two different UVs is a bug, refused before anything is written."""
     mesh = obj.data
+    data = np.zeros((len(mesh.loops), 2), dtype=np.float32)
+    flat_loops = loops.ravel()
+    flat_uv = np.asarray(uv, dtype=np.float32).reshape(-1, 2)
+    data[flat_loops] = flat_uv
+    if (data[flat_loops] != flat_uv).any():
+        raise BakeError(f"'{obj.name}': the unwrap gave one loop two lightmap UVs (a bug: please report "
+                        "it with the .blend); the UV layer was left unchanged")
     layers = mesh.uv_layers
     layer = layers.get(name)
     if layer is None:
@@ -78,18 +90,8 @@ def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> int:
             layers.active = layers[active]
         if render is not None:
             layers[render].active_render = True
-    data = np.zeros((len(mesh.loops), 2), dtype=np.float32)
-    flat_loops = loops.ravel()
-    flat_uv = uv.reshape(-1, 2)
-    data[flat_loops] = flat_uv
-    mismatch = np.abs(data[flat_loops] - flat_uv).max(axis=1) > 1e-6
     layer.data.foreach_set("uv", data.ravel())
     mesh.update()
-    if not mismatch.any():
-        return 0
-    poly = np.zeros(len(mesh.loop_triangles), dtype=np.int64)
-    mesh.loop_triangles.foreach_get("polygon_index", poly)
-    return len(np.unique(poly[mismatch.reshape(-1, 3).any(axis=1)]))
 
 
 def surface_node(mat):

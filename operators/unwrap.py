@@ -65,12 +65,9 @@ def unwrap_objects(objects, settings, make_single_user=False, progress=None):
     others = {o.hhd.atlas for o in bpy.data.objects if o.type == 'MESH' and o not in objects and o.hhd.atlas}
     names = atlas_names([o.name for o in objects], [o.atlas for o in result.objects], others)
     for obj, (_, loops), ouv in zip(objects, read, result.objects):
-        split = mesh_data.write_uv_layer(obj, settings.uv_layer, loops, ouv.uv)
+        mesh_data.write_uv_layer(obj, settings.uv_layer, loops, ouv.uv)
         obj.hhd.atlas = names[ouv.atlas]
         obj.hhd.atlas_width, obj.hhd.atlas_height = result.atlas_sizes[ouv.atlas]
-        if split:
-            warnings.append(f"'{obj.name}': {split} polygon(s) were split across charts; their lightmap "
-                            "UVs are approximate (triangulate them to avoid this)")
     sizes = ", ".join(f"{w}×{h}" for w, h in result.atlas_sizes)
     used = ", ".join(f"{100 * u:.0f}%" for u in result.utilisation)
     per_object = ", ".join(f"{o.name}: {o.texels:.0f}" for o in result.objects)

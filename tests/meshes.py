@@ -45,3 +45,102 @@ def vertex_normals(v, f):
         np.add.at(n, f[:, k], fn)
     length = np.linalg.norm(n, axis=1, keepdims=True)
     return np.where(length > 0, n / np.where(length > 0, length, 1), [0, 0, 1])
+
+
+def bumpy_quads(n=16, amplitude=0.03, waves=0.6, seed=0, size=2.0):
+    """An n × n grid of non-planar quads, each two triangles of one polygon, on a wavy surface
+    (waves: height of the waves, amplitude: of random bumps; curved enough that xatlas cuts it
+    into charts along quad diagonals): (positions (V, 3), triangles (T, 3), polygon index (T,))."""
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.linspace(0, size, n + 1), np.linspace(0, size, n + 1), indexing="ij")
+    z = waves * np.sin(3 * x) * np.cos(3 * y) + amplitude * rng.normal(size=x.shape)
+    v = np.stack([x, y, z], -1).reshape(-1, 3)
+    idx = lambda i, j: i * (n + 1) + j
+    f, poly = [], []
+    for i in range(n):
+        for j in range(n):
+            a, b, c, d = idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1)
+            f += [(a, b, c), (a, c, d)]
+            poly += [i * n + j] * 2
+    return v, np.array(f), np.array(poly)
+
+
+def ngon(sides=12, radius=1.0, bump=0.1, centre=(0.0, 0.0, 0.0), concave=True):
+    """One n-gon, a star when concave, warped out of its plane, triangulated by ear clipping
+    in its plane as Blender does: (positions (V, 3), triangles (T, 3), polygon index (T,) all 0)."""
+    angle = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    r = radius * (np.where(np.arange(sides) % 2 == 0, 1.0, 0.55) if concave else 1.0)
+    v = np.stack([r * np.cos(angle), r * np.sin(angle), bump * np.cos(3 * angle)], -1) + centre
+    return v, ear_clip(v[:, :2]), np.zeros(sides - 2, dtype=int)
+
+
+def ear_clip(p):
+    """Triangles (n - 2, 3) of the simple counter-clockwise polygon p (n, 2), by ear clipping."""
+    left = list(range(len(p)))
+    out = []
+
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    while len(left) > 3:
+        for k in range(len(left)):
+            i, j, l = left[k - 1], left[k], left[(k + 1) % len(left)]
+            if cross(p[i], p[j], p[l]) <= 0:
+                continue
+            inside = any(cross(p[i], p[j], p[m]) > 0 and cross(p[j], p[l], p[m]) > 0 and cross(p[l], p[i], p[m]) > 0
+                         for m in left if m not in (i, j, l))
+            if not inside:
+                out.append((i, j, l))
+                left.pop(k)
+                break
+    out.append(tuple(left))
+    return np.array(out)
+
+
+def combine(*parts):
+    """One mesh from (positions, triangles, polygons) parts: vertex and polygon indices offset."""
+    v, f, poly, nv, npoly = [], [], [], 0, 0
+    for pv, pf, pp in parts:
+        v.append(pv)
+        f.append(pf + nv)
+        poly.append(pp + npoly)
+        nv += len(pv)
+        npoly += int(pp.max()) + 1
+    return np.vstack(v), np.vstack(f), np.concatenate(poly)
+
+
+def uv_charts(uv):
+    """Chart label (T,) per triangle of UVs (T, 3, 2): triangles with a corner at the same UV
+    are one chart (charts are padded apart, so different charts never share a UV point; vertex
+    indices are not used, as meshes with split vertices have none in common)."""
+    key = np.unique(uv.reshape(-1, 2), axis=0, return_inverse=True)[1].reshape(-1, 3)
+    label = np.arange(len(uv))
+    while True:
+        low = np.full(key.max() + 1, len(uv))
+        np.minimum.at(low, key.ravel(), np.repeat(label, 3))
+        new = low[key].min(axis=1)
+        if (new == label).all():
+            return label
+        label = new
+
+
+def texel_overlaps(uvs, width, height):
+    """How the bake would see UV layers, rasterised (core.raster): {"objects": texels covered by
+    two objects, "charts": texels covered by two charts of one object, and per object: "area":
+    covered area (overlaps counted once), "summed": summed coverage, "touched": texels touched,
+    "partial": texels only partly covered}. uvs: per object (T, 3, 2) UVs."""
+    from hhd_lightmapper.core import raster
+    rows, out = [], {"area": [], "summed": [], "touched": [], "partial": []}
+    for index, uv in enumerate(uvs):
+        cov = raster.rasterise(np.asarray(uv, dtype=np.float64), width, height)
+        chart = uv_charts(np.asarray(uv, dtype=np.float64))[cov.triangle]
+        rows.append(np.unique(np.column_stack([cov.texel, np.full(len(cov.texel), index), chart]), axis=0))
+        inverse = np.unique(cov.texel, return_inverse=True)[1].ravel()
+        per_texel = np.bincount(inverse, weights=cov.area)
+        out["area"].append(float(np.minimum(per_texel, 1.0).sum()))
+        out["summed"].append(float(cov.area.sum()))
+        out["touched"].append(len(per_texel))
+        out["partial"].append(int((per_texel < 1.0 - 1e-9).sum()))
+    rows = np.concatenate(rows)                                    # unique (texel, object, chart)
+    objects, charts = np.unique(rows[:, :2], axis=0, return_counts=True)
+    return dict(out, objects=int((np.bincount(objects[:, 0]) > 1).sum()),
+                charts=len(np.unique(objects[charts > 1, 0])))

@@ -1,10 +1,12 @@
 """bpy.ops.hhd.unwrap on real Blender meshes (ngons, loose parts, degenerate faces, negative
-scale, modifiers, linked duplicates), through the installed extension."""
+scale, modifiers, linked duplicates, quads and n-gons whose layer must give every texel to one
+chart), through the installed extension."""
 import numpy as np
 import pytest
 
 from hhd_lightmapper.core import raster
 from cycles_compare import select
+import meshes
 
 pytestmark = pytest.mark.bpy
 LAYER = "HHD_Lightmap"
@@ -134,3 +136,70 @@ def test_per_object_override_gets_its_own_atlas_and_poll_explains(scene):
     for o in bpy.context.view_layer.objects:
         o.select_set(False)
     assert not bpy.ops.hhd.unwrap.poll()
+
+
+# --- every texel belongs to one chart: the layer as written, read back and rasterised like the bake ---
+def layer_uv(obj, name=LAYER):
+    """UVs (T, 3, 2) of obj.data's loop triangles in layer `name`, one per loop as stored."""
+    mesh = obj.data
+    mesh.calc_loop_triangles()
+    loops = np.zeros(len(mesh.loop_triangles) * 3, int)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    uv = np.zeros(len(mesh.loops) * 2, np.float32)
+    mesh.uv_layers[name].data.foreach_get("uv", uv)
+    return uv.reshape(-1, 2)[loops].reshape(-1, 3, 2).astype(np.float64)
+
+
+def reported_texels(summary, name):
+    """The texel count the unwrap summary gives object `name`."""
+    import re
+    return float(re.search(rf"{re.escape(name)}: (\d+)", summary).group(1))
+
+
+def modelled_objects():
+    """Cube, UV sphere, Suzanne, a bevelled cube, a cylinder (n-gon caps) and a subdivided grid
+    displaced into waves and bumps (non-planar quads that xatlas cuts along their diagonals)."""
+    import bmesh
+    import bpy
+    objs = [add(bpy.ops.mesh.primitive_cube_add, location=(0, 0, 0)),
+            add(bpy.ops.mesh.primitive_uv_sphere_add, location=(3, 0, 0)),
+            add(bpy.ops.mesh.primitive_monkey_add, location=(6, 0, 0))]
+    bevelled = add(bpy.ops.mesh.primitive_cube_add, location=(0, 3, 0))
+    bm = bmesh.new()
+    bm.from_mesh(bevelled.data)
+    bmesh.ops.bevel(bm, geom=list(bm.edges) + list(bm.verts), offset=0.2, segments=3, affect='EDGES', profile=0.5)
+    bm.to_mesh(bevelled.data)
+    bm.free()
+    objs.append(bevelled)
+    objs.append(add(bpy.ops.mesh.primitive_cylinder_add, location=(3, 3, 0)))
+    grid = add(bpy.ops.mesh.primitive_grid_add, x_subdivisions=24, y_subdivisions=24, size=2.0, location=(6, 3, 0))
+    co = np.zeros(len(grid.data.vertices) * 3)
+    grid.data.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    co[:, 2] = 0.6 * np.sin(3 * co[:, 0]) * np.cos(3 * co[:, 1]) + 0.02 * np.random.default_rng(0).normal(size=len(co))
+    grid.data.vertices.foreach_set("co", co.ravel())
+    grid.data.update()
+    objs.append(grid)
+    return objs
+
+
+@pytest.mark.parametrize("count", [3, 6])
+def test_written_layer_gives_every_texel_to_one_chart_of_one_object(scene, count):
+    """Quads and n-gons keep each polygon in one chart, so the layer written per loop is the
+    packer's output exactly: rasterised as the bake covers texels, no texel is covered by two
+    objects or two charts or twice by one chart, and the covered area is the texel count the
+    unwrap reports (cube + UV sphere + Suzanne at 1024²: the case of issue 19)."""
+    import bpy
+    scene.hhd.resolution = 1024
+    objs = modelled_objects()[:count]
+    select(objs)
+    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
+    report = meshes.texel_overlaps([layer_uv(o) for o in objs], 1024, 1024)
+    reported = [reported_texels(scene.hhd.unwrap_summary, o.name) for o in objs]
+    print(f"\n{count} objects: texels shared by objects {report['objects']}, by charts {report['charts']}; "
+          f"covered/reported {[(round(a), r) for a, r in zip(report['area'], reported)]}")
+    assert report["objects"] == 0 and report["charts"] == 0
+    for k in range(count):
+        assert report["summed"][k] == pytest.approx(report["area"][k], rel=1e-6)   # no texel covered twice
+        assert report["area"][k] == pytest.approx(reported[k], abs=1.0)            # as the summary says
+        assert report["touched"][k] - report["partial"][k] <= reported[k] <= report["touched"][k]
