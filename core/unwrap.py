@@ -30,7 +30,7 @@ from typing import Callable
 import numpy as np
 
 from . import deps, xatlas_worker
-from .errors import BakeError
+from .errors import BakeCancelled, BakeError
 
 MIN_RESOLUTION, MAX_RESOLUTION = 256, 8192
 #: xatlas runs in child processes (`xatlas_worker`): tries before giving up, and the time after
@@ -38,6 +38,8 @@ MIN_RESOLUTION, MAX_RESOLUTION = 256, 8192
 #: bench/results/unwrap.md).
 XATLAS_ATTEMPTS = 3
 XATLAS_TIMEOUT_BASE, XATLAS_TIMEOUT_PER_TRIANGLE = 120.0, 2e-4
+#: Seconds between checks of `cancel()` while a child runs: a cancelled unwrap stops this soon.
+CANCEL_POLL = 0.1
 _WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "xatlas_worker.py")
 #: Objects below this many covered texels get a warning: too few to show any lighting detail.
 FEW_TEXELS = 64
@@ -63,6 +65,11 @@ PACK_CACHE_ENTRIES, PACK_CACHE_BYTES = 8, 128 << 20
 #: child costs more than such a pack); larger ones are packed two at a time in parallel children
 #: when there are two cores or more (`xatlas_worker.fit`).
 ONE_CHILD_TRIANGLES = 50_000
+
+
+class AtlasFull(BakeError):
+    """The charts of these objects do not fit one atlas at the chosen resolution (or, with a
+    texel density, within MAX_RESOLUTION²): `unwrap` then spreads the objects over several."""
 
 
 @dataclass
@@ -114,6 +121,10 @@ class UnwrapResult:
     charts: int
     warnings: list[str] = field(default_factory=list)
     stats: dict = field(default_factory=dict)
+    #: per atlas: whether it holds objects of the shared atlas (not an object's own), and its
+    #: number among the atlases one group spilled into (0: the first or only one)
+    shared: list[bool] = field(default_factory=list)
+    part: list[int] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -167,40 +178,129 @@ def triangle_areas(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 
 
 def unwrap(meshes: list[UnwrapMesh], settings: UnwrapSettings,
-           progress: Callable[[float, str], None] | None = None) -> UnwrapResult:
+           progress: Callable[[float, str], None] | None = None,
+           cancel: Callable[[], bool] | None = None) -> UnwrapResult:
     """Chart and pack `meshes`: one shared atlas, or one per object when settings.per_object or
-    an object overrides resolution/density (overridden objects get their own atlas)."""
+    an object overrides resolution/density (overridden objects get their own atlas).
+
+    progress(fraction in [0, 1], message) is called from the calling thread only (charting up to
+    0.8, packing the rest, 1.0 at the end). cancel() may be called from any thread, every
+    CANCEL_POLL seconds while a child runs: once it returns True the running children are killed
+    and BakeCancelled is raised; nothing of a cancelled unwrap enters the caches."""
     for m in meshes:
         validate(m)
     groups = _group(meshes, settings)
-    for _, resolution, density in groups:
+    for _, resolution, density, _ in groups:
         _check_scale(resolution, density)
     deps.require("xatlas")          # a missing wheel is a clear message here, not in the child
     stats = {"packs": 0, "tries": []}
     t0 = time.perf_counter()
     keys = [chart_key(m) for m in meshes]
-    charts = chart_meshes(meshes, stats, _stage(progress, 0.0, 0.8), keys)
+    _check(cancel)
+    charts = chart_meshes(meshes, stats, _stage(progress, 0.0, 0.8), keys, cancel)
     stats["chart_s"] = time.perf_counter() - t0
-    objects, sizes, utilisation, n_charts = [None] * len(meshes), [], [], 0
-    for gi, (indices, resolution, density) in enumerate(groups):
+    result = UnwrapResult([None] * len(meshes), [], [], 0, stats=stats)
+    for gi, (indices, resolution, density, shared) in enumerate(groups):
         stage = _stage(progress, 0.8 + 0.2 * gi / len(groups), 0.2 / len(groups))
         if stage:
             stage(0.0, f"xatlas: packing atlas {gi + 1} of {len(groups)}")
-        atlas = _pack([meshes[i] for i in indices], [charts[i] for i in indices], [keys[i] for i in indices],
-                      resolution, density, settings.padding, stage)
-        # a density-driven atlas is xatlas's own size; a fixed one is resolution² (charts fit in it)
-        w, h = (atlas["width"], atlas["height"]) if density is not None else (resolution, resolution)
-        sizes.append((w, h))
-        utilisation.append(atlas["utilisation"])
-        n_charts += atlas["charts"]
-        stats["packs"] += atlas["packs"]
-        stats["tries"].append(atlas.get("tries", []))
-        for k, i in enumerate(indices):
-            objects[i] = _object_uv(meshes[i], atlas, k, len(sizes) - 1, w, h)
+
+        def pack(part, stage=stage, resolution=resolution, density=density):
+            _check(cancel)
+            return _pack([meshes[i] for i in part], [charts[i] for i in part], [keys[i] for i in part],
+                         resolution, density, settings.padding, stage, cancel)
+        for k, (part, atlas) in enumerate(_spill(indices, pack, charts, resolution, density, settings.padding)):
+            # a density-driven atlas is xatlas's own size; a fixed one is resolution² (charts fit in it)
+            w, h = (atlas["width"], atlas["height"]) if density is not None else (resolution, resolution)
+            _add_atlas(result, atlas, (w, h), shared, k)
+            for j, i in enumerate(part):
+                result.objects[i] = _object_uv(meshes[i], atlas, j, len(result.atlas_sizes) - 1, w, h)
     stats["pack_s"] = time.perf_counter() - t0 - stats["chart_s"]
     if progress:
         progress(1.0, "xatlas: done")
-    return UnwrapResult(objects, sizes, utilisation, n_charts, _warnings(meshes, charts, objects), stats)
+    result.warnings = _warnings(meshes, charts, result.objects)
+    return result
+
+
+def _check(cancel) -> None:
+    """Raise BakeCancelled if `cancel` (or None) says so."""
+    if cancel is not None and cancel():
+        raise BakeCancelled("unwrap cancelled")
+
+
+def _add_atlas(result: UnwrapResult, atlas: dict, size, shared: bool, part: int) -> None:
+    result.atlas_sizes.append(size)
+    result.utilisation.append(atlas["utilisation"])
+    result.shared.append(shared)
+    result.part.append(part)
+    result.charts += atlas["charts"]
+    result.stats["packs"] += atlas["packs"]
+    result.stats["tries"].append(atlas.get("tries", []))
+
+
+#: Share of an atlas that the padded chart boxes of one spilled group may take at zero density
+#: (padding alone) when choosing how many atlases to start with: the rest is for the charts.
+SPILL_PADDING_SHARE = 0.5
+
+
+def _spill(indices, pack, charts, resolution, density, padding):
+    """[(mesh indices, pack result)]: one atlas if the charts of `indices` fit one (`pack`
+    raises AtlasFull when not), else the objects spread over the fewest atlases that each fit:
+    objects are dealt largest first to the least loaded atlas (by padded chart-box area), so
+    every object stays whole in one atlas. An object that alone does not fit is an error."""
+    try:
+        return [(indices, pack(indices))]
+    except AtlasFull:
+        if len(indices) == 1:
+            raise
+    boxes = [xatlas_worker.chart_boxes([(c.chart, c.corner, c.uv)])[1] for c in (charts[i] for i in indices)]
+    count = _first_spill_count(boxes, resolution, density, padding)
+    while True:
+        packed = []
+        for part in _deal(indices, boxes, count, resolution, density, padding):
+            try:
+                packed.append((part, pack(part)))
+            except AtlasFull:
+                if len(part) == 1:      # one object alone: more atlases cannot help
+                    raise
+                break
+        else:
+            return packed
+        count += 1
+
+
+def _area_density(boxes, resolution, density, padding):
+    """Texels per metre at which to weigh the objects' chart boxes: the given density, or the
+    one at which all the boxes would fill one resolution² atlas (none if padding alone does)."""
+    if density is not None:
+        return density
+    t = xatlas_worker.box_density(np.concatenate(boxes), resolution, padding, 1.0)
+    return t or 0.0
+
+
+def _first_spill_count(boxes, resolution, density, padding) -> int:
+    """Atlases to try first: enough that each holds its share of the padded boxes at the density
+    the objects are weighed at, and that padding alone takes at most SPILL_PADDING_SHARE of each."""
+    q = 2.0 * padding + 2.0
+    all_boxes = np.concatenate(boxes)
+    size = resolution if density is None else MAX_RESOLUTION
+    padding_only = len(all_boxes) * q * q / (SPILL_PADDING_SHARE * size * size)
+    t = density if density is not None else 0.0
+    at_density = xatlas_worker._box_area(all_boxes, padding, t) / (size * size)
+    return int(min(len(boxes), max(2, np.ceil(max(padding_only, at_density)))))
+
+
+def _deal(indices, boxes, count, resolution, density, padding):
+    """`indices` dealt into `count` groups, heaviest object first to the lightest group, by the
+    area of their padded chart boxes; each group keeps the input order."""
+    t = _area_density(boxes, resolution, density, padding)
+    weight = [xatlas_worker._box_area(b, padding, t) for b in boxes]
+    load, parts = [0.0] * count, [[] for _ in range(count)]
+    for k in sorted(range(len(indices)), key=lambda k: -weight[k]):
+        g = min(range(count), key=load.__getitem__)
+        load[g] += weight[k]
+        parts[g].append(k)
+    return [[indices[k] for k in sorted(p)] for p in parts if p]
 
 
 def _warnings(meshes, charts, objects) -> list[str]:
@@ -220,15 +320,16 @@ def _stage(progress, start, span):
 
 
 def _group(meshes, settings):
-    """[(mesh indices, resolution, density)] per atlas to build."""
+    """[(mesh indices, resolution, density, shared)] per atlas to build (before any spill):
+    the shared atlas first, then one per object with its own (shared False)."""
     shared = [i for i, m in enumerate(meshes)
               if not settings.per_object and m.resolution is None and m.texel_density is None]
-    groups = [(shared, settings.resolution, settings.texel_density)] if shared else []
+    groups = [(shared, settings.resolution, settings.texel_density, True)] if shared else []
     for i, m in enumerate(meshes):
         if i not in shared:
             groups.append(([i], m.resolution or settings.resolution,
                            m.texel_density if m.texel_density is not None else
-                           (None if m.resolution is not None else settings.texel_density)))
+                           (None if m.resolution is not None else settings.texel_density), False))
     return groups
 
 
@@ -273,10 +374,11 @@ def _centred(positions) -> np.ndarray:
 
 def chart_meshes(meshes: list[UnwrapMesh], stats: dict | None = None,
                  progress: Callable[[float, str], None] | None = None,
-                 keys: list[bytes] | None = None) -> list[Charts]:
+                 keys: list[bytes] | None = None, cancel: Callable[[], bool] | None = None) -> list[Charts]:
     """Charts of every mesh: from the cache when a mesh with the same content was charted
     before in this session, else charted now (identical meshes once), in up to CHART_PROCESSES
-    child processes at once. keys: the meshes' `chart_key`s, if already computed."""
+    child processes at once. keys: the meshes' `chart_key`s, if already computed; cancel: as in
+    `unwrap` (the cache is only filled once every child has finished)."""
     keys = keys if keys is not None else [chart_key(m) for m in meshes]
     todo = {}
     for key, m in zip(keys, meshes):
@@ -285,7 +387,7 @@ def chart_meshes(meshes: list[UnwrapMesh], stats: dict | None = None,
     if stats is not None:
         stats.update(charted=len(todo), cached=len(meshes) - sum(k in todo for k in keys))
     if todo:
-        for key, charts in zip(todo, _chart_uncached(list(todo.values()), stats, progress)):
+        for key, charts in zip(todo, _chart_uncached(list(todo.values()), stats, progress, cancel)):
             _remember(key, charts)
     out = []
     for key in keys:
@@ -303,7 +405,7 @@ def _remember(key, charts):
         total -= _CACHE.popitem(last=False)[1].nbytes
 
 
-def _chart_uncached(meshes, stats, progress):
+def _chart_uncached(meshes, stats, progress, cancel=None):
     """Chart `meshes` in parallel children: [Charts] in order."""
     jobs = _chart_jobs(meshes)
     if stats is not None:
@@ -313,7 +415,7 @@ def _chart_uncached(meshes, stats, progress):
         payload = [(_centred(meshes[i].positions)[used], tri, poly) for i, _, used, tri, poly in job]
         names = [meshes[i].name for i, *_ in job]
         triangles = sum(len(tri) for *_, tri, _ in job)
-        return _run_worker({"task": "chart", "meshes": payload}, names, triangles)["charts"]
+        return _run_worker({"task": "chart", "meshes": payload}, names, triangles, cancel)["charts"]
 
     if progress:
         progress(0.0, f"xatlas: charting {sum(len(m.triangles) for m in meshes)} triangles")
@@ -423,7 +525,7 @@ def _join(pieces, n_triangles):
 
 
 # --- packing ---
-def _pack(meshes, charts, keys, resolution, density, padding, progress=None):
+def _pack(meshes, charts, keys, resolution, density, padding, progress=None, cancel=None):
     """Pack the charts of `meshes` into one atlas (see `xatlas_worker.pack`); returns the
     worker's result dict plus "texels_per_metre" and "packs" (pack runs). A fixed density is
     packed once into an atlas of the size it needs; a fixed resolution is fitted by `_fit`.
@@ -433,14 +535,15 @@ def _pack(meshes, charts, keys, resolution, density, padding, progress=None):
         _PACKED.move_to_end(cache_key)
         return dict(_PACKED[cache_key], packs=0)
     if density is not None:
-        result = _pack_at([density], charts, meshes, 0, padding, density * xatlas_worker.PACK_UNITS_PER_TEXEL)[0]
+        result = _pack_at([density], charts, meshes, 0, padding, density * xatlas_worker.PACK_UNITS_PER_TEXEL,
+                          cancel)[0]
         if max(result["width"], result["height"]) > MAX_RESOLUTION:
-            raise BakeError(f"texel density {density:g}/m needs a {result['width']}×{result['height']} atlas for "
+            raise AtlasFull(f"texel density {density:g}/m needs a {result['width']}×{result['height']} atlas for "
                             f"{_names(meshes)}, larger than {MAX_RESOLUTION}²: lower the density or give some "
                             "objects their own atlas")
         result.update(texels_per_metre=density, packs=1)
     else:
-        result = _fit(meshes, charts, resolution, padding, progress)
+        result = _fit(meshes, charts, resolution, padding, progress, cancel)
     _PACKED[cache_key] = result
     while len(_PACKED) > 1 and (len(_PACKED) > PACK_CACHE_ENTRIES or
                                 sum(sum(u.nbytes for u in r["uv"]) for r in _PACKED.values()) > PACK_CACHE_BYTES):
@@ -448,7 +551,7 @@ def _pack(meshes, charts, keys, resolution, density, padding, progress=None):
     return result
 
 
-def _fit(meshes, charts, resolution, padding, progress=None):
+def _fit(meshes, charts, resolution, padding, progress=None, cancel=None):
     """Pack at the largest density found that fits one resolution² atlas (`xatlas_worker.fit`):
     in one child when the charts are few or there is one core, else driven from here with two
     densities packed side by side in parallel children each round."""
@@ -456,7 +559,7 @@ def _fit(meshes, charts, resolution, padding, progress=None):
     _, boxes = xatlas_worker.chart_boxes(payload)
     q, fill = 2 * padding + 2, min(xatlas_worker.FIRST_FILL)
     if xatlas_worker.box_density(boxes, resolution, padding, fill) is None:
-        raise BakeError(f"{_names(meshes)}: {len(boxes)} charts with padding {padding} need at least "
+        raise AtlasFull(f"{_names(meshes)}: {len(boxes)} charts with padding {padding} need at least "
                         f"{len(boxes) * q * q:.0f} texels for their padding alone, more than {fill:.0%} of a "
                         f"{resolution}² atlas: raise the resolution, lower the padding, or give some objects "
                         "their own atlas")
@@ -464,19 +567,19 @@ def _fit(meshes, charts, resolution, padding, progress=None):
     if _cores() < 2 or triangles <= ONE_CHILD_TRIANGLES:
         job = {"task": "fit", "charts": payload, "resolution": int(resolution), "padding": int(padding),
                "fills": (float(np.mean(xatlas_worker.FIRST_FILL)),)}
-        result = _run_worker(job, [m.name for m in meshes], triangles)
+        result = _run_worker(job, [m.name for m in meshes], triangles, cancel)
     else:
         def pack_at(densities, units):
-            return _pack_at(densities, charts, meshes, resolution, padding, units)
+            return _pack_at(densities, charts, meshes, resolution, padding, units, cancel)
         result = xatlas_worker.fit(pack_at, boxes, resolution, padding, xatlas_worker.FIRST_FILL, True, progress)
     if not result["fits"]:
-        raise BakeError(f"could not fit the {len(boxes)} charts of {_names(meshes)} into one {resolution}² atlas "
+        raise AtlasFull(f"could not fit the {len(boxes)} charts of {_names(meshes)} into one {resolution}² atlas "
                         f"with padding {padding}: raise the resolution, lower the padding, or give some objects "
                         "their own atlas")
     return result
 
 
-def _pack_at(densities, charts, meshes, resolution, padding, units):
+def _pack_at(densities, charts, meshes, resolution, padding, units, cancel=None):
     """Worker pack results, one per density (texels per metre), packed in parallel children."""
     payload = [(c.chart, c.corner, c.uv) for c in charts]
     names = [m.name for m in meshes]
@@ -485,7 +588,7 @@ def _pack_at(densities, charts, meshes, resolution, padding, units):
     def run(density):
         job = {"task": "pack", "charts": payload, "texels_per_metre": float(density),
                "resolution": int(resolution), "padding": int(padding), "units": float(units)}
-        return _run_worker(job, names, triangles)
+        return _run_worker(job, names, triangles, cancel)
 
     if len(densities) == 1:
         return [run(densities[0])]
@@ -498,16 +601,18 @@ def _names(meshes) -> str:
     return shown + (f" and {len(meshes) - 5} more" if len(meshes) > 5 else "")
 
 
-def _run_worker(job, names, triangles):
-    """Run one xatlas_worker task in a child process; a crashed or hung child is retried."""
+def _run_worker(job, names, triangles, cancel=None):
+    """Run one xatlas_worker task in a child process; a crashed or hung child is retried.
+    cancel() True (checked every CANCEL_POLL seconds): the child is killed and reaped, then
+    BakeCancelled is raised."""
     payload = pickle.dumps(list(sys.path)) + pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
     timeout = XATLAS_TIMEOUT_BASE + XATLAS_TIMEOUT_PER_TRIANGLE * triangles
     failures = []
     for _ in range(XATLAS_ATTEMPTS):
-        try:
-            run = subprocess.run([sys.executable, "-I", _WORKER], input=payload, capture_output=True,
-                                 timeout=timeout)
-        except subprocess.TimeoutExpired:
+        _check(cancel)
+        run = _run_child(payload, timeout, cancel)
+        _check(cancel)          # a Ctrl-C on the terminal also reaches the child: not a crash
+        if run is None:
             failures.append(f"no answer after {timeout:.0f} s")
             continue
         if run.returncode == 0 and run.stdout:
@@ -518,6 +623,30 @@ def _run_worker(job, names, triangles):
         failures.append(_describe_failure(run))
     shown = ", ".join(f"'{n}'" for n in names[:5]) + (" …" if len(names) > 5 else "")
     raise BakeError(f"xatlas failed {XATLAS_ATTEMPTS} times unwrapping {shown}: {'; '.join(failures)}")
+
+
+def _run_child(payload: bytes, timeout: float, cancel=None):
+    """Run the worker on `payload`: a CompletedProcess, or None if it gave no answer within
+    `timeout` seconds (then killed). Raises BakeCancelled, the child killed and reaped, once
+    cancel() returns True."""
+    proc = subprocess.Popen([sys.executable, "-I", _WORKER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    deadline, data = time.monotonic() + timeout, payload
+    try:
+        while True:
+            try:
+                stdout, stderr = proc.communicate(data, timeout=max(0.0, min(CANCEL_POLL, deadline - time.monotonic())))
+                return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
+            except subprocess.TimeoutExpired:
+                data = None         # sent already: a retried communicate goes on where it stopped
+            if cancel is not None and cancel():
+                raise BakeCancelled("unwrap cancelled")
+            if time.monotonic() >= deadline:
+                return None
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            proc.communicate()      # reap it and close the pipes
 
 
 def _describe_failure(run) -> str:

@@ -1,10 +1,22 @@
-"""Operator: xatlas lightmap UVs for the selected mesh objects (`bpy.ops.hhd.unwrap()`)."""
+"""Operator: xatlas lightmap UVs for the selected mesh objects (`bpy.ops.hhd.unwrap()`).
+
+Three steps: `read_objects` (main thread: the meshes into numpy, nothing changed), the core
+unwrap (no bpy: any thread, cancellable), `write_objects` (main thread: the UV layers). From a
+script or in background mode `execute` runs them in a row (a progress line on stdout when
+headless); from the UI `invoke` runs the core unwrap on a thread with a progress bar, and Esc
+cancels it before anything was written, so a cancelled unwrap leaves every mesh untouched.
+"""
+import threading
+from dataclasses import dataclass
+
 import bpy
 from bpy.props import BoolProperty
 
 from ..core import unwrap as core_unwrap
-from ..core.errors import BakeError
+from ..core.console import ConsoleProgress
+from ..core.errors import BakeCancelled, BakeError
 from . import mesh_data
+from .bake import HHD_OT_bake, clear_progress, show_progress
 
 
 class HHD_OT_unwrap(bpy.types.Operator):
@@ -19,6 +31,9 @@ class HHD_OT_unwrap(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
+        if HHD_OT_bake.running:          # one bake or unwrap at a time
+            cls.poll_message_set("A bake or unwrap is running (Esc cancels it)")
+            return False
         if not mesh_data.target_meshes(context.selected_objects):
             cls.poll_message_set("Select one or more mesh objects")
             return False
@@ -28,42 +43,139 @@ class HHD_OT_unwrap(bpy.types.Operator):
         settings = context.scene.hhd
         objects = mesh_data.target_meshes(context.selected_objects)
         wm = context.window_manager
+        console = ConsoleProgress() if bpy.app.background else None
         wm.progress_begin(0, 100)
         try:
-            summary, warnings = unwrap_objects(objects, settings, self.make_single_user,
-                                               lambda f, _msg: wm.progress_update(int(100 * f)))
+            outcome = unwrap_objects(objects, settings, self.make_single_user,
+                                     console or (lambda f, _msg: wm.progress_update(int(100 * f))))
         except BakeError as exc:
-            self.report({'ERROR'}, str(exc))
-            return {'CANCELLED'}
+            outcome = exc
         finally:
             wm.progress_end()
+            if console:
+                console.close()
+        return self._done(context, outcome)
+
+    def _done(self, context, outcome):
+        """Report (summary, warnings) or the BakeError that ended the unwrap."""
+        if isinstance(outcome, BakeCancelled):
+            self.report({'WARNING'}, "Unwrap cancelled: no mesh was changed")
+            return {'CANCELLED'}
+        if isinstance(outcome, BakeError):
+            self.report({'ERROR'}, str(outcome))
+            return {'CANCELLED'}
+        summary, warnings = outcome
         for w in warnings:
             self.report({'WARNING'}, w)
-        settings.unwrap_summary = summary
+        context.scene.hhd.unwrap_summary = summary
         self.report({'INFO'}, summary)
         return {'FINISHED'}
 
+    def invoke(self, context, event):
+        if bpy.app.background:
+            return self.execute(context)
+        objects = mesh_data.target_meshes(context.selected_objects)
+        try:
+            self._job = read_objects(objects, context.scene.hhd, self.make_single_user)
+        except BakeError as exc:
+            self.report({'ERROR'}, str(exc))
+            return {'CANCELLED'}
+        self._cancel = threading.Event()
+        self._state = {"fraction": 0.0, "message": "starting", "result": None, "error": None}
+        self._thread = threading.Thread(target=self._work, daemon=True)
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.2, window=context.window)
+        wm.modal_handler_add(self)
+        wm.progress_begin(0, 1000)
+        HHD_OT_bake.running = True
+        self._thread.start()
+        return {'RUNNING_MODAL'}
 
-def unwrap_objects(objects, settings, make_single_user=False, progress=None):
-    """Unwrap `objects` with the scene settings; returns (summary line, warnings)."""
+    def _work(self):
+        try:
+            self._state["result"] = compute(self._job, self._on_progress, self._cancel.is_set)
+        except Exception as exc:        # handed to the main thread by modal
+            self._state["error"] = exc
+
+    def _on_progress(self, fraction, message):
+        self._state["fraction"], self._state["message"] = fraction, message
+
+    def modal(self, context, event):
+        if event.type == 'ESC' and event.value == 'PRESS':
+            self._cancel.set()
+            self._state["message"] = "cancelling…"
+            return {'RUNNING_MODAL'}
+        if event.type != 'TIMER':
+            return {'PASS_THROUGH'}
+        show_progress(context, "HHD unwrap", self._state["fraction"], self._state["message"])
+        if self._thread.is_alive():
+            return {'PASS_THROUGH'}
+        context.window_manager.event_timer_remove(self._timer)
+        clear_progress(context)
+        HHD_OT_bake.running = False
+        error = self._state["error"]
+        if error is not None and not isinstance(error, BakeError):
+            raise error
+        try:
+            outcome = error or write_objects(self._job, context.scene.hhd, self._state["result"])
+        except BakeError as exc:
+            outcome = exc
+        return self._done(context, outcome)
+
+
+@dataclass
+class UnwrapJob:
+    """What `read_objects` read: the objects, their core meshes (world space) and loop indices
+    (T, 3) per triangle corner, the core settings, whether linked duplicates must be made single
+    user when writing, and each mesh's loop count (to notice a mesh edited meanwhile)."""
+    objects: list
+    meshes: list
+    loops: list
+    settings: core_unwrap.UnwrapSettings
+    make_single_user: bool
+    loop_counts: list
+
+
+def read_objects(objects, settings, make_single_user=False) -> UnwrapJob:
+    """Read `objects` for an unwrap with the scene settings (main thread; changes nothing).
+    Raises BakeError for linked duplicates unless make_single_user."""
     shared = mesh_data.shared_meshes(objects)
     if shared and not make_single_user:
         mesh, names = next(iter(shared.items()))
         raise BakeError(f"{', '.join(repr(n) for n in names)} share the mesh '{mesh}': one lightmap UV "
                         "layer cannot give them separate texels. Make them single user (Object > Relations > "
                         "Make Single User > Object & Data), or unwrap with 'Make Single User'")
-    if shared:
-        mesh_data.make_single_user(objects)
     read = [mesh_data.read_unwrap_mesh(o) for o in objects]
     padding = settings.padding or core_unwrap.padding_for_mips(settings.mip_levels)
-    result = core_unwrap.unwrap(
-        [m for m, _ in read],
-        core_unwrap.UnwrapSettings(resolution=settings.resolution, texel_density=settings.texel_density or None,
-                                   padding=padding, per_object=settings.atlas_mode == 'PER_OBJECT'),
-        progress)
+    core_settings = core_unwrap.UnwrapSettings(
+        resolution=settings.resolution, texel_density=settings.texel_density or None,
+        padding=padding, per_object=settings.atlas_mode == 'PER_OBJECT')
+    return UnwrapJob(list(objects), [m for m, _ in read], [loops for _, loops in read], core_settings,
+                     bool(shared), [len(o.data.loops) for o in objects])
+
+
+def compute(job: UnwrapJob, progress=None, cancel=None) -> core_unwrap.UnwrapResult:
+    """The core unwrap of a job (no bpy: any thread); cancel() True raises BakeCancelled."""
+    return core_unwrap.unwrap(job.meshes, job.settings, progress, cancel)
+
+
+def unwrap_objects(objects, settings, make_single_user=False, progress=None, cancel=None):
+    """Unwrap `objects` with the scene settings; returns (summary line, warnings). Nothing is
+    changed if it raises (BakeCancelled once cancel() returns True)."""
+    job = read_objects(objects, settings, make_single_user)
+    return write_objects(job, settings, compute(job, progress, cancel))
+
+
+def write_objects(job: UnwrapJob, settings, result):
+    """Write the unwrap `result` of `job` into the objects' lightmap UV layers (main thread);
+    returns (summary line, warnings)."""
+    _check_unchanged(job)
+    if job.make_single_user:
+        mesh_data.make_single_user(job.objects)
+    objects, read = job.objects, list(zip(job.meshes, job.loops))
     warnings = list(result.warnings)
     others = {o.hhd.atlas for o in bpy.data.objects if o.type == 'MESH' and o not in objects and o.hhd.atlas}
-    names = atlas_names([o.name for o in objects], [o.atlas for o in result.objects], others)
+    names = atlas_names([o.name for o in objects], [o.atlas for o in result.objects], others, result.part)
     for obj, (_, loops), ouv in zip(objects, read, result.objects):
         mesh_data.write_uv_layer(obj, settings.uv_layer, loops, ouv.uv)
         obj.hhd.atlas = names[ouv.atlas]
@@ -71,26 +183,53 @@ def unwrap_objects(objects, settings, make_single_user=False, progress=None):
     sizes = ", ".join(f"{w}×{h}" for w, h in result.atlas_sizes)
     used = ", ".join(f"{100 * u:.0f}%" for u in result.utilisation)
     per_object = ", ".join(f"{o.name}: {o.texels:.0f}" for o in result.objects)
-    summary = (f"{len(objects)} object(s), {result.charts} charts, atlas {sizes}, {used} used; "
+    atlases = f"atlas {sizes}" if len(result.atlas_sizes) == 1 else \
+        f"{len(result.atlas_sizes)} atlases ({', '.join(names[a] for a in sorted(names))}) {sizes}"
+    summary = (f"{len(objects)} object(s), {result.charts} charts, {atlases}, {used} used; "
                f"texels per object: {per_object}")
     return summary, warnings
 
 
-def atlas_names(objects: list[str], atlas_of: list[int], taken: set[str] = frozenset()) -> dict[int, str]:
+def _check_unchanged(job: UnwrapJob) -> None:
+    """Raise BakeError if an object was deleted or its mesh edited since it was read."""
+    for obj, count in zip(job.objects, job.loop_counts):
+        try:
+            same = obj.type == 'MESH' and len(obj.data.loops) == count
+        except ReferenceError:
+            raise BakeError("an object was deleted while unwrapping: unwrap again") from None
+        if not same:
+            raise BakeError(f"'{obj.name}' was edited while unwrapping: unwrap again")
+
+
+def atlas_names(objects: list[str], atlas_of: list[int], taken: set[str] = frozenset(),
+                part: list[int] | None = None) -> dict[int, str]:
     """File-name stems per atlas index: "Lightmap" for an atlas shared by several objects (or the
-    only atlas), "Lightmap_<object>" for an object's own atlas (characters unsafe in file names
-    replaced by '_'); a name other objects' atlases (`taken`) already use gets a number, so a
-    second unwrap of other objects never makes their bakes overwrite each other's files."""
+    only atlas), "Lightmap_1", "Lightmap_2", … for the further atlases a full shared atlas spilled
+    into (`part[atlas]` > 0, see `core.unwrap.UnwrapResult.part`), "Lightmap_<object>" for an
+    object's own atlas (characters unsafe in file names replaced by '_'). A name already given,
+    or used by other objects' atlases (`taken`), gets a number, so a second unwrap of other
+    objects never makes their bakes overwrite each other's files."""
     members: dict[int, list[str]] = {}
     for name, atlas in zip(objects, atlas_of):
         members.setdefault(atlas, []).append(name)
-    out = {}
-    for atlas, names in members.items():
-        if len(names) > 1 or len(members) == 1:
-            out[atlas] = "Lightmap"
+    spilled = part is not None and any(part)
+    out, used = {}, set(taken)
+    for atlas in sorted(members):
+        names = members[atlas]
+        if part is not None and part[atlas] > 0:
+            name = f"Lightmap_{part[atlas]}"
+        elif len(names) > 1 or len(members) == 1 or (spilled and part[atlas] == 0 and _spill_head(atlas, part)):
+            name = "Lightmap"
         else:
-            out[atlas] = "Lightmap_" + "".join(c if c.isalnum() or c in "-_." else "_" for c in names[0])
-        base, k = out[atlas], 2
-        while out[atlas] in taken:
-            out[atlas], k = f"{base}_{k}", k + 1
+            name = "Lightmap_" + "".join(c if c.isalnum() or c in "-_." else "_" for c in names[0])
+        base, k = name, 2
+        while name in used:
+            name, k = f"{base}_{k}", k + 1
+        out[atlas] = name
+        used.add(name)
     return out
+
+
+def _spill_head(atlas: int, part: list[int]) -> bool:
+    """Whether `atlas` is the first of a run of atlases one group spilled into."""
+    return atlas + 1 < len(part) and part[atlas + 1] == 1

@@ -6,7 +6,9 @@ fed by the Principled BSDF's Base Color and Normal links (image textures, normal
 when unlinked) and Geometry's Normal as n_v, an Emission shader of albedo × irradiance, and a
 Mix Shader between the material's own surface (factor 0) and the preview (factor 1). The mix
 factor is the object attribute `hhd_preview`, set to 1 on the baked objects only: a material shared
-with objects that were not baked keeps its own look on them.
+with objects that were not baked keeps its own look on them. A material shared by objects of
+several atlases samples every atlas's images and picks the object's own by a second object
+attribute, `hhd_preview_atlas`.
 
 The material's original Surface link is recorded in the material (`hhd_preview` property); Hide
 removes every preview node, restores that link and deletes the record and the object attributes,
@@ -23,6 +25,9 @@ from . import node_groups
 
 PREFIX = "HHD Preview"
 RECORD = "hhd_preview"
+#: Object attribute: the index of the object's atlas among those of the preview, for materials
+#: shared by objects of several atlases (a full atlas spills into Lightmap_1, …).
+ATLAS = "hhd_preview_atlas"
 
 
 def _new(tree, kind, name, location, parent):
@@ -65,8 +70,40 @@ def _image(tree, path, name, uv, x, y, frame):
     return node.outputs["Color"]
 
 
+def _socket(sockets, identifier):
+    return next(s for s in sockets if s.identifier == identifier)
+
+
+def _atlas_image(tree, key, atlases, uv, x, y, frame):
+    """Colour output of preview image `key` for the atlases [(index, AtlasFiles)] whose objects
+    use this material: the one atlas's image, or each further atlas's image mixed in where the
+    object's ATLAS attribute equals that atlas's index."""
+    (_, first), rest = atlases[0], atlases[1:]
+    colour = _image(tree, first.preview_image(key), key if not rest else f"{key} {first.name}", uv, x, y, frame)
+    if not rest:
+        return colour
+    attribute = _new(tree, "ShaderNodeAttribute", f"Atlas {key}", (x - 200, y - 120), frame)
+    attribute.attribute_type, attribute.attribute_name = 'OBJECT', ATLAS
+    for k, (index, files) in enumerate(rest, 1):
+        image = _image(tree, files.preview_image(key), f"{key} {files.name}", uv, x + 250 * k, y, frame)
+        equal = _new(tree, "ShaderNodeMath", f"Is {key} {files.name}", (x + 250 * k, y + 120), frame)
+        equal.operation = 'COMPARE'
+        equal.inputs[1].default_value, equal.inputs[2].default_value = float(index), 0.5
+        tree.links.new(attribute.outputs["Fac"], equal.inputs[0])
+        mix = _new(tree, "ShaderNodeMix", f"Mix {key} {files.name}", (x + 250 * k + 120, y), frame)
+        mix.data_type = 'RGBA'
+        tree.links.new(equal.outputs["Value"], _socket(mix.inputs, "Factor_Float"))
+        tree.links.new(colour, _socket(mix.inputs, "A_Color"))
+        tree.links.new(image, _socket(mix.inputs, "B_Color"))
+        colour = _socket(mix.outputs, "Result_Color")
+    return colour
+
+
 def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) -> str | None:
-    """Insert the preview into one material; returns a note when a fallback was used."""
+    """Insert the preview into one material; returns a note when a fallback was used. `files`:
+    the AtlasFiles of the objects' atlas, or [(index, AtlasFiles)] when objects of several
+    atlases share the material (index: the value of their ATLAS attribute)."""
+    atlases = files if isinstance(files, list) else [(0, files)]
     tree = mat.node_tree if mat.node_tree is not None else blender_compat.ensure_node_tree(mat)
     if RECORD in mat:
         hide_on_material(mat)
@@ -106,8 +143,7 @@ def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) ->
             "L1": [f"sh{k}" for k in range(4)], "L2": [f"sh{k}" for k in range(9)]}[kind]
     sockets = {"iz": "Iz", "wa": "Wa", "dir": "Direction", **{f"sh{k}": f"SH{k}" for k in range(9)}}
     for key in keys:
-        tree.links.new(_image(tree, files.preview_image(key), key, uv.outputs["UV"], x0 + 250, y, frame),
-                       gi[sockets[key]])
+        tree.links.new(_atlas_image(tree, key, atlases, uv.outputs["UV"], x0 + 250, y, frame), gi[sockets[key]])
         y -= 280
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 850, y0), frame)
     tree.links.new(group.outputs["Radiance"], emission.inputs["Color"])
@@ -141,26 +177,24 @@ def hide_on_material(mat) -> bool:
 
 
 def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool = False) -> list[str]:
-    """Preview on `objects` (each with `atlas_files[obj.name]`); returns notes for the report."""
+    """Preview on `objects` (each with `atlas_files[obj.name]`); returns notes for the report.
+    A material shared by objects of several atlases samples each object's own atlas."""
     notes = []
-    done: dict[str, str] = {}
+    index = {name: i for i, name in enumerate(sorted({f.name for f in atlas_files.values()}))}
+    materials: dict[str, tuple] = {}            # material name → (material, {atlas name: files})
     for obj in objects:
-        obj[RECORD] = 1.0
+        files = atlas_files[obj.name]
+        obj[RECORD], obj[ATLAS] = 1.0, float(index[files.name])
         for slot in obj.material_slots:
-            mat = slot.material
-            if mat is None:
-                continue
-            if mat.name in done:
-                if done[mat.name] != atlas_files[obj.name].name:
-                    notes.append(f"material '{mat.name}' is shared by objects in different atlases: its preview "
-                                 f"shows atlas '{done[mat.name]}' (give each atlas its own material)")
-                continue
-            done[mat.name] = atlas_files[obj.name].name
-            note = show_on_material(mat, atlas_files[obj.name], kind, uv_layer, self_bounce)
-            if note:
-                notes.append(note)
+            if slot.material is not None:
+                materials.setdefault(slot.material.name, (slot.material, {}))[1][files.name] = files
         if not obj.material_slots or all(s.material is None for s in obj.material_slots):
             notes.append(f"'{obj.name}' has no material: nothing to preview on it")
+    for mat, by_atlas in materials.values():
+        atlases = [(index[name], by_atlas[name]) for name in sorted(by_atlas)]
+        note = show_on_material(mat, atlases if len(atlases) > 1 else atlases[0][1], kind, uv_layer, self_bounce)
+        if note:
+            notes.append(note)
     return notes
 
 
@@ -169,6 +203,7 @@ def hide(objects=None) -> int:
     (all objects when None); returns how many materials were restored."""
     restored = sum(hide_on_material(m) for m in bpy.data.materials)
     for obj in objects if objects is not None else bpy.data.objects:
-        if RECORD in obj:
-            del obj[RECORD]
+        for key in (RECORD, ATLAS):
+            if key in obj:
+                del obj[key]
     return restored

@@ -334,3 +334,42 @@ def test_a_crashing_xatlas_child_is_retried_then_named(tmp_path, monkeypatch):
     monkeypatch.setattr(unwrap, "_WORKER", _crashing_worker(tmp_path, crashes=99))
     with pytest.raises(BakeError, match=r"xatlas failed 3 times unwrapping 'cube'.*SIGSEGV"):
         unwrap.unwrap([unwrap.UnwrapMesh("cube", v, f)], unwrap.UnwrapSettings(resolution=256))
+
+
+def spheres(count, radius=0.3):
+    """`count` UV spheres (many charts each) as separate meshes, side by side."""
+    v, f = meshes.uv_sphere(rings=8, segments=16, radius=radius)
+    return [unwrap.UnwrapMesh(f"s{k}", v + [k * 2.0, 0.0, 0.0], f) for k in range(count)]
+
+
+def test_charts_that_need_more_than_one_atlas_spill_into_several_of_the_same_size():
+    objs = spheres(40)
+    one = unwrap.unwrap(objs[:1], unwrap.UnwrapSettings(resolution=256, padding=8))
+    assert len(one.atlas_sizes) == 1 and one.part == [0] and one.shared == [True]
+    # 40 spheres' padding alone (charts × (2·8 + 2)² texels) is more than one 256² atlas holds
+    assert 40 * one.charts * 18 ** 2 > 256 * 256
+    res = unwrap.unwrap(objs, unwrap.UnwrapSettings(resolution=256, padding=8))
+    n = len(res.atlas_sizes)
+    assert n >= 2 and res.atlas_sizes == [(256, 256)] * n
+    assert res.part == list(range(n)) and res.shared == [True] * n
+    assert sorted({o.atlas for o in res.objects}) == list(range(n))         # every atlas used
+    for a in range(n):                                                      # objects whole, no texel shared
+        members = [o for o in res.objects if o.atlas == a]
+        texels = [set(raster.rasterise(o.uv.astype(float), 256, 256).texel.tolist()) for o in members]
+        assert sum(map(len, texels)) == len(set().union(*texels))
+        assert all((o.uv >= 0).all() and (o.uv <= 1).all() for o in members)
+    # an object with its own atlas never spills; one that alone cannot fit is named with the fix
+    v, f, _ = meshes.combine(*[(o.positions, o.triangles, np.arange(len(o.triangles))) for o in objs])
+    big = unwrap.UnwrapMesh("big", v, f, resolution=256)
+    with pytest.raises(unwrap.AtlasFull, match="'big'.*raise the resolution"):
+        unwrap.unwrap([big], unwrap.UnwrapSettings(resolution=256, padding=8))
+
+
+def test_texel_density_beyond_the_largest_atlas_spills_too(monkeypatch):
+    monkeypatch.setattr(unwrap, "MAX_RESOLUTION", 512)
+    objs = spheres(6, radius=1.0)
+    res = unwrap.unwrap(objs, unwrap.UnwrapSettings(texel_density=60.0, padding=4))
+    assert len(res.atlas_sizes) >= 2 and all(max(s) <= 512 for s in res.atlas_sizes)
+    # the density is kept: every sphere gets the texels of its area at 60 texels/m
+    area = unwrap.triangle_areas(objs[0].positions, objs[0].triangles).sum()
+    assert all(o.texels == pytest.approx(area * 60 ** 2, rel=0.1) for o in res.objects)

@@ -236,3 +236,44 @@ def test_command_line_threads_follow_the_scene_or_the_flag_and_files_are_identic
     encode = run_cli(blend, "encode", "--out", str(tmp_path / "every"), "--objects", "Floor", "Cube")
     assert encode.returncode == cli.EXIT_OK, encode.stderr
     assert json.loads((tmp_path / "every" / "Lightmap.json").read_text())["reencode_threads"] == 1
+
+
+@pytest.mark.slow
+def test_a_full_atlas_spills_into_numbered_atlases_that_bake_and_preview(extension, tmp_path):
+    """40 spheres at 256² with padding 8: their padding alone exceeds one atlas, so the unwrap
+    makes Lightmap, Lightmap_1, … of the same size, each object whole in one; the bake writes
+    each atlas's files and sidecar, and the preview finds every object's atlas."""
+    import bpy
+    scene = cc.clear_scene()
+    grey = cc.material("grey")
+    spheres = []
+    for k in range(40):
+        bpy.ops.mesh.primitive_uv_sphere_add(segments=16, ring_count=8, radius=0.3, location=(k % 8, k // 8, 0.5))
+        spheres.append(bpy.context.active_object)
+        spheres[-1].data.materials.append(grey)
+    floor = cc.plane("Floor", (3.5, 2, 0), 12, grey)
+    cc.light('SUN', rotation=(0.5, 0.2, 0), energy=3.0)
+    scene.hhd.resolution, scene.hhd.padding, scene.hhd.samples, scene.hhd.bounces = 256, 8, 4, 0
+    scene.hhd.output_dir, scene.hhd.pack_images = str(tmp_path), False
+    cc.select(spheres + [floor])
+    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
+    names = sorted({o.hhd.atlas for o in spheres + [floor]})
+    assert len(names) >= 2 and names == ["Lightmap"] + [f"Lightmap_{k}" for k in range(1, len(names))]
+    assert all((o.hhd.atlas_width, o.hhd.atlas_height) == (256, 256) for o in spheres + [floor])
+    assert f"{len(names)} atlases" in scene.hhd.unwrap_summary
+    assert bpy.ops.hhd.bake() == {'FINISHED'}
+    for name in names:
+        doc = json.loads((tmp_path / f"{name}.json").read_text())
+        members = sorted(o.name for o in spheres + [floor] if o.hhd.atlas == name)
+        assert doc["atlas"] == name and sorted(o["name"] for o in doc["objects"]) == members
+        assert (tmp_path / f"{name}_hhd.exr").exists()
+    assert bpy.ops.hhd.preview_show() == {'FINISHED'}
+    # the one material every object shares samples every atlas, each object picks its own
+    images = {Path(n.image.filepath).parent.name for n in grey.node_tree.nodes if n.type == 'TEX_IMAGE'}
+    assert images == {f"{name}_preview" for name in names}
+    assert all(o["hhd_preview_atlas"] == names.index(o.hhd.atlas) for o in spheres + [floor])
+    compares = [n for n in grey.node_tree.nodes if n.type == 'MATH' and n.operation == 'COMPARE']
+    assert sorted(n.inputs[1].default_value for n in compares) == sorted(
+        float(k) for k in range(1, len(names)) for _ in ("iz", "wa", "dir"))
+    assert bpy.ops.hhd.preview_hide() == {'FINISHED'}
+    assert not any("hhd_preview_atlas" in o for o in spheres + [floor])
