@@ -117,11 +117,20 @@ def _apply_options(settings, args) -> None:
 
 
 def _unwrap(context, args) -> str:
+    """Unwrap the receivers with a progress line; Ctrl-C cancels (BakeCancelled, no mesh changed)."""
+    from .core.console import ConsoleProgress, interrupt_as_cancel
     from .operators import bake_session, unwrap
     objects = bake_session.target_objects(context, args.objects)
     if not objects:
         raise BakeError("no receivers: pass --objects or --collection, or save the .blend with them selected")
-    summary, warnings = unwrap.unwrap_objects(objects, context.scene.hhd, getattr(args, "make_single_user", False))
+    print(f"unwrap: {len(objects)} object(s)", flush=True)
+    progress = ConsoleProgress()
+    try:
+        with interrupt_as_cancel() as cancel:
+            summary, warnings = unwrap.unwrap_objects(objects, context.scene.hhd,
+                                                      getattr(args, "make_single_user", False), progress, cancel)
+    finally:
+        progress.close()
     for w in warnings:
         print(f"warning: {w}")
     return summary

@@ -21,6 +21,7 @@ import pickle
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -628,25 +629,28 @@ def _run_worker(job, names, triangles, cancel=None):
 def _run_child(payload: bytes, timeout: float, cancel=None):
     """Run the worker on `payload`: a CompletedProcess, or None if it gave no answer within
     `timeout` seconds (then killed). Raises BakeCancelled, the child killed and reaped, once
-    cancel() returns True."""
+    cancel() returns True. The pipes are served by a helper thread (`communicate` cannot be
+    retried after a timeout while input remains to be written), this one only waits."""
     proc = subprocess.Popen([sys.executable, "-I", _WORKER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)
-    deadline, data = time.monotonic() + timeout, payload
+    streams = []
+    talker = threading.Thread(target=lambda: streams.append(proc.communicate(payload)), daemon=True)
+    talker.start()
+    deadline = time.monotonic() + timeout
     try:
-        while True:
-            try:
-                stdout, stderr = proc.communicate(data, timeout=max(0.0, min(CANCEL_POLL, deadline - time.monotonic())))
-                return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
-            except subprocess.TimeoutExpired:
-                data = None         # sent already: a retried communicate goes on where it stopped
-            if cancel is not None and cancel():
+        while talker.is_alive():
+            talker.join(max(0.0, min(CANCEL_POLL, deadline - time.monotonic())))
+            if talker.is_alive() and cancel is not None and cancel():
                 raise BakeCancelled("unwrap cancelled")
-            if time.monotonic() >= deadline:
+            if talker.is_alive() and time.monotonic() >= deadline:
                 return None
+        stdout, stderr = streams[0] if streams else (b"", b"")
+        return subprocess.CompletedProcess(proc.args, proc.wait(), stdout, stderr)
     finally:
-        if proc.returncode is None:
+        if talker.is_alive():
             proc.kill()
-            proc.communicate()      # reap it and close the pipes
+            talker.join()       # the pipes close with the child: communicate returns and reaps it
+        proc.wait()
 
 
 def _describe_failure(run) -> str:

@@ -20,7 +20,7 @@ def receivers_poll(cls, context) -> bool:
     """Shared poll of Bake / Re-encode: something to work on, and no bake running."""
     settings = context.scene.hhd
     if HHD_OT_bake.running:
-        cls.poll_message_set("A bake is running (Esc cancels it)")
+        cls.poll_message_set("A bake or unwrap is running (Esc cancels it)")
         return False
     if settings.target == 'COLLECTION':
         if settings.target_collection is None:
@@ -118,24 +118,34 @@ class HHD_OT_bake(bpy.types.Operator):
             return {'RUNNING_MODAL'}
         if event.type != 'TIMER':
             return {'PASS_THROUGH'}
-        wm = context.window_manager
-        fraction = self._state["fraction"]
-        text = f"HHD bake {100 * fraction:.0f}%: {self._state['message']} (Esc cancels)"
-        wm.progress_update(int(1000 * fraction))
-        wm.hhd_progress, wm.hhd_status = fraction, text
-        context.workspace.status_text_set(text)
-        for area in context.screen.areas:
-            if area.type == 'PROPERTIES':
-                area.tag_redraw()
+        show_progress(context, "HHD bake", self._state["fraction"], self._state["message"])
         if self._thread.is_alive():
             return {'PASS_THROUGH'}
         self._cleanup(context)
         return self._done(context, self._state["error"])
 
     def _cleanup(self, context):
-        wm = context.window_manager
-        wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        wm.hhd_progress, wm.hhd_status = 0.0, ""
-        context.workspace.status_text_set(None)
+        context.window_manager.event_timer_remove(self._timer)
+        clear_progress(context)
         HHD_OT_bake.running = False
+
+
+def show_progress(context, title: str, fraction: float, message: str) -> None:
+    """Show a modal job's progress (fraction in [0, 1]) in the window's progress bar (started with
+    `progress_begin(0, 1000)`), the panel's bar and the status bar."""
+    wm = context.window_manager
+    text = f"{title} {100 * fraction:.0f}%: {message} (Esc cancels)"
+    wm.progress_update(int(1000 * fraction))
+    wm.hhd_progress, wm.hhd_status = fraction, text
+    context.workspace.status_text_set(text)
+    for area in context.screen.areas:
+        if area.type == 'PROPERTIES':
+            area.tag_redraw()
+
+
+def clear_progress(context) -> None:
+    """End what `show_progress` showed."""
+    wm = context.window_manager
+    wm.progress_end()
+    wm.hhd_progress, wm.hhd_status = 0.0, ""
+    context.workspace.status_text_set(None)
