@@ -6,7 +6,6 @@ script or in background mode `execute` runs them in a row (a progress line on st
 headless); from the UI `invoke` runs the core unwrap on a thread with a progress bar, and Esc
 cancels it before anything was written, so a cancelled unwrap leaves every mesh untouched.
 """
-import threading
 from dataclasses import dataclass
 
 import bpy
@@ -15,15 +14,15 @@ from bpy.props import BoolProperty
 from ..core import unwrap as core_unwrap
 from ..core.console import ConsoleProgress
 from ..core.errors import BakeCancelled, BakeError
-from . import mesh_data
-from .bake import HHD_OT_bake, clear_progress, show_progress
+from . import mesh_data, modal_work
 
 
-class HHD_OT_unwrap(bpy.types.Operator):
+class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
     """Chart and pack lightmap UVs with xatlas into the lightmap UV layer of the selected meshes"""
     bl_idname = "hhd.unwrap"
     bl_label = "Unwrap Lightmap UVs"
     bl_options = {'REGISTER', 'UNDO'}
+    TITLE = "HHD unwrap"
 
     make_single_user: BoolProperty(
         name="Make Single User", default=False,
@@ -31,8 +30,7 @@ class HHD_OT_unwrap(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if HHD_OT_bake.running:          # one bake or unwrap at a time
-            cls.poll_message_set("A bake or unwrap is running (Esc cancels it)")
+        if modal_work.busy(cls):         # one bake or unwrap at a time
             return False
         if not mesh_data.target_meshes(context.selected_objects):
             cls.poll_message_set("Select one or more mesh objects")
@@ -80,44 +78,13 @@ class HHD_OT_unwrap(bpy.types.Operator):
         except BakeError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
-        self._cancel = threading.Event()
-        self._state = {"fraction": 0.0, "message": "starting", "result": None, "error": None}
-        self._thread = threading.Thread(target=self._work, daemon=True)
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.2, window=context.window)
-        wm.modal_handler_add(self)
-        wm.progress_begin(0, 1000)
-        HHD_OT_bake.running = True
-        self._thread.start()
-        return {'RUNNING_MODAL'}
+        return self._start_work(context, lambda progress, cancel: compute(self._job, progress, cancel))
 
-    def _work(self):
-        try:
-            self._state["result"] = compute(self._job, self._on_progress, self._cancel.is_set)
-        except Exception as exc:        # handed to the main thread by modal
-            self._state["error"] = exc
-
-    def _on_progress(self, fraction, message):
-        self._state["fraction"], self._state["message"] = fraction, message
-
-    def modal(self, context, event):
-        if event.type == 'ESC' and event.value == 'PRESS':
-            self._cancel.set()
-            self._state["message"] = "cancelling…"
-            return {'RUNNING_MODAL'}
-        if event.type != 'TIMER':
-            return {'PASS_THROUGH'}
-        show_progress(context, "HHD unwrap", self._state["fraction"], self._state["message"])
-        if self._thread.is_alive():
-            return {'PASS_THROUGH'}
-        context.window_manager.event_timer_remove(self._timer)
-        clear_progress(context)
-        HHD_OT_bake.running = False
-        error = self._state["error"]
+    def _work_done(self, context, result, error):
         if error is not None and not isinstance(error, BakeError):
             raise error
         try:
-            outcome = error or write_objects(self._job, context.scene.hhd, self._state["result"])
+            outcome = error or write_objects(self._job, context.scene.hhd, result)
         except BakeError as exc:
             outcome = exc
         return self._done(context, outcome)
