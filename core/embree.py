@@ -1,9 +1,9 @@
 """Embree 4 through its C API: the library the embreex wheel ships, without embreex's Python layer. No bpy.
 
 Why not embreex's own classes: its `TriangleMesh` copies a mesh into Embree one Python-indexed
-float at a time with the GIL held (1M triangles: 1.5–2.3 s here) and its `run()` copies every
-ray batch into a fresh float32 layout. Embree itself can share our arrays (the same 1M
-triangles: 0.02 s) and be called per ray from compiled code. So:
+float at a time with the GIL held and its `run()` copies every ray batch into a fresh float32
+layout. Embree itself can share our arrays (about a hundred times faster for a large mesh; the
+README has the figures) and be called per ray from compiled code. So:
 - the scene is built through ctypes (`Scene`), sharing a padded float32 vertex array and a
   uint32 index array with Embree; ctypes releases the GIL, so Embree's own threads build the
   BVH while Python does other work;

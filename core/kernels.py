@@ -8,8 +8,8 @@ time on the classroom (a 1-thread profile), compiled about as long as Embree's. 
 `cache`, so only the first bake after an install compiles (a few seconds).
 
 Randomness: a kernel that samples takes a 64-bit `seed` (drawn by the caller from the chunk's
-numpy Generator) and runs its own SplitMix64 stream from it (`uniform`: 1.5 ns a number here,
-numba's Mersenne Twister 6 ns), so results depend only on the seed, never on the thread.
+numpy Generator) and runs its own SplitMix64 stream from it (`uniform`; cheaper than numba's
+Mersenne Twister), so results depend only on the seed, never on the thread.
 
 Conventions: directions world space, unit; SH basis and frames as `core.sh` (`sh_basis` is
 `sh.evaluate` for one direction; `local_to_world` applies `sh.tangent_frames`; the tests

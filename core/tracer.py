@@ -229,7 +229,7 @@ class _Accumulator:
     def add(self, idx: np.ndarray, estimate: np.ndarray) -> None:
         """Add one pass's estimate for the texels idx (unique: a chunk of `active`); compiled
         (`kernels.add_pass`): runs on the main thread beside the tracing workers, where numpy
-        took 0.3–0.8 µs a texel (1.5–2.6 on the first pass), the kernel 0.1 µs."""
+        was several times slower (the README has the figures)."""
         self.texel_passes += len(idx)
         _kernels.get().add_pass(np.asarray(idx, dtype=np.int64), estimate, self.normals, _hhd.LUMINANCE,
                                _hhd.IRRADZ_FROM_R10, self.total, self.m2, self.iz, self.iz_sq, self.passes)
