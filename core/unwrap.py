@@ -287,7 +287,7 @@ def _first_spill_count(boxes, resolution, density, padding) -> int:
     size = resolution if density is None else MAX_RESOLUTION
     padding_only = len(all_boxes) * q * q / (SPILL_PADDING_SHARE * size * size)
     t = density if density is not None else 0.0
-    at_density = xatlas_worker._box_area(all_boxes, padding, t) / (size * size)
+    at_density = xatlas_worker.box_area(all_boxes, padding, t) / (size * size)
     return int(min(len(boxes), max(2, np.ceil(max(padding_only, at_density)))))
 
 
@@ -295,7 +295,7 @@ def _deal(indices, boxes, count, resolution, density, padding):
     """`indices` dealt into `count` groups, heaviest object first to the lightest group, by the
     area of their padded chart boxes; each group keeps the input order."""
     t = _area_density(boxes, resolution, density, padding)
-    weight = [xatlas_worker._box_area(b, padding, t) for b in boxes]
+    weight = [xatlas_worker.box_area(b, padding, t) for b in boxes]
     load, parts = [0.0] * count, [[] for _ in range(count)]
     for k in sorted(range(len(indices)), key=lambda k: -weight[k]):
         g = min(range(count), key=load.__getitem__)

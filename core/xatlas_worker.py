@@ -547,12 +547,12 @@ def chart_boxes(charts):
 
 def box_density(boxes, resolution, padding, fill):
     """Texels per metre at which the charts' bounding boxes (C, 2) in metres, each grown by its
-    padding on both sides and a texel, cover `fill` of a resolution² atlas (see `_box_area`).
+    padding on both sides and a texel, cover `fill` of a resolution² atlas (see `box_area`).
     None when the padding alone needs that much."""
     return _density_for_area(boxes, padding, fill * resolution * resolution)
 
 
-def _box_area(boxes, padding, t):
+def box_area(boxes, padding, t):
     """Texels covered by the charts' bounding boxes (C, 2) at t texels per metre, each grown by
     its padding on both sides and a texel: Σ (w·t + q)(h·t + q), q = 2·padding + 2."""
     q = 2.0 * padding + 2.0
@@ -560,7 +560,7 @@ def _box_area(boxes, padding, t):
 
 
 def _density_for_area(boxes, padding, texels):
-    """The density t ≥ 0 at which `_box_area` is `texels` (the positive root of a quadratic in
+    """The density t ≥ 0 at which `box_area` is `texels` (the positive root of a quadratic in
     t), or None when even t = 0 needs more."""
     import numpy as np
     q = 2.0 * padding + 2.0
@@ -576,7 +576,7 @@ def _shrunk(boxes, padding, t, spilled):
     """The density to try after t spilled a share `spilled` of its used area into further
     atlases: where the padded boxes cover (1 - spilled)·SHRINK_MARGIN² of what they cover at t
     (so the padding, which does not shrink with t, is accounted for), and t·SHRINK_MIN at most."""
-    target = max(1.0 - spilled, 0.25) * SHRINK_MARGIN ** 2 * _box_area(boxes, padding, t)
+    target = max(1.0 - spilled, 0.25) * SHRINK_MARGIN ** 2 * box_area(boxes, padding, t)
     shrunk = _density_for_area(boxes, padding, target)
     return min(t * SHRINK_MIN, shrunk if shrunk is not None else 0.5 * t)
 
