@@ -139,11 +139,11 @@ def write_objects(job: UnwrapJob, settings, result):
     _check_unchanged(job)
     if job.make_single_user:
         mesh_data.make_single_user(job.objects)
-    objects, read = job.objects, list(zip(job.meshes, job.loops))
+    objects = job.objects
     warnings = list(result.warnings)
     others = {o.hhd.atlas for o in bpy.data.objects if o.type == 'MESH' and o not in objects and o.hhd.atlas}
     names = atlas_names([o.name for o in objects], [o.atlas for o in result.objects], others, result.part)
-    for obj, (_, loops), ouv in zip(objects, read, result.objects):
+    for obj, loops, ouv in zip(objects, job.loops, result.objects):
         mesh_data.write_uv_layer(obj, settings.uv_layer, loops, ouv.uv)
         obj.hhd.atlas = names[ouv.atlas]
         obj.hhd.atlas_width, obj.hhd.atlas_height = result.atlas_sizes[ouv.atlas]
@@ -179,13 +179,12 @@ def atlas_names(objects: list[str], atlas_of: list[int], taken: set[str] = froze
     members: dict[int, list[str]] = {}
     for name, atlas in zip(objects, atlas_of):
         members.setdefault(atlas, []).append(name)
-    spilled = part is not None and any(part)
     out, used = {}, set(taken)
     for atlas in sorted(members):
         names = members[atlas]
         if part is not None and part[atlas] > 0:
             name = f"Lightmap_{part[atlas]}"
-        elif len(names) > 1 or len(members) == 1 or (spilled and part[atlas] == 0 and _spill_head(atlas, part)):
+        elif len(names) > 1 or len(members) == 1 or (part is not None and _spill_head(atlas, part)):
             name = "Lightmap"
         else:
             name = "Lightmap_" + "".join(c if c.isalnum() or c in "-_." else "_" for c in names[0])
