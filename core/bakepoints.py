@@ -7,7 +7,10 @@ albedo there, and the texel's coverage. When several triangles overlap one texel
 overlap wins (ties: the lowest triangle index), so the choice is deterministic.
 
 Arrays are compact over covered texels (P of them); `texel` maps them back into the
-width × height image (flat index y · width + x, y = v · height).
+width × height image (flat index y · width + x, y = v · height). The receiving triangles
+themselves (T of them) are `BakePoints.mesh` (`SurfaceMesh`). Bake points are plain numpy data:
+they pickle, and hold no live object (the cover probe `build` flags texels with is shared with
+the tracer through `covers.shared_probe`, not through them).
 """
 from __future__ import annotations
 
@@ -16,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import kernels, parallel, raster
+from . import covers, kernels, parallel, raster
 from .covers import CoverProbe
 from .errors import BakeError
 from .rays import RayScene, ray_offset
@@ -56,12 +59,61 @@ class SurfaceTriangles:
 
 
 @dataclass
+class SurfaceMesh:
+    """The receiving triangles of one atlas (T of them), indexed by `BakePoints.triangle`.
+
+    positions (T, 3, 3) float64 world space, metres; texel_uv (T, 3, 2) float64 lightmap UVs in
+    texel units (u · width, v · height); normals (T, 3, 3) float64 vertex normals, world space;
+    object_index (T,) int; vertex (T, 3) int64 welded corner ids: corners at exactly equal
+    positions share an id (`weld`), so triangles sharing an edge in space can be found even
+    where the lightmap UVs split it (a seam)."""
+    positions: np.ndarray
+    texel_uv: np.ndarray
+    normals: np.ndarray
+    object_index: np.ndarray
+    vertex: np.ndarray
+
+    @classmethod
+    def from_surface(cls, surface: SurfaceTriangles, width: int, height: int) -> SurfaceMesh:
+        positions = np.asarray(surface.positions, dtype=np.float64)
+        return cls(positions=positions, texel_uv=np.asarray(surface.uv, dtype=np.float64) * [width, height],
+                   normals=np.asarray(surface.normals, dtype=np.float64),
+                   object_index=np.asarray(surface.object_index), vertex=weld(positions))
+
+
+def weld(positions: np.ndarray) -> np.ndarray:
+    """Ids (T, 3) int64 of the corners of triangles `positions (T, 3, 3)`: equal for corners at
+    exactly equal positions (0.0 and -0.0 alike), distinct otherwise; ids count up in the order
+    of a hash of the position (deterministic). Sorted by a 64-bit hash of each corner's bits
+    (one sort of T·3 keys); corners whose hashes collide but whose positions differ make it
+    fall back to a lexicographic sort of the coordinates."""
+    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3) + 0.0          # -0.0 -> 0.0
+    if len(p) == 0:
+        return np.zeros((0, 3), np.int64)
+    bits = p.view(np.uint64)
+    key = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
+    key ^= bits[:, 1] * np.uint64(0xBF58476D1CE4E5B9)
+    key ^= bits[:, 2] * np.uint64(0x94D049BB133111EB)
+    key ^= key >> np.uint64(31)
+    order = np.argsort(key)
+    same = key[order][1:] == key[order][:-1]
+    ordered = np.take(p, order, axis=0)
+    if (same & (ordered[1:] != ordered[:-1]).any(axis=1)).any():       # a collision: sort the values
+        order = np.lexsort(p.T[::-1])
+        ordered = np.take(p, order, axis=0)
+        same = (ordered[1:] == ordered[:-1]).all(axis=1)
+    ids = np.empty(len(p), np.int64)
+    ids[order] = np.concatenate([[0], np.cumsum(~same)])
+    return ids.reshape(-1, 3)
+
+
+@dataclass
 class BakePoints:
     """position, normal (n_v), face_normal, albedo: (P, 3) float64; coverage (P,) in (0, 1];
     texel, triangle, object_index (P,) int; buried (P,) bool (hemisphere closed by geometry);
-    near_cover (P,) bool (part of the texel may lie under a coplanar face: core.covers), found
-    with cover_probe;
-    offset: ray origin offset, scene units; texel_size (P,) world size of a texel, metres."""
+    near_cover (P,) bool (part of the texel may lie under a coplanar face: core.covers);
+    offset: ray origin offset, scene units; texel_size (P,) world size of a texel, metres;
+    mesh: the receiving triangles `triangle` indexes (`SurfaceMesh`)."""
     width: int
     height: int
     texel: np.ndarray
@@ -75,26 +127,27 @@ class BakePoints:
     texel_size: np.ndarray
     offset: float
     buried: np.ndarray
-    tri_texel_uv: np.ndarray = None      # (T, 3, 2) every triangle's UVs in texel units
-    tri_positions: np.ndarray = None     # (T, 3, 3) every triangle's world corners
-    near_cover: np.ndarray = None
-    cover_probe: CoverProbe | None = None   # the probe near_cover came from (the tracer reuses it)
+    mesh: SurfaceMesh
+    near_cover: np.ndarray
 
     def origins(self, rows=slice(None)) -> np.ndarray:
         """Ray origins `(P, 3)` (of the texels `rows`, if given): positions pushed off the
         surface along the face normal."""
         return self.position[rows] + self.face_normal[rows] * self.offset
 
-    def sample_origins(self, rng: np.random.Generator, idx: np.ndarray, k: int) -> np.ndarray:
+    def sample_origins(self, rng: np.random.Generator, idx: np.ndarray, k: int,
+                       footprint: float | None = None) -> np.ndarray:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
-        footprint (FOOTPRINT) inside its chosen triangle, as Cycles bakes a texel: rejection
-        sampling, JITTER_TRIES tries, then as many over the whole texel, then the bake point
-        (the centroid of texel ∩ triangle); offset along the face normal. A texel's first tries
-        cover the footprint evenly (`kernels.texel_origins`: a randomly shifted Hammersley set)."""
+        footprint (`footprint` texels wide, default FOOTPRINT) inside its chosen triangle, as
+        Cycles bakes a texel: rejection sampling, JITTER_TRIES tries, then as many over the whole
+        texel, then the bake point (the centroid of texel ∩ triangle); offset along the face
+        normal. A texel's first tries cover the footprint evenly (`kernels.texel_origins`: a
+        randomly shifted Hammersley set)."""
         tri = self.triangle[idx]
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1).astype(np.float64)
-        return kernels.get().texel_origins(corner, self.tri_texel_uv[tri], self.tri_positions[tri], self.position[idx],
-                                           self.face_normal[idx], self.offset, k, FOOTPRINT, JITTER_TRIES,
+        return kernels.get().texel_origins(corner, self.mesh.texel_uv[tri], self.mesh.positions[tri],
+                                           self.position[idx], self.face_normal[idx], self.offset, k,
+                                           FOOTPRINT if footprint is None else footprint, JITTER_TRIES,
                                            int(rng.integers(1 << 63)))
 
     def texel_points(self, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -102,9 +155,9 @@ class BakePoints:
         clamped into the texel's triangle."""
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1)
         tri = self.triangle[idx]
-        bary = np.clip(_barycentric_grouped(corner[:, None, :] + offsets[None], self.tri_texel_uv[tri]), 0.0, None)
+        bary = np.clip(_barycentric_grouped(corner[:, None, :] + offsets[None], self.mesh.texel_uv[tri]), 0.0, None)
         bary /= np.maximum(bary.sum(axis=-1, keepdims=True), 1e-300)
-        return np.matmul(bary, self.tri_positions[tri]) + self.face_normal[idx][:, None, :] * self.offset
+        return np.matmul(bary, self.mesh.positions[tri]) + self.face_normal[idx][:, None, :] * self.offset
 
     def image(self, values: np.ndarray, fill=0.0, dtype=np.float64) -> np.ndarray:
         """Scatter per-point values `(P, ...)` into a `(height, width, ...)` image of `dtype`."""
@@ -121,11 +174,13 @@ def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScen
     `check()`, if given, is called between chunks of work (it raises to stop: a cancel).
     Per-texel quantities are computed `chunk` texels at a time, so the temporaries stay small
     next to the result (~170 bytes per texel). `threads`: workers of the probe passes (buried,
-    near cover), 0 = every core (`parallel.resolve_threads`); the result does not depend on it."""
+    near cover), 0 = every core (`parallel.resolve_threads`); the result does not depend on it.
+    The cover probe comes from `covers.shared_probe(occluders, ...)`, where the tracer finds it."""
     pos = np.asarray(surface.positions, dtype=np.float64)
     if not np.isfinite(pos).all() or not np.isfinite(surface.uv).all():
         raise BakeError("lightmap bake points: NaN or infinite positions or UVs in the input")
     uv = np.asarray(surface.uv, dtype=np.float64)
+    mesh = SurfaceMesh.from_surface(surface, width, height)
     cov = raster.rasterise(uv, width, height, check)
     chosen, coverage = raster.choose_per_texel(cov)
     tri, texel, centroid = cov.triangle[chosen], cov.texel[chosen], cov.point[chosen]
@@ -135,16 +190,15 @@ def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScen
         width=width, height=height, texel=texel, position=np.empty((n, 3)), normal=np.empty((n, 3)),
         face_normal=np.empty((n, 3)), albedo=np.empty((n, 3)), coverage=coverage, triangle=tri,
         object_index=np.asarray(surface.object_index)[tri], texel_size=np.empty(n),
-        offset=ray_offset(pos), buried=np.zeros(n, bool), tri_texel_uv=uv * [width, height],
-        tri_positions=pos, near_cover=np.zeros(n, bool))
+        offset=ray_offset(pos), buried=np.zeros(n, bool), mesh=mesh, near_cover=np.zeros(n, bool))
     for s in range(0, n, chunk):
         if check is not None:
             check()
         _fill_points(points, surface, slice(s, s + chunk), centroid[s:s + chunk])
     if occluders is not None:
         points.buried = find_buried(points, occluders, check=check, threads=threads)
-        points.cover_probe = CoverProbe(occluders.triangles, points.offset, receivers=pos)
-        points.near_cover = find_near_cover(points, points.cover_probe, check=check, threads=threads)
+        probe = covers.shared_probe(occluders, points.offset, mesh.positions)
+        points.near_cover = find_near_cover(points, probe, check=check, threads=threads)
     return points
 
 
@@ -152,10 +206,10 @@ def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, cen
     """Position, n_v, face normal, albedo and texel size of the texels `rows`, whose overlap
     centroids (texel space) are `centroid`."""
     tri = points.triangle[rows]
-    pos = points.tri_positions[tri]                                             # (n, 3, 3)
-    bary = _barycentric(centroid, points.tri_texel_uv[tri])
+    pos = points.mesh.positions[tri]                                            # (n, 3, 3)
+    bary = _barycentric(centroid, points.mesh.texel_uv[tri])
     points.position[rows] = np.einsum("pk,pki->pi", bary, pos)
-    normal = _normalise(np.einsum("pk,pki->pi", bary, np.asarray(surface.normals)[tri].astype(np.float64)))
+    normal = _normalise(np.einsum("pk,pki->pi", bary, points.mesh.normals[tri]))
     face = _normalise(np.cross(pos[:, 1] - pos[:, 0], pos[:, 2] - pos[:, 0]))
     # A vertex normal of zero length (degenerate input) falls back to the face normal.
     bad = ~np.isfinite(normal).all(axis=1) | (np.linalg.norm(normal, axis=1) < 0.5)
@@ -163,7 +217,7 @@ def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, cen
     face *= np.where(np.einsum("pi,pi->p", face, normal) < 0.0, -1.0, 1.0)[:, None]
     points.normal[rows], points.face_normal[rows] = normal, face
     points.albedo[rows] = _albedo(surface, tri, bary)
-    points.texel_size[rows] = _texel_world_size(pos, points.tri_texel_uv[tri])
+    points.texel_size[rows] = _texel_world_size(pos, points.mesh.texel_uv[tri])
 
 
 def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:

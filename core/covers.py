@@ -13,8 +13,16 @@ opposite a receiver then lies in front of it and the receiver itself behind, so 
 from a sample origin back to the surface finds any cover, and nothing else, without the tie two
 coplanar triangles give a ray. Geometry within the offset in front of a surface (thinner than
 the offset) counts too: a ray starting behind it is just as wrong.
+
+`shared_probe` keeps the probes built over one RayScene's triangles (keyed by offset and the
+receivers' content), so the bake points (which flag texels near a cover) and the tracer (which
+probes those texels' samples) build one probe between them.
 """
 from __future__ import annotations
+
+import hashlib
+import threading
+import weakref
 
 import numpy as np
 
@@ -35,11 +43,9 @@ class CoverProbe:
     box comes within 2 × offset of the receivers' bounding box can cover one of their points, so
     only those are kept (a ground plane under a million-triangle field keeps the few that touch
     it): a smaller probe scene builds faster (Embree's BVH build: 0.2–0.6 s per million
-    triangles here). `source` keeps the array it was built from, so a user can tell
-    whether it probes the scene it traces (`probes`)."""
+    triangles here)."""
 
     def __init__(self, triangles: np.ndarray, offset: float, receivers: np.ndarray | None = None):
-        self.source = triangles
         self.offset = offset
         tri = np.asarray(triangles).reshape(-1, 3, 3)
         if receivers is not None:                     # filter first: convert only what is kept
@@ -50,16 +56,36 @@ class CoverProbe:
         n = np.divide(n, length, out=np.zeros_like(n), where=length > 0.0)   # degenerate: no push
         self.scene = RayScene(tri - n[:, None, :] * (COVER_PUSH * offset)) if len(tri) else None
 
-    def probes(self, triangles: np.ndarray, offset: float) -> bool:
-        """Whether this probe was built over `triangles` (the same array) for `offset`."""
-        return self.source is triangles and self.offset == offset
-
     def covered(self, origins: np.ndarray, face_normals: np.ndarray) -> np.ndarray:
         """(R,) bool: a face lies on, or within the offset in front of, the surface point below
         each origin (origins = surface point + face normal × offset)."""
         if self.scene is None:
             return np.zeros(len(origins), bool)
         return self.scene.occluded(origins, -np.asarray(face_normals), self.offset)
+
+
+_shared: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()   # RayScene -> {key: CoverProbe}
+_shared_lock = threading.Lock()
+
+
+def shared_probe(scene: RayScene, offset: float, receivers: np.ndarray) -> CoverProbe:
+    """The probe over `scene.triangles` (float32, Embree's own) for `offset` and `receivers`
+    (R, 3, 3), built on first request and kept as long as `scene` lives: the same object for
+    every request with the same offset and receivers of equal content (shape, dtype, values)."""
+    key = (float(offset), content_key(receivers))
+    with _shared_lock:
+        probes = _shared.setdefault(scene, {})
+        if key not in probes:
+            probes[key] = CoverProbe(scene.triangles, offset, receivers=receivers)
+        return probes[key]
+
+
+def content_key(a: np.ndarray) -> str:
+    """A digest of an array's shape, dtype and values: equal for equal arrays, whatever object holds them."""
+    a = np.ascontiguousarray(a)
+    digest = hashlib.blake2b(f"{a.shape}{a.dtype.str}".encode(), digest_size=16)
+    digest.update(a.view(np.uint8).ravel() if a.size else b"")
+    return digest.hexdigest()
 
 
 def _near_box(tri: np.ndarray, points: np.ndarray, margin: float) -> np.ndarray:

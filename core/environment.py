@@ -16,18 +16,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .colour import LUMINANCE
+
 #: Share of the sampling distribution spread uniformly over the sphere's pixels, so every
 #: direction with radiance has a non-zero light-sampling density.
 UNIFORM_FLOOR = 0.02
-_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 @dataclass
 class EnvironmentMap:
     """pixels (H, W, 3): linear RGB radiance (image × Background strength), row 0 at v = 0;
-    mapping (3, 3): world direction → lookup direction (normalised after the product)."""
+    mapping (3, 3): world direction → lookup direction (normalised after the product); group:
+    the light group the world belongs to ("": the default set)."""
     pixels: np.ndarray
     mapping: np.ndarray = field(default_factory=lambda: np.eye(3))
+    group: str = field(default="", kw_only=True)
 
     def __post_init__(self):
         self.pixels = np.ascontiguousarray(np.nan_to_num(np.asarray(self.pixels, np.float64)[..., :3],
@@ -36,7 +39,7 @@ class EnvironmentMap:
         self.inverse = np.linalg.inv(self.mapping)
         h, w = self.pixels.shape[:2]
         theta = np.pi * (1.0 - (np.arange(h) + 0.5) / h)          # row centre's polar angle
-        weight = _neighbourhood_max(self.pixels @ _LUMINANCE) * np.sin(theta)[:, None]
+        weight = _neighbourhood_max(self.pixels @ LUMINANCE) * np.sin(theta)[:, None]
         total = weight.sum()
         uniform = np.broadcast_to(np.sin(theta)[:, None], (h, w))
         if total > 0.0:
@@ -58,7 +61,10 @@ class EnvironmentMap:
     def uv(self, dirs: np.ndarray) -> np.ndarray:
         """Image coordinates (R, 2) of world directions (R, 3)."""
         b = self._lookup(dirs)
-        u = 0.5 - np.arctan2(b[:, 1], b[:, 0]) / (2.0 * np.pi)
+        # contiguous columns: on strided views numpy 1.x's arctan2 switches between two
+        # implementations from call to call (they differ in the last bit), so a seed would not
+        # reproduce a bake; on contiguous ones it does not (numpy 2 gives the same either way)
+        u = 0.5 - np.arctan2(np.ascontiguousarray(b[:, 1]), np.ascontiguousarray(b[:, 0])) / (2.0 * np.pi)
         v = 1.0 - np.arccos(np.clip(b[:, 2], -1.0, 1.0)) / np.pi
         return np.stack([u % 1.0, np.clip(v, 0.0, 1.0)], axis=1)
 

@@ -12,8 +12,8 @@ numpy Generator) and runs its own SplitMix64 stream from it (`uniform`; cheaper 
 Mersenne Twister), so results depend only on the seed, never on the thread.
 
 Conventions: directions world space, unit; SH basis and frames as `core.sh` (`sh_basis` is
-`sh.evaluate` for one direction; `local_to_world` applies `sh.tangent_frames`; the tests
-compare both).
+`sh.basis` compiled, the function `sh.evaluate` uses; `local_to_world` applies
+`sh.tangent_frames`, the tests compare them; `add_pass` takes I_z from `sh.zonal_band1`).
 Nothing here compiles until `get()` is first called: numba is imported lazily (`deps`).
 """
 from __future__ import annotations
@@ -24,13 +24,11 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from . import deps
+from . import deps, sh
 
-_Y00 = 0.5 / math.sqrt(math.pi)
-_C1 = math.sqrt(3.0 / (4.0 * math.pi))
-_C2 = 0.5 * math.sqrt(15.0 / math.pi)
-_C20 = 0.25 * math.sqrt(5.0 / math.pi)
-_C22 = 0.25 * math.sqrt(15.0 / math.pi)
+_Y00 = sh.Y00
+_C1 = sh.C1
+_IRRADZ_FROM_R10 = sh.IRRADZ_FROM_R10
 _INV_PI = 1.0 / math.pi
 _TWO_PI = 2.0 * math.pi
 
@@ -59,11 +57,10 @@ def radical_inverse(i):
     return out
 
 
-def sh_basis(x, y, z):
-    """The 9 real SH basis values at direction (x, y, z), as a tuple: `sh.evaluate`. (Tuples,
-    not array arguments: a view per call costs more than the arithmetic.)"""
-    return (_Y00, -_C1 * y, _C1 * z, -_C1 * x, _C2 * x * y, -_C2 * y * z, _C20 * (3.0 * z * z - 1.0),
-            -_C2 * x * z, _C22 * (x * x - y * y))
+#: The 9 real SH basis values at direction (x, y, z), as a tuple (not array arguments: a view
+#: per call costs more than the arithmetic); `get()` rebinds both to their compiled versions.
+sh_basis = sh.basis
+zonal_band1 = sh.zonal_band1
 
 
 def local_to_world(nx, ny, nz, lx, ly, lz):
@@ -323,12 +320,11 @@ def accumulate_grouped(dirs, values, weights, k, out):
             out[t, m, 2] += y[m] * v2
 
 
-def add_pass(idx, estimate, normals, luminance, irradz_from_r10, total, m2, iz, iz_sq, passes):
+def add_pass(idx, estimate, normals, luminance, total, m2, iz, iz_sq, passes):
     """One pass's SH estimate (len(idx), 9, 3) into the running statistics of the texels idx
     (unique), in place: total += estimate; m2 (float32) += (x - mean before)·(x - mean after)
-    (Welford, per coefficient; the first pass adds 0); iz / iz_sq += the estimate's I_z
-    luminance and its square (I_z = irradz_from_r10 · (v·n), v = (-r_1^1, -r_1^-1, r_1^0), as
-    `hhd.irradz`); passes += 1."""
+    (Welford, per coefficient; the first pass adds 0); iz / iz_sq += the estimate's I_z (`sh`:
+    IRRADZ_FROM_R10 · zonal_band1) weighted by `luminance` (3,) and its square; passes += 1."""
     for j in range(idx.shape[0]):
         t = idx[j]
         k = passes[t]
@@ -341,14 +337,14 @@ def add_pass(idx, estimate, normals, luminance, irradz_from_r10, total, m2, iz, 
         nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
         lum = 0.0
         for c in range(3):
-            r10 = -estimate[j, 3, c] * nx - estimate[j, 1, c] * ny + estimate[j, 2, c] * nz
-            lum += luminance[c] * irradz_from_r10 * r10
+            r10 = zonal_band1(estimate[j, 1, c], estimate[j, 2, c], estimate[j, 3, c], nx, ny, nz)
+            lum += luminance[c] * _IRRADZ_FROM_R10 * r10
         iz[t] += lum
         iz_sq[t] += lum * lum
         passes[t] = k + 1
 
 
-_HELPERS = ("uniform", "radical_inverse", "sh_basis", "local_to_world")
+_HELPERS = ("uniform", "radical_inverse", "sh_basis", "zonal_band1", "local_to_world")
 _KERNELS = ("hemisphere_rays", "texel_origins", "advance_paths", "project_hemisphere", "accumulate_grouped",
             "add_pass")
 _compiled: SimpleNamespace | None = None

@@ -9,13 +9,20 @@ Units follow Blender/Cycles (checked against Cycles' Diffuse bake in tests/test_
     has radiance P / (4π² r²) over the cone it subtends: with Blender's default "soft falloff"
     a disk of radius r facing the shaded point (cos α = d/√(d² + r²)), without it a sphere
     (cos α = √(1 - r²/d²)) — as Cycles' point_light_sample does.
+
+Lights are plain data here; how each type is sampled lives in one place, `core.tracer.lights`.
+`group` (every light, and `BakeScene.emission_group` per emissive triangle) names the light group
+a light belongs to ("": the default set).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from .environment import EnvironmentMap
 
 
 @dataclass
@@ -24,6 +31,7 @@ class SunLight:
     direction: np.ndarray
     irradiance: np.ndarray
     angle: float = 0.0
+    group: str = field(default="", kw_only=True)
 
     @property
     def is_delta(self) -> bool:
@@ -38,6 +46,7 @@ class PointLight:
     power: np.ndarray
     radius: float = 0.0
     soft_falloff: bool = True
+    group: str = field(default="", kw_only=True)
 
     @property
     def is_delta(self) -> bool:
@@ -54,14 +63,6 @@ class SpotLight(PointLight):
     size: float = np.pi / 4
     blend: float = 0.15
 
-    def attenuation(self, light_to_point: np.ndarray) -> np.ndarray:
-        cos_half = np.cos(0.5 * self.size)
-        x = light_to_point @ self.direction - cos_half
-        if self.blend <= 0.0:
-            return (x > 0.0).astype(np.float64)
-        f = np.clip(x / ((1.0 - cos_half) * self.blend), 0.0, 1.0)
-        return f * f * (3.0 - 2.0 * f)
-
 
 @dataclass
 class AreaLight:
@@ -74,6 +75,7 @@ class AreaLight:
     normal: np.ndarray
     power: np.ndarray
     shape: str = "SQUARE"
+    group: str = field(default="", kw_only=True)
     is_delta = False
 
     @property
@@ -81,22 +83,14 @@ class AreaLight:
         full = 4.0 * np.linalg.norm(self.axis_u) * np.linalg.norm(self.axis_v)
         return full * (np.pi / 4.0 if self.shape in ("DISK", "ELLIPSE") else 1.0)
 
-    def sample_points(self, rng, n: int) -> np.ndarray:
-        """n points uniform over the light's surface."""
-        if self.shape in ("DISK", "ELLIPSE"):
-            r, phi = np.sqrt(rng.random(n)), 2.0 * np.pi * rng.random(n)
-            a, b = r * np.cos(phi), r * np.sin(phi)
-        else:
-            a, b = 2.0 * rng.random(n) - 1.0, 2.0 * rng.random(n) - 1.0
-        return self.position + a[:, None] * self.axis_u + b[:, None] * self.axis_v
-
 
 @dataclass
 class BakeScene:
     """triangles (T, 3, 3) world space, all geometry that casts shadows or reflects light;
     albedo (T, 3) linear RGB in [0, 1] (used where a triangle has no texture); optional texture
     albedo: texture_index (T,) int (-1: none), texture_uv (T, 3, 2), textures [textures.Texture];
-    emission (T, 3) radiance, emitted on both sides; lights: SunLight / PointLight / SpotLight / AreaLight; world:
+    emission (T, 3) radiance, emitted on both sides; emission_group (T,) str, optional: the light
+    group of each triangle's emission (None: all ""); lights: SunLight / PointLight / SpotLight / AreaLight; world:
     background radiance (3,) or None (black); environment: an HDRI world
     (`environment.EnvironmentMap`, importance-sampled with MIS) in place of `world`; notes: what
     the extraction approximated."""
@@ -109,7 +103,8 @@ class BakeScene:
     texture_uv: np.ndarray | None = None
     textures: list = field(default_factory=list)
     notes: list = field(default_factory=list)
-    environment: object = None
+    environment: EnvironmentMap | None = None
+    emission_group: np.ndarray | None = None
 
     def albedo_at(self, prim: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Albedo (R, 3) at hit points given by triangle and barycentrics (u, v)."""

@@ -31,15 +31,37 @@ COSINE_BAND_FACTORS = (1.0, 2.0 / 3.0, 0.25)
 COSINE_KERNEL = np.array([COSINE_BAND_FACTORS[l] for l in BAND])
 
 
+#: I_z of radiance SH sampled over the hemisphere of n only (zero below): I_z = (1/π)∫_{Ω+} L cosθ dω
+#: = 2/√(3π) · r_1^0, r_1^0 the zonal band-1 coefficient in n's frame (`zonal_band1`); exact
+#: whatever the truncation, cosθ lying in band 1's span.
+IRRADZ_FROM_R10 = 2.0 / np.sqrt(3.0 * np.pi)
+
+
+def basis(x, y, z):
+    """The 9 basis values at the unit direction (x, y, z), as a tuple. Plain arithmetic on its
+    arguments (floats, or arrays of one shape, the first value then being a float), so numba
+    compiles it for the tracer's kernels (`kernels.sh_basis`) and `evaluate` uses it on arrays."""
+    return (Y00, -C1 * y, C1 * z, -C1 * x, C2 * x * y, -C2 * y * z, C20 * (3.0 * z * z - 1.0),
+            -C2 * x * z, C22 * (x * x - y * y))
+
+
+def zonal_band1(s1m1, s10, s11, nx, ny, nz):
+    """r_1^0 in the frame whose z is the unit n: v·n with v = (-r_1^1, -r_1^-1, r_1^0), from the
+    world-space band-1 coefficients r_1^-1, r_1^0, r_1^1. Plain arithmetic (floats or arrays;
+    numba compiles it for `kernels.add_pass`)."""
+    return -s11 * nx - s1m1 * ny + s10 * nz
+
+
+def hemisphere_irradz(sh: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """I_z at unit n `(N, 3)` of world-space radiance SH `(N, 9, C)` sampled over n's hemisphere
+    only: IRRADZ_FROM_R10 · r_1^0 -> `(N, C)`."""
+    return IRRADZ_FROM_R10 * zonal_band1(sh[:, 1], sh[:, 2], sh[:, 3], n[:, 0:1], n[:, 1:2], n[:, 2:3])
+
+
 def evaluate(dirs: np.ndarray) -> np.ndarray:
-    """Basis values Y(ω) for unit directions `dirs (N, 3)` -> `(N, 9)` float64."""
+    """Basis values Y(ω) for unit directions `dirs (N, 3)` -> `(N, 9)` float64 (`basis`)."""
     d = np.asarray(dirs, dtype=np.float64)
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return np.stack([
-        np.full_like(x, Y00),
-        -C1 * y, C1 * z, -C1 * x,
-        C2 * x * y, -C2 * y * z, C20 * (3.0 * z * z - 1.0), -C2 * x * z, C22 * (x * x - y * y),
-    ], axis=-1)
+    return np.stack(np.broadcast_arrays(*basis(d[..., 0], d[..., 1], d[..., 2])), axis=-1)
 
 
 def _as_nkc(sh: np.ndarray) -> np.ndarray:

@@ -209,7 +209,7 @@ def test_add_pass_keeps_the_running_mean_variance_and_iz_of_each_texel(rng):
     for subset in ([0, 1, 2, 3, 4, 5, 6], [1, 3, 5], [0, 1, 2, 3, 4, 5, 6], [3], [2, 3, 6]):
         idx = np.array(subset)
         est = 1e3 * rng.normal(size=(len(idx), 9, 3)) + 5e3     # large mean: Welford's point
-        K.add_pass(idx, est, normals, hhd.LUMINANCE, hhd.IRRADZ_FROM_R10, total, m2, iz, iz_sq, passes)
+        K.add_pass(idx, est, normals, hhd.LUMINANCE, total, m2, iz, iz_sq, passes)
         for j, t in enumerate(idx):
             seen[t].append(est[j])
     for t in range(n):

@@ -6,7 +6,7 @@ import pytest
 from hhd_lightmapper.core import bakepoints, hhd, rays, sh, tracer, unwrap
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.scene import BakeScene, SunLight
-import meshes
+from scenekit import meshes
 
 
 def floor_points(extra_v=None, extra_f=None):
@@ -267,7 +267,7 @@ def test_running_statistics_match_the_passes_mean_and_standard_error():
     (where a float32 sum of squares minus the squared mean would lose everything)."""
     rng = np.random.default_rng(3)
     n = 6
-    acc = tracer._Accumulator(n, np.tile([0.0, 0.0, 1.0], (n, 1)))
+    acc = tracer.Statistics(n, np.tile([0.0, 0.0, 1.0], (n, 1)))
     passes = {t: [] for t in range(n)}
     for p in range(7):
         idx = np.arange(n) if p < 3 else np.array([0, 2, 3, 5])        # later passes skip texels 1, 4

@@ -6,7 +6,7 @@ from hhd_lightmapper.core import bakepoints, raster, rays, textures, tracer, unw
 from hhd_lightmapper.core.covers import CoverProbe
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.scene import BakeScene
-import meshes
+from scenekit import meshes
 
 
 # --- an independent, slow reference: clip one triangle against one texel in pure Python ---
@@ -296,15 +296,18 @@ def test_texels_under_an_open_tray_resting_on_the_floor_are_flagged_near_cover()
     # and the flags are those of a probe over every triangle
     far_v, far_f = meshes.cube(1.0, centre=(0.0, 0.0, 5.0))
     with_far = np.concatenate([scene.triangles, far_v[far_f].astype(np.float32)])
-    near = CoverProbe(with_far, pts.offset, receivers=pts.tri_positions)
+    near = CoverProbe(with_far, pts.offset, receivers=pts.mesh.positions)
     assert near.scene.n_triangles == len(scene.triangles)
     np.testing.assert_array_equal(bakepoints.find_near_cover(pts, near),
                                   bakepoints.find_near_cover(pts, CoverProbe(with_far, pts.offset)))
     # the tracer reuses the bake points' probe when it traces the same Embree scene, else builds its own
+    from hhd_lightmapper.core import covers
+    flagged_with = covers.shared_probe(scene, pts.offset, pts.mesh.positions.copy())   # the one build() made
     bake_scene = BakeScene(scene.triangles.astype(float), np.full((len(scene.triangles), 3), 0.5))
-    assert tracer._Tracer(pts, bake_scene, tracer.BakeSettings(), scene).covers is pts.cover_probe
-    own = tracer._Tracer(pts, bake_scene, tracer.BakeSettings()).covers
-    assert own is not None and own is not pts.cover_probe
+    np.testing.assert_array_equal(bakepoints.find_near_cover(pts, flagged_with), pts.near_cover)
+    assert tracer.texel_estimator(pts, bake_scene, tracer.BakeSettings(), scene).covers is flagged_with
+    own = tracer.texel_estimator(pts, bake_scene, tracer.BakeSettings()).covers
+    assert own is not None and own is not flagged_with
 
 
 def _crashing_worker(tmp_path, crashes):

@@ -1,0 +1,56 @@
+"""The data handed from one bake stage to the next. No bpy.
+
+    bake points ─trace─▶ TracedAtlas ─[post stages]─▶ TracedAtlas ─image─▶ TexelData ─encode─▶ … ─write─▶ files
+
+Every hand-off is plain numpy data (picklable, no live Embree object), so a stage can run in
+another process or on another machine. A post stage (a denoiser, seam stitching) is a function
+`TracedAtlas -> TracedAtlas` (`PostStage`): it reads the SH and its standard error and returns new
+ones for the same texels; `core.bake.run` applies the configured post stages in order between
+tracing and encoding.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+
+@dataclass
+class TracedAtlas:
+    """One atlas's traced radiance, compact over its P covered texels (order of `points.texel`).
+
+    points: the BakePoints it was traced at (per-texel and per-triangle arrays, picklable);
+    sh (P, 9, 3) float64: world-space radiance L2 SH over the hemisphere of n_v (DESIGN.md),
+    0 for buried texels; sh_error (P, 9, 3) float32: standard error of `sh` from the spread
+    between passes (0 where every pass agrees, or after a single pass); texel_samples (P,) int:
+    hemisphere samples each texel took (they differ under a noise target or a time budget).
+    Run statistics: samples (the most a texel took), passes, rays traced, seconds of wall time,
+    stopped_by ("samples", "noise_target": every texel converged, "time_budget"), threads."""
+    points: object
+    sh: np.ndarray
+    sh_error: np.ndarray
+    texel_samples: np.ndarray
+    samples: int = 0
+    passes: int = 0
+    rays: int = 0
+    seconds: float = 0.0
+    stopped_by: str = "samples"
+    threads: int = 1
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(P,) bool: texels with a bake value of their own (not buried under geometry)."""
+        return ~np.asarray(self.points.buried, bool)
+
+    @property
+    def mean_samples(self) -> float:
+        return float(self.texel_samples.mean()) if len(self.texel_samples) else 0.0
+
+    def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> "TracedAtlas":
+        """A copy carrying new SH (and standard error) for the same texels: what a post stage returns."""
+        return replace(self, sh=sh, sh_error=self.sh_error if sh_error is None else sh_error)
+
+
+#: A stage between tracing and encoding (denoising, seam stitching): same texels in and out.
+PostStage = Callable[[TracedAtlas], TracedAtlas]

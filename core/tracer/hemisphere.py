@@ -1,0 +1,125 @@
+"""The texel estimator: one pass's radiance SH over the hemisphere of each texel's n_v. No bpy.
+
+Estimator. For each texel, directions ω over the hemisphere of n_v are drawn from the mixture
+p(ω) = ½·1/(2π) + ½·cosθ/π (half the samples uniform, half cosine-weighted; `kernels.hemisphere_rays`).
+Every SH coefficient then has finite variance (pure cosine sampling gives r_0 infinite variance
+from the 1/cosθ weight at the horizon) while I_z keeps most of the cosine-sampling benefit. The
+radiance L arriving along ω is `paths.Paths.radiance` from the sample's origin, and
+Σ (L(ω) − β) Y(ω) / (K p(ω)) + β·∫Y estimates the radiance SH over the hemisphere, with a
+constant β per half of the samples taken from the other half (`kernels.project_hemisphere`):
+unbiased, exact for constant radiance, every sample used by every coefficient.
+
+Every sample's origin is jittered over the texel's footprint (`BakePoints.sample_origins`: the
+texel's FOOTPRINT square within its triangle), so a texel is an area average as Cycles bakes it;
+samples starting on a part of the texel a coplanar face covers receive nothing (core.covers).
+Lights are added by next-event estimation at the bake point too: one shadow ray per light per
+sample, projected to SH along the light's direction (`kernels.accumulate_grouped`; a delta
+light has an exact direction: an unshadowed sun adds exactly s·Y(l), no noise), MIS-weighted
+against the mixture pdf for the lights rays can reach. Light from below n_v's horizon is not
+part of the hemisphere's SH.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from .. import bakepoints as _bakepoints
+from .. import covers as _covers
+from ..bakepoints import BakePoints
+from ..covers import CoverProbe
+from . import shipping
+from .paths import Paths, TraceScene, seed, take_rows
+from .scheduler import UnitResult, WorkUnit
+
+
+class TexelEstimator(shipping.Shipped):
+    """Traces work units of texels of `points` in `scene`, `pass_samples` samples per texel each.
+    footprint: the texel footprint origins cover (`bakepoints.FOOTPRINT` when built). Picklable
+    (`shipping.Shipped`): the cover probe is rebuilt where it is unpickled."""
+
+    _live = ("_covers",)
+
+    def __init__(self, points: BakePoints, scene: TraceScene, pass_samples: int):
+        self.points = points
+        self.scene = scene
+        self.pass_samples = pass_samples
+        self.footprint = _bakepoints.FOOTPRINT
+        self._covers = self._cover_probe()
+
+    @property
+    def covers(self) -> CoverProbe | None:
+        """The cover probe for the texels flagged near_cover, or None when none is."""
+        probe = shipping.lazy(self, "_covers", self._cover_probe)
+        return None if probe is False else probe
+
+    def _cover_probe(self) -> CoverProbe | Literal[False]:
+        """Built over the triangles traced: the shared Embree scene's (the probe the bake points
+        flagged texels with, `covers.shared_probe`), or the BakeScene's; False when no texel is
+        flagged."""
+        points = self.points
+        if not points.near_cover.any():
+            return False
+        if self.scene.shared_rays:
+            return _covers.shared_probe(self.scene.rays, points.offset, points.mesh.positions)
+        return CoverProbe(self.scene.scene.triangles, points.offset, points.mesh.positions)
+
+    def trace(self, unit: WorkUnit) -> UnitResult:
+        """Radiance SH estimate `(len(unit.texels), 9, 3)` from one pass's samples of the unit's
+        texels, with its own generator seeded by (seed, pass, chunk)."""
+        rng = np.random.default_rng([unit.seed, unit.pass_index, unit.chunk])
+        paths = Paths(self.scene)
+        k = self.pass_samples
+        idx = unit.texels
+        normals = self.points.normal[idx]
+        dirs, pdf = paths.kernels.hemisphere_rays(normals, k, seed(rng))  # (n·k, 3), (n·k,)
+        texel = np.repeat(np.arange(len(idx)), k)
+        origins = self.points.sample_origins(rng, idx, k, self.footprint)
+        uncovered = self._uncovered(paths, idx, texel, origins)
+        radiance = paths.radiance(rng, origins, dirs, pdf, uncovered)  # (n·k, 3)
+        estimate = paths.kernels.project_hemisphere(dirs, radiance, pdf, normals, k)
+        estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered)
+        return UnitResult(estimate, paths.traced)
+
+    def _uncovered(self, paths: Paths, idx, texel, origins) -> np.ndarray | None:
+        """(n·k,) bool, False for samples starting on a part of the texel a coplanar face covers
+        (core.covers: no light reaches it, as in Cycles), probed for the texels flagged
+        near_cover; None when no texel of the unit is flagged."""
+        covers = self.covers
+        if covers is None:
+            return None
+        rows = np.flatnonzero(self.points.near_cover[idx][texel])
+        if len(rows) == 0:
+            return None
+        paths.count(len(rows))
+        uncovered = np.ones(len(origins), bool)
+        uncovered[rows] = ~covers.covered(origins[rows], self.points.face_normal[idx[texel[rows]]])
+        return uncovered
+
+    def _direct_sh(self, paths: Paths, rng, idx, origins, k, uncovered=None) -> np.ndarray:
+        """Next-event estimation at the bake point: one shadow ray per light from each of the
+        pass's k origins (those `uncovered`, if given), projected to SH (len(idx), 9, 3); light
+        arriving from below n_v's horizon is left out. Penumbrae average over the footprint."""
+        out = np.zeros((len(idx), 9, 3))
+        normal = np.repeat(self.points.normal[idx], k, axis=0)
+
+        def mixture_pdf(w):
+            return _mixture_pdf(np.einsum("ri,ri->r", w, normal))
+
+        for dirs, value, dist in paths.light_samples(rng, origins, mixture_pdf):
+            above = np.einsum("ri,ri->r", dirs, normal) > 0.0
+            if uncovered is not None:
+                above &= uncovered
+            rows = np.flatnonzero(above)
+            if len(rows) == 0:
+                continue
+            weight = np.zeros(len(origins))
+            weight[rows] = paths.unoccluded(take_rows(origins, rows), take_rows(dirs, rows), dist[rows]) * (1.0 / k)
+            paths.kernels.accumulate_grouped(dirs, value, weight, k, out)
+        return out
+
+
+def _mixture_pdf(cos):
+    """Density per steradian of `kernels.hemisphere_rays` (half uniform, half cosine) at cosθ."""
+    return np.where(cos > 0.0, 0.5 / (2.0 * np.pi) + 0.5 * cos / np.pi, 0.0)

@@ -1,0 +1,212 @@
+"""Radiance along rays: the tracer's one radiance function, and next-event estimation at
+points. No bpy.
+
+`Paths.radiance` gives the radiance arriving at any origins from sampled directions (a texel's
+hemisphere, a probe's sphere, a camera's pixels: it knows nothing of texels). It is a wavefront
+over bounces on compacted live arrays: rays that escape take the world's radiance (the constant
+world, or the HDRI weighted by MIS), hits take the emission of the triangle they reach (MIS
+against emitter sampling), and every hit adds next-event estimation to every light
+(`irradiance_at`: one shadow ray per light and vertex), then continues diffusely (two-sided,
+cosine-distributed) with Russian roulette from RR_START bounces on, at most `bounces`
+reflections. The per-sample work between two Embree queries runs in `kernels.advance_paths`.
+
+`TraceScene` is what paths see of one bake (picklable: the Embree scene is rebuilt in a process
+that receives it); a `Paths` traces in one thread for one work unit and counts its rays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import kernels as _kernels
+from ..errors import BakeError
+from ..rays import RayScene, ray_offset
+from ..scene import BakeScene
+from . import lights as _lights
+from . import shipping
+
+RR_START = 2  # bounces before Russian roulette may end a path
+RR_MAX_SURVIVAL = 0.95
+_BLACK = np.zeros((1, 3))  # the sky of a scene without a world (kernels.advance_paths)
+_NO_ROWS = np.zeros((0, 3))  # no per-row albedo: the kernel takes the triangles' own
+
+
+class TraceScene:
+    """The scene paths are traced in: scene (BakeScene), lights (`lights.build`, in sampling
+    order), offset (scene units: ray origins leave surfaces by at least `min_offset` and by the
+    scene's own `rays.ray_offset`), bounces (diffuse reflections after the first hit).
+    ray_scene: the Embree scene of `scene.triangles` if the caller has built it (then shared:
+    `shared_rays`), else built here. It is not pickled; a process receiving this object builds
+    its own on first use (`shipping.ray_scene`: once per process and triangle content)."""
+
+    def __init__(self, scene: BakeScene, bounces: int, min_offset: float = 0.0, ray_scene: RayScene | None = None):
+        if len(scene.triangles) == 0:
+            raise BakeError("the bake scene has no geometry")
+        self.scene = scene
+        self.bounces = bounces
+        self.shared_rays = ray_scene is not None
+        self._rays: RayScene | None = ray_scene if ray_scene is not None else RayScene(scene.triangles)
+        self.offset = max(min_offset, ray_offset(scene.triangles))
+        self.lights = _lights.build(scene)
+        self.surface_lights = [light for light in self.lights if light.reachable and not light.at_infinity]
+        self.sky_lights = [light for light in self.lights if light.reachable and light.at_infinity]
+
+    @property
+    def rays(self) -> RayScene:
+        return shipping.lazy(self, "_rays", lambda: shipping.ray_scene(self.scene.triangles))
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k != "_rays"}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._rays = None
+
+
+class Paths:
+    """Path tracing in a TraceScene for one work unit (one thread at a time); `traced` counts
+    the rays it traced."""
+
+    def __init__(self, scene: TraceScene):
+        self.scene = scene
+        self.traced = 0
+        self._rays = scene.rays
+        self.kernels = _kernels.get()
+
+    def count(self, n: int) -> None:
+        """Count n rays traced elsewhere for this unit (e.g. cover probes)."""
+        self.traced += int(n)
+
+    def intersect(self, o, d, tmax=None, barycentrics=False):
+        self.count(len(o))
+        return self._rays.intersect(o, d, tmax, barycentrics)
+
+    def radiance(
+        self,
+        rng: np.random.Generator,
+        origins: np.ndarray,
+        dirs: np.ndarray,
+        pdf: np.ndarray,
+        start: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Radiance (R, 3) arriving at `origins` from directions `dirs` (R, 3) sampled with density
+        `pdf` (R,) per steradian (what the MIS weights of reachable lights are taken against):
+        wavefront over bounces, the arrays compacted to the live paths. `start` (R,) bool, if
+        given: only those paths are traced (the others receive nothing). Each live path gathers
+        into its own row of `acc` (compacted with it), written out once when the path ends:
+        cheaper than scattering into the (R, 3) result every bounce."""
+        ts = self.scene
+        scene = ts.scene
+        radiance = np.zeros((len(origins), 3))
+        if start is None:
+            live, o, d = np.arange(len(origins)), origins, dirs
+        else:
+            live = np.flatnonzero(start)
+            o, d, pdf = take_rows(origins, live), take_rows(dirs, live), pdf[live]
+        acc = np.zeros((len(live), 3))
+        throughput = np.ones((len(live), 3))
+        for bounce in range(ts.bounces + 1):
+            t, prim, ng, bu, bv = self.intersect(o, d, barycentrics=True)
+            if ts.surface_lights:
+                hit = np.flatnonzero(prim >= 0)
+                for light in ts.surface_lights:
+                    acc[hit] += throughput[hit] * light.evaluate(d[hit], t[hit], prim[hit], pdf[hit])
+            sky = self._sky(prim, d, pdf)
+            if bounce == ts.bounces:
+                hit, miss = prim >= 0, prim < 0
+                radiance[live[hit]] = acc[hit]
+                radiance[live[miss]] = acc[miss] + throughput[miss] * (sky[miss] if len(sky) > 1 else sky)
+                return radiance
+            row_albedo = _NO_ROWS
+            if scene.textures:
+                row_albedo = np.zeros((len(prim), 3))
+                hit = np.flatnonzero(prim >= 0)
+                row_albedo[hit] = scene.albedo_at(prim[hit], bu[hit], bv[hit])
+            # misses end (written to radiance); every hit adds its light, then the roulette's
+            # victims end and the survivors continue with a cosine-distributed direction
+            # (BRDF·cos/pdf = albedo, applied to the throughput), reweighted by 1/p
+            live, acc, throughput, o, n, d, pdf, weight, s = self.kernels.advance_paths(
+                live,
+                acc,
+                throughput,
+                o,
+                d,
+                t,
+                prim,
+                ng,
+                scene.albedo,
+                row_albedo,
+                sky,
+                radiance,
+                ts.offset,
+                bounce + 1 >= RR_START,
+                RR_MAX_SURVIVAL,
+                seed(rng),
+            )
+            if len(live) == 0:
+                return radiance
+            acc += throughput * self.irradiance_at(rng, o, n)
+            radiance[live[s:]] = acc[s:]
+            live, acc, o, d, pdf = live[:s], acc[:s], o[:s], d[:s], pdf[:s]
+            throughput = throughput[:s] * weight[:, None]
+            if s == 0:
+                return radiance
+        return radiance
+
+    def _sky(self, prim, d, pdf) -> np.ndarray:
+        """Radiance brought by the rays that missed (prim < 0): (R, 3) with a row per ray (the
+        lights at infinity, weighted by MIS), or (1, 3) for all (the constant world, or black)."""
+        ts = self.scene
+        if not ts.sky_lights:
+            return _BLACK if ts.scene.world is None else ts.scene.world[None, :]
+        sky = np.zeros((len(prim), 3))
+        miss = np.flatnonzero(prim < 0)
+        for i, light in enumerate(ts.sky_lights):
+            brought = light.evaluate(d[miss], None, None, pdf[miss])
+            if i == 0:
+                sky[miss] = brought
+            else:
+                sky[miss] += brought
+        return sky
+
+    def light_samples(self, rng: np.random.Generator, x: np.ndarray, ray_pdf) -> list:
+        """One sample (`lights.Sample`) per point x (R, 3) of every light, in sampling order;
+        `ray_pdf(dirs)`: the density of the strategy sampling rays at x (MIS)."""
+        return [light.sample(rng, x, ray_pdf) for light in self.scene.lights]
+
+    def irradiance_at(self, rng: np.random.Generator, x: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """Next-event estimate of the irradiance (R, 3) (DESIGN units, E/π·π = outgoing radiance
+        per unit albedo) at surface points x (R, 3) with unit normals n (R, 3) from every light,
+        one shadow ray per light and point; MIS against cosine sampling at x."""
+        total = np.zeros((len(x), 3))
+        cosine_pdf = lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi
+        for dirs, value, dist in self.light_samples(rng, x, cosine_pdf):
+            cos = np.einsum("ri,ri->r", dirs, n)
+            facing = np.flatnonzero(cos > 0.0)
+            if len(facing) == len(x):
+                weight = self.unoccluded(x, dirs, dist) * cos
+            elif len(facing):
+                weight = np.zeros(len(x))
+                weight[facing] = (
+                    self.unoccluded(take_rows(x, facing), take_rows(dirs, facing), dist[facing]) * cos[facing]
+                )
+            else:
+                continue
+            total += weight[:, None] * value
+        return total * (1.0 / np.pi)
+
+    def unoccluded(self, o: np.ndarray, d: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        """(R,) 1.0 where nothing lies between o and the light at distance dist (inf: a direction)."""
+        tmax = np.where(np.isfinite(dist), dist * (1.0 - 1e-4) - self.scene.offset, np.float32(3e38))
+        self.count(len(o))
+        return 1.0 - self._rays.occluded(o, d, np.maximum(tmax, 0.0))
+
+
+def seed(rng: np.random.Generator) -> int:
+    """A 64-bit seed for a compiled kernel's own random stream, drawn from the unit's generator."""
+    return int(rng.integers(1 << 63))
+
+
+def take_rows(a: np.ndarray, i: np.ndarray) -> np.ndarray:
+    """a[i] along the first axis; np.take is ~4× faster than fancy indexing for 2-D rows."""
+    return a[i] if a.ndim == 1 else np.take(a, i, axis=0)

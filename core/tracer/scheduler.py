@@ -1,0 +1,196 @@
+"""Progressive passes split into deterministic work units, run on any executor. No bpy.
+
+Each pass runs over the texels still active (all of them unless a noise target stopped some),
+cut into chunks of `chunk_texels`: one `WorkUnit` (seed, pass, chunk index, texel indices) per
+chunk. A unit draws every random number from a generator seeded by (seed, pass, chunk), so its
+result depends on nothing else: not on the executor, its workers or the order they finish in.
+Results are added to the statistics strictly in unit order (`Statistics.add`), so the bake is
+bit-identical whatever runs it.
+
+Executor: any `concurrent.futures.Executor`; by default a ThreadPoolExecutor of
+`settings.threads` workers (the Embree queries and the kernels release the GIL). A unit's
+function is `run_unit(estimator, unit)`, both picklable, so a ProcessPoolExecutor (or any
+executor that pickles its calls) runs them too: the estimator ships as `shipping.Shipped`
+(serialised once per bake, unpickled once per worker process, its Embree scenes rebuilt there).
+At most 2 × settings.threads units are queued ahead of the one being added, so finished
+estimates never pile up: memory stays bounded whatever the atlas size.
+
+Between units: progress, cancel (raises BakeCancelled within a unit), the time budget (no unit
+starts after it, the first pass always completes) and, after each pass, the noise target.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Executor, ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from ..errors import BakeCancelled
+from .settings import MIN_ADAPTIVE_PASSES, BakeSettings
+from .statistics import Statistics
+
+
+@dataclass(frozen=True)
+class WorkUnit:
+    """One pass over one chunk of texels: seed (the bake's), pass_index, chunk (index within
+    the pass), texels (n,) int64 indices of the bake points."""
+
+    seed: int
+    pass_index: int
+    chunk: int
+    texels: np.ndarray
+
+
+@dataclass
+class UnitResult:
+    """A unit's estimate (n, 9, 3) float64 for its texels, in order, and the rays it traced."""
+
+    estimate: np.ndarray
+    rays: int
+
+
+class Estimator(Protocol):
+    def trace(self, unit: WorkUnit) -> UnitResult: ...
+
+
+def run_unit(estimator: Estimator, unit: WorkUnit) -> UnitResult:
+    """What an executor runs (module level, so it pickles by name)."""
+    return estimator.trace(unit)
+
+
+def units(settings: BakeSettings, pass_index: int, active: np.ndarray) -> list[WorkUnit]:
+    """The units of one pass over the texels `active` (n,) int64, in the order they are added."""
+    size = settings.chunk_texels
+    return [
+        WorkUnit(settings.seed, pass_index, c, active[s : s + size]) for c, s in enumerate(range(0, len(active), size))
+    ]
+
+
+@dataclass
+class Outcome:
+    """How a run ended: stopped_by "samples", "noise_target" or "time_budget"; rays traced
+    (by every unit that ran, added or not)."""
+
+    stopped_by: str
+    rays: int
+
+
+class _Run:
+    def __init__(
+        self,
+        estimator: Estimator,
+        stats: Statistics,
+        settings: BakeSettings,
+        start: float,
+        progress: Callable[[float, str], None] | None,
+        cancel: Callable[[], bool] | None,
+    ):
+        self.estimator, self.stats, self.settings, self.start = estimator, stats, settings, start
+        self.progress, self.cancel = progress, cancel
+        self.rays = 0
+
+    def passes(self, pool: Executor) -> str:
+        settings, stats = self.settings, self.stats
+        n = len(stats.passes)
+        max_passes = max(1, -(-settings.samples // settings.pass_samples))
+        active = np.arange(n)
+        for p in range(max_passes):
+
+            def on_unit(done, of, p=p, converging=len(active)):
+                elapsed = time.perf_counter() - self.start
+                if self.progress:
+                    self.progress(
+                        _fraction(p, done / of, max_passes, settings, elapsed),
+                        _status(
+                            p, max_passes, converging, n, self.rays, stats.texel_passes, settings.pass_samples, elapsed
+                        ),
+                    )
+                return not (settings.time_budget and elapsed >= settings.time_budget and p > 0)
+
+            if not self.one_pass(pool, units(settings, p, active), on_unit):
+                return "time_budget"
+            if settings.noise_target and p + 1 >= MIN_ADAPTIVE_PASSES:
+                active = active[~stats.converged(active, settings.noise_target)]
+                if len(active) == 0:
+                    return "noise_target"
+        return "samples"
+
+    def one_pass(self, pool: Executor, work: list[WorkUnit], on_unit) -> bool:
+        """The units of one pass on the pool, added in order. `on_unit(done, of)` after each
+        returns False to end the pass early (returns False then); `cancel()` returning True
+        raises BakeCancelled."""
+        ahead = 2 * self.settings.threads
+        queued: deque = deque()
+        try:
+            for c, unit in enumerate(work):
+                while len(queued) < ahead and c + len(queued) < len(work):
+                    queued.append(pool.submit(run_unit, self.estimator, work[c + len(queued)]))
+                if self.cancel is not None and self.cancel():
+                    raise BakeCancelled("bake cancelled")
+                result = queued.popleft().result()
+                self.rays += result.rays
+                self.stats.add(unit.texels, result.estimate)
+                if not on_unit(c + 1, len(work)):
+                    return False
+        finally:  # cancelled, stopped early or failed: no unit left queued
+            self._drop(queued)
+        return True
+
+    def _drop(self, futures) -> None:
+        """Cancel the units not started; wait for the running ones (no worker outlives the
+        bake), counting the rays of those that finish."""
+        for f in futures:
+            f.cancel()
+        for f in futures:
+            if not f.cancelled() and f.exception() is None:
+                self.rays += f.result().rays
+
+
+def run(
+    estimator: Estimator,
+    stats: Statistics,
+    settings: BakeSettings,
+    start: float,
+    progress: Callable[[float, str], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    executor: Executor | None = None,
+) -> Outcome:
+    """Every pass of `settings` over the texels of `stats`, adding each unit's estimate to it.
+    `start`: perf_counter() at the bake's start (progress speeds, the time budget); `executor`:
+    runs the units (default: a thread pool of settings.threads, shut down at the end; the
+    caller's is left running)."""
+    state = _Run(estimator, stats, settings, start, progress, cancel)
+    with _pool(executor, settings.threads) as pool:
+        stopped_by = state.passes(pool)
+    return Outcome(stopped_by, state.rays)
+
+
+@contextmanager
+def _pool(executor: Executor | None, threads: int):
+    if executor is not None:
+        yield executor
+        return
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        yield pool
+
+
+def _fraction(p, unit_fraction, max_passes, settings, elapsed) -> float:
+    fraction = (p + unit_fraction) / max_passes
+    if settings.time_budget:
+        fraction = max(fraction, min(elapsed / settings.time_budget, 1.0))
+    return fraction
+
+
+def _status(p, max_passes, active, n, rays, texel_passes, pass_samples, elapsed) -> str:
+    elapsed = max(elapsed, 1e-9)
+    converging = f", {100 * active / max(n, 1):.0f}% of texels converging" if active < n else ""
+    return (
+        f"pass {p + 1} of {max_passes}{converging}, {rays / elapsed / 1e6:.2f} M rays/s, "
+        f"{texel_passes * pass_samples / elapsed / 1e3:.0f} k texel-samples/s"
+    )
