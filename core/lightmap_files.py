@@ -1,19 +1,16 @@
-"""The files a bake writes per lightmap atlas, and reading them back. No bpy.
+"""The files of an atlas: laying out and writing already-encoded channels, and reading them back. No bpy.
 
-Per atlas `<name>` in the output folder (docs/format.md is the contract):
-  <name>_hhd.exr     the encoded lightmap: Iz.R/G/B (I_z, linear RGB irradiance at n_v, DESIGN.md
-                     units), Wa.V (w_a, luminance mode) or Wa.R/G/B (RGB mode), Direction.X/Y (the
-                     highlight direction d, world space, octahedral in [-1, 1]²). Half floats when
-                     every value fits, float32 otherwise (I_z above 65504): never clipped.
-  <name>_sh.exr      the raw L2 radiance SH, 27 float32 channels SH0.R … SH8.B (DESIGN order),
-                     world space: re-encode or blend without re-tracing.
-  <name>_texels.exr  what the encoder needs besides the SH: Normal.X/Y/Z (n_v, world, float32)
-                     and Coverage.V (fraction of the texel covered by triangles; 0 outside
-                     charts, -1 for buried texels, whose hemisphere is closed by geometry).
+Per atlas `<name>` in the output folder (docs/format.md is the contract; `core.encoding`'s spec
+says which channels each file holds):
+  <name>_hhd.exr     the encoded lightmap (`encoding.hhd`)
+  <name>_sh.exr      the raw L2 radiance SH (`encoding.raw.SH_FILE`): re-encode or blend without tracing
+  <name>_texels.exr  n_v and coverage (`encoding.raw.TEXELS_FILE`): what re-encoding needs besides the SH
   <name>.json        the sidecar: format version, channel meanings, conventions, settings,
-                     per-object texel rectangles, timings, statistics.
-Texels outside charts are filled by dilation (`dilate`) in every image, so bilinear filtering and
-mip-maps never pull in black; buried texels stay black (I_z = 0).
+                     per-object texel rectangles, timings, statistics
+  <name>_preview/    plain RGB EXRs the EEVEE preview samples (one per layer with a preview key)
+Writing (`write_atlas`) takes the encode stage's `EncodedAtlas`: it turns rows to EXR order
+(top-down), stores each layer as its Channel's dtype says (HALF_OR_FLOAT: half when every value
+fits, else float32: never clipped), writes the sidecar and the preview images. It encodes nothing.
 """
 from __future__ import annotations
 
@@ -23,17 +20,19 @@ from pathlib import Path
 
 import numpy as np
 
-from . import dilate as _dilate
-from . import exr, hhd, octahedral
+from . import exr
 from .bakepoints import BakePoints
+from .encoding import FLOAT, HALF, HALF_OR_FLOAT, SH_FILE, TEXELS_FILE, EncodedAtlas, FileSpec, TexelData
+from .encoding.hhd import FILE as _HHD_FILE
+from .encoding.raw import FILES as RAW_FILES
 from .errors import BakeError
+
+__all__ = ["CONVENTIONS", "FORMAT", "FORMAT_VERSION", "SH_CHANNELS", "AtlasFiles", "TexelData", "channel_table",
+           "exr_channels", "object_rects", "read_sidecar", "read_texel_data", "stage_preview", "write_atlas"]
 
 FORMAT = "hhd-lightmap"
 FORMAT_VERSION = 1
-SH_CHANNELS = [f"SH{k}.{c}" for k in range(9) for c in "RGB"]
-#: Dilation reach in texels: enough for bilinear filtering down several mip levels; farther
-#: empty texels take the atlas mean.
-DILATE_RINGS = 16
+SH_CHANNELS = SH_FILE.exr_names
 
 CONVENTIONS = {
     "world": "Blender world space: right-handed, Z up, metres",
@@ -58,17 +57,21 @@ class AtlasFiles:
     folder: Path
     name: str
 
+    def path(self, spec: FileSpec) -> Path:
+        """The EXR of `spec`: `<folder>/<name><suffix>`."""
+        return self.folder / f"{self.name}{spec.suffix}"
+
     @property
     def hhd(self) -> Path:
-        return self.folder / f"{self.name}_hhd.exr"
+        return self.path(_HHD_FILE)
 
     @property
     def sh(self) -> Path:
-        return self.folder / f"{self.name}_sh.exr"
+        return self.path(SH_FILE)
 
     @property
     def texels(self) -> Path:
-        return self.folder / f"{self.name}_texels.exr"
+        return self.path(TEXELS_FILE)
 
     @property
     def sidecar(self) -> Path:
@@ -77,158 +80,84 @@ class AtlasFiles:
     @property
     def preview(self) -> Path:
         """Folder of the RGB images the EEVEE preview samples (Blender cannot sample a pass of a
-        multi-channel EXR): iz, wa, dir (octahedral X, Y in R, G), sh0 … sh8."""
+        multi-channel EXR), one per layer with a preview key (`Channel.preview`: iz, wa, dir,
+        sh0 … sh8)."""
         return self.folder / f"{self.name}_preview"
 
     def preview_image(self, key: str) -> Path:
         return self.preview / f"{key}.exr"
 
 
-@dataclass
-class TexelData:
-    """An atlas's per-texel inputs to the encoder, as float32 images `(H, W, ...)` (rows
-    bottom-up): sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried).
-    float32 as in the files, so encoding a fresh bake and re-encoding its files agree exactly."""
-    sh: np.ndarray
-    normal: np.ndarray
-    coverage: np.ndarray
-
-    @property
-    def baked(self) -> np.ndarray:
-        """Texels with a bake value of their own (covered, not buried): the dilation sources."""
-        return self.coverage > 0.0
-
-    @classmethod
-    def from_points(cls, points: BakePoints, sh: np.ndarray) -> "TexelData":
-        coverage = np.where(points.buried, -1.0, points.coverage)
-        return cls(sh=points.image(sh, dtype=np.float32), normal=points.image(points.normal, dtype=np.float32),
-                   coverage=points.image(coverage, dtype=np.float32))
-
-    def fill(self) -> _dilate.Fill:
-        """The dilation of this atlas: empty texels from the baked ones, buried texels black."""
-        return _dilate.Fill(self.baked, DILATE_RINGS, black=self.coverage < 0.0)
+def storage_type(dtype: str, images: list[np.ndarray]) -> type:
+    """np.float16 or np.float32 for a layer of spec dtype HALF, FLOAT or HALF_OR_FLOAT (half when
+    every finite value of its `images` fits)."""
+    if dtype == HALF_OR_FLOAT:
+        return np.float16 if all(exr.fits_half(a) for a in images) else np.float32
+    return {HALF: np.float16, FLOAT: np.float32}[dtype]
 
 
-#: Texels encoded per call of hhd.encode: bounds the float64 copy it makes of its input.
-ENCODE_CHUNK = 1 << 17
-
-
-def encode_image(data: TexelData, encoder: dict, fill: _dilate.Fill | None = None) -> tuple[dict, dict]:
-    """Encode the baked texels with `hhd.encode(**encoder)`, ENCODE_CHUNK at a time; returns the
-    HHD EXR channels (dilated, EXR rows: top-down) and statistics of the baked texels."""
-    h, w = data.coverage.shape
-    fill = fill or data.fill()
-    baked = fill.valid
-    sh, normal = data.sh.reshape(h * w, 9, -1), data.normal.reshape(h * w, 3)
-    rgb_weight = encoder.get("ambient", "luminance") == "rgb"
-    iz = np.zeros((h * w, 3), np.float32)
-    wa = np.ones((h * w, 3 if rgb_weight else 1), np.float32)
-    direction = np.zeros((h * w, 3), np.float32)
-    direction[:, 2] = 1.0
-    invalid, iz_max, lum_sum = 0, 0.0, 0.0
-    for s in range(0, len(baked), ENCODE_CHUNK):
-        rows = baked[s:s + ENCODE_CHUNK]
-        params = hhd.encode(sh[rows], normal[rows], **encoder)
-        iz[rows], direction[rows] = params.irradz, params.direction
-        wa[rows] = params.ambient_weight.reshape(len(rows), -1)
-        invalid += params.n_invalid
-        iz_max = max(iz_max, float(params.irradz.max(initial=0.0)))
-        lum_sum += float((params.irradz @ hhd.LUMINANCE).sum())
-    iz = fill.apply(iz.reshape(h, w, 3), keep_black=True)
-    wa = fill.apply(wa.reshape(h, w, -1))
-    oct_uv = octahedral.encode(fill.apply(direction.reshape(h, w, 3)).reshape(-1, 3)).reshape(h, w, 2)
-    iz_type = np.float16 if exr.fits_half(iz) else np.float32
-    channels = {f"Iz.{name}": exr.to_exr_rows(iz[..., c]).astype(iz_type) for c, name in enumerate("RGB")}
-    channels.update({f"Wa.{name}": exr.to_exr_rows(wa[..., c]).astype(np.float16)
-                     for c, name in enumerate("RGB" if rgb_weight else "V")})
-    channels["Direction.X"] = exr.to_exr_rows(oct_uv[..., 0]).astype(np.float16)
-    channels["Direction.Y"] = exr.to_exr_rows(oct_uv[..., 1]).astype(np.float16)
-    stats = {"texels_baked": int(len(baked)), "texels_buried": int(len(fill.black)), "texels_invalid": invalid,
-             "irradz_max": iz_max, "irradz_mean_luminance": lum_sum / len(baked) if len(baked) else 0.0}
-    return channels, stats
-
-
-def sh_channels(data: TexelData, fill: _dilate.Fill | None = None) -> dict:
-    """The SH EXR's 27 float32 channels (dilated, buried texels black, EXR rows), one at a time."""
-    fill = fill or data.fill()
-    h, w = data.coverage.shape
-    flat = data.sh.reshape(h, w, 27)
-    return {name: exr.to_exr_rows(fill.apply(flat[..., k], keep_black=True)).astype(np.float32, copy=False)
-            for k, name in enumerate(SH_CHANNELS)}
-
-
-def texel_channels(data: TexelData) -> dict:
-    out = {f"Normal.{a}": exr.to_exr_rows(data.normal[..., k]).astype(np.float32, copy=False)
-           for k, a in enumerate("XYZ")}
-    out["Coverage.V"] = exr.to_exr_rows(data.coverage).astype(np.float32, copy=False)
+def exr_channels(spec: FileSpec, images: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """One file's EXR channels `(H, W)` in spec order: EXR rows (top-down), stored as each
+    Channel's dtype says. Takes the images out of `images` (bottom-up rows), so each is released
+    once laid out."""
+    out: dict[str, np.ndarray] = {}
+    for ch in spec.channels:
+        names = [n for n in ch.exr_names if n in images]
+        if names:
+            dtype = storage_type(ch.dtype, [images[n] for n in names])
+            for name in names:
+                out[name] = exr.to_exr_rows(images.pop(name)).astype(dtype, copy=False)
     return out
 
 
-def channel_table(channels: dict, meanings: dict) -> dict:
-    return {name: {"type": "half" if a.dtype == np.float16 else "float", "meaning": meanings[name.split(".")[0]]}
+def channel_table(spec: FileSpec, channels: dict[str, np.ndarray]) -> dict:
+    """The sidecar's table of one file: EXR channel → {type: "half" | "float", meaning}."""
+    meanings = {n: ch.meaning for ch in spec.channels for n in ch.exr_names}
+    return {name: {"type": "half" if a.dtype == np.float16 else "float", "meaning": meanings[name]}
             for name, a in channels.items()}
 
 
-MEANINGS = {
-    "Iz": "I_z: irradiance at the vertex normal n_v, linear RGB, DESIGN.md units (albedo × I = radiance)",
-    "Wa": "w_a: ambient weight in [0, 1] (luminance mode: one channel V; RGB mode: per channel)",
-    "Direction": "highlight direction d, world space, octahedral X/Y in [-1, 1]",
-    "SH0": "radiance SH coefficient k (SHk.R/G/B), world space", "Normal": "vertex normal n_v, world space, unit",
-    "Coverage": "fraction of the texel covered by triangles; 0 outside charts (dilated), -1 buried",
-}
-MEANINGS.update({f"SH{k}": MEANINGS["SH0"] for k in range(9)})
-
-
-def stage_atlas(staging: exr.Staging, files: AtlasFiles, data: TexelData, encoder: dict,
-                sidecar: dict, write_sh: bool = True) -> dict:
-    """Encode and stage every file of one atlas (nothing is replaced until `staging.commit()`).
-    `sidecar` carries the bake's settings/objects/timings; channel tables and encoder settings
-    are added here. Returns the statistics of the encoded texels (also in the sidecar).
-    Memory: the images of `data` plus one SH file's worth of channels (~110 bytes per texel)."""
-    fill = data.fill()
-    hhd_ch, stats = encode_image(data, encoder, fill)
-    h, w = data.coverage.shape
+def write_atlas(staging: exr.Staging, files: AtlasFiles, encoded: EncodedAtlas, sidecar: dict) -> None:
+    """Stage every file of `encoded` (nothing is replaced until `staging.commit()`): its EXRs,
+    their preview images and the sidecar. `sidecar` carries the bake's settings/objects/timings
+    (after a re-encode, the previous sidecar: channel tables of files not written now are kept);
+    format, files, channel tables, conventions, encoder settings and statistics are added here.
+    Consumes `encoded`'s images; memory: one file's EXR channels at a time."""
     attributes = {"hhdFormat": FORMAT, "hhdFormatVersion": FORMAT_VERSION, "hhdAtlas": files.name}
-    exr.write_file(staging.stage(files.hhd), hhd_ch, attributes)
-    tables = {"hhd": channel_table(hhd_ch, MEANINGS)}
-    sh_ch = None
-    if write_sh:
-        sh_ch, tx_ch = sh_channels(data, fill), texel_channels(data)
-        exr.write_file(staging.stage(files.sh), sh_ch, attributes)
-        exr.write_file(staging.stage(files.texels), tx_ch, attributes)
-        tables.update(sh=channel_table(sh_ch, MEANINGS), texels=channel_table(tx_ch, MEANINGS))
-    else:
-        tables.update({k: v for k, v in sidecar.get("channels", {}).items() if k != "hhd"})
+    tables = {}
+    for key, (spec, images) in encoded.files.items():
+        channels = exr_channels(spec, images)
+        exr.write_file(staging.stage(files.path(spec)), channels, attributes)
+        tables[key] = channel_table(spec, channels)
+        stage_preview(staging, files, spec, channels)
+        del channels
+    tables.update({k: v for k, v in sidecar.get("channels", {}).items() if k not in tables})
     doc = dict(sidecar)
     doc.update({
-        "format": FORMAT, "format_version": FORMAT_VERSION, "atlas": files.name, "width": w, "height": h,
-        "files": {"hhd": files.hhd.name, "sh": files.sh.name, "texels": files.texels.name},
+        "format": FORMAT, "format_version": FORMAT_VERSION, "atlas": files.name,
+        "width": encoded.width, "height": encoded.height,
+        "files": {spec.key: files.path(spec).name for spec in (encoded.encoding_file, *RAW_FILES)},
         "channels": tables, "conventions": CONVENTIONS,
-        "encoder": {k: v for k, v in encoder.items()},
-        "stats": stats,
+        "encoder": dict(encoded.settings),
+        "stats": encoded.stats,
     })
     staging.write_text(files.sidecar, json.dumps(doc, indent=2, ensure_ascii=False))
-    stage_preview(staging, files, hhd_ch, sh_ch)
-    return stats
 
 
 def _rgb(channels: list[np.ndarray]) -> dict:
-    """R, G, B channels of a preview image (missing ones zero), float32 so nothing clips."""
-    channels = list(channels) + [np.zeros_like(channels[0])] * (3 - len(channels))
+    """R, G, B of a preview image, float32 so nothing clips: one channel repeated, or up to
+    three with the missing ones zero."""
+    channels = list(channels) * 3 if len(channels) == 1 else list(channels)
+    channels += [np.zeros_like(channels[0])] * (3 - len(channels))
     return {c: np.asarray(a, np.float32) for c, a in zip("RGB", channels)}
 
 
-def stage_preview(staging: exr.Staging, files: AtlasFiles, hhd_ch: dict, sh_ch: dict | None) -> None:
-    """Stage the preview's plain RGB EXRs from the channels of the HHD and (if given) SH files
-    (EXR rows, as every file here): I_z, w_a (three equal channels in luminance mode), the
-    octahedral direction, and the SH."""
-    wa = [hhd_ch[f"Wa.{c}"] for c in "RGB"] if "Wa.R" in hhd_ch else [hhd_ch["Wa.V"]] * 3
-    images = {"iz": _rgb([hhd_ch[f"Iz.{c}"] for c in "RGB"]), "wa": _rgb(wa),
-              "dir": _rgb([hhd_ch["Direction.X"], hhd_ch["Direction.Y"]])}
-    for key, channels in images.items():
-        exr.write_file(staging.stage(files.preview_image(key)), channels)
-    for k in range(9 if sh_ch is not None else 0):
-        exr.write_file(staging.stage(files.preview_image(f"sh{k}")), _rgb([sh_ch[f"SH{k}.{c}"] for c in "RGB"]))
+def stage_preview(staging: exr.Staging, files: AtlasFiles, spec: FileSpec, channels: dict) -> None:
+    """Stage the preview images of one file's layers that have a preview key, from its EXR
+    channels (EXR rows, as every file here)."""
+    for ch in spec.channels:
+        if ch.preview is not None and all(n in channels for n in ch.exr_names):
+            exr.write_file(staging.stage(files.preview_image(ch.preview)), _rgb([channels[n] for n in ch.exr_names]))
 
 
 def read_sidecar(path) -> dict:
@@ -253,8 +182,9 @@ def read_texel_data(files: AtlasFiles) -> TexelData:
         raise BakeError(f"{files.sh} lacks SH channels {missing[:3]}…")
     sh = np.stack([exr.from_exr_rows(sh_ch[n]) for n in SH_CHANNELS], axis=-1).astype(np.float32, copy=False)
     h, w = sh.shape[:2]
-    normal = np.stack([exr.from_exr_rows(tx_ch[f"Normal.{a}"]) for a in "XYZ"], axis=-1).astype(np.float32, copy=False)
-    coverage = exr.from_exr_rows(tx_ch["Coverage.V"]).astype(np.float32, copy=False)
+    normal_layer, coverage_layer = TEXELS_FILE.channels
+    normal = np.stack([exr.from_exr_rows(tx_ch[n]) for n in normal_layer.exr_names], axis=-1).astype(np.float32, copy=False)
+    coverage = exr.from_exr_rows(tx_ch[coverage_layer.exr_names[0]]).astype(np.float32, copy=False)
     return TexelData(sh=sh.reshape(h, w, 9, 3), normal=normal, coverage=coverage)
 
 
@@ -273,3 +203,22 @@ def object_rects(points: BakePoints, names: list[str]) -> list[dict]:
         out.append({"name": name, "texels": int(mine.sum()), "rect": [x0, y0, x1, y1],
                     "uv_rect": [x0 / points.width, y0 / points.height, x1 / points.width, y1 / points.height]})
     return out
+
+
+# --------------------------------------------------------------------------------------------
+# The former encode-and-write entry points, for bench/memory.py and bench/threads.py until they
+# call the stages themselves (`encoding.encode_atlas`, then `write_atlas`).
+
+def stage_atlas(staging: exr.Staging, files: AtlasFiles, data: TexelData, encoder: dict,
+                sidecar: dict, write_sh: bool = True) -> dict:
+    """`encode_atlas` with `EncoderSettings(**encoder)`, then `write_atlas`; returns the stats."""
+    from .encoding import EncoderSettings, encode_atlas, for_settings
+    encoded = encode_atlas(data, for_settings(EncoderSettings(**encoder)), raw=write_sh)
+    write_atlas(staging, files, encoded, sidecar)
+    return encoded.stats
+
+
+def sh_channels(data: TexelData, fill=None) -> dict:
+    """The SH EXR's 27 float32 channels of `data` (filled, EXR rows)."""
+    from .encoding.stage import raw_images
+    return exr_channels(SH_FILE, raw_images(SH_FILE, data.layers(), fill or data.fill()))

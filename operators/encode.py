@@ -8,10 +8,10 @@ from pathlib import Path
 
 import bpy
 
+from ..bridge import bake_session
 from ..core import bake as core_bake
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles
-from . import bake_session
 from .bake import receivers_poll
 
 

@@ -1,6 +1,9 @@
 """EEVEE node groups reconstructing the baked lighting, built by code from core's constants.
 
-Groups (all output `Irradiance` and `Radiance` = Albedo × Irradiance, in DESIGN.md units):
+The inputs that take baked data are named after the layers of the channel spec each preview mode
+samples (`core.encoding.preview`), so shaders/preview.py links every preview image to the input
+of its layer's name. Groups (all output `Irradiance` and `Radiance` = Albedo × Irradiance, in
+DESIGN.md units):
   "HHD Lightmap" / "AHD Lightmap": inputs Iz, Wa (colour; equal channels in luminance mode),
       Direction (octahedral X, Y in the vector's x, y), Normal (shading), Vertex Normal, Albedo,
       Self Bounce (0/1). The formula and octahedral decode are docs/format.md's, d·n_v floored at
@@ -16,6 +19,7 @@ from __future__ import annotations
 import bpy
 
 from ..core import hhd, sh
+from ..core.encoding.preview import sampled
 
 GROUP_VERSION = 1
 GROUPS = {"HHD": "HHD Lightmap", "AHD": "AHD Lightmap", "L1": "L1 SH Lightmap", "L2": "L2 SH Lightmap",
@@ -110,26 +114,27 @@ def octahedral_decode(b: Builder, oct_xy):
 def build_hhd(model: str):
     """HHD or AHD group (model 'HHD' | 'AHD')."""
     tree = _new_tree(GROUPS[model])
-    _interface(tree, [("Iz", 'NodeSocketColor', (0, 0, 0, 1)), ("Wa", 'NodeSocketColor', (1, 1, 1, 1)),
-                      ("Direction", 'NodeSocketVector', None), ("Normal", 'NodeSocketVector', None),
+    iz_layer, wa_layer, dir_layer = sampled(model)
+    _interface(tree, [(iz_layer.name, 'NodeSocketColor', (0, 0, 0, 1)), (wa_layer.name, 'NodeSocketColor', (1, 1, 1, 1)),
+                      (dir_layer.name, 'NodeSocketVector', None), ("Normal", 'NodeSocketVector', None),
                       ("Vertex Normal", 'NodeSocketVector', None), ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1)),
                       ("Self Bounce", 'NodeSocketFloat', 0.0)], ["Irradiance", "Radiance"])
     b = Builder(tree)
     i = b.node("NodeGroupInput").outputs
     n = b.vec("NORMALIZE", i["Normal"])
     nv = b.vec("NORMALIZE", i["Vertex Normal"])
-    d = octahedral_decode(b, i["Direction"])
+    d = octahedral_decode(b, i[dir_layer.name])
     n_nv = b.vec("DOT_PRODUCT", n, nv)
     dnv = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), float(hhd.MIN_COS))
     directional = b.math("DIVIDE", b.math("MAXIMUM", b.vec("DOT_PRODUCT", n, d), 0.0), dnv)
     ambient = b.math("MULTIPLY", b.math("ADD", n_nv, 1.0), 0.5) if model == "HHD" else 1.0
     # Iz · [wa·ambient + (1 − wa)·directional] per channel
-    wa = i["Wa"]
+    wa = i[wa_layer.name]
     one_minus_wa = b.vec("SUBTRACT", (1.0, 1.0, 1.0), wa)
     bracket = b.vec("ADD", b.vec("SCALE", wa, scale=ambient), b.vec("SCALE", one_minus_wa, scale=directional))
-    irradiance = b.vec("MULTIPLY", i["Iz"], bracket)
+    irradiance = b.vec("MULTIPLY", i[iz_layer.name], bracket)
     bounce = b.math("MULTIPLY", b.math("MULTIPLY", b.math("SUBTRACT", 1.0, n_nv), 0.5), i["Self Bounce"])
-    irradiance = b.vec("ADD", irradiance, b.vec("SCALE", b.vec("MULTIPLY", i["Albedo"], i["Iz"]), scale=bounce))
+    irradiance = b.vec("ADD", irradiance, b.vec("SCALE", b.vec("MULTIPLY", i["Albedo"], i[iz_layer.name]), scale=bounce))
     _finish(b, irradiance, i["Albedo"])
     return tree
 
@@ -148,17 +153,17 @@ def _basis(b: Builder, n):
 
 def build_sh(order: int):
     """L1 (order 1, 4 coefficients) or L2 (order 2, 9) SH irradiance group."""
-    count = (order + 1) ** 2
+    layers = sampled(f"L{order}")        # SH0 … in coefficient order
     tree = _new_tree(GROUPS[f"L{order}"])
-    _interface(tree, [(f"SH{k}", 'NodeSocketColor', (0, 0, 0, 1)) for k in range(count)]
+    _interface(tree, [(layer.name, 'NodeSocketColor', (0, 0, 0, 1)) for layer in layers]
                + [("Normal", 'NodeSocketVector', None), ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1))],
                ["Irradiance", "Radiance"])
     b = Builder(tree)
     i = b.node("NodeGroupInput").outputs
     weights = _basis(b, b.vec("NORMALIZE", i["Normal"]))
     total = None
-    for k in range(count):
-        term = b.vec("SCALE", i[f"SH{k}"], scale=weights[k])
+    for k, layer in enumerate(layers):
+        term = b.vec("SCALE", i[layer.name], scale=weights[k])
         total = term if total is None else b.vec("ADD", total, term)
     _finish(b, total, i["Albedo"])
     return tree
@@ -166,11 +171,12 @@ def build_sh(order: int):
 
 def build_scalar():
     tree = _new_tree(GROUPS["SCALAR"])
-    _interface(tree, [("Iz", 'NodeSocketColor', (0, 0, 0, 1)), ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1))],
+    (iz_layer,) = sampled("SCALAR")
+    _interface(tree, [(iz_layer.name, 'NodeSocketColor', (0, 0, 0, 1)), ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1))],
                ["Irradiance", "Radiance"])
     b = Builder(tree)
     i = b.node("NodeGroupInput").outputs
-    _finish(b, i["Iz"], i["Albedo"])
+    _finish(b, i[iz_layer.name], i["Albedo"])
     return tree
 
 

@@ -1,7 +1,8 @@
 """Show / hide the baked lighting on the objects' own materials, restorable exactly.
 
 Show inserts, into every material of the baked objects, a frame of nodes named "HHD Preview …":
-the lightmap images sampled through the lightmap UV map (linear filtering), the chosen node group
+the preview images of the layers the mode samples (`core.encoding.preview`) sampled through the
+lightmap UV map (linear filtering) into the node-group inputs of the same names, the chosen node group
 fed by the Principled BSDF's Base Color and Normal links (image textures, normal maps; constants
 when unlinked) and Geometry's Normal as n_v, an Emission shader of albedo × irradiance, and a
 Mix Shader between the material's own surface (factor 0) and the preview (factor 1). The mix
@@ -21,6 +22,7 @@ import json
 import bpy
 
 from .. import blender_compat
+from ..core.encoding.preview import sampled
 from . import node_groups
 
 PREFIX = "HHD Preview"
@@ -139,11 +141,8 @@ def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) ->
         tree.links.new(geometry.outputs["Normal"], gi["Vertex Normal"])
         gi["Self Bounce"].default_value = 1.0 if self_bounce else 0.0
     y = y0
-    keys = {"HHD": ["iz", "wa", "dir"], "AHD": ["iz", "wa", "dir"], "SCALAR": ["iz"],
-            "L1": [f"sh{k}" for k in range(4)], "L2": [f"sh{k}" for k in range(9)]}[kind]
-    sockets = {"iz": "Iz", "wa": "Wa", "dir": "Direction", **{f"sh{k}": f"SH{k}" for k in range(9)}}
-    for key in keys:
-        tree.links.new(_atlas_image(tree, key, atlases, uv.outputs["UV"], x0 + 250, y, frame), gi[sockets[key]])
+    for layer in sampled(kind):         # each layer's preview image into the input of its name
+        tree.links.new(_atlas_image(tree, layer.preview, atlases, uv.outputs["UV"], x0 + 250, y, frame), gi[layer.name])
         y -= 280
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 850, y0), frame)
     tree.links.new(group.outputs["Radiance"], emission.inputs["Color"])

@@ -8,7 +8,7 @@ import pytest
 from hhd_lightmapper.core import bake, bakepoints, dilate, exr, hhd, lightmap_files, octahedral, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
-import meshes
+from scenekit import meshes
 
 
 def test_float_channels_round_trip_bit_exact_and_rows_are_top_down(tmp_path):

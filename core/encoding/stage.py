@@ -1,0 +1,140 @@
+"""The encode stage: an atlas's texel images → the images of its files. No bpy.
+
+Input: `TexelData`, float32 images of the traced atlas (rows bottom-up, as Blender's), the same
+whether fresh from a bake (`TexelData.from_points`) or read back from the files, so encoding
+either way gives identical files. Output: `EncodedAtlas`, per file the images of its EXR
+channels (still bottom-up and in the values' dtype; `lightmap_files` lays them out). Steps:
+  1. the Encoding encodes the baked texels, ENCODE_CHUNK at a time (bounding its float64 copies);
+  2. each layer is filled where there is no bake value, as its Channel says (`dilate.Fill`: the
+     nearest chart texel within DILATE_RINGS, the atlas mean beyond; buried texels black);
+  3. layers with a `pack` are packed (the highlight direction: unit vector → octahedral).
+The raw files' layers (SH, texels) come straight from the TexelData, filled one EXR channel at a
+time (memory: one channel's copy).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .. import dilate as _dilate
+from .raw import SH_FILE, TEXELS_FILE
+from .spec import DILATE_BURIED_BLACK, NO_FILL, Channel, Encoding, FileSpec
+
+if TYPE_CHECKING:
+    from ..bakepoints import BakePoints
+
+#: Dilation reach in texels: enough for bilinear filtering down several mip levels; farther
+#: empty texels take the atlas mean.
+DILATE_RINGS = 16
+
+#: Texels encoded per Encoding.encode call: bounds the float64 copies an encoding makes.
+ENCODE_CHUNK = 1 << 17
+
+
+@dataclass
+class TexelData:
+    """An atlas's per-texel inputs to the encoder, as float32 images `(H, W, ...)` (rows
+    bottom-up): sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried);
+    sh_error (9, 3) the standard error of sh, when the caller asked for it (no file holds it yet).
+    float32 as in the files, so encoding a fresh bake and re-encoding its files agree exactly."""
+    sh: np.ndarray
+    normal: np.ndarray
+    coverage: np.ndarray
+    sh_error: np.ndarray | None = None
+
+    @property
+    def baked(self) -> np.ndarray:
+        """Texels with a bake value of their own (covered, not buried): the dilation sources."""
+        return self.coverage > 0.0
+
+    @classmethod
+    def from_points(cls, points: BakePoints, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TexelData:
+        """Images of per-point `sh` `(P, 9, 3)` (and optionally its standard error) at `points`."""
+        coverage = np.where(points.buried, -1.0, points.coverage)
+        error = None if sh_error is None else points.image(sh_error, dtype=np.float32)
+        return cls(sh=points.image(sh, dtype=np.float32), normal=points.image(points.normal, dtype=np.float32),
+                   coverage=points.image(coverage, dtype=np.float32), sh_error=error)
+
+    def fill(self) -> _dilate.Fill:
+        """The dilation of this atlas: empty texels from the baked ones, buried texels black."""
+        return _dilate.Fill(self.baked, DILATE_RINGS, black=self.coverage < 0.0)
+
+    def layers(self) -> dict[str, np.ndarray]:
+        """The raw files' layers as `(H, W, components)` views: SH0 … SH8, Normal, Coverage."""
+        out = {ch.name: self.sh[:, :, k] for k, ch in enumerate(SH_FILE.channels)}
+        normal, coverage = TEXELS_FILE.channels
+        out.update({normal.name: self.normal, coverage.name: self.coverage[..., None]})
+        return out
+
+
+@dataclass
+class EncodedAtlas:
+    """One atlas after the encode stage. files: per sidecar key, (FileSpec, {EXR channel name:
+    `(H, W)` image, rows bottom-up}), the encoding's file first, then the raw files if encoded;
+    encoding_file: the encoding's FileSpec; settings: the sidecar's `encoder`; stats: the sidecar's
+    `stats` (texels_baked, texels_buried, then the encoding's summary)."""
+    width: int
+    height: int
+    files: dict[str, tuple[FileSpec, dict[str, np.ndarray]]]
+    encoding_file: FileSpec
+    settings: dict
+    stats: dict
+
+
+def encode_atlas(data: TexelData, encoding: Encoding, raw: bool = True) -> EncodedAtlas:
+    """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
+    files' images (a re-encode keeps the files it read)."""
+    h, w = data.coverage.shape
+    fill = data.fill()
+    images, summary = encode_images(data, encoding, fill)
+    files = {encoding.file.key: (encoding.file, images)}
+    if raw:
+        layers = data.layers()
+        for spec in (SH_FILE, TEXELS_FILE):
+            files[spec.key] = (spec, raw_images(spec, layers, fill))
+    stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.black)), **summary}
+    return EncodedAtlas(w, h, files, encoding.file, dict(encoding.settings), stats)
+
+
+def encode_images(data: TexelData, encoding: Encoding, fill: _dilate.Fill) -> tuple[dict, dict]:
+    """The encoding's channel images `(H, W)` (filled, packed) and its summary statistics."""
+    h, w = data.coverage.shape
+    baked = fill.valid
+    sh, normal = data.sh.reshape(h * w, 9, -1), data.normal.reshape(h * w, 3)
+    channels = encoding.file.channels
+    values = {ch.name: np.zeros((h * w, ch.value_width), np.float32) for ch in channels}
+    stats = []
+    for s in range(0, len(baked), ENCODE_CHUNK):
+        rows = baked[s:s + ENCODE_CHUNK]
+        out = encoding.encode(sh[rows], normal[rows])
+        for name, v in out.values.items():
+            values[name][rows] = v
+        stats.append(out.stats)
+    images = {}
+    for ch in channels:
+        images.update(layer_images(ch, values.pop(ch.name).reshape(h, w, ch.value_width), fill))
+    return images, encoding.summary(stats, len(baked))
+
+
+def layer_images(ch: Channel, image: np.ndarray, fill: _dilate.Fill) -> dict[str, np.ndarray]:
+    """One layer's value image `(H, W, value_width)`, filled as a whole then packed, as
+    {EXR channel name: `(H, W)` view}."""
+    if ch.fill != NO_FILL:
+        image = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
+    if ch.pack is not None:
+        h, w = image.shape[:2]
+        image = ch.pack(image.reshape(h * w, -1)).reshape(h, w, len(ch.components))
+    return {name: image[..., k] for k, name in enumerate(ch.exr_names)}
+
+
+def raw_images(spec: FileSpec, layers: dict[str, np.ndarray], fill: _dilate.Fill) -> dict[str, np.ndarray]:
+    """A raw file's channel images `(H, W)` from `layers` (`TexelData.layers`), each filled on
+    its own when its Channel says so (unfilled ones are views of the TexelData)."""
+    out = {}
+    for ch in spec.channels:
+        for k, name in enumerate(ch.exr_names):
+            image = layers[ch.name][..., k]
+            out[name] = image if ch.fill == NO_FILL else fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
+    return out

@@ -1,0 +1,87 @@
+"""The direction search of the encoder: the optimal linear direction, the θ scan + golden-section
+search at fixed φ, and the optional outer φ search. No bpy.
+
+"optimal_linear" takes the SH linear band's direction (the baseline games shipped); "searched"
+scans θ ∈ [0, θ_max] at the optimal linear direction's φ, then refines the best bracket by
+golden-section search (a fixed number of iterations for all texels), keeping the best of scan,
+search and the optimal linear θ; `phi_search` adds an outer scan + golden-section over φ.
+θ_max = arccos(MIN_COS): the floor on d·n_v. Everything is vectorised over texels.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .fit import Fit
+
+SCAN_STEPS = 9          # θ samples of the coarse scan, end points included
+GOLDEN_ITERATIONS = 14  # bracket 2θ_max/8 · 0.618^14 ≈ 5e-4 rad
+PHI_SCAN_STEPS = 8
+PHI_GOLDEN_ITERATIONS = 8
+
+_INV_PHI = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+def golden(f, lo: np.ndarray, hi: np.ndarray, iterations: int):
+    """Vectorised golden-section minimisation of f over [lo, hi] per texel.
+    f maps `(N,)` parameters to `(N,)` values. Returns the best point and value seen."""
+    x1 = hi - _INV_PHI * (hi - lo)
+    x2 = lo + _INV_PHI * (hi - lo)
+    f1, f2 = f(x1), f(x2)
+    for _ in range(iterations):
+        left = f1 < f2                          # minimum in [lo, x2]
+        hi = np.where(left, x2, hi)
+        lo = np.where(left, lo, x1)
+        x_new = np.where(left, hi - _INV_PHI * (hi - lo), lo + _INV_PHI * (hi - lo))
+        f_new = f(x_new)
+        x1, x2, f1, f2 = (np.where(left, x_new, x2), np.where(left, x1, x_new),
+                          np.where(left, f_new, f2), np.where(left, f1, f_new))
+    best_is_1 = f1 < f2
+    return np.where(best_is_1, x1, x2), np.where(best_is_1, f1, f2)
+
+
+def search_theta(fit: Fit, phi: np.ndarray, theta_start: np.ndarray, theta_max: float,
+                 iterations: int = GOLDEN_ITERATIONS):
+    """Best θ at fixed φ: coarse scan of [0, θ_max], golden-section in the best bracket, and the
+    starting θ (the optimal linear one) as a candidate. Returns (θ, objective), each `(N,)`."""
+    n = len(phi)
+    at = fit.at_phi(phi)
+    grid = np.linspace(0.0, theta_max, SCAN_STEPS)
+    scan = np.stack([at.evaluate(np.full(n, t))[0] for t in grid], axis=1)   # (N, S)
+    k = np.argmin(scan, axis=1)
+    step = grid[1] - grid[0]
+    lo = np.clip(grid[k] - step, 0.0, theta_max)
+    hi = np.clip(grid[k] + step, 0.0, theta_max)
+    theta, err = golden(lambda t: at.evaluate(t)[0], lo, hi, iterations)
+    candidates = np.stack([theta, grid[k], theta_start], axis=1)
+    errors = np.stack([err, scan[np.arange(n), k], at.evaluate(theta_start)[0]], axis=1)
+    best = np.argmin(errors, axis=1)
+    rows = np.arange(n)
+    return candidates[rows, best], errors[rows, best]
+
+
+def search_phi(fit: Fit, phi0: np.ndarray, theta0: np.ndarray, theta_max: float,
+               iterations: int = GOLDEN_ITERATIONS):
+    """Outer search over φ (scan of the full circle, then golden-section around the best), with
+    the inner θ search at each φ. Returns (θ, φ), each `(N,)`."""
+    n = len(phi0)
+    offsets = np.arange(PHI_SCAN_STEPS) * (2.0 * np.pi / PHI_SCAN_STEPS)
+    results = [search_theta(fit, phi0 + o, theta0, theta_max, iterations) for o in offsets]
+    errs = np.stack([r[1] for r in results], axis=1)
+    k = np.argmin(errs, axis=1)
+    half = np.pi / PHI_SCAN_STEPS
+    phi_best_scan = phi0 + offsets[k]
+    phi, _ = golden(lambda p: search_theta(fit, p, theta0, theta_max, iterations)[1],
+                    phi_best_scan - half, phi_best_scan + half, PHI_GOLDEN_ITERATIONS)
+    theta, err = search_theta(fit, phi, theta0, theta_max, iterations)
+    scan_theta = np.stack([r[0] for r in results], axis=1)[np.arange(n), k]
+    better_scan = errs[np.arange(n), k] < err
+    return np.where(better_scan, scan_theta, theta), np.where(better_scan, phi_best_scan, phi)
+
+
+def optimal_linear_angles(local_sh: np.ndarray, channel_weights: np.ndarray, theta_max: float):
+    """(θ, φ) `(N,)` of the SH linear band's direction (-r_1^1, -r_1^-1, r_1^0), luminance-weighted,
+    with θ clamped to θ_max; +z where the band is zero. local_sh `(N, 9, K)`, channel_weights `(K,)`."""
+    v = np.stack([-local_sh[:, 3], -local_sh[:, 1], local_sh[:, 2]], axis=1) @ channel_weights
+    theta = np.arctan2(np.hypot(v[:, 0], v[:, 1]), v[:, 2])
+    phi = np.arctan2(v[:, 1], v[:, 0])
+    return np.minimum(theta, theta_max), phi
