@@ -4,7 +4,9 @@
 #   make test   - the test suite against the newest and the oldest supported Blender: bpy 5.3.0
 #                 in .venv (Python 3.13), then bpy 4.2 LTS in .venv-4.2 (Python 3.11); each
 #                 builds and installs the extension into an isolated Blender user directory
-#                 first. Fails if either fails. This is what .ci/run calls.
+#                 first. Fails if either fails. This is what .ci/run calls (after `make check`).
+#   make check  - ruff (lint + format check) over the repository and mypy over core/, with the
+#                 versions pinned in requirements-check.txt (installed into .venv)
 # PYTHON / PYTHON_OLD pick the interpreters; by default python3.13 / python3.11 on PATH or pyenv's.
 PYTHON     ?= $(shell tools/find_python.sh 3.13)
 PYTHON_OLD ?= $(shell tools/find_python.sh 3.11)
@@ -14,10 +16,11 @@ PY         := $(VENV)/bin/python
 PY_OLD     := $(VENV_OLD)/bin/python
 PYTEST_ARGS ?=
 
-.PHONY: setup setup-4.2 demo test test-new test-old test-fast package bench clean
+.PHONY: setup setup-4.2 setup-check check demo test test-new test-old test-fast package bench clean
 
 setup: $(VENV)/.installed
 setup-4.2: $(VENV_OLD)/.installed
+setup-check: $(VENV)/.check-installed
 
 # $(1): interpreter, $(2): major.minor it must be, $(3): venv, $(4): requirements, $(5): who uses it
 define make_venv
@@ -36,6 +39,19 @@ $(VENV)/.installed: requirements.txt pyproject.toml
 
 $(VENV_OLD)/.installed: requirements-4.2.txt pyproject.toml
 	$(call make_venv,$(PYTHON_OLD),3.11,$(VENV_OLD),requirements-4.2.txt,bpy 4.2 LTS / Blender 4.2-5.0)
+
+# The check tools go into .venv beside the pinned packages (recreating .venv removes the stamp).
+$(VENV)/.check-installed: $(VENV)/.installed requirements-check.txt
+	$(PY) -m pip install --quiet -r requirements-check.txt
+	touch $@
+
+# All three always run; the target fails if any failed.
+check: setup setup-check
+	@status=0; \
+	echo "== ruff check ."; $(PY) -m ruff check . || status=1; \
+	echo "== ruff format --check ."; $(PY) -m ruff format --check . || status=1; \
+	echo "== mypy core"; $(PY) -m mypy core || status=1; \
+	exit $$status
 
 demo: setup
 	$(PY) tools/demo.py --out out/demo
@@ -68,4 +84,4 @@ bench: setup
 	$(PY) bench/encoder.py
 
 clean:
-	rm -rf $(VENV) $(VENV_OLD) dist out build wheels *.egg-info .pytest_cache
+	rm -rf $(VENV) $(VENV_OLD) dist out build wheels *.egg-info .pytest_cache .ruff_cache .mypy_cache

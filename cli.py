@@ -18,7 +18,7 @@ import traceback
 import bpy
 
 from . import blender_compat
-from .core import presets
+from .core import encoding, presets
 from .core.errors import BakeError, DependencyMissing
 from .core.tracer import BakeCancelled
 
@@ -60,9 +60,9 @@ def _parser() -> argparse.ArgumentParser:
                             "Render > Performance > Threads, as a headless Cycles render; Auto = every core)")
 
     def encoder(q):
-        q.add_argument("--model", choices=["hhd", "ahd"])
-        q.add_argument("--direction", choices=["searched", "optimal_linear"])
-        q.add_argument("--ambient", choices=["luminance", "rgb"])
+        q.add_argument("--model", choices=list(encoding.MODELS))
+        q.add_argument("--direction", choices=list(encoding.DIRECTIONS))
+        q.add_argument("--ambient", choices=list(encoding.AMBIENTS))
         q.add_argument("--phi-search", action="store_true", default=None)
 
     q = sub.add_parser("unwrap", help="xatlas lightmap UVs for the receivers")
@@ -118,8 +118,9 @@ def _apply_options(settings, args) -> None:
 
 def _unwrap(context, args) -> str:
     """Unwrap the receivers with a progress line; Ctrl-C cancels (BakeCancelled, no mesh changed)."""
+    from .bridge import bake_session
     from .core.console import ConsoleProgress, interrupt_as_cancel
-    from .operators import bake_session, unwrap
+    from .operators import unwrap
     objects = bake_session.target_objects(context, args.objects)
     if not objects:
         raise BakeError("no receivers: pass --objects or --collection, or save the .blend with them selected")
@@ -137,8 +138,8 @@ def _unwrap(context, args) -> str:
 
 
 def _bake(context, args) -> str:
+    from .bridge import bake_session
     from .core.console import ConsoleProgress, interrupt_as_cancel
-    from .operators import bake_session
     if args.unwrap:
         print(_unwrap(context, args), flush=True)
     session = bake_session.BakeSession(context, args.objects, args.out, threads=args.threads)
@@ -155,7 +156,8 @@ def _bake(context, args) -> str:
 
 
 def _encode(context, args) -> str:
-    from .operators import bake_session, encode
+    from .bridge import bake_session
+    from .operators import encode
     objects = bake_session.target_objects(context, args.objects)
     threads = bake_session.scene_threads(context.scene) if args.threads is None else args.threads
     return encode.reencode_objects(objects, context.scene.hhd, args.out, threads=threads)

@@ -2,7 +2,7 @@
 
     python bench/preview.py [--samples 256] [--cycles-samples 256] [--resolution 512]
 
-The demo room (tools/demo_scene.py: sun through a window, sky, red wall, normal-mapped panel) is
+The demo room (scenekit/scenes.py `demo_room`: sun through a window, sky, red wall, normal-mapped panel) is
 unwrapped and baked with the extension; Cycles renders the camera view as ground truth, diffuse
 only: (Diffuse Direct + Diffuse Indirect) × Diffuse Color, same lights, normal maps on, the same
 bounce count (render passes are not written by the bpy module, so "diffuse only" is set in the
@@ -37,15 +37,15 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path(tempfile.mkdtemp(prefix="hhd-bench-preview-")))
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "tools"))
+    sys.path.insert(0, str(ROOT))                      # scenekit
     import bpy
-    import demo_scene
     import hhd_lightmapper
+    from scenekit import blender, scenes
 
     out = args.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    demo_scene.build()
-    demo_scene.externalise_images(out)
+    scenes.demo_room()
+    blender.externalise_images(out)
     bpy.ops.wm.save_as_mainfile(filepath=str(out / "scene.blend"))
     hhd_lightmapper.register()
     scene = bpy.context.scene

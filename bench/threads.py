@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -27,7 +28,8 @@ import numpy as np
 from hhd_lightmapper.core import bakepoints, exr, lightmap_files, parallel, rays, tracer, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 
-from unwrap_raster import sphere_field
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))   # scenekit
+from scenekit.meshes import sphere_field  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

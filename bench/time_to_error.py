@@ -2,7 +2,7 @@
 
     python bench/time_to_error.py [--scene classroom|field|both] [--resolution 512]
 
-Scenes: `classroom` (../shared/scenes/classroom, 104k triangles, OBJ; its environment map is not
+Scenes (scenekit/scenes.py): `classroom` (../shared/scenes/classroom, 104k triangles, OBJ; its environment map is not
 shipped, so it is lit by a sun and a sky colour through the windows; receivers: the 6 largest room
 meshes with few charts; the backdrop and furniture only occlude) and `field` (a procedural ~1M-triangle field of spheres on a
 ground plane, sun + sky; receivers: the ground). For each: (a) raw embreex closest-hit rays/s
@@ -30,7 +30,6 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
-CLASSROOM = ROOT.parent / "shared" / "scenes" / "classroom"
 LAYER = "HHD_Lightmap"
 BOUNCES = 3
 
@@ -46,12 +45,14 @@ def main() -> int:
     ap.add_argument("--levels", type=float, nargs="+", default=[0.20, 0.10, 0.05])
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
+    sys.path.insert(0, str(ROOT))                      # scenekit
     import bpy  # noqa: F401
     import hhd_lightmapper
+    from scenekit import scenes
     hhd_lightmapper.register()
     results = {}
     for name in (["classroom", "field"] if args.scene == "both" else [args.scene]):
-        receivers = build_classroom() if name == "classroom" else build_field()
+        receivers = scenes.classroom() if name == "classroom" else scenes.field()
         results[name] = measure(receivers, args)
         print_table(name, results[name], args.levels)
     RESULTS.mkdir(exist_ok=True)
@@ -59,85 +60,12 @@ def main() -> int:
     return 0
 
 
-# ---- scenes -------------------------------------------------------------------------------
-def clear():
-    import bpy
-    for collection in (bpy.data.objects, bpy.data.meshes, bpy.data.lights, bpy.data.materials,
-                       bpy.data.images, bpy.data.worlds):
-        for block in list(collection):
-            collection.remove(block)
-
-
-def lighting(sun_rotation=(0.9, 0.0, 2.3), sky=(0.5, 0.7, 1.0)):
-    import bpy
-    from hhd_lightmapper import blender_compat
-    sun = bpy.data.lights.new("Sun", 'SUN')
-    sun.energy, sun.angle = 4.0, 0.0
-    obj = bpy.data.objects.new("Sun", sun)
-    obj.rotation_euler = sun_rotation
-    bpy.context.scene.collection.objects.link(obj)
-    world = bpy.data.worlds.new("Sky")
-    blender_compat.ensure_node_tree(world)
-    world.node_tree.nodes["Background"].inputs["Color"].default_value = (*sky, 1.0)
-    bpy.context.scene.world = world
-
-
-def build_classroom():
-    import bpy
-    from hhd_lightmapper import blender_compat
-    import xml.etree.ElementTree as ET
-    clear()
-    grey = bpy.data.materials.new("Diffuse")
-    blender_compat.ensure_node_tree(grey)
-    grey.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0
-    root = ET.parse(CLASSROOM / "scene_v3.xml").getroot()
-    meshes = []
-    for shape in root.iter("shape"):
-        if shape.get("type") != "obj":
-            continue
-        filename = next(s.get("value") for s in shape.iter("string") if s.get("name") == "filename")
-        bpy.ops.wm.obj_import(filepath=str(CLASSROOM / filename))
-        for obj in bpy.context.selected_objects:
-            obj.data.materials.clear()
-            obj.data.materials.append(grey)
-            meshes.append(obj)
-    lighting()
-    size = lambda o: max(o.dimensions)
-    # receivers: the largest room surfaces with few charts (walls, floor, ceiling, desks); the
-    # backdrop and the many-part furniture only occlude and reflect
-    room = [o for o in meshes if size(o) < 30.0 and len(o.data.polygons) < 5000]
-    area = lambda o: sum(p.area for p in o.data.polygons)
-    return sorted(room, key=area)[-6:]
-
-
-def build_field():
-    import bpy
-    from hhd_lightmapper import blender_compat
-    sys.path.insert(0, str(ROOT / "bench"))
-    from unwrap_raster import sphere_field
-    clear()
-    v, f = sphere_field(1_000_000)
-    mesh = bpy.data.meshes.new("Field")
-    mesh.from_pydata(v.tolist(), [], f.tolist())
-    field = bpy.data.objects.new("Field", mesh)
-    lo, hi = v.min(0), v.max(0)
-    bpy.ops.mesh.primitive_plane_add(size=1.0, location=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2] - 0.01))
-    ground = bpy.context.active_object
-    ground.scale = ((hi[0] - lo[0]) * 1.2, (hi[1] - lo[1]) * 1.2, 1.0)
-    bpy.context.scene.collection.objects.link(field)
-    mat = bpy.data.materials.new("Diffuse")
-    blender_compat.ensure_node_tree(mat)
-    for o in (field, ground):
-        o.data.materials.append(mat)
-    lighting()
-    return [ground]
-
-
 # ---- measurement --------------------------------------------------------------------------
 def measure(receivers, args) -> dict:
     import bpy
+    from hhd_lightmapper.bridge import mesh_data, scene_data
     from hhd_lightmapper.core import bakepoints, rays
-    from hhd_lightmapper.operators import mesh_data, scene_data
+    from scenekit.blender import select
     scene = bpy.context.scene
     scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density = LAYER, args.resolution, 0.0
     scene.hhd.padding = args.padding
@@ -179,22 +107,13 @@ def measure(receivers, args) -> dict:
     return out
 
 
-def select(objs):
-    import bpy
-    bpy.context.view_layer.update()
-    for o in bpy.context.view_layer.objects:
-        o.select_set(False)
-    for o in objs:
-        o.select_set(True)
-    bpy.context.view_layer.objects.active = objs[0]
-
-
 def warm_up(points, bake_scene, ray_scene) -> None:
     """Load (or, after an edit, compile) our compiled kernels before anything is timed, as the
     long reference bake warms Cycles up: a Blender session pays this once (~0.8 s)."""
     from hhd_lightmapper.core import tracer
     few = np.arange(min(64, len(points.texel)))
-    tracer._Tracer(points, bake_scene, tracer.BakeSettings(pass_samples=4), ray_scene).trace_pass(0, 0, few)
+    tracer.texel_estimator(points, bake_scene, tracer.BakeSettings(pass_samples=4), ray_scene).trace(
+        tracer.WorkUnit(0, 0, 0, few))
 
 
 class EmbreexRays:
@@ -257,6 +176,7 @@ def cycles_bake(receivers, points, samples, seed=0) -> np.ndarray:
     reference uses another seed: Cycles' samples for one seed are nested, so a low-sample bake
     would otherwise share its first samples with the reference and look better than it is."""
     import bpy
+    from scenekit.blender import select
     scene = bpy.context.scene
     scene.render.engine = 'CYCLES'
     scene.cycles.device, scene.cycles.samples, scene.cycles.seed = 'CPU', samples, seed

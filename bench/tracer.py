@@ -2,7 +2,7 @@
 
     python bench/tracer.py [--triangles 100000] [--samples 32]
 
-Scene: a field of displaced spheres on a ground plane (bench/unwrap_raster.sphere_field), lit by
+Scene: a field of displaced spheres on a ground plane (scenekit/meshes.py `sphere_field`), lit by
 a sun and a constant sky, 2 bounces. Prints (a) raw embreex closest-hit rays/s for incoherent
 rays in batches of 1M, on 1 and 2 threads (embreex's own API; and our binding of its Embree,
 core.embree, on 2 threads); (b) the bake's rays/s (every ray it traces, shadow
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -21,9 +22,10 @@ import numpy as np
 
 from hhd_lightmapper.core import bakepoints, rays, tracer, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
-
 from time_to_error import EmbreexRays
-from unwrap_raster import sphere_field
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))   # scenekit
+from scenekit.meshes import sphere_field  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

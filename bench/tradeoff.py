@@ -5,7 +5,7 @@
     python bench/tradeoff.py --replot        # presets and plots again from the saved results
     python bench/tradeoff.py --scenes emissive
 
-Scenes (bench/scenes.py): outdoor sun + sky, an interior lit through a window, a room lit by
+Scenes (scenekit/scenes.py `build`): outdoor sun + sky, an interior lit through a window, a room lit by
 emissive surfaces only. Per scene, at a base texel density:
 
 - reference: our bake at `--reference-samples` spp, 8 bounces, as two half bakes with different
@@ -115,7 +115,8 @@ def main() -> int:
     from hhd_lightmapper.core import hhd
     QUADRATURE = hhd.hemisphere_quadrature(16, 32)
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "bench"))
+    sys.path.insert(0, str(ROOT / "bench"))            # preview
+    sys.path.insert(0, str(ROOT))                      # scenekit
     import bpy  # noqa: F401
     import hhd_lightmapper
     hhd_lightmapper.register()
@@ -205,14 +206,13 @@ class Scene:
 
     def __init__(self, name: str, args):
         import bpy
-        import scenes
         from preview import configure_output
+        from scenekit import blender, scenes
         self.name, self.args = name, args
         self.folder = (args.out / name).resolve()
         self.folder.mkdir(parents=True, exist_ok=True)
         scenes.build(name)
-        import demo_scene          # on the path since scenes imported it
-        demo_scene.externalise_images(self.folder)
+        blender.externalise_images(self.folder)
         bpy.ops.wm.save_as_mainfile(filepath=str(self.folder / "scene.blend"))
         self.scene = bpy.context.scene
         configure_output(self.scene)
@@ -237,8 +237,8 @@ class Scene:
         trace_memory, the peak of numpy's allocations during the bake (tracemalloc; kept off
         for timed bakes)."""
         import bpy
+        from hhd_lightmapper.bridge import bake_session
         from hhd_lightmapper.core import lightmap_files
-        from hhd_lightmapper.operators import bake_session
         s = self.scene.hhd
         s.preset = 'CUSTOM'
         s.samples, s.bounces, s.seed = point["samples"], point["bounces"], point.get("seed", 0)
@@ -400,7 +400,7 @@ def emitter_mask(sc: Scene) -> np.ndarray:
     1-sample render of them alone on a transparent film."""
     import bpy
     from preview import render
-    import scenes
+    from scenekit import scenes
     emitters = [o for o in sc.scene.objects if o.type == 'MESH' and o.name in scenes.EMITTERS]
     if not emitters:
         return np.zeros((sc.scene.render.resolution_y, sc.scene.render.resolution_x), bool)

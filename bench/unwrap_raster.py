@@ -5,7 +5,7 @@
     python bench/unwrap_raster.py --scenes ../shared/scenes/bedroom/bedroom.blend ... [--resolution 2048] [--padding 8]
 
 The mesh is a field of displaced, subdivided spheres (many charts, curved surfaces, like real
-props). Atlas resolution grows with the size (1024, 2048, 4096). Peak memory is the numpy/Python
+props; scenekit/meshes.py `sphere_field`). Atlas resolution grows with the size (1024, 2048, 4096). Peak memory is the numpy/Python
 peak of each stage measured with tracemalloc. Writes bench/results/unwrap_raster.json.
 
 --unwrap-only times the unwrap alone, from an empty chart cache and again with the charts cached
@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -28,33 +29,10 @@ import numpy as np
 
 from hhd_lightmapper.core import bakepoints, rays, unwrap
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))   # scenekit
+from scenekit.meshes import sphere_field, texel_overlaps  # noqa: E402
+
 RESULTS = Path(__file__).resolve().parent / "results"
-
-
-def sphere_field(n_triangles: int, seed: int = 0):
-    """Displaced UV spheres of ~2000 triangles each on a grid, ≈ n_triangles in total."""
-    rng = np.random.default_rng(seed)
-    rings, segments = 25, 40                                   # 2 × 40 × 24 = 1920 triangles
-    theta = np.linspace(0, np.pi, rings + 1)[1:-1]
-    phi = np.linspace(0, 2 * np.pi, segments, endpoint=False)
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    unit = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
-    unit = np.vstack([[0, 0, 1], unit, [0, 0, -1]])
-    idx = lambda r, s: 1 + r * segments + s % segments
-    faces = [(0, idx(0, s), idx(0, s + 1)) for s in range(segments)]
-    for r in range(rings - 2):
-        for s in range(segments):
-            faces += [(idx(r, s), idx(r + 1, s), idx(r + 1, s + 1)), (idx(r, s), idx(r + 1, s + 1), idx(r, s + 1))]
-    faces += [(idx(rings - 2, s), len(unit) - 1, idx(rings - 2, s + 1)) for s in range(segments)]
-    faces = np.array(faces)
-    count = max(1, round(n_triangles / len(faces)))
-    side = int(np.ceil(np.sqrt(count)))
-    verts, tris = [], []
-    for k in range(count):
-        bump = 1.0 + 0.15 * np.sin(3 * unit[:, 0] + k) * np.cos(4 * unit[:, 1])
-        verts.append(unit * bump[:, None] + [3.0 * (k % side), 3.0 * (k // side), 0.0])
-        tris.append(faces + k * len(unit))
-    return np.vstack(verts), np.vstack(tris)
 
 
 def measure(fn):
@@ -165,11 +143,8 @@ def scene_row(path: str, resolution: int, padding: int, module) -> str:
 
 def _overlaps(uvs, size):
     """(texels touched by two charts, of one object or two; texel area covered twice), the
-    texels rasterised as the bake covers them (tests/meshes.py `texel_overlaps`)."""
-    import sys
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-    import meshes as test_meshes
-    report = test_meshes.texel_overlaps(uvs, size, size)
+    texels rasterised as the bake covers them (scenekit/meshes.py `texel_overlaps`)."""
+    report = texel_overlaps(uvs, size, size)
     return report["objects"] + report["charts"], sum(report["summed"]) - sum(report["area"])
 
 

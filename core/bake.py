@@ -1,4 +1,4 @@
-"""The bake pipeline over atlases: bake points → trace → encode → files. No bpy.
+"""The bake pipeline over atlases: bake points → trace → image → encode → write. No bpy.
 
 `run` is what the Bake operator (modal or not) and the command line both call, after the bpy side
 has read the scene into plain data (`AtlasInput`, `BakeScene`). It never touches the scene: its
@@ -20,8 +20,9 @@ from typing import Callable
 
 import numpy as np
 
-from . import bakepoints, exr, hhd, lightmap_files, parallel, tracer
+from . import bakepoints, encoding, exr, lightmap_files, parallel, tracer
 from .bakepoints import SurfaceTriangles
+from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError
 from .rays import RayScene
 from .scene import BakeScene
@@ -42,20 +43,8 @@ class AtlasInput:
 
 
 @dataclass
-class EncoderSettings:
-    """Keyword arguments of `hhd.encode` (see there)."""
-    model: str = "hhd"
-    direction: str = "searched"
-    ambient: str = "luminance"
-    phi_search: bool = False
-    golden_iterations: int = hhd.GOLDEN_ITERATIONS
-
-    def kwargs(self) -> dict:
-        return asdict(self)
-
-
-@dataclass
 class PipelineSettings:
+    """trace: the tracer's settings; encoder: the encoding and its options (`core.encoding`)."""
     trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
     encoder: EncoderSettings = field(default_factory=EncoderSettings)
 
@@ -169,7 +158,8 @@ def _atlas_settings(trace: tracer.BakeSettings, spent: float, texels: int, texel
 
 
 def _stage(staging, atlas, pts, result, settings, out_dir, t_points, extra) -> AtlasResult:
-    """Encode one traced atlas and stage its files (committed with the others at the end)."""
+    """Image, encode and write one traced atlas: its files are staged, committed with the others
+    at the end. `result`: the traced atlas (`.sh` at `pts`, run statistics)."""
     t = time.perf_counter()
     files = lightmap_files.AtlasFiles(out_dir, atlas.name)
     seconds = {"bake_points": t_points, "trace": result.seconds}
@@ -181,15 +171,17 @@ def _stage(staging, atlas, pts, result, settings, out_dir, t_points, extra) -> A
         "objects": lightmap_files.object_rects(pts, atlas.objects),
         "timings_seconds": seconds,
     })
-    data = lightmap_files.TexelData.from_points(pts, result.sh)
-    lightmap_files.stage_atlas(staging, files, data, settings.encoder.kwargs(), sidecar)
+    data = encoding.TexelData.from_points(pts, result.sh)                      # image
+    encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder))  # encode
+    del data
+    lightmap_files.write_atlas(staging, files, encoded, sidecar)                 # write
     seconds["encode_and_write"] = time.perf_counter() - t
     return AtlasResult(atlas.name, files, len(pts.texel), result.rays, seconds)
 
 
 def reencode(files: lightmap_files.AtlasFiles, encoder: EncoderSettings, threads: int = 0) -> float:
-    """Encode an atlas again from its SH and texel EXRs with other encoder settings (no tracing);
-    replaces the HHD EXR and the sidecar atomically. `threads` (0 = every core) read and compress
+    """Encode an atlas again from its SH and texel EXRs with other encoder settings (no tracing):
+    read → encode → write, the stages of a bake; replaces the encoded EXR and the sidecar atomically. `threads` (0 = every core) read and compress
     the EXRs; the sidecar records it as `reencode_threads`. Returns the seconds it took."""
     t = time.perf_counter()
     threads = parallel.resolve_threads(threads)
@@ -198,7 +190,9 @@ def reencode(files: lightmap_files.AtlasFiles, encoder: EncoderSettings, threads
     data = lightmap_files.read_texel_data(files)
     sidecar["reencoded_from_sh"] = True
     sidecar["reencode_threads"] = threads
+    encoded = encoding.encode_atlas(data, encoding.for_settings(encoder), raw=False)
+    del data
     with exr.Staging() as staging:
-        lightmap_files.stage_atlas(staging, files, data, encoder.kwargs(), sidecar, write_sh=False)
+        lightmap_files.write_atlas(staging, files, encoded, sidecar)
         staging.commit()
     return time.perf_counter() - t

@@ -8,10 +8,11 @@ has finished (images loaded).
 """
 import bpy
 
+from ..bridge import bake_session
 from ..core.console import ConsoleProgress
 from ..core.errors import BakeError
 from ..core.tracer import BakeCancelled
-from . import bake_session, modal_work
+from . import modal_work
 
 
 def receivers_poll(cls, context) -> bool:

@@ -3,10 +3,10 @@ from pathlib import Path
 
 import bpy
 
+from ..bridge import bake_session
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles
 from ..shaders import preview
-from . import bake_session
 from .bake import receivers_poll
 
 

@@ -11,10 +11,11 @@ from dataclasses import dataclass
 import bpy
 from bpy.props import BoolProperty
 
+from ..bridge import mesh_data
 from ..core import unwrap as core_unwrap
 from ..core.console import ConsoleProgress
 from ..core.errors import BakeCancelled, BakeError
-from . import mesh_data, modal_work
+from . import modal_work
 
 
 class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 import cycles_compare as cc
-from hhd_lightmapper.core import bakepoints
 from hhd_lightmapper import blender_compat
+from hhd_lightmapper.core import bakepoints
+from scenekit import blender as kit
 
 pytestmark = [pytest.mark.bpy, pytest.mark.slow]
 
@@ -24,15 +25,15 @@ def cycles_footprint(monkeypatch):
 
 @pytest.fixture
 def floor(extension):
-    cc.clear_scene()
-    f = cc.plane("Floor", (0, 0, 0), 2.0, cc.material("Floor", (0.8, 0.8, 0.8)))
-    cc.box("Blocker", (0.2, 0.1, 0.35), (0.4, 0.4, 0.3), cc.material("Blocker", (0.6, 0.5, 0.4)))
-    cc.unwrap([f])
+    kit.clear_scene()
+    f = kit.plane("Floor", (0, 0, 0), 2.0, kit.material("Floor", (0.8, 0.8, 0.8)))
+    kit.box("Blocker", (0.2, 0.1, 0.35), (0.4, 0.4, 0.3), kit.material("Blocker", (0.6, 0.5, 0.4)))
+    kit.unwrap([f])
     return f
 
 
 def test_sun(floor):
-    cc.light('SUN', rotation=(math.radians(30), math.radians(10), 0), energy=3.0, angle=0.0)
+    kit.light('SUN', rotation=(math.radians(30), math.radians(10), 0), energy=3.0, angle=0.0)
     r = cc.compare([floor], samples=32, bounces=1)
     assert r["mean"] > 0.3
     cc.assert_agree(r)
@@ -48,7 +49,7 @@ def test_hard_shadow_edge_texels_average_the_same_footprint_as_cycles(floor, mon
     the footprint to that triangle, so where a shadow edge also crosses them the two differ by
     design (measured: 2 of 161 edge texels, on the quad's diagonal, residual 0.40 of a lit 0.81;
     the other 159: 0.013 against a noise of 0.0095)."""
-    cc.light('SUN', rotation=(math.radians(30), math.radians(10), 0), energy=3.0, angle=0.0)
+    kit.light('SUN', rotation=(math.radians(30), math.radians(10), 0), energy=3.0, angle=0.0)
     r = cc.compare([floor], samples=64, bounces=0)
     value = r["cycles"].mean(1)
     lit = np.percentile(value, 90)
@@ -71,44 +72,44 @@ def footprint_straddles_triangles(points, keep):
     corners = 0.5 + bakepoints.FOOTPRINT * (np.array([[0, 0], [1, 0], [0, 1], [1, 1]]) - 0.5)
     texel = points.texel[keep]
     origin = np.stack([texel % points.width, texel // points.width], 1).astype(float)
-    tri_uv = points.tri_texel_uv[points.triangle[keep]]
+    tri_uv = points.mesh.texel_uv[points.triangle[keep]]
     bary = bakepoints._barycentric_grouped(origin[:, None, :] + corners[None], tri_uv)
     return (bary < -1e-9).any(axis=(1, 2))
 
 
 def test_sun_with_angle(floor):
-    cc.light('SUN', rotation=(math.radians(35), 0, 0), energy=3.0, angle=math.radians(12))
+    kit.light('SUN', rotation=(math.radians(35), 0, 0), energy=3.0, angle=math.radians(12))
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
 def test_point(floor):
-    cc.light('POINT', location=(-0.3, -0.2, 1.2), energy=300.0, shadow_soft_size=0.0)
+    kit.light('POINT', location=(-0.3, -0.2, 1.2), energy=300.0, shadow_soft_size=0.0)
     cc.assert_agree(cc.compare([floor], samples=32, bounces=1))
 
 
 @pytest.mark.parametrize("soft_falloff", [True, False])
 def test_point_with_radius(floor, soft_falloff):
-    lamp = cc.light('POINT', location=(-0.3, -0.2, 1.2), energy=300.0, shadow_soft_size=0.25)
+    lamp = kit.light('POINT', location=(-0.3, -0.2, 1.2), energy=300.0, shadow_soft_size=0.25)
     lamp.data.use_soft_falloff = soft_falloff      # disk facing the point (default) or sphere
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
 @pytest.mark.parametrize("radius", [0.0, 0.2])
 def test_spot(floor, radius):
-    cc.light('SPOT', location=(0.3, -0.4, 1.5), rotation=(math.radians(15), 0, 0), energy=500.0,
+    kit.light('SPOT', location=(0.3, -0.4, 1.5), rotation=(math.radians(15), 0, 0), energy=500.0,
              shadow_soft_size=radius, spot_size=math.radians(70), spot_blend=0.4)
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
 @pytest.mark.parametrize("shape", ["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"])
 def test_area(floor, shape):
-    cc.light('AREA', location=(-0.2, 0.1, 1.0), rotation=(math.radians(20), 0, 0), energy=150.0,
+    kit.light('AREA', location=(-0.2, 0.1, 1.0), rotation=(math.radians(20), 0, 0), energy=150.0,
              shape=shape, size=0.6, size_y=0.3)
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
 def test_constant_world(floor):
-    cc.world((0.4, 0.6, 1.0))
+    kit.world((0.4, 0.6, 1.0))
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
@@ -116,14 +117,14 @@ def test_constant_world(floor):
 def test_hdri_world(floor, rotation):
     """Environment Texture world (sky + a small bright sun), importance-sampled with MIS; with a
     Mapping node rotating it the sun's shadow must move exactly as in Cycles."""
-    cc.hdri_world(cc.sky_pixels(), strength=1.5, rotation=rotation)
+    kit.hdri_world(kit.sky_pixels(), strength=1.5, rotation=rotation)
     r = cc.compare([floor], samples=64, bounces=1)
     assert r["mean"] > 0.3
     cc.assert_agree(r)
 
 
 def test_emissive_mesh(floor):
-    cc.plane("Lamp", (0, 0, 1.0), 0.8, cc.material("Lamp", (0.0, 0.0, 0.0), emission=(1.0, 0.9, 0.7, 8.0)),
+    kit.plane("Lamp", (0, 0, 1.0), 0.8, kit.material("Lamp", (0.0, 0.0, 0.0), emission=(1.0, 0.9, 0.7, 8.0)),
              rotation=(math.pi, 0, 0))
     cc.assert_agree(cc.compare([floor], samples=128, bounces=1))
 
@@ -131,19 +132,19 @@ def test_emissive_mesh(floor):
 def test_cornell_box_interreflection(extension):
     """A closed room with a red and a green wall, lit by a ceiling lamp (emissive) and a point
     light: three diffuse bounces in both renderers."""
-    cc.clear_scene()
-    white, red, green = (cc.material(n, c) for n, c in
+    kit.clear_scene()
+    white, red, green = (kit.material(n, c) for n, c in
                          (("White", (0.75, 0.75, 0.75)), ("Red", (0.7, 0.1, 0.08)), ("Green", (0.1, 0.6, 0.12))))
-    floor = cc.plane("Floor", (0, 0, 0), 2.0, white)
-    cc.plane("Ceiling", (0, 0, 2.0), 2.0, white, rotation=(math.pi, 0, 0))
-    cc.plane("Back", (0, 1.0, 1.0), 2.0, white, rotation=(math.pi / 2, 0, 0))
-    cc.plane("Front", (0, -1.0, 1.0), 2.0, white, rotation=(-math.pi / 2, 0, 0))
-    cc.plane("Left", (-1.0, 0, 1.0), 2.0, red, rotation=(0, math.pi / 2, 0))
-    cc.plane("Right", (1.0, 0, 1.0), 2.0, green, rotation=(0, -math.pi / 2, 0))
-    cc.plane("Lamp", (0, 0, 1.98), 0.6, cc.material("Lamp", (0, 0, 0), emission=(1, 1, 1, 6.0)),
+    floor = kit.plane("Floor", (0, 0, 0), 2.0, white)
+    kit.plane("Ceiling", (0, 0, 2.0), 2.0, white, rotation=(math.pi, 0, 0))
+    kit.plane("Back", (0, 1.0, 1.0), 2.0, white, rotation=(math.pi / 2, 0, 0))
+    kit.plane("Front", (0, -1.0, 1.0), 2.0, white, rotation=(-math.pi / 2, 0, 0))
+    kit.plane("Left", (-1.0, 0, 1.0), 2.0, red, rotation=(0, math.pi / 2, 0))
+    kit.plane("Right", (1.0, 0, 1.0), 2.0, green, rotation=(0, -math.pi / 2, 0))
+    kit.plane("Lamp", (0, 0, 1.98), 0.6, kit.material("Lamp", (0, 0, 0), emission=(1, 1, 1, 6.0)),
              rotation=(math.pi, 0, 0))
-    cc.light('POINT', location=(0.4, -0.3, 1.5), energy=60.0, shadow_soft_size=0.0)
-    cc.unwrap([floor])
+    kit.light('POINT', location=(0.4, -0.3, 1.5), energy=60.0, shadow_soft_size=0.0)
+    kit.unwrap([floor])
     r = cc.compare([floor], samples=128, bounces=3, cycles_samples=128)
     assert r["mean"] > 0.5
     red_side = r["points"].position[r["keep"], 0] < -0.6
@@ -153,12 +154,12 @@ def test_cornell_box_interreflection(extension):
 
 def test_box_pushed_into_the_floor_leaves_no_light_under_it(extension):
     """The leak fixture of the unwrap/raster issue, baked: a box sunk into a sunlit floor."""
-    cc.clear_scene()
-    floor = cc.plane("Floor", (0, 0, 0), 4.0, cc.material("Floor"))
-    cc.box("Sunk", (0.0, 0.0, 0.2), (1.0, 1.0, 1.0), cc.material("Box"))
-    cc.light('SUN', rotation=(math.radians(40), 0, 0), energy=3.0)
-    cc.world((0.3, 0.4, 0.6))
-    cc.unwrap([floor])
+    kit.clear_scene()
+    floor = kit.plane("Floor", (0, 0, 0), 4.0, kit.material("Floor"))
+    kit.box("Sunk", (0.0, 0.0, 0.2), (1.0, 1.0, 1.0), kit.material("Box"))
+    kit.light('SUN', rotation=(math.radians(40), 0, 0), energy=3.0)
+    kit.world((0.3, 0.4, 0.6))
+    kit.unwrap([floor])
     points, iz, _ = cc.ours([floor], samples=32, bounces=2, seed=3)
     x, y = np.abs(points.position[:, 0]), np.abs(points.position[:, 1])
     under = np.maximum(x, y) < 0.5 - 0.5 * points.texel_size     # any part of the texel under the box
@@ -176,17 +177,17 @@ def test_floor_under_a_coplanar_face_stays_dark_as_in_cycles(extension):
     1.38 under the box, where Cycles is dark). The whole floor, the part under the box included,
     must agree with Cycles within the noise rule."""
     import bmesh
-    cc.clear_scene()
-    floor = cc.plane("Floor", (0, 0, 0), 2.0, cc.material("Floor", (0.8, 0.8, 0.8)))
-    tray = cc.box("Tray", (0.0, 0.0, 0.2), (1.0, 1.0, 0.4), cc.material("Tray", (0.6, 0.5, 0.4)))
+    kit.clear_scene()
+    floor = kit.plane("Floor", (0, 0, 0), 2.0, kit.material("Floor", (0.8, 0.8, 0.8)))
+    tray = kit.box("Tray", (0.0, 0.0, 0.2), (1.0, 1.0, 0.4), kit.material("Tray", (0.6, 0.5, 0.4)))
     bm = bmesh.new()
     bm.from_mesh(tray.data)
     bmesh.ops.delete(bm, geom=[f for f in bm.faces if f.normal.z > 0.9], context='FACES_ONLY')
     bm.to_mesh(tray.data)
     bm.free()
-    cc.light('SUN', rotation=(math.radians(20), math.radians(10), 0), energy=3.0)
-    cc.world((0.3, 0.4, 0.6))
-    cc.unwrap([floor])
+    kit.light('SUN', rotation=(math.radians(20), math.radians(10), 0), energy=3.0)
+    kit.world((0.3, 0.4, 0.6))
+    kit.unwrap([floor])
     r = cc.compare([floor], samples=32, bounces=1)
     x, y = np.abs(r["points"].position[r["keep"], 0]), np.abs(r["points"].position[r["keep"], 1])
     under = np.maximum(x, y) < 0.5 - r["points"].texel_size[r["keep"]]
@@ -200,22 +201,22 @@ def test_texture_albedo_reaches_bake_points_and_bounce_light(extension):
     """A wall textured red | blue (sRGB byte image through its own UV map) lit by the sun bleeds
     its colours onto the floor as in Cycles; the wall's bake points carry the decoded texture."""
     import bpy
+    from hhd_lightmapper.bridge import mesh_data
     from hhd_lightmapper.core import bakepoints, textures
-    from hhd_lightmapper.operators import mesh_data
-    cc.clear_scene()
-    floor = cc.plane("Floor", (0, 0, 0), 2.0, cc.material("Floor", (0.8, 0.8, 0.8)))
-    wall = cc.plane("Wall", (0, 1.0, 0.6), 2.0, cc.textured_material("Wall", (0.9, 0.1, 0.1), (0.1, 0.2, 0.9), "UVMap"),
+    kit.clear_scene()
+    floor = kit.plane("Floor", (0, 0, 0), 2.0, kit.material("Floor", (0.8, 0.8, 0.8)))
+    wall = kit.plane("Wall", (0, 1.0, 0.6), 2.0, kit.textured_material("Wall", (0.9, 0.1, 0.1), (0.1, 0.2, 0.9), "UVMap"),
                     rotation=(math.pi / 2, 0, 0))
-    cc.light('SUN', rotation=(math.radians(50), 0, 0), energy=4.0)      # towards +y: lights the wall's floor side
-    cc.unwrap([floor, wall])
+    kit.light('SUN', rotation=(math.radians(50), 0, 0), energy=4.0)      # towards +y: lights the wall's floor side
+    kit.unwrap([floor, wall])
     r = cc.compare([floor], samples=64, bounces=1)
     near_wall = r["points"].position[r["keep"], 1] > 0.6
     left, right = near_wall & (r["points"].position[r["keep"], 0] < -0.3), near_wall & (r["points"].position[r["keep"], 0] > 0.3)
     assert r["ours"][left, 0].mean() > r["ours"][right, 0].mean()       # red bleeds on the left
     assert r["ours"][right, 2].mean() > r["ours"][left, 2].mean()       # blue on the right
     cc.assert_agree(r)
-    surface = mesh_data.read_surface([wall], cc.LAYER, bpy.context.evaluated_depsgraph_get())
-    points = bakepoints.build(surface, cc.RES, cc.RES)
+    surface = mesh_data.read_surface([wall], kit.LAYER, bpy.context.evaluated_depsgraph_get())
+    points = bakepoints.build(surface, kit.RES, kit.RES)
     stored = lambda c: np.round(np.array(c) * 255) / 255          # a byte image holds 8-bit sRGB
     red, blue = textures.srgb_to_linear(stored([0.9, 0.1, 0.1])), textures.srgb_to_linear(stored([0.1, 0.2, 0.9]))
     x = points.position[:, 0]
@@ -226,17 +227,17 @@ def test_texture_albedo_reaches_bake_points_and_bounce_light(extension):
 def test_emission_shader_emitter_reflects_nothing(extension):
     """A closed white room whose whole ceiling is an Emission shader: Cycles reflects no light
     off it, so neither may we (baking it with a grey viewport colour adds ~30% at 3 bounces)."""
-    cc.clear_scene()
-    white = cc.material("White", (0.8, 0.8, 0.8))
-    floor = cc.plane("Floor", (0, 0, 0), 2.0, white)
+    kit.clear_scene()
+    white = kit.material("White", (0.8, 0.8, 0.8))
+    floor = kit.plane("Floor", (0, 0, 0), 2.0, white)
     for name, centre, rotation in (("Back", (0, 1.0, 1.0), (math.pi / 2, 0, 0)),
                                    ("Front", (0, -1.0, 1.0), (-math.pi / 2, 0, 0)),
                                    ("Left", (-1.0, 0, 1.0), (0, math.pi / 2, 0)),
                                    ("Right", (1.0, 0, 1.0), (0, -math.pi / 2, 0))):
-        cc.plane(name, centre, 2.0, white, rotation=rotation)
+        kit.plane(name, centre, 2.0, white, rotation=rotation)
     lamp = bpy_emission_material("Ceiling Lamp", (1.0, 0.95, 0.9), 2.0)
-    cc.plane("Ceiling", (0, 0, 2.0), 2.0, lamp, rotation=(math.pi, 0, 0))
-    cc.unwrap([floor])
+    kit.plane("Ceiling", (0, 0, 2.0), 2.0, lamp, rotation=(math.pi, 0, 0))
+    kit.unwrap([floor])
     r = cc.compare([floor], samples=64, bounces=3, cycles_samples=64)
     assert r["mean"] > 0.5
     cc.assert_agree(r, allowance=0.02)

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import cycles_compare as cc
 from hhd_lightmapper.core import exr, hhd, octahedral
 from hhd_lightmapper.core.textures import sample_bilinear
+from scenekit import blender as kit
 
 pytestmark = pytest.mark.bpy
 AOVS = ("luv", "n", "nv", "albedo")
@@ -26,17 +26,17 @@ AOVS = ("luv", "n", "nv", "albedo")
 @pytest.fixture
 def baked(extension, tmp_path):
     import bpy
-    scene = cc.clear_scene()
+    scene = kit.clear_scene()
     floor_mat = normal_mapped_material("Floor")
-    floor = cc.plane("Floor", (0, 0, 0), 4, floor_mat)
-    cube = cc.box("Cube", (0.6, 0.5, 0.5), (1, 1, 1), cc.material("red", (0.8, 0.2, 0.1)))
-    shared = cc.plane("Unbaked", (5, 0, 0), 1, floor_mat)          # shares the floor's material
-    cc.light('SUN', rotation=(0.6, 0.3, 0.4), energy=3.0)
-    cc.world((0.1, 0.2, 0.3))
+    floor = kit.plane("Floor", (0, 0, 0), 4, floor_mat)
+    cube = kit.box("Cube", (0.6, 0.5, 0.5), (1, 1, 1), kit.material("red", (0.8, 0.2, 0.1)))
+    shared = kit.plane("Unbaked", (5, 0, 0), 1, floor_mat)          # shares the floor's material
+    kit.light('SUN', rotation=(0.6, 0.3, 0.4), energy=3.0)
+    kit.world((0.1, 0.2, 0.3))
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
-    cc.unwrap([floor, cube])
+    kit.unwrap([floor, cube])
     scene.hhd.samples, scene.hhd.bounces = 16, 1
-    cc.select([floor, cube])
+    kit.select([floor, cube])
     assert bpy.ops.hhd.bake() == {'FINISHED'}
     return scene, floor, cube, shared, tmp_path / "lightmaps"
 
@@ -45,7 +45,7 @@ def normal_mapped_material(name):
     """Principled BSDF with a tangent-space Normal Map fed by a smooth float image of tilted
     normals (so the shading normal differs from n_v by up to ~35°)."""
     import bpy
-    mat = cc.material(name, (0.7, 0.7, 0.6))
+    mat = kit.material(name, (0.7, 0.7, 0.6))
     size = 16
     u, v = np.meshgrid((np.arange(size) + 0.5) / size, (np.arange(size) + 0.5) / size)
     n = np.stack([0.5 * np.sin(2 * np.pi * u), 0.5 * np.cos(2 * np.pi * v), np.ones_like(u)], -1)

@@ -10,7 +10,7 @@ import pytest
 from hhd_lightmapper.core import bake, bakepoints, exr, lightmap_files, parallel, tracer
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.scene import BakeScene, PointLight, SunLight
-import meshes
+from scenekit import meshes
 
 RESOLUTION = 192
 #: More workers than this machine has cores, so chunks finish out of order.

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper.core import raster
-from cycles_compare import select
-import meshes
+from scenekit import meshes
+from scenekit.blender import select
 
 pytestmark = pytest.mark.bpy
 LAYER = "HHD_Lightmap"

@@ -5,7 +5,7 @@ import pytest
 
 from hhd_lightmapper.core import unwrap, xatlas_worker
 from hhd_lightmapper.core.errors import BakeError
-import meshes
+from scenekit import meshes
 
 
 @pytest.fixture(autouse=True)

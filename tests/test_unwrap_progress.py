@@ -16,7 +16,7 @@ from conftest import EXTENSION_MODULE
 from hhd_lightmapper import cli
 from hhd_lightmapper.core import unwrap
 from hhd_lightmapper.core.errors import BakeCancelled
-import meshes
+from scenekit import meshes
 
 
 @pytest.fixture(autouse=True)

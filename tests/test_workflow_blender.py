@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import cycles_compare as cc
 from hhd_lightmapper import cli
 from hhd_lightmapper.core import presets
 from hhd_lightmapper.core.tracer import BakeCancelled
+from scenekit import blender as kit
 
 pytestmark = pytest.mark.bpy
 ROOT = Path(__file__).resolve().parent.parent
@@ -24,15 +24,15 @@ ROOT = Path(__file__).resolve().parent.parent
 def baked_scene(extension, tmp_path):
     """Floor + cube, sun + sky, unwrapped at 256², saved as tmp_path/scene.blend."""
     import bpy
-    scene = cc.clear_scene()
-    grey = cc.material("grey")
-    floor = cc.plane("Floor", (0, 0, 0), 4, grey)
-    cube = cc.box("Cube", (0, 0, 0.5), (1, 1, 1), cc.material("red", (0.8, 0.1, 0.1)))
-    cc.light('SUN', rotation=(0.5, 0.2, 0), energy=3.0)
-    cc.world((0.1, 0.2, 0.3))
+    scene = kit.clear_scene()
+    grey = kit.material("grey")
+    floor = kit.plane("Floor", (0, 0, 0), 4, grey)
+    cube = kit.box("Cube", (0, 0, 0.5), (1, 1, 1), kit.material("red", (0.8, 0.1, 0.1)))
+    kit.light('SUN', rotation=(0.5, 0.2, 0), energy=3.0)
+    kit.world((0.1, 0.2, 0.3))
     scene.hhd.samples, scene.hhd.bounces, scene.hhd.output_dir = 8, 1, "//lightmaps"
     scene.hhd.model, scene.hhd.ambient, scene.hhd.pack_images = 'HHD', 'LUMINANCE', False
-    cc.unwrap([floor, cube])
+    kit.unwrap([floor, cube])
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
     return scene, [floor, cube], tmp_path
 
@@ -64,7 +64,7 @@ def scene_hash() -> str:
 def test_bake_and_reencode_operators_end_to_end(baked_scene):
     import bpy
     scene, receivers, folder = baked_scene
-    cc.select(receivers)
+    kit.select(receivers)
     assert bpy.ops.hhd.bake() == {'FINISHED'}
     out = folder / "lightmaps"
     assert sorted(p.name for p in out.iterdir()) == ["Lightmap.json", "Lightmap_hhd.exr", "Lightmap_preview",
@@ -92,18 +92,18 @@ def test_bake_and_reencode_operators_end_to_end(baked_scene):
 def test_errors_name_the_object_and_the_problem(baked_scene):
     import bpy
     scene, (floor, cube), folder = baked_scene
-    cube.data.uv_layers.remove(cube.data.uv_layers[cc.LAYER])
-    cc.select([floor, cube])
+    cube.data.uv_layers.remove(cube.data.uv_layers[kit.LAYER])
+    kit.select([floor, cube])
     with pytest.raises(RuntimeError, match="'Cube' has no 'HHD_Lightmap' UV layer: run Unwrap first"):
         bpy.ops.hhd.bake()
     empty = bpy.data.objects.new("Empty Mesh", bpy.data.meshes.new("nothing"))
     scene.collection.objects.link(empty)
-    cc.select([empty])
+    kit.select([empty])
     with pytest.raises(RuntimeError, match="'Empty Mesh' has no faces"):
         bpy.ops.hhd.bake()
-    floor.data.uv_layers[cc.LAYER].data.foreach_set("uv", np.zeros(len(floor.data.loops) * 2, np.float32))
+    floor.data.uv_layers[kit.LAYER].data.foreach_set("uv", np.zeros(len(floor.data.loops) * 2, np.float32))
     floor.data.update()         # 4.x does not re-evaluate the mesh after a raw foreach_set
-    cc.select([floor])
+    kit.select([floor])
     with pytest.raises(RuntimeError, match="'Floor': the lightmap UVs cover no texel"):
         bpy.ops.hhd.bake()
     assert not (folder / "lightmaps").exists()
@@ -111,9 +111,9 @@ def test_errors_name_the_object_and_the_problem(baked_scene):
 
 def test_cancel_leaves_the_blend_and_the_previous_files_unchanged(baked_scene):
     import bpy
-    from hhd_lightmapper.operators import bake_session
+    from hhd_lightmapper.bridge import bake_session
     scene, receivers, folder = baked_scene
-    cc.select(receivers)
+    kit.select(receivers)
     assert bpy.ops.hhd.bake() == {'FINISHED'}
     files = {p: p.read_bytes() for p in (folder / "lightmaps").rglob("*") if p.is_file()}
     before = scene_hash()
@@ -192,7 +192,7 @@ def test_bake_and_reencode_honour_blenders_render_threads_setting(baked_scene):
     import bpy
     from hhd_lightmapper.core import parallel
     scene, receivers, folder = baked_scene
-    cc.select(receivers)
+    kit.select(receivers)
     out, sidecar = folder / "lightmaps", folder / "lightmaps" / "Lightmap.json"
     scene.render.threads_mode, scene.render.threads = 'FIXED', 1
     assert bpy.ops.hhd.bake() == {'FINISHED'}
@@ -244,18 +244,18 @@ def test_a_full_atlas_spills_into_numbered_atlases_that_bake_and_preview(extensi
     makes Lightmap, Lightmap_1, … of the same size, each object whole in one; the bake writes
     each atlas's files and sidecar, and the preview finds every object's atlas."""
     import bpy
-    scene = cc.clear_scene()
-    grey = cc.material("grey")
+    scene = kit.clear_scene()
+    grey = kit.material("grey")
     spheres = []
     for k in range(40):
         bpy.ops.mesh.primitive_uv_sphere_add(segments=16, ring_count=8, radius=0.3, location=(k % 8, k // 8, 0.5))
         spheres.append(bpy.context.active_object)
         spheres[-1].data.materials.append(grey)
-    floor = cc.plane("Floor", (3.5, 2, 0), 12, grey)
-    cc.light('SUN', rotation=(0.5, 0.2, 0), energy=3.0)
+    floor = kit.plane("Floor", (3.5, 2, 0), 12, grey)
+    kit.light('SUN', rotation=(0.5, 0.2, 0), energy=3.0)
     scene.hhd.resolution, scene.hhd.padding, scene.hhd.samples, scene.hhd.bounces = 256, 8, 4, 0
     scene.hhd.output_dir, scene.hhd.pack_images = str(tmp_path), False
-    cc.select(spheres + [floor])
+    kit.select(spheres + [floor])
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
     names = sorted({o.hhd.atlas for o in spheres + [floor]})
     assert len(names) >= 2 and names == ["Lightmap"] + [f"Lightmap_{k}" for k in range(1, len(names))]

@@ -40,15 +40,15 @@ def main() -> int:
     out.mkdir(parents=True, exist_ok=True)
     # Never touch the user's real Blender configuration.
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-demo-blender-"))
-    sys.path.insert(0, str(ROOT / "tools"))
+    sys.path.insert(0, str(ROOT))                      # scenekit
 
     import bpy
-    import demo_scene
+    from scenekit import blender, scenes
 
     timings, stages = {}, {}
     t = time.perf_counter()
-    demo_scene.build()
-    demo_scene.externalise_images(out)
+    scenes.demo_room()
+    blender.externalise_images(out)
     bpy.ops.wm.save_as_mainfile(filepath=str(out / "demo.blend"))
     timings["scene"] = time.perf_counter() - t
     stages["scene"] = f"{len(bpy.data.objects)} objects -> demo.blend"

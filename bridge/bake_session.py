@@ -5,6 +5,7 @@ scene); `run()` is pure core work (safe on a worker thread: it touches no bpy da
 only the output files; `finish()` loads the written images into the .blend. A bake that is
 cancelled or fails before `finish()` has changed nothing in the .blend and replaced no file.
 """
+
 from __future__ import annotations
 
 import os
@@ -43,8 +44,10 @@ def output_folder(settings, override: str | None = None) -> str:
     """Absolute output folder: `override`, else the setting (relative to the .blend)."""
     path = override or settings.output_dir
     if path.startswith("//") and not bpy.data.is_saved:
-        raise BakeError(f"the Output Folder '{path}' is relative to the .blend, which has not been saved: "
-                        "save the .blend or choose an absolute folder")
+        raise BakeError(
+            f"the Output Folder '{path}' is relative to the .blend, which has not been saved: "
+            "save the .blend or choose an absolute folder"
+        )
     return os.path.normpath(bpy.path.abspath(path))
 
 
@@ -59,16 +62,21 @@ def atlas_groups(objects, settings) -> tuple[list[tuple[str, int, int, list]], l
         size = (rec.atlas_width, rec.atlas_height) if rec.atlas else (settings.resolution, settings.resolution)
         entry = groups.setdefault(name, [size, []])
         if entry[0] != size:
-            raise BakeError(f"'{obj.name}' was unwrapped into atlas '{name}' at {size[0]}×{size[1]}, other objects "
-                            f"of that atlas at {entry[0][0]}×{entry[0][1]}: unwrap them together again")
+            raise BakeError(
+                f"'{obj.name}' was unwrapped into atlas '{name}' at {size[0]}×{size[1]}, other objects "
+                f"of that atlas at {entry[0][0]}×{entry[0][1]}: unwrap them together again"
+            )
         entry[1].append(obj)
     warnings = []
     for name, (_, members) in groups.items():
-        left_out = sorted(o.name for o in bpy.data.objects
-                          if o.type == 'MESH' and o.hhd.atlas == name and o not in members)
+        left_out = sorted(
+            o.name for o in bpy.data.objects if o.type == 'MESH' and o.hhd.atlas == name and o not in members
+        )
         if left_out:
-            warnings.append(f"atlas '{name}' also holds {', '.join(repr(n) for n in left_out)}, not baked now: "
-                            "their texels in this bake's files are empty (bake them together)")
+            warnings.append(
+                f"atlas '{name}' also holds {', '.join(repr(n) for n in left_out)}, not baked now: "
+                "their texels in this bake's files are empty (bake them together)"
+            )
     return [(name, size[0], size[1], members) for name, (size, members) in groups.items()], warnings
 
 
@@ -91,16 +99,26 @@ def scene_threads(scene) -> int:
 def pipeline_settings(settings, threads: int = 0) -> core_bake.PipelineSettings:
     """The core settings from the scene's HHD settings; `threads`: worker threads, 0 = every core."""
     samples, bounces = max(4, settings.samples), settings.bounces
-    trace = tracer.BakeSettings(samples=samples, pass_samples=min(16, -(-samples // 4) * 4),
-                                bounces=bounces, seed=settings.seed, noise_target=settings.noise_target / 100.0,
-                                time_budget=settings.time_budget, threads=threads)
+    trace = tracer.BakeSettings(
+        samples=samples,
+        pass_samples=min(16, -(-samples // 4) * 4),
+        bounces=bounces,
+        seed=settings.seed,
+        noise_target=settings.noise_target / 100.0,
+        time_budget=settings.time_budget,
+        threads=threads,
+    )
     return core_bake.PipelineSettings(trace=trace, encoder=encoder_settings(settings))
 
 
 def encoder_settings(settings) -> core_bake.EncoderSettings:
-    return core_bake.EncoderSettings(model=settings.model.lower(), direction=settings.direction.lower(),
-                                     ambient=settings.ambient.lower(), phi_search=settings.phi_search,
-                                     golden_iterations=settings.golden_iterations)
+    return core_bake.EncoderSettings(
+        model=settings.model.lower(),
+        direction=settings.direction.lower(),
+        ambient=settings.ambient.lower(),
+        phi_search=settings.phi_search,
+        golden_iterations=settings.golden_iterations,
+    )
 
 
 def _samples_text(trace) -> str:
@@ -117,8 +135,9 @@ class BakeSession:
     `threads`: worker threads (0 = every core); None takes the scene's Render > Performance >
     Threads (`scene_threads`)."""
 
-    def __init__(self, context, objects: list[str] | None = None, out_dir: str | None = None,
-                 threads: int | None = None):
+    def __init__(
+        self, context, objects: list[str] | None = None, out_dir: str | None = None, threads: int | None = None
+    ):
         settings = context.scene.hhd
         if threads is None:
             threads = scene_threads(context.scene)
@@ -143,16 +162,23 @@ class BakeSession:
 
     def describe(self) -> str:
         n_occ = len(self.scene.triangles)
-        return (f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es); {n_occ} occluder triangles; "
-                f"{_samples_text(self.settings.trace)}, {self.settings.trace.bounces} bounces, "
-                f"{self.settings.trace.threads} threads")
+        return (
+            f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es); {n_occ} occluder triangles; "
+            f"{_samples_text(self.settings.trace)}, {self.settings.trace.bounces} bounces, "
+            f"{self.settings.trace.threads} threads"
+        )
 
     def run(self, progress=None, cancel=None) -> list[core_bake.AtlasResult]:
         """The core bake and file output; touches no bpy data (worker-thread safe)."""
-        extra = {"blend_file": self.blend, "receivers": [o for a in self.atlases for o in a.objects],
-                 "occluder_triangles": int(len(self.scene.triangles)), "notes": self.warnings}
-        self.results = core_bake.run(self.atlases, self.scene, self.settings, self.out_dir,
-                                     progress=progress, cancel=cancel, extra_sidecar=extra)
+        extra = {
+            "blend_file": self.blend,
+            "receivers": [o for a in self.atlases for o in a.objects],
+            "occluder_triangles": int(len(self.scene.triangles)),
+            "notes": self.warnings,
+        }
+        self.results = core_bake.run(
+            self.atlases, self.scene, self.settings, self.out_dir, progress=progress, cancel=cancel, extra_sidecar=extra
+        )
         return self.results
 
     def finish(self) -> str:
@@ -161,17 +187,24 @@ class BakeSession:
             load_atlas_images(result.files, self.pack)
         texels = sum(r.texels for r in self.results)
         seconds = sum(sum(v for v in r.seconds.values()) for r in self.results)
-        return (f"Baked {texels} texels in {len(self.results)} atlas(es) to {self.out_dir} "
-                f"({seconds:.1f} s: {', '.join(r.name for r in self.results)})")
+        return (
+            f"Baked {texels} texels in {len(self.results)} atlas(es) to {self.out_dir} "
+            f"({seconds:.1f} s: {', '.join(r.name for r in self.results)})"
+        )
 
 
 def load_atlas_images(files: AtlasFiles, pack: bool = False) -> list:
     """Load (or reload) an atlas's HHD and SH EXRs as Non-Color images; external unless `pack`."""
     images = []
     for path in (files.hhd, files.sh):
-        image = next((im for im in bpy.data.images
-                      if im.filepath and os.path.normpath(bpy.path.abspath(im.filepath)) == os.path.normpath(str(path))),
-                     None)
+        image = next(
+            (
+                im
+                for im in bpy.data.images
+                if im.filepath and os.path.normpath(bpy.path.abspath(im.filepath)) == os.path.normpath(str(path))
+            ),
+            None,
+        )
         if image is None:
             image = bpy.data.images.load(str(path), check_existing=False)
         else:

@@ -4,6 +4,7 @@ Reads use foreach_get into preallocated arrays. Unwrapping reads each object's o
 (obj.data, before modifiers): the UV layer written there flows through the modifier stack, so
 the bake, which reads the evaluated mesh, sees UVs for subdivided/modified geometry too.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -12,7 +13,7 @@ from .. import blender_compat
 from ..core.errors import BakeError
 from ..core.unwrap import UnwrapMesh
 
-MAX_UV_LAYERS = 8   # Blender's limit per mesh
+MAX_UV_LAYERS = 8  # Blender's limit per mesh
 
 
 def target_meshes(objects) -> list:
@@ -58,10 +59,14 @@ def read_unwrap_mesh(obj) -> tuple[UnwrapMesh, np.ndarray]:
     m = np.array(obj.matrix_world, dtype=np.float64)
     world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
     overrides = obj.hhd
-    return UnwrapMesh(obj.name, world, tri.reshape(-1, 3),
-                      resolution=overrides.resolution or None,
-                      texel_density=overrides.texel_density or None,
-                      polygons=polygons), loops.reshape(-1, 3)
+    return UnwrapMesh(
+        obj.name,
+        world,
+        tri.reshape(-1, 3),
+        resolution=overrides.resolution or None,
+        texel_density=overrides.texel_density or None,
+        polygons=polygons,
+    ), loops.reshape(-1, 3)
 
 
 def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> None:
@@ -75,14 +80,18 @@ def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> None:
     flat_uv = np.asarray(uv, dtype=np.float32).reshape(-1, 2)
     data[flat_loops] = flat_uv
     if (data[flat_loops] != flat_uv).any():
-        raise BakeError(f"'{obj.name}': the unwrap gave one loop two lightmap UVs (a bug: please report "
-                        "it with the .blend); the UV layer was left unchanged")
+        raise BakeError(
+            f"'{obj.name}': the unwrap gave one loop two lightmap UVs (a bug: please report "
+            "it with the .blend); the UV layer was left unchanged"
+        )
     layers = mesh.uv_layers
     layer = layers.get(name)
     if layer is None:
         if len(layers) >= MAX_UV_LAYERS:
-            raise BakeError(f"'{obj.name}' already has {MAX_UV_LAYERS} UV maps (Blender's limit): "
-                            f"remove one or set the lightmap UV layer to an existing name")
+            raise BakeError(
+                f"'{obj.name}' already has {MAX_UV_LAYERS} UV maps (Blender's limit): "
+                f"remove one or set the lightmap UV layer to an existing name"
+            )
         active = layers.active.name if layers.active else None
         render = next((l.name for l in layers if l.active_render), None)
         layer = layers.new(name=name, do_init=False)
@@ -114,13 +123,16 @@ def material_albedo_source(mat):
         return 'constant', (0.8, 0.8, 0.8), None
     surface = surface_node(mat)
     if surface is not None and surface.type == 'EMISSION':
-        return 'constant', (0.0, 0.0, 0.0), None          # an Emission shader reflects nothing
+        return 'constant', (0.0, 0.0, 0.0), None  # an Emission shader reflects nothing
     bsdf = None
     if mat.node_tree is not None:
         bsdf = next((n for n in mat.node_tree.nodes if n.type == 'BSDF_PRINCIPLED'), None)
     if bsdf is None:
-        return 'constant', tuple(mat.diffuse_color[:3]), (
-            f"material '{mat.name}': no Principled BSDF; baking with its viewport colour")
+        return (
+            'constant',
+            tuple(mat.diffuse_color[:3]),
+            (f"material '{mat.name}': no Principled BSDF; baking with its viewport colour"),
+        )
     base = bsdf.inputs["Base Color"]
     if not base.is_linked:
         return 'constant', tuple(base.default_value[:3]), None
@@ -131,9 +143,14 @@ def material_albedo_source(mat):
         if vector.is_linked and vector.links[0].from_node.type == 'UVMAP':
             uv_map = vector.links[0].from_node.uv_map
         return 'texture', (node, uv_map), None
-    return 'constant', tuple(mat.diffuse_color[:3]), (
-        f"material '{mat.name}': Base Color comes from a {node.type.replace('_', ' ').lower()} node; "
-        "baking with its viewport colour")
+    return (
+        'constant',
+        tuple(mat.diffuse_color[:3]),
+        (
+            f"material '{mat.name}': Base Color comes from a {node.type.replace('_', ' ').lower()} node; "
+            "baking with its viewport colour"
+        ),
+    )
 
 
 class TextureCache:
@@ -146,6 +163,7 @@ class TextureCache:
 
     def add(self, node) -> int:
         from ..core.textures import Texture, srgb_to_linear
+
         image = node.image
         key = (image.name, node.interpolation, node.extension)
         if key not in self._index:
@@ -211,6 +229,7 @@ def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None =
     positions, corner normals (smooth/flat/custom as Blender shades them), lightmap UVs, object
     index and albedo (constant or image texture) per triangle. `notes` collects fallbacks."""
     from ..core.bakepoints import SurfaceTriangles
+
     cache = cache or TextureCache()
     notes = notes if notes is not None else []
     parts = []
@@ -232,8 +251,17 @@ def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None =
             n_world = normals.reshape(-1, 3) @ normal_matrix.T
             n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
             albedo, tex_index, tex_uv = triangle_albedo(evaluated, mesh, loops, mat_index, cache, notes)
-            parts.append((positions, n_world[loops], uv.reshape(-1, 2)[loops], np.full(len(loops), index),
-                          albedo, tex_index, tex_uv))
+            parts.append(
+                (
+                    positions,
+                    n_world[loops],
+                    uv.reshape(-1, 2)[loops],
+                    np.full(len(loops), index),
+                    albedo,
+                    tex_index,
+                    tex_uv,
+                )
+            )
         finally:
             evaluated.to_mesh_clear()
     if not parts:

@@ -5,6 +5,7 @@ and collection instances included) becomes occluding, reflecting geometry; light
 world are converted to the Cycles units `core.scene` documents. What is not supported yet is
 reported by name, never silently approximated.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -53,26 +54,46 @@ def _light(instance):
     m = np.array(instance.matrix_world, dtype=np.float64)
     colour = np.array(light.color[:3], dtype=np.float64)
     if light.type == 'SUN':
-        towards = m[:3, 2] / np.linalg.norm(m[:3, 2])        # lights shine along their local -Z
+        towards = m[:3, 2] / np.linalg.norm(m[:3, 2])  # lights shine along their local -Z
         return SunLight(towards, colour * light.energy, float(light.angle))
     if light.type == 'POINT':
-        return PointLight(m[:3, 3].copy(), colour * light.energy, float(light.shadow_soft_size),
-                          bool(getattr(light, "use_soft_falloff", True)))
+        return PointLight(
+            m[:3, 3].copy(),
+            colour * light.energy,
+            float(light.shadow_soft_size),
+            bool(getattr(light, "use_soft_falloff", True)),
+        )
     if light.type == 'SPOT':
         axis = -m[:3, 2] / np.linalg.norm(m[:3, 2])
-        return SpotLight(m[:3, 3].copy(), colour * light.energy, float(light.shadow_soft_size),
-                         bool(getattr(light, "use_soft_falloff", True)), axis,
-                         float(light.spot_size), float(light.spot_blend))
+        return SpotLight(
+            m[:3, 3].copy(),
+            colour * light.energy,
+            float(light.shadow_soft_size),
+            bool(getattr(light, "use_soft_falloff", True)),
+            axis,
+            float(light.spot_size),
+            float(light.spot_blend),
+        )
     if light.type == 'AREA':
         size_x = light.size
         size_y = light.size if light.shape in ('SQUARE', 'DISK') else light.size_y
         if getattr(light, "spread", np.pi) < np.pi - 1e-6:
-            raise BakeError(f"light '{instance.object.name}': area lights with a spread below 180° are not "
-                            "supported by the bake yet")
-        return AreaLight(m[:3, 3].copy(), m[:3, 0] * 0.5 * size_x, m[:3, 1] * 0.5 * size_y,
-                         -m[:3, 2] / np.linalg.norm(m[:3, 2]), colour * light.energy, light.shape)
-    raise BakeError(f"light '{instance.object.name}': {light.type.lower()} lights are not supported by the "
-                    "bake yet; hide it from render to bake without it")
+            raise BakeError(
+                f"light '{instance.object.name}': area lights with a spread below 180° are not "
+                "supported by the bake yet"
+            )
+        return AreaLight(
+            m[:3, 3].copy(),
+            m[:3, 0] * 0.5 * size_x,
+            m[:3, 1] * 0.5 * size_y,
+            -m[:3, 2] / np.linalg.norm(m[:3, 2]),
+            colour * light.energy,
+            light.shape,
+        )
+    raise BakeError(
+        f"light '{instance.object.name}': {light.type.lower()} lights are not supported by the "
+        "bake yet; hide it from render to bake without it"
+    )
 
 
 def _world(scene):
@@ -86,8 +107,10 @@ def _world(scene):
         return None
     node = output.inputs["Surface"].links[0].from_node
     if node.type != 'BACKGROUND':
-        raise BakeError(f"world '{world.name}': only a Background shader is supported by the bake "
-                        "(a plain colour or an Environment Texture)")
+        raise BakeError(
+            f"world '{world.name}': only a Background shader is supported by the bake "
+            "(a plain colour or an Environment Texture)"
+        )
     if node.inputs["Strength"].is_linked:
         raise BakeError(f"world '{world.name}': a linked Background Strength is not supported; set a value")
     strength = float(node.inputs["Strength"].default_value)
@@ -102,12 +125,17 @@ def _environment(world, node, strength):
     rotation/scale of a Mapping node on its Vector input."""
     from ..core.environment import EnvironmentMap
     from ..core.textures import srgb_to_linear
+
     if node.type != 'TEX_ENVIRONMENT':
-        raise BakeError(f"world '{world.name}': the Background colour comes from a '{node.name}' node; the bake "
-                        "supports a plain colour or an Environment Texture feeding it directly")
+        raise BakeError(
+            f"world '{world.name}': the Background colour comes from a '{node.name}' node; the bake "
+            "supports a plain colour or an Environment Texture feeding it directly"
+        )
     if node.projection != 'EQUIRECTANGULAR':
-        raise BakeError(f"world '{world.name}': Environment Texture projection {node.projection.title()} is not "
-                        "supported; use Equirectangular")
+        raise BakeError(
+            f"world '{world.name}': Environment Texture projection {node.projection.title()} is not "
+            "supported; use Equirectangular"
+        )
     image = node.image
     if image is None or image.size[0] == 0 or image.size[1] == 0:
         raise BakeError(f"world '{world.name}': the Environment Texture has no image (or its file is missing)")
@@ -128,9 +156,12 @@ def _vector_mapping(world, node) -> np.ndarray:
     mapping = node.inputs["Vector"].links[0].from_node
     source = mapping.inputs["Vector"].links[0].from_node if mapping.inputs["Vector"].is_linked else None
     if mapping.type != 'MAPPING' or (source is not None and source.type != 'TEX_COORD'):
-        raise BakeError(f"world '{world.name}': the Environment Texture's Vector must come from a Mapping node "
-                        "(fed by Texture Coordinate or nothing)")
+        raise BakeError(
+            f"world '{world.name}': the Environment Texture's Vector must come from a Mapping node "
+            "(fed by Texture Coordinate or nothing)"
+        )
     from mathutils import Euler
+
     for name in ("Rotation", "Scale"):
         if mapping.inputs[name].is_linked:
             raise BakeError(f"world '{world.name}': a linked Mapping {name} is not supported")
@@ -142,7 +173,7 @@ def _vector_mapping(world, node) -> np.ndarray:
         return rotation @ scale
     if mapping.vector_type == 'TEXTURE':
         return np.linalg.inv(scale) @ rotation.T
-    return rotation @ np.linalg.inv(scale)           # NORMAL: inverse-transpose of R·S
+    return rotation @ np.linalg.inv(scale)  # NORMAL: inverse-transpose of R·S
 
 
 def read_bake_scene(depsgraph) -> BakeScene:
@@ -161,5 +192,15 @@ def read_bake_scene(depsgraph) -> BakeScene:
     tris, albedo, tex_index, tex_uv, emission = (np.concatenate(x) for x in zip(*parts))
     world = _world(depsgraph.scene)
     constant, environment = (None, world) if hasattr(world, "radiance") else (world, None)
-    return BakeScene(tris, albedo, emission, lights, constant, texture_index=tex_index, texture_uv=tex_uv,
-                     textures=cache.images, notes=notes, environment=environment)
+    return BakeScene(
+        tris,
+        albedo,
+        emission,
+        lights,
+        constant,
+        texture_index=tex_index,
+        texture_uv=tex_uv,
+        textures=cache.images,
+        notes=notes,
+        environment=environment,
+    )

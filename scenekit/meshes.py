@@ -1,4 +1,10 @@
-"""Small test meshes as numpy arrays: (positions (V, 3), triangles (T, 3))."""
+"""Small meshes as numpy arrays, bpy-free: (positions (V, 3), triangles (T, 3)) (polygon meshes
+also return a polygon index per triangle), and helpers that inspect UV layouts.
+
+Used by the core tests (tests/test_tracer.py, test_unwrap_*.py, ...), by the bpy tests that need
+raw vertex lists, and by the benches (`sphere_field`: bench/unwrap_raster.py, tracer.py,
+threads.py, and the `field` scene of scenekit/scenes.py)."""
+
 import numpy as np
 
 
@@ -8,9 +14,25 @@ def plane(size=1.0):
 
 
 def cube(size=1.0, centre=(0, 0, 0)):
-    v = (np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)], float) - 0.5) * size
-    f = np.array([(0, 3, 2), (0, 2, 1), (4, 5, 6), (4, 6, 7), (0, 1, 5), (0, 5, 4), (1, 2, 6), (1, 6, 5),
-                  (2, 3, 7), (2, 7, 6), (3, 0, 4), (3, 4, 7)])
+    v = (
+        np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)], float) - 0.5
+    ) * size
+    f = np.array(
+        [
+            (0, 3, 2),
+            (0, 2, 1),
+            (4, 5, 6),
+            (4, 6, 7),
+            (0, 1, 5),
+            (0, 5, 4),
+            (1, 2, 6),
+            (1, 6, 5),
+            (2, 3, 7),
+            (2, 7, 6),
+            (3, 0, 4),
+            (3, 4, 7),
+        ]
+    )
     return v + np.asarray(centre, float), f
 
 
@@ -81,13 +103,17 @@ def ear_clip(p):
 
     def cross(o, a, b):
         return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
     while len(left) > 3:
         for k in range(len(left)):
             i, j, l = left[k - 1], left[k], left[(k + 1) % len(left)]
             if cross(p[i], p[j], p[l]) <= 0:
                 continue
-            inside = any(cross(p[i], p[j], p[m]) > 0 and cross(p[j], p[l], p[m]) > 0 and cross(p[l], p[i], p[m]) > 0
-                         for m in left if m not in (i, j, l))
+            inside = any(
+                cross(p[i], p[j], p[m]) > 0 and cross(p[j], p[l], p[m]) > 0 and cross(p[l], p[i], p[m]) > 0
+                for m in left
+                if m not in (i, j, l)
+            )
             if not inside:
                 out.append((i, j, l))
                 left.pop(k)
@@ -129,6 +155,7 @@ def texel_overlaps(uvs, width, height):
     covered area (overlaps counted once), "summed": summed coverage, "touched": texels touched,
     "partial": texels only partly covered}. uvs: per object (T, 3, 2) UVs."""
     from hhd_lightmapper.core import raster
+
     rows, out = [], {"area": [], "summed": [], "touched": [], "partial": []}
     for index, uv in enumerate(uvs):
         cov = raster.rasterise(np.asarray(uv, dtype=np.float64), width, height)
@@ -140,7 +167,32 @@ def texel_overlaps(uvs, width, height):
         out["summed"].append(float(cov.area.sum()))
         out["touched"].append(len(per_texel))
         out["partial"].append(int((per_texel < 1.0 - 1e-9).sum()))
-    rows = np.concatenate(rows)                                    # unique (texel, object, chart)
+    rows = np.concatenate(rows)  # unique (texel, object, chart)
     objects, charts = np.unique(rows[:, :2], axis=0, return_counts=True)
-    return dict(out, objects=int((np.bincount(objects[:, 0]) > 1).sum()),
-                charts=len(np.unique(objects[charts > 1, 0])))
+    return dict(out, objects=int((np.bincount(objects[:, 0]) > 1).sum()), charts=len(np.unique(objects[charts > 1, 0])))
+
+
+def sphere_field(n_triangles: int, seed: int = 0):
+    """Displaced UV spheres of ~2000 triangles each on a grid, ≈ n_triangles in total (the
+    displacement is deterministic: `seed` changes nothing, kept for the benches' calls)."""
+    rings, segments = 25, 40  # 2 × 40 × 24 = 1920 triangles
+    theta = np.linspace(0, np.pi, rings + 1)[1:-1]
+    phi = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    unit = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    unit = np.vstack([[0, 0, 1], unit, [0, 0, -1]])
+    idx = lambda r, s: 1 + r * segments + s % segments
+    faces = [(0, idx(0, s), idx(0, s + 1)) for s in range(segments)]
+    for r in range(rings - 2):
+        for s in range(segments):
+            faces += [(idx(r, s), idx(r + 1, s), idx(r + 1, s + 1)), (idx(r, s), idx(r + 1, s + 1), idx(r, s + 1))]
+    faces += [(idx(rings - 2, s), len(unit) - 1, idx(rings - 2, s + 1)) for s in range(segments)]
+    faces = np.array(faces)
+    count = max(1, round(n_triangles / len(faces)))
+    side = int(np.ceil(np.sqrt(count)))
+    verts, tris = [], []
+    for k in range(count):
+        bump = 1.0 + 0.15 * np.sin(3 * unit[:, 0] + k) * np.cos(4 * unit[:, 1])
+        verts.append(unit * bump[:, None] + [3.0 * (k % side), 3.0 * (k // side), 0.0])
+        tris.append(faces + k * len(unit))
+    return np.vstack(verts), np.vstack(tris)

@@ -1,0 +1,11 @@
+"""The bpy ↔ core bridge: reads Blender into core's plain data and writes results back.
+
+`scene_data` turns the evaluated depsgraph into a `core.scene.BakeScene` (occluders, lights,
+world); `mesh_data` reads meshes with foreach_get (the receivers' `SurfaceTriangles`, the
+meshes to unwrap) and writes the lightmap UV layer; `bake_session` is the bpy half of a bake
+(read the scene and settings, run `core.bake`, load the written images). Nothing here is an
+operator or registers anything.
+
+Besides `operators/`, `panels/`, `shaders/` and `cli.py`, this is the only package that imports
+bpy; `core/` never does.
+"""

@@ -1,0 +1,26 @@
+"""The scene kit: the one place test, bench and tool scenes are built (not shipped in the
+extension: blender_manifest.toml excludes it).
+
+Which module for what:
+
+- `scenekit.meshes`  numpy meshes, no bpy: plane, cube, uv_sphere, slivers, bumpy_quads, ngon,
+                     combine, vertex_normals, `sphere_field` (the benches' displaced spheres),
+                     and UV-layout checks (uv_charts, texel_overlaps). For core tests and benches
+                     that feed core directly.
+- `scenekit.blender` bpy builders: clear_scene / clear_data, material, textured_material,
+                     bumps_normal_map, box (cube primitive), box_between (corner to corner),
+                     plane, world, sky_pixels + hdri_world, light, sun, camera, select, unwrap,
+                     externalise_images. For bpy tests and custom scenes.
+- `scenekit.scenes`  named whole scenes: demo_room (the README's demo), outdoor / emissive (with
+                     the demo room bench/tradeoff.py's three, `build(name)`), classroom and
+                     field (bench/time_to_error.py's, against Cycles).
+
+Import it as the top-level package `scenekit` with the repository root on sys.path:
+tests/conftest.py puts it there; bench scripts and tools/demo.py insert it themselves
+(`sys.path.insert(0, str(ROOT))`). It imports `hhd_lightmapper` (the development install,
+`pip install -e .`) for `blender_compat` and core; bpy only inside the builders, so importing the
+kit does not start Blender.
+
+The scenes' names, geometry and materials are what the tests' tolerances and the benches'
+recorded figures were measured on: change them only together with those.
+"""

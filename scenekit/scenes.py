@@ -1,0 +1,208 @@
+"""Named whole scenes, built with bpy (scenekit/blender.py's builders). Each replaces the
+current scene's content.
+
+- `demo_room`: the README's demo (tools/demo.py, bench/preview.py; bench/tradeoff.py's
+  "interior"): a room with a window in its +x wall, a sun shining in, a sky, a red wall and a
+  normal-mapped panel, and a camera.
+- `outdoor`, `emissive`: with `demo_room` the three scenes of bench/tradeoff.py (`build(name)`,
+  `NAMES`), different lighting character, each with a camera and a normal-mapped surface in view.
+  outdoor: a courtyard of blocks on open ground, a 2° sun and a blue sky (Background colour).
+  emissive: a closed room lit only by an emissive ceiling panel (Emission shader) and a glowing
+  wall strip (Principled emission); black world, no lights (`EMITTERS` are not receivers).
+- `classroom`, `field`: bench/time_to_error.py's scenes against Cycles, sun + sky; each returns
+  its receivers. classroom loads the 104k-triangle classroom's OBJ files (`CLASSROOM`, outside
+  the repository); field is ~1M triangles of `meshes.sphere_field` on a ground plane.
+
+bpy is imported inside each function (see scenekit/blender.py).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from hhd_lightmapper import blender_compat
+
+from . import blender
+from .meshes import sphere_field
+
+# ---- the demo room --------------------------------------------------------------------------
+ROOM = (6.0, 4.0, 3.0)  # x, y, z extent in metres, floor at z = 0
+WINDOW = (-1.0, 1.0, 1.0, 2.2)  # in the +x wall: y range, z range
+SUN_DIRECTION_DEG = (35.0, 20.0)  # elevation, azimuth (from +x towards +y): shines in through the window
+SKY_COLOUR = (0.35, 0.55, 1.0)
+
+
+def demo_room() -> dict:
+    """Replace the current scene's content with the demo room; return its key objects."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    sx, sy, sz = ROOM
+    t = 0.2
+    white = blender.material("Plaster", (0.8, 0.8, 0.78))
+    red = blender.material("Red Paint", (0.75, 0.12, 0.08))
+    panel_mat = blender.material("Panel", (0.6, 0.6, 0.6), normal_image=blender.bumps_normal_map())
+    box = blender.box_between
+    objs = {
+        "floor": box("Floor", (-sx / 2, -sy / 2, -t), (sx / 2, sy / 2, 0.0), white),
+        "ceiling": box("Ceiling", (-sx / 2, -sy / 2, sz), (sx / 2, sy / 2, sz + t), white),
+        "wall_back": box("Wall -X", (-sx / 2 - t, -sy / 2, 0.0), (-sx / 2, sy / 2, sz), white),
+        "wall_red": box("Wall +Y (red)", (-sx / 2, sy / 2, 0.0), (sx / 2, sy / 2 + t, sz), red),
+        "wall_front": box("Wall -Y", (-sx / 2, -sy / 2 - t, 0.0), (sx / 2, -sy / 2, sz), white),
+    }
+    # The +x wall, built around the window opening.
+    y0, y1, z0, z1 = WINDOW
+    x0, x1 = sx / 2, sx / 2 + t
+    for i, (lo, hi) in enumerate(
+        [
+            ((x0, -sy / 2, 0.0), (x1, y0, sz)),
+            ((x0, y1, 0.0), (x1, sy / 2, sz)),
+            ((x0, y0, 0.0), (x1, y1, z0)),
+            ((x0, y0, z1), (x1, y1, sz)),
+        ]
+    ):
+        objs[f"wall_window_{i}"] = box(f"Wall +X {i}", lo, hi, white)
+    objs["panel"] = box("Normal-mapped Panel", (-sx / 2, -0.8, 0.6), (-sx / 2 + 0.05, 0.8, 2.0), panel_mat)
+    # 5 W/m² (Cycles units), 1° wide, from the sky through the window (+x side)
+    objs["sun"] = blender.sun(*SUN_DIRECTION_DEG, strength=5.0, angle_deg=1.0)
+    blender.world(SKY_COLOUR, 1.0, name="Sky")
+    blender.camera((2.6, -1.6, 1.6), (-1.0, 0.45, -0.08), lens=16.0)
+    return objs
+
+
+def sun_direction() -> np.ndarray:
+    """Unit vector towards the demo room's sun (world space)."""
+    e, a = (math.radians(v) for v in SUN_DIRECTION_DEG)
+    return np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+
+
+# ---- bench/tradeoff.py's three scenes ---------------------------------------------------------
+NAMES = ("outdoor", "interior", "emissive")
+#: objects that emit: occluders and lights, not lightmap receivers
+EMITTERS = ("Ceiling Light", "Glow Strip")
+
+
+def build(name: str) -> None:
+    """Replace the current file with the named scene (one of NAMES)."""
+    {"outdoor": outdoor, "interior": demo_room, "emissive": emissive}[name]()
+
+
+def outdoor() -> None:
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    box, material = blender.box_between, blender.material
+    stone = material("Stone", (0.55, 0.5, 0.45))
+    grass = material("Ground", (0.25, 0.35, 0.15))
+    brick = material("Brick", (0.6, 0.25, 0.15))
+    panel = material("Panel", (0.6, 0.6, 0.6), normal_image=blender.bumps_normal_map())
+    box("Ground", (-10, -10, -0.2), (10, 10, 0.0), grass)
+    box("Block A", (-4, 1, 0), (0, 5, 3), stone)
+    box("Block B", (1, 2, 0), (4, 4, 5), brick)
+    box("Low Wall", (-5, -1.2, 0), (3, -1.0, 1.0), stone)
+    for i in range(4):
+        box(f"Pillar {i}", (-3 + 2 * i, -4, 0), (-2.6 + 2 * i, -3.6, 2.5), stone)
+    box("Normal-mapped Panel", (-4, 0.95, 0.3), (0, 1.0, 2.5), panel)
+    blender.sun(40.0, 240.0, 4.0, 2.0)
+    blender.world((0.4, 0.6, 1.0), 1.0)
+    blender.camera((3.0, -9.0, 3.5), (-0.25, 1.0, -0.35))
+
+
+def emissive() -> None:
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    box, material = blender.box_between, blender.material
+    sx, sy, sz, t = 6.0, 5.0, 3.0, 0.2
+    white = material("Plaster", (0.8, 0.8, 0.78))
+    blue = material("Blue Paint", (0.15, 0.25, 0.7))
+    panel = material("Panel", (0.6, 0.6, 0.6), normal_image=blender.bumps_normal_map())
+    box("Floor", (-sx / 2, -sy / 2, -t), (sx / 2, sy / 2, 0), white)
+    box("Ceiling", (-sx / 2, -sy / 2, sz), (sx / 2, sy / 2, sz + t), white)
+    box("Wall -X", (-sx / 2 - t, -sy / 2, 0), (-sx / 2, sy / 2, sz), white)
+    box("Wall +X", (sx / 2, -sy / 2, 0), (sx / 2 + t, sy / 2, sz), blue)
+    box("Wall -Y", (-sx / 2, -sy / 2 - t, 0), (sx / 2, -sy / 2, sz), white)
+    box("Wall +Y", (-sx / 2, sy / 2, 0), (sx / 2, sy / 2 + t, sz), white)
+    box("Table", (-0.8, -0.6, 0.0), (0.8, 0.6, 0.75), white)
+    box("Normal-mapped Panel", (-sx / 2, -1.0, 0.5), (-sx / 2 + 0.05, 1.0, 2.2), panel)
+
+    ceiling_light = bpy.data.materials.new("Ceiling Light")
+    blender_compat.ensure_node_tree(ceiling_light)
+    nodes = ceiling_light.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    emission = nodes.new("ShaderNodeEmission")
+    emission.inputs["Color"].default_value = (1.0, 0.9, 0.75, 1.0)
+    emission.inputs["Strength"].default_value = 12.0
+    ceiling_light.node_tree.links.new(emission.outputs["Emission"], nodes["Material Output"].inputs["Surface"])
+    # hanging below the ceiling and off the wall: no emitter touches a receiver (a contact makes
+    # the irradiance of the texels along it unbounded, and any estimator's variance with it)
+    box("Ceiling Light", (-1.0, -0.5, sz - 0.35), (1.0, 0.5, sz - 0.3), ceiling_light)
+
+    strip = material("Glow Strip", (0.1, 0.1, 0.1), emission=(0.3, 0.6, 1.0, 6.0))
+    box("Glow Strip", (sx / 2 - 0.19, -2.0, 1.9), (sx / 2 - 0.15, 2.0, 2.1), strip)
+    blender.camera((2.6, -2.2, 1.7), (-1.0, 0.55, -0.2), lens=16.0)
+
+
+# ---- bench/time_to_error.py's scenes ----------------------------------------------------------
+#: the classroom's OBJ files and scene_v3.xml (a checkout of the shared scenes beside this repository)
+CLASSROOM = Path(__file__).resolve().parent.parent.parent / "shared" / "scenes" / "classroom"
+
+
+def sun_and_sky(sun_rotation=(0.9, 0.0, 2.3), sky=(0.5, 0.7, 1.0)) -> None:
+    """The time-to-error scenes' lighting: a 4 W/m² sun of zero angle, a constant sky."""
+    blender.light('SUN', rotation=sun_rotation, energy=4.0, name="Sun", angle=0.0)
+    blender.world(sky, name="Sky")
+
+
+def classroom(folder: Path = CLASSROOM) -> list:
+    """The classroom (every OBJ of `folder`/scene_v3.xml, one grey diffuse material), sun + sky;
+    returns the receivers: the 6 largest room surfaces with few charts (walls, floor, ceiling,
+    desks); the backdrop and the many-part furniture only occlude and reflect."""
+    import xml.etree.ElementTree as ET
+
+    import bpy
+
+    blender.clear_data(worlds=True)
+    grey = bpy.data.materials.new("Diffuse")
+    blender_compat.ensure_node_tree(grey)
+    grey.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0
+    root = ET.parse(folder / "scene_v3.xml").getroot()
+    meshes = []
+    for shape in root.iter("shape"):
+        if shape.get("type") != "obj":
+            continue
+        filename = next(s.get("value") for s in shape.iter("string") if s.get("name") == "filename")
+        bpy.ops.wm.obj_import(filepath=str(folder / filename))
+        for obj in bpy.context.selected_objects:
+            obj.data.materials.clear()
+            obj.data.materials.append(grey)
+            meshes.append(obj)
+    sun_and_sky()
+    room = [o for o in meshes if max(o.dimensions) < 30.0 and len(o.data.polygons) < 5000]
+    return sorted(room, key=lambda o: sum(p.area for p in o.data.polygons))[-6:]
+
+
+def field(n_triangles: int = 1_000_000) -> list:
+    """`sphere_field(n_triangles)` as one mesh "Field" on a ground plane 1.2× its extent, one
+    default diffuse material, sun + sky; returns the receivers: [the ground]."""
+    import bpy
+
+    blender.clear_data(worlds=True)
+    v, f = sphere_field(n_triangles)
+    mesh = bpy.data.meshes.new("Field")
+    mesh.from_pydata(v.tolist(), [], f.tolist())
+    spheres = bpy.data.objects.new("Field", mesh)
+    lo, hi = v.min(0), v.max(0)
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2] - 0.01))
+    ground = bpy.context.active_object
+    ground.scale = ((hi[0] - lo[0]) * 1.2, (hi[1] - lo[1]) * 1.2, 1.0)
+    bpy.context.scene.collection.objects.link(spheres)
+    mat = bpy.data.materials.new("Diffuse")
+    blender_compat.ensure_node_tree(mat)
+    for o in (spheres, ground):
+        o.data.materials.append(mat)
+    sun_and_sky()
+    return [ground]
