@@ -66,12 +66,13 @@ def main() -> int:
     rows["trace"] = (time.perf_counter() - t, peak_mb())
     t = time.perf_counter()
     with tempfile.TemporaryDirectory() as out:
-        data = bake.lightmap_files.TexelData.from_points(points, result.sh)
+        from hhd_lightmapper.core import encoding, exr
+        data = encoding.TexelData.from_points(points, result.sh)
         del result                       # as bake.run: the SH lives on as float32 images only
-        from hhd_lightmapper.core import exr
+        encoded = encoding.encode_atlas(data, encoding.for_settings(bake.EncoderSettings()))
+        del data
         with exr.Staging() as staging:
-            bake.lightmap_files.stage_atlas(staging, bake.lightmap_files.AtlasFiles(Path(out), "Lightmap"), data,
-                                            bake.EncoderSettings().kwargs(), {})
+            bake.lightmap_files.write_atlas(staging, bake.lightmap_files.AtlasFiles(Path(out), "Lightmap"), encoded, {})
             staging.commit()
     rows["encode_and_write"] = (time.perf_counter() - t, peak_mb())
     print(f"{width}×{height} atlas, {len(points.texel)} texels, {len(f)} triangles, {args.samples} spp")

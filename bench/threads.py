@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hhd_lightmapper.core import bakepoints, exr, lightmap_files, parallel, rays, tracer, unwrap
+from hhd_lightmapper.core import bakepoints, encoding, exr, lightmap_files, parallel, rays, tracer, unwrap
+from hhd_lightmapper.core.encoding.stage import raw_images
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))   # scenekit
@@ -63,7 +64,8 @@ def run_once(threads: int, scene, surface, ray_scene, args, folder: Path) -> dic
                                                         occluders=ray_scene, threads=threads))
     result = tracer.bake(points, scene, tracer.BakeSettings(samples=args.samples, bounces=2, threads=threads),
                          ray_scene=ray_scene)
-    channels = lightmap_files.sh_channels(lightmap_files.TexelData.from_points(points, result.sh))
+    data = encoding.TexelData.from_points(points, result.sh)
+    channels = lightmap_files.exr_channels(encoding.SH_FILE, raw_images(encoding.SH_FILE, data.layers(), data.fill()))
     exr.set_threads(threads)
     path = folder / f"sh_{threads}.exr"
     _, write_s = seconds(lambda: exr.write_file(path, channels))

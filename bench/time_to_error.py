@@ -158,12 +158,11 @@ def our_bake(surface, bake_scene, samples, points_before):
     scene, the bake points (rasterisation, buried and cover probes) and the tracing, timed
     together, as Cycles' time includes its scene sync, BVH and texel setup. Returns (I_z,
     seconds, tracer result)."""
-    from hhd_lightmapper.core import bakepoints, hhd, rays, tracer
+    from hhd_lightmapper.core import bake, hhd, tracer
     t = time.perf_counter()
-    ray_scene = rays.RayScene(bake_scene.triangles)
-    points = bakepoints.build(surface, points_before.width, points_before.height, occluders=ray_scene)
-    result = tracer.bake(points, bake_scene, tracer.BakeSettings(samples=samples, pass_samples=min(16, samples),
-                                                                 bounces=BOUNCES), ray_scene=ray_scene)
+    settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=BOUNCES)
+    result = bake.trace_surface(surface, points_before.width, points_before.height, bake_scene, settings)
+    points = result.points
     iz = hhd.irradz(result.sh, points.normal)
     seconds = time.perf_counter() - t
     assert np.array_equal(points.texel, points_before.texel)

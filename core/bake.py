@@ -20,12 +20,13 @@ from typing import Callable
 
 import numpy as np
 
-from . import bakepoints, encoding, exr, lightmap_files, parallel, tracer
-from .bakepoints import SurfaceTriangles
+from . import bakepoints, encoding, exr, lightmap_files, parallel, post, tracer
+from .bakepoints import BakePoints, SurfaceTriangles
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError
 from .rays import RayScene
 from .scene import BakeScene
+from .stages import TracedAtlas
 
 #: Share of the progress bar per stage (bake points, tracing, encoding + writing).
 _STAGES = (0.08, 0.84, 0.08)
@@ -83,47 +84,60 @@ def _check_cancel(cancel) -> None:
         raise BakeCancelled("bake cancelled")
 
 
-def build_points(atlases: list[AtlasInput], scene: BakeScene, progress: Progress, cancel=None,
-                 occluders: RayScene | None = None, threads: int = 0):
-    """Bake points of every atlas; raises BakeError naming an object whose UVs cover no texel.
-    `occluders`: the scene's RayScene if already built (else built here); `threads`: workers of
-    the probe passes (0 = every core)."""
-    if occluders is None and len(scene.triangles):
-        occluders = RayScene(scene.triangles)
-    out = []
-    for i, atlas in enumerate(atlases):
-        _check_cancel(cancel)
-        points = bakepoints.build(atlas.surface, atlas.width, atlas.height, occluders=occluders,
-                                  check=lambda: _check_cancel(cancel), threads=threads)
-        counts = np.bincount(points.object_index, minlength=len(atlas.objects))
-        empty = [atlas.objects[k] for k in np.unique(atlas.surface.object_index) if counts[k] == 0]
-        if empty:
-            raise BakeError(f"{', '.join(repr(n) for n in empty)}: the lightmap UVs cover no texel of "
-                            f"atlas '{atlas.name}' (zero-area UVs): run Unwrap again")
-        out.append(points)
-        progress.report(_STAGES[0] * (i + 1) / len(atlases), f"bake points of '{atlas.name}': {len(points.texel)} texels")
-    return out
+def points_of(atlas: AtlasInput, ray_scene: RayScene | None, threads: int = 0, cancel=None) -> BakePoints:
+    """Stage 1 for one atlas: its bake points (buried and near-cover probes against `ray_scene`,
+    all the scene's geometry). Raises BakeError naming an object whose UVs cover no texel.
+    `threads`: workers of the probe passes (0 = every core)."""
+    points = bakepoints.build(atlas.surface, atlas.width, atlas.height, occluders=ray_scene,
+                              check=lambda: _check_cancel(cancel), threads=threads)
+    counts = np.bincount(points.object_index, minlength=len(atlas.objects))
+    empty = [atlas.objects[k] for k in np.unique(atlas.surface.object_index) if counts[k] == 0]
+    if empty:
+        raise BakeError(f"{', '.join(repr(n) for n in empty)}: the lightmap UVs cover no texel of "
+                        f"atlas '{atlas.name}' (zero-area UVs): run Unwrap again")
+    return points
+
+
+def ray_scene_of(scene: BakeScene) -> RayScene | None:
+    """The Embree scene every stage of one bake shares (bake-point probes, tracing); None for a
+    scene without geometry. Its BVH builds on Embree's threads while the bake points rasterise."""
+    return RayScene(scene.triangles) if len(scene.triangles) else None
+
+
+def trace_surface(surface: SurfaceTriangles, width: int, height: int, scene: BakeScene,
+                  settings: tracer.BakeSettings, *, ray_scene: RayScene | None = None,
+                  progress=None, cancel=None, executor=None) -> TracedAtlas:
+    """Stages 1–2 for receivers that do not need files (tests, benches): bake points of
+    `surface` in a width × height atlas, traced in `scene`. `ray_scene`: the scene's RayScene if
+    already built; `executor`: see `tracer.bake`."""
+    ray_scene = ray_scene if ray_scene is not None else ray_scene_of(scene)
+    atlas = AtlasInput("atlas", width, height, surface, [str(k) for k in range(int(surface.object_index.max(initial=-1)) + 1)])
+    points = points_of(atlas, ray_scene, settings.threads, cancel)
+    return tracer.bake(points, scene, settings, progress=progress, cancel=cancel, ray_scene=ray_scene,
+                       executor=executor)
 
 
 def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings, out_dir,
         progress: Callable[[float, str], None] | None = None, cancel: Callable[[], bool] | None = None,
         extra_sidecar: dict | None = None) -> list[AtlasResult]:
-    """Bake every atlas and write its files into `out_dir`. `progress(fraction, message)` is
-    called often (at least once per tracer chunk); `cancel()` returning True stops within a chunk
-    (raises tracer.BakeCancelled) with no file replaced. Every stage uses
-    `parallel.resolve_threads(settings.trace.threads)` worker threads."""
+    """Bake every atlas and write its files into `out_dir`: bake points of every atlas first
+    (so a bad object fails before any tracing), then per atlas trace → post stages → image →
+    encode → write. `progress(fraction, message)` is called often (at least once per tracer
+    chunk); `cancel()` returning True stops within a chunk (raises BakeCancelled) with no file
+    replaced. Every stage uses `parallel.resolve_threads(settings.trace.threads)` worker threads."""
     if not atlases:
         raise BakeError("nothing to bake: no target objects")
     threads = parallel.resolve_threads(settings.trace.threads)
     settings = replace(settings, trace=replace(settings.trace, threads=threads))
     exr.set_threads(threads)
-    out_dir = Path(out_dir)
     report = Progress(progress)
     t0 = time.perf_counter()
-    # one Embree scene for the bake points' tests and every atlas's tracing; its BVH builds
-    # (0.2–0.6 s per million triangles here) while the bake points are rasterised
-    ray_scene = RayScene(scene.triangles) if len(scene.triangles) else None
-    points = build_points(atlases, scene, report, cancel, ray_scene, threads)
+    ray_scene = ray_scene_of(scene)
+    points = []
+    for i, atlas in enumerate(atlases):
+        _check_cancel(cancel)
+        points.append(points_of(atlas, ray_scene, threads, cancel))
+        report.report(_STAGES[0] * (i + 1) / len(atlases), f"bake points of '{atlas.name}': {len(points[-1].texel)} texels")
     t_points = time.perf_counter() - t0
     total_texels = sum(len(p.texel) for p in points)
     results, done_texels = [], 0
@@ -135,12 +149,13 @@ def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings,
                 report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{atlas.name}': {msg}")
             trace = _atlas_settings(settings.trace, time.perf_counter() - t_trace, len(pts.texel),
                                     total_texels - done_texels)
-            result = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
+            traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
             done_texels += len(pts.texel)
             _check_cancel(cancel)
-            # each atlas is staged as soon as it is traced: its SH lives on only as float32 images
-            results.append(_stage(staging, atlas, pts, result, settings, out_dir, t_points, extra_sidecar or {}))
-            del result
+            traced = post.apply(traced, settings)
+            # each atlas is written as soon as it is traced: its SH lives on only as float32 images
+            results.append(_write(staging, atlas, traced, settings, Path(out_dir), t_points, extra_sidecar or {}))
+            del traced
             report.report(_STAGES[0] + _STAGES[1] * done_texels / total_texels
                           + _STAGES[2] * (i + 1) / len(atlases), f"wrote '{atlas.name}'")
         _check_cancel(cancel)
@@ -157,26 +172,27 @@ def _atlas_settings(trace: tracer.BakeSettings, spent: float, texels: int, texel
     return replace(trace, time_budget=max(share, 1e-3))
 
 
-def _stage(staging, atlas, pts, result, settings, out_dir, t_points, extra) -> AtlasResult:
-    """Image, encode and write one traced atlas: its files are staged, committed with the others
-    at the end. `result`: the traced atlas (`.sh` at `pts`, run statistics)."""
+def _write(staging, atlas: AtlasInput, traced: TracedAtlas, settings: PipelineSettings, out_dir: Path,
+           t_points: float, extra: dict) -> AtlasResult:
+    """The last stages of one atlas: image → encode → write (files staged, committed with the
+    other atlases' at the end)."""
     t = time.perf_counter()
     files = lightmap_files.AtlasFiles(out_dir, atlas.name)
-    seconds = {"bake_points": t_points, "trace": result.seconds}
+    seconds = {"bake_points": t_points, "trace": traced.seconds}
     sidecar = dict(extra)
     sidecar.update({
-        "bake": {**asdict(settings.trace), "samples_taken": result.samples, "passes": result.passes,
-                 "mean_samples_per_texel": result.mean_samples, "stopped_by": result.stopped_by,
-                 "rays": result.rays},
-        "objects": lightmap_files.object_rects(pts, atlas.objects),
+        "bake": {**asdict(settings.trace), "samples_taken": traced.samples, "passes": traced.passes,
+                 "mean_samples_per_texel": traced.mean_samples, "stopped_by": traced.stopped_by,
+                 "rays": traced.rays},
+        "objects": lightmap_files.object_rects(traced.points, atlas.objects),
         "timings_seconds": seconds,
     })
-    data = encoding.TexelData.from_points(pts, result.sh)                      # image
+    data = encoding.TexelData.from_points(traced.points, traced.sh)                  # image
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder))  # encode
     del data
-    lightmap_files.write_atlas(staging, files, encoded, sidecar)                 # write
+    lightmap_files.write_atlas(staging, files, encoded, sidecar)                    # write
     seconds["encode_and_write"] = time.perf_counter() - t
-    return AtlasResult(atlas.name, files, len(pts.texel), result.rays, seconds)
+    return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds)
 
 
 def reencode(files: lightmap_files.AtlasFiles, encoder: EncoderSettings, threads: int = 0) -> float:

@@ -203,22 +203,3 @@ def object_rects(points: BakePoints, names: list[str]) -> list[dict]:
         out.append({"name": name, "texels": int(mine.sum()), "rect": [x0, y0, x1, y1],
                     "uv_rect": [x0 / points.width, y0 / points.height, x1 / points.width, y1 / points.height]})
     return out
-
-
-# --------------------------------------------------------------------------------------------
-# The former encode-and-write entry points, for bench/memory.py and bench/threads.py until they
-# call the stages themselves (`encoding.encode_atlas`, then `write_atlas`).
-
-def stage_atlas(staging: exr.Staging, files: AtlasFiles, data: TexelData, encoder: dict,
-                sidecar: dict, write_sh: bool = True) -> dict:
-    """`encode_atlas` with `EncoderSettings(**encoder)`, then `write_atlas`; returns the stats."""
-    from .encoding import EncoderSettings, encode_atlas, for_settings
-    encoded = encode_atlas(data, for_settings(EncoderSettings(**encoder)), raw=write_sh)
-    write_atlas(staging, files, encoded, sidecar)
-    return encoded.stats
-
-
-def sh_channels(data: TexelData, fill=None) -> dict:
-    """The SH EXR's 27 float32 channels of `data` (filled, EXR rows)."""
-    from .encoding.stage import raw_images
-    return exr_channels(SH_FILE, raw_images(SH_FILE, data.layers(), fill or data.fill()))

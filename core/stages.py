@@ -1,6 +1,6 @@
 """The data handed from one bake stage to the next. No bpy.
 
-    bake points ─trace─▶ TracedAtlas ─[post stages]─▶ TracedAtlas ─image─▶ TexelData ─encode─▶ … ─write─▶ files
+    bake points ─trace─▶ TracedAtlas ─[post stages]─▶ TracedAtlas ─image─▶ TexelData ─encode─▶ EncodedAtlas ─write─▶ files
 
 Every hand-off is plain numpy data (picklable, no live Embree object), so a stage can run in
 another process or on another machine. A post stage (a denoiser, seam stitching) is a function

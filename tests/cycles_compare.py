@@ -16,14 +16,13 @@ def cycles_footprint() -> float:
 def ours(receivers, samples, bounces, seed):
     import bpy
     from hhd_lightmapper.bridge import mesh_data, scene_data
-    from hhd_lightmapper.core import bakepoints, hhd, rays, tracer
+    from hhd_lightmapper.core import bake, hhd, tracer
     depsgraph = bpy.context.evaluated_depsgraph_get()
     surface = mesh_data.read_surface(receivers, LAYER, depsgraph)
     scene = scene_data.read_bake_scene(depsgraph)
-    points = bakepoints.build(surface, RES, RES, occluders=rays.RayScene(scene.triangles))
-    result = tracer.bake(points, scene, tracer.BakeSettings(samples=samples, pass_samples=16,
-                                                            bounces=bounces, seed=seed))
-    return points, hhd.irradz(result.sh, points.normal), result
+    settings = tracer.BakeSettings(samples=samples, pass_samples=16, bounces=bounces, seed=seed)
+    traced = bake.trace_surface(surface, RES, RES, scene, settings)
+    return traced.points, hhd.irradz(traced.sh, traced.points.normal), traced
 
 
 def cycles(receivers, points, samples, bounces, seed):
