@@ -9,6 +9,7 @@ _PACKAGES = ("properties", "operators", "panels", "cli")
 
 def _modules():
     import importlib
+
     return [importlib.import_module(f".{name}", __package__) for name in _PACKAGES]
 
 

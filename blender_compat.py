@@ -9,6 +9,7 @@
   can crash (4.2: SIGSEGV while freeing classes) or hang; `exit_process` ends it without
   running those destructors on 4.x.
 """
+
 from __future__ import annotations
 
 import os

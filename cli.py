@@ -8,6 +8,7 @@ point works with the `bpy` module from Python, without a Blender executable:
 (`standalone` opens the .blend and registers the add-on first). Exit codes are stable, so build
 scripts can tell failures apart: see EXIT_* below; every failure prints one line saying why.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,12 +25,12 @@ from .core.tracer import BakeCancelled
 
 COMMAND = "hhd_lightmapper"
 EXIT_OK = 0
-EXIT_INPUT = 1          # the scene or the options cannot be baked as given (message names what)
-EXIT_USAGE = 2          # bad command line (argparse)
-EXIT_DEPENDENCY = 3     # a compiled package (embreex, xatlas, OpenEXR) is missing
-EXIT_OUTPUT = 4         # the output files could not be written (previous files are intact)
-EXIT_CANCELLED = 5      # interrupted (Ctrl-C): no file replaced
-EXIT_INTERNAL = 70      # a bug: the traceback is printed
+EXIT_INPUT = 1  # the scene or the options cannot be baked as given (message names what)
+EXIT_USAGE = 2  # bad command line (argparse)
+EXIT_DEPENDENCY = 3  # a compiled package (embreex, xatlas, OpenEXR) is missing
+EXIT_OUTPUT = 4  # the output files could not be written (previous files are intact)
+EXIT_CANCELLED = 5  # interrupted (Ctrl-C): no file replaced
+EXIT_INTERNAL = 70  # a bug: the traceback is printed
 
 
 def _thread_count(text: str) -> int:
@@ -37,27 +38,39 @@ def _thread_count(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid thread count {text!r}: give a whole number ≥ 0 "
-                                         "(0 = all cores)") from None
+        raise argparse.ArgumentTypeError(
+            f"invalid thread count {text!r}: give a whole number ≥ 0 (0 = all cores)"
+        ) from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"invalid thread count {value}: it must be ≥ 0 (0 = all cores)")
     return value
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=f"blender -b FILE.blend --command {COMMAND}",
-                                description="HHD Lightmapper: unwrap, bake and encode directional lightmaps.")
+    p = argparse.ArgumentParser(
+        prog=f"blender -b FILE.blend --command {COMMAND}",
+        description="HHD Lightmapper: unwrap, bake and encode directional lightmaps.",
+    )
     sub = p.add_subparsers(dest="action", required=True)
 
     def receivers(q):
-        q.add_argument("--objects", nargs="+", metavar="NAME", help="receiver objects (default: the scene's "
-                       "Receivers setting: the saved selection or collection)")
+        q.add_argument(
+            "--objects",
+            nargs="+",
+            metavar="NAME",
+            help="receiver objects (default: the scene's Receivers setting: the saved selection or collection)",
+        )
         q.add_argument("--collection", metavar="NAME", help="receivers: the mesh objects of this collection")
 
     def threads(q):
-        q.add_argument("--threads", type=_thread_count, default=None, metavar="N",
-                       help="worker threads, 0 = every core this process may use (default: the scene's "
-                            "Render > Performance > Threads, as a headless Cycles render; Auto = every core)")
+        q.add_argument(
+            "--threads",
+            type=_thread_count,
+            default=None,
+            metavar="N",
+            help="worker threads, 0 = every core this process may use (default: the scene's "
+            "Render > Performance > Threads, as a headless Cycles render; Auto = every core)",
+        )
 
     def encoder(q):
         q.add_argument("--model", choices=list(encoding.MODELS))
@@ -79,8 +92,12 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--preset", choices=[k.lower() for k in presets.PRESETS])
     q.add_argument("--samples", type=int)
     q.add_argument("--bounces", type=int)
-    q.add_argument("--noise-target", type=float, metavar="PERCENT",
-                   help="stop a texel once the standard error of its irradiance is below PERCENT of it")
+    q.add_argument(
+        "--noise-target",
+        type=float,
+        metavar="PERCENT",
+        help="stop a texel once the standard error of its irradiance is below PERCENT of it",
+    )
     q.add_argument("--time-budget", type=float, metavar="SECONDS", help="stop tracing after SECONDS")
     q.add_argument("--seed", type=int)
     q.add_argument("--unwrap", action="store_true", help="unwrap the receivers first")
@@ -99,10 +116,18 @@ def _parser() -> argparse.ArgumentParser:
 
 def _apply_options(settings, args) -> None:
     """Command-line options override the scene settings for this run (not saved unless --save)."""
-    if getattr(args, "preset", None):          # first: explicit options below override it
+    if getattr(args, "preset", None):  # first: explicit options below override it
         settings.preset = args.preset.upper()
-    for key in ("resolution", "texel_density", "samples", "bounces", "noise_target", "time_budget", "seed",
-                "phi_search"):
+    for key in (
+        "resolution",
+        "texel_density",
+        "samples",
+        "bounces",
+        "noise_target",
+        "time_budget",
+        "seed",
+        "phi_search",
+    ):
         value = getattr(args, key, None)
         if value is not None:
             setattr(settings, key, value)
@@ -121,6 +146,7 @@ def _unwrap(context, args) -> str:
     from .bridge import bake_session
     from .core.console import ConsoleProgress, interrupt_as_cancel
     from .operators import unwrap
+
     objects = bake_session.target_objects(context, args.objects)
     if not objects:
         raise BakeError("no receivers: pass --objects or --collection, or save the .blend with them selected")
@@ -128,8 +154,9 @@ def _unwrap(context, args) -> str:
     progress = ConsoleProgress()
     try:
         with interrupt_as_cancel() as cancel:
-            summary, warnings = unwrap.unwrap_objects(objects, context.scene.hhd,
-                                                      getattr(args, "make_single_user", False), progress, cancel)
+            summary, warnings = unwrap.unwrap_objects(
+                objects, context.scene.hhd, getattr(args, "make_single_user", False), progress, cancel
+            )
     finally:
         progress.close()
     for w in warnings:
@@ -140,6 +167,7 @@ def _unwrap(context, args) -> str:
 def _bake(context, args) -> str:
     from .bridge import bake_session
     from .core.console import ConsoleProgress, interrupt_as_cancel
+
     if args.unwrap:
         print(_unwrap(context, args), flush=True)
     session = bake_session.BakeSession(context, args.objects, args.out, threads=args.threads)
@@ -158,6 +186,7 @@ def _bake(context, args) -> str:
 def _encode(context, args) -> str:
     from .bridge import bake_session
     from .operators import encode
+
     objects = bake_session.target_objects(context, args.objects)
     threads = bake_session.scene_threads(context.scene) if args.threads is None else args.threads
     return encode.reencode_objects(objects, context.scene.hhd, args.out, threads=threads)
@@ -186,7 +215,7 @@ def main(argv: list[str]) -> int:
         return _fail(EXIT_INPUT, exc)
     except OSError as exc:
         return _fail(EXIT_OUTPUT, f"cannot write the output: {exc} (previous files are intact)")
-    except Exception:      # a bug: say so, with the traceback, and a distinct code
+    except Exception:  # a bug: say so, with the traceback, and a distinct code
         traceback.print_exc()
         return _fail(EXIT_INTERNAL, "internal error (please report it with the traceback above)")
     print(f"{args.action}: {summary} [{time.perf_counter() - start:.1f} s]", flush=True)
@@ -208,6 +237,7 @@ def standalone(argv: list[str]) -> int:
     except RuntimeError as exc:
         return _fail(EXIT_INPUT, f"cannot open {argv[0]}: {exc}")
     import hhd_lightmapper
+
     hhd_lightmapper.register()
     try:
         return main(argv[1:])

@@ -1,4 +1,5 @@
 """Scene settings of HHD Lightmapper: `bpy.context.scene.hhd`."""
+
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
@@ -12,7 +13,7 @@ def _knobs(settings) -> tuple[int, int, float]:
     return settings.samples, settings.bounces, round(settings.noise_target / 100.0, 6)
 
 
-_applying_preset = False     # the knobs' update callbacks fire while a preset sets them
+_applying_preset = False  # the knobs' update callbacks fire while a preset sets them
 
 
 def _apply_preset(self, _context):
@@ -34,107 +35,190 @@ def _mark_custom(self, _context):
 
 class HHDSettings(bpy.types.PropertyGroup):
     target: EnumProperty(
-        name="Receivers", default='SELECTED',
-        items=[('SELECTED', "Selected Objects", "The selected mesh objects receive lightmaps"),
-               ('COLLECTION', "Collection", "The mesh objects of a collection receive lightmaps")],
+        name="Receivers",
+        default='SELECTED',
+        items=[
+            ('SELECTED', "Selected Objects", "The selected mesh objects receive lightmaps"),
+            ('COLLECTION', "Collection", "The mesh objects of a collection receive lightmaps"),
+        ],
         description="Objects that get lightmap texels; every render-visible object occludes and "
-                    "bounces light either way")
+        "bounces light either way",
+    )
     target_collection: PointerProperty(
-        name="Collection", type=bpy.types.Collection,
-        description="Collection whose mesh objects receive lightmaps (child collections included)")
+        name="Collection",
+        type=bpy.types.Collection,
+        description="Collection whose mesh objects receive lightmaps (child collections included)",
+    )
     uv_layer: StringProperty(
-        name="Lightmap UV Layer", default="HHD_Lightmap",
-        description="UV layer the unwrap writes and the bake reads; no other UV layer is touched")
+        name="Lightmap UV Layer",
+        default="HHD_Lightmap",
+        description="UV layer the unwrap writes and the bake reads; no other UV layer is touched",
+    )
     resolution: IntProperty(
-        name="Resolution", default=1024, min=256, max=8192,
-        description="Atlas width and height in texels")
+        name="Resolution", default=1024, min=256, max=8192, description="Atlas width and height in texels"
+    )
     texel_density: FloatProperty(
-        name="Texel Density", default=0.0, min=0.0, soft_max=200.0, unit='NONE',
-        description="Texels per metre; 0 uses the fixed Resolution instead")
+        name="Texel Density",
+        default=0.0,
+        min=0.0,
+        soft_max=200.0,
+        unit='NONE',
+        description="Texels per metre; 0 uses the fixed Resolution instead",
+    )
     atlas_mode: EnumProperty(
-        name="Atlas", default='SHARED',
-        items=[('SHARED', "Shared", "All target objects in one atlas"),
-               ('PER_OBJECT', "Per Object", "One atlas per object")])
+        name="Atlas",
+        default='SHARED',
+        items=[
+            ('SHARED', "Shared", "All target objects in one atlas"),
+            ('PER_OBJECT', "Per Object", "One atlas per object"),
+        ],
+    )
     mip_levels: IntProperty(
-        name="Mip Levels", default=2, min=0, max=6,
-        description="Mip levels the padding must survive (padding = 2 × 2^levels texels)")
+        name="Mip Levels",
+        default=2,
+        min=0,
+        max=6,
+        description="Mip levels the padding must survive (padding = 2 × 2^levels texels)",
+    )
     padding: IntProperty(
-        name="Padding", default=0, min=0, max=64,
-        description="Texels between charts; 0 derives it from Mip Levels")
+        name="Padding", default=0, min=0, max=64, description="Texels between charts; 0 derives it from Mip Levels"
+    )
     unwrap_summary: StringProperty(name="Last Unwrap", default="", options={'SKIP_SAVE'})
     preset: EnumProperty(
-        name="Quality", default='PRODUCTION', update=_apply_preset,
+        name="Quality",
+        default='PRODUCTION',
+        update=_apply_preset,
         items=[(k, k.title(), p.description) for k, p in presets.PRESETS.items()]
         + [('CUSTOM', "Custom", "Samples, bounces and noise target as set below")],
         description="Samples, bounces and noise target from the measured speed/accuracy presets "
-                    "(README: Speed vs accuracy)")
+        "(README: Speed vs accuracy)",
+    )
     samples: IntProperty(
-        name="Samples", default=256, min=4, max=65536, update=_mark_custom,
-        description="Hemisphere samples per lightmap texel")
+        name="Samples",
+        default=256,
+        min=4,
+        max=65536,
+        update=_mark_custom,
+        description="Hemisphere samples per lightmap texel",
+    )
     bounces: IntProperty(
-        name="Bounces", default=8, min=0, max=16, update=_mark_custom,
-        description="Diffuse interreflection bounces after the first hit")
+        name="Bounces",
+        default=8,
+        min=0,
+        max=16,
+        update=_mark_custom,
+        description="Diffuse interreflection bounces after the first hit",
+    )
     noise_target: FloatProperty(
-        name="Noise Target", default=0.0, min=0.0, max=50.0, precision=1, subtype='PERCENTAGE',
+        name="Noise Target",
+        default=0.0,
+        min=0.0,
+        max=50.0,
+        precision=1,
+        subtype='PERCENTAGE',
         update=_mark_custom,
         description="Stop a texel early once the standard error of its irradiance is below this "
-                    "percentage of it (Samples is then the most a texel takes); 0 = every texel "
-                    "takes every sample")
+        "percentage of it (Samples is then the most a texel takes); 0 = every texel "
+        "takes every sample",
+    )
     time_budget: FloatProperty(
-        name="Time Budget", default=0.0, min=0.0, soft_max=3600.0, unit='TIME_ABSOLUTE',
-        description="Stop tracing after this many seconds (the first pass always completes); "
-                    "0 = no limit")
+        name="Time Budget",
+        default=0.0,
+        min=0.0,
+        soft_max=3600.0,
+        unit='TIME_ABSOLUTE',
+        description="Stop tracing after this many seconds (the first pass always completes); 0 = no limit",
+    )
     output_dir: StringProperty(
-        name="Output Folder", default="//lightmaps", subtype='DIR_PATH', options=_BLEND_RELATIVE,
-        description="Where the EXR files and JSON sidecar are written (relative to the .blend)")
+        name="Output Folder",
+        default="//lightmaps",
+        subtype='DIR_PATH',
+        options=_BLEND_RELATIVE,
+        description="Where the EXR files and JSON sidecar are written (relative to the .blend)",
+    )
     pack_images: BoolProperty(
-        name="Pack Images", default=False,
-        description="Pack the baked images into the .blend (by default they stay external files)")
+        name="Pack Images",
+        default=False,
+        description="Pack the baked images into the .blend (by default they stay external files)",
+    )
     preview_mode: EnumProperty(
-        name="Preview", default='HHD',
-        items=[('HHD', "HHD", "The HHD encoding (as the bake wrote it)"),
-               ('AHD', "AHD", "The AHD reconstruction of the same texels (needs an AHD bake or re-encode to match)"),
-               ('L1', "L1 SH", "Irradiance from the first 4 SH coefficients"),
-               ('L2', "L2 SH", "Irradiance from all 9 SH coefficients"),
-               ('SCALAR', "Scalar", "I_z only: no response to normal maps")],
-        description="Which reconstruction the EEVEE preview shows (A/B the encodings on the same object)")
+        name="Preview",
+        default='HHD',
+        items=[
+            ('HHD', "HHD", "The HHD encoding (as the bake wrote it)"),
+            ('AHD', "AHD", "The AHD reconstruction of the same texels (needs an AHD bake or re-encode to match)"),
+            ('L1', "L1 SH", "Irradiance from the first 4 SH coefficients"),
+            ('L2', "L2 SH", "Irradiance from all 9 SH coefficients"),
+            ('SCALAR', "Scalar", "I_z only: no response to normal maps"),
+        ],
+        description="Which reconstruction the EEVEE preview shows (A/B the encodings on the same object)",
+    )
     preview_self_bounce: BoolProperty(
-        name="Self Bounce", default=False,
-        description="Add the light the surface's own bumps bounce back (HHD/AHD preview)")
+        name="Self Bounce",
+        default=False,
+        description="Add the light the surface's own bumps bounce back (HHD/AHD preview)",
+    )
     seed: IntProperty(name="Seed", default=0, min=0, description="Random seed: the same seed gives the same bake")
     bake_summary: StringProperty(name="Last Bake", default="", options={'SKIP_SAVE'})
     model: EnumProperty(
-        name="Model", default='HHD',
-        items=[('HHD', "HHD", "Hemisphere light + highlight direction (IrradZ)"),
-               ('AHD', "AHD", "Constant ambient + highlight direction (IrradZ)")])
+        name="Model",
+        default='HHD',
+        items=[
+            ('HHD', "HHD", "Hemisphere light + highlight direction (IrradZ)"),
+            ('AHD', "AHD", "Constant ambient + highlight direction (IrradZ)"),
+        ],
+    )
     direction: EnumProperty(
-        name="Direction", default='SEARCHED',
-        items=[('SEARCHED', "Searched", "Golden-section search for the least-error direction"),
-               ('OPTIMAL_LINEAR', "Optimal Linear", "Direction of the SH linear band (baseline)")])
+        name="Direction",
+        default='SEARCHED',
+        items=[
+            ('SEARCHED', "Searched", "Golden-section search for the least-error direction"),
+            ('OPTIMAL_LINEAR', "Optimal Linear", "Direction of the SH linear band (baseline)"),
+        ],
+    )
     ambient: EnumProperty(
-        name="Ambient Weight", default='LUMINANCE',
-        items=[('LUMINANCE', "Luminance", "One ambient weight per texel"),
-               ('RGB', "RGB", "One ambient weight per colour channel")])
+        name="Ambient Weight",
+        default='LUMINANCE',
+        items=[
+            ('LUMINANCE', "Luminance", "One ambient weight per texel"),
+            ('RGB', "RGB", "One ambient weight per colour channel"),
+        ],
+    )
     phi_search: BoolProperty(
-        name="Search Azimuth", default=False,
-        description="Also search the highlight direction's azimuth (slower, slightly lower error)")
+        name="Search Azimuth",
+        default=False,
+        description="Also search the highlight direction's azimuth (slower, slightly lower error)",
+    )
     golden_iterations: IntProperty(
-        name="Search Steps", default=hhd.GOLDEN_ITERATIONS, min=0, max=40,
+        name="Search Steps",
+        default=hhd.GOLDEN_ITERATIONS,
+        min=0,
+        max=40,
         description="Golden-section steps refining the highlight direction's elevation after a "
-                    "9-point scan (0: the best scan point)")
+        "9-point scan (0: the best scan point)",
+    )
 
 
 class HHDObjectSettings(bpy.types.PropertyGroup):
     """Per-object overrides: `object.hhd`. An object with an override gets its own atlas."""
+
     resolution: IntProperty(
-        name="Resolution Override", default=0, min=0, max=8192,
-        description="Own atlas of this size; 0 uses the scene settings")
+        name="Resolution Override",
+        default=0,
+        min=0,
+        max=8192,
+        description="Own atlas of this size; 0 uses the scene settings",
+    )
     texel_density: FloatProperty(
-        name="Texel Density Override", default=0.0, min=0.0, soft_max=200.0,
-        description="Own atlas at this many texels per metre; 0 uses the scene settings")
+        name="Texel Density Override",
+        default=0.0,
+        min=0.0,
+        soft_max=200.0,
+        description="Own atlas at this many texels per metre; 0 uses the scene settings",
+    )
     atlas: StringProperty(
-        name="Atlas", default="",
-        description="Atlas the last unwrap put this object in (the bake's file name stem)")
+        name="Atlas", default="", description="Atlas the last unwrap put this object in (the bake's file name stem)"
+    )
     atlas_width: IntProperty(name="Atlas Width", default=0, min=0)
     atlas_height: IntProperty(name="Atlas Height", default=0, min=0)
 

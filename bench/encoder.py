@@ -10,11 +10,12 @@ Prints three tables and writes bench/results/encoder.json and bench/results/enco
   3. encode throughput (texels/s, one core) per variant.
 Run by hand; numbers depend on the machine.
 """
+
 from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OMP_NUM_THREADS", "1")        # one core: numpy's BLAS stays single-threaded
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core: numpy's BLAS stays single-threaded
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
@@ -69,13 +70,17 @@ def search_accuracy(n_texels: int, rng: np.random.Generator) -> dict:
         best = np.full(len(normals), np.inf)
         best_any = np.full(len(normals), np.inf)
         for theta in np.linspace(0.0, np.radians(89.99), 2001):
-            loc = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.full_like(phi, np.cos(theta))], 1)
+            loc = np.stack(
+                [np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.full_like(phi, np.cos(theta))], 1
+            )
             e, _ = hhd.fit_error(s, normals, np.einsum("nij,nj->ni", frames, loc))
             best_any = np.minimum(best_any, e)
             if np.cos(theta) >= hhd.MIN_COS:
                 best = np.minimum(best, e)
         out[env.name] = {
-            "search excess over brute force (mean, %)": float(100 * np.mean((e_search - best) / np.maximum(best, 1e-30))),
+            "search excess over brute force (mean, %)": float(
+                100 * np.mean((e_search - best) / np.maximum(best, 1e-30))
+            ),
             "search excess over brute force (max, %)": float(100 * np.max((e_search - best) / np.maximum(best, 1e-30))),
             # relative to the total objective: per-texel ratios blow up where the optimum is ~0
             "floor cost (total objective increase, %)": float(100 * (best - best_any).sum() / best_any.sum()),
@@ -111,8 +116,10 @@ def print_table(title, rows: dict, fmt="{:9.2f}"):
 
 def plot(table: dict, path: Path):
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     envs = list(table)
     variants = list(next(iter(table.values())))
     fig, ax = plt.subplots(figsize=(12, 5))
@@ -145,9 +152,18 @@ def main():
     for name, r in rate.items():
         print(f"  {name:<32s} {r / 1e6:6.3f} M texels/s   ({args.throughput / r:6.2f} s per {args.throughput} texels)")
 
-    (RESULTS / "encoder.json").write_text(json.dumps(
-        {"error_percent": table, "search": search, "texels_per_second": rate,
-         "texels": args.texels, "min_cos": hhd.MIN_COS}, indent=2))
+    (RESULTS / "encoder.json").write_text(
+        json.dumps(
+            {
+                "error_percent": table,
+                "search": search,
+                "texels_per_second": rate,
+                "texels": args.texels,
+                "min_cos": hhd.MIN_COS,
+            },
+            indent=2,
+        )
+    )
     plot(table, RESULTS / "encoder_error.png")
     print(f"\nwrote {RESULTS / 'encoder.json'} and {RESULTS / 'encoder_error.png'}")
 

@@ -11,6 +11,7 @@ an AHD re-encode, L1 SH, L2 SH, scalar I_z). Reported per mode: RMSE over the re
 relative to the reference's mean, also split into the normal-mapped panel and the rest.
 Writes bench/results/preview.json and preview_side_by_side.png (reference | HHD | |error| × 4).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,8 +38,9 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path(tempfile.mkdtemp(prefix="hhd-bench-preview-")))
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT))                      # scenekit
+    sys.path.insert(0, str(ROOT))  # scenekit
     import bpy
+
     import hhd_lightmapper
     from scenekit import blender, scenes
 
@@ -67,7 +69,7 @@ def main() -> int:
     rows, images = {}, {}
     for mode in MODES:
         s.model = 'AHD' if mode == 'AHD' else 'HHD'
-        if mode in ("AHD", "L1"):                     # re-encode when the model changes
+        if mode in ("AHD", "L1"):  # re-encode when the model changes
             assert bpy.ops.hhd.encode() == {'FINISHED'}
         s.preview_mode = mode
         assert bpy.ops.hhd.preview_show() == {'FINISHED'}
@@ -75,18 +77,23 @@ def main() -> int:
         images[mode] = eevee_render(bpy, scene, out / f"eevee_{mode.lower()}.exr")
         timings[f"eevee_{mode.lower()}"] = time.perf_counter() - t
         bpy.ops.hhd.preview_hide()
-        rows[mode] = {name: rmse(images[mode], reference, m) for name, m in
-                      (("all", mask), ("normal_mapped_panel", mask & panel), ("rest", mask & ~panel))}
-    print(f"\nEEVEE preview vs Cycles diffuse ({args.samples} bake spp, {args.bounces} bounces, "
-          f"{args.resolution}² atlas, Cycles {args.cycles_samples} spp); RMSE % of the reference mean")
+        rows[mode] = {
+            name: rmse(images[mode], reference, m)
+            for name, m in (("all", mask), ("normal_mapped_panel", mask & panel), ("rest", mask & ~panel))
+        }
+    print(
+        f"\nEEVEE preview vs Cycles diffuse ({args.samples} bake spp, {args.bounces} bounces, "
+        f"{args.resolution}² atlas, Cycles {args.cycles_samples} spp); RMSE % of the reference mean"
+    )
     print(f"{'mode':8s} {'all':>8s} {'panel':>8s} {'rest':>8s}")
     for mode, r in rows.items():
         print(f"{mode:8s} {r['all']:8.2f} {r['normal_mapped_panel']:8.2f} {r['rest']:8.2f}")
     png = RESULTS / "preview_side_by_side.png"
     side_by_side(reference, images["HHD"], mask, png)
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "preview.json").write_text(json.dumps({"settings": vars(args) | {"out": str(out)},
-                                                      "rmse_percent": rows, "seconds": timings}, indent=2))
+    (RESULTS / "preview.json").write_text(
+        json.dumps({"settings": vars(args) | {"out": str(out)}, "rmse_percent": rows, "seconds": timings}, indent=2)
+    )
     print(f"side by side: {png}\ntimings: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()))
     return 0
 
@@ -117,10 +124,15 @@ def diffuse_cycles(bpy, scene, samples: int, bounces: int) -> None:
     (specular, coat, sheen, metallic off, roughness 1), diffuse bounces only, no denoising and
     no sample clamping (Cycles clamps indirect samples to 10 by default: a bias)."""
     for mat in bpy.data.materials:
-        for node in (mat.node_tree.nodes if mat.node_tree else []):
+        for node in mat.node_tree.nodes if mat.node_tree else []:
             if node.type == 'BSDF_PRINCIPLED':
-                for name, value in (("Specular IOR Level", 0.0), ("Coat Weight", 0.0), ("Sheen Weight", 0.0),
-                                    ("Roughness", 1.0), ("Metallic", 0.0)):
+                for name, value in (
+                    ("Specular IOR Level", 0.0),
+                    ("Coat Weight", 0.0),
+                    ("Sheen Weight", 0.0),
+                    ("Roughness", 1.0),
+                    ("Metallic", 0.0),
+                ):
                     node.inputs[name].default_value = value
     scene.render.engine = 'CYCLES'
     scene.cycles.device, scene.cycles.samples, scene.cycles.use_denoising = 'CPU', samples, False
@@ -131,6 +143,7 @@ def diffuse_cycles(bpy, scene, samples: int, bounces: int) -> None:
 
 def render(bpy, scene, path: Path, alpha=False) -> np.ndarray:
     from hhd_lightmapper.core import exr
+
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
     channels, _ = exr.read(path)
@@ -146,6 +159,7 @@ def configure_output(scene):
 
 def eevee_render(bpy, scene, path: Path) -> np.ndarray:
     from hhd_lightmapper import blender_compat
+
     scene.render.engine = blender_compat.eevee_engine()
     scene.eevee.taa_render_samples = 16
     configure_output(scene)
@@ -160,14 +174,21 @@ def rmse(image, reference, mask) -> float:
 
 def side_by_side(reference, hhd_image, mask, png: Path) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     tone = lambda x: np.clip(x / (1.0 + x), 0, 1) ** (1 / 2.2)
     error = np.where(mask[..., None], np.abs(hhd_image - reference), 0.0)
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
-    for ax, (title, img) in zip(axes, (("Cycles diffuse (reference)", tone(reference)),
-                                       ("EEVEE preview, HHD lightmap", tone(hhd_image)),
-                                       ("|error| × 4", tone(4 * error)))):
+    for ax, (title, img) in zip(
+        axes,
+        (
+            ("Cycles diffuse (reference)", tone(reference)),
+            ("EEVEE preview, HHD lightmap", tone(hhd_image)),
+            ("|error| × 4", tone(4 * error)),
+        ),
+    ):
         ax.imshow(img[::-1])
         ax.set_title(title, fontsize=9)
         ax.axis("off")

@@ -15,6 +15,7 @@ the tracing (Cycles' counts its whole bake operator); both are warm (Cycles by t
 ours by loading the compiled kernels first, which a Blender session does once). The peak RSS of this run is recorded; a 4096² atlas's
 peak memory is bench/memory.py's job. Writes bench/results/time_to_error.json.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,13 +46,15 @@ def main() -> int:
     ap.add_argument("--levels", type=float, nargs="+", default=[0.20, 0.10, 0.05])
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT))                      # scenekit
+    sys.path.insert(0, str(ROOT))  # scenekit
     import bpy  # noqa: F401
+
     import hhd_lightmapper
     from scenekit import scenes
+
     hhd_lightmapper.register()
     results = {}
-    for name in (["classroom", "field"] if args.scene == "both" else [args.scene]):
+    for name in ["classroom", "field"] if args.scene == "both" else [args.scene]:
         receivers = scenes.classroom() if name == "classroom" else scenes.field()
         results[name] = measure(receivers, args)
         print_table(name, results[name], args.levels)
@@ -63,9 +66,11 @@ def main() -> int:
 # ---- measurement --------------------------------------------------------------------------
 def measure(receivers, args) -> dict:
     import bpy
+
     from hhd_lightmapper.bridge import mesh_data, scene_data
     from hhd_lightmapper.core import bakepoints, rays
     from scenekit.blender import select
+
     scene = bpy.context.scene
     scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density = LAYER, args.resolution, 0.0
     scene.hhd.padding = args.padding
@@ -77,9 +82,12 @@ def measure(receivers, args) -> dict:
     ray_scene = rays.RayScene(bake_scene.triangles)
     points = bakepoints.build(surface, args.resolution, args.resolution, occluders=ray_scene)
     keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
-    out = {"triangles": int(len(bake_scene.triangles)), "texels": int(len(points.texel)),
-           "raw_rays_per_s": raw_rate(EmbreexRays(bake_scene.triangles), bake_scene.triangles, dtype=np.float32),
-           "raw_ours_rays_per_s": raw_rate(ray_scene, bake_scene.triangles)}
+    out = {
+        "triangles": int(len(bake_scene.triangles)),
+        "texels": int(len(points.texel)),
+        "raw_rays_per_s": raw_rate(EmbreexRays(bake_scene.triangles), bake_scene.triangles, dtype=np.float32),
+        "raw_ours_rays_per_s": raw_rate(ray_scene, bake_scene.triangles),
+    }
     warm_up(points, bake_scene, ray_scene)
     t = time.perf_counter()
     reference = cycles_bake(receivers, points, args.reference_samples, seed=9173)
@@ -88,21 +96,38 @@ def measure(receivers, args) -> dict:
     out["ours"], out["cycles"] = [], []
     for samples in args.ours:
         iz, seconds, result = our_bake(surface, bake_scene, samples, points)
-        out["ours"].append({"samples": samples, "seconds": seconds, "setup_seconds": result.setup_seconds,
-                            "rays_per_s": result.rays / result.seconds,
-                            "texel_samples_per_s": len(points.texel) * result.samples / result.seconds,
-                            "rmse": rmse(iz, reference, keep, mean)})
-        print(f"  ours   {samples:5d} spp {seconds:7.1f} s (scene + bake points {result.setup_seconds:.1f} s)  "
-              f"RMSE {out['ours'][-1]['rmse']:.4f}", flush=True)
+        out["ours"].append(
+            {
+                "samples": samples,
+                "seconds": seconds,
+                "setup_seconds": result.setup_seconds,
+                "rays_per_s": result.rays / result.seconds,
+                "texel_samples_per_s": len(points.texel) * result.samples / result.seconds,
+                "rmse": rmse(iz, reference, keep, mean),
+            }
+        )
+        print(
+            f"  ours   {samples:5d} spp {seconds:7.1f} s (scene + bake points {result.setup_seconds:.1f} s)  "
+            f"RMSE {out['ours'][-1]['rmse']:.4f}",
+            flush=True,
+        )
     for samples in args.cycles:
         t = time.perf_counter()
         iz = cycles_bake(receivers, points, samples)
         seconds = time.perf_counter() - t
-        out["cycles"].append({"samples": samples, "seconds": seconds, "rmse": rmse(iz, reference, keep, mean),
-                              "texel_samples_per_s": len(points.texel) * samples / seconds})
+        out["cycles"].append(
+            {
+                "samples": samples,
+                "seconds": seconds,
+                "rmse": rmse(iz, reference, keep, mean),
+                "texel_samples_per_s": len(points.texel) * samples / seconds,
+            }
+        )
         print(f"  cycles {samples:5d} spp {seconds:7.1f} s  RMSE {out['cycles'][-1]['rmse']:.4f}", flush=True)
-    out["time_to_error"] = {f"{level:g}": {"ours": time_at(out["ours"], level), "cycles": time_at(out["cycles"], level)}
-                            for level in args.levels}
+    out["time_to_error"] = {
+        f"{level:g}": {"ours": time_at(out["ours"], level), "cycles": time_at(out["cycles"], level)}
+        for level in args.levels
+    }
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out
 
@@ -111,9 +136,11 @@ def warm_up(points, bake_scene, ray_scene) -> None:
     """Load (or, after an edit, compile) our compiled kernels before anything is timed, as the
     long reference bake warms Cycles up: a Blender session pays this once (~0.8 s)."""
     from hhd_lightmapper.core import tracer
+
     few = np.arange(min(64, len(points.texel)))
     tracer.texel_estimator(points, bake_scene, tracer.BakeSettings(pass_samples=4), ray_scene).trace(
-        tracer.WorkUnit(0, 0, 0, few))
+        tracer.WorkUnit(0, 0, 0, few)
+    )
 
 
 class EmbreexRays:
@@ -123,6 +150,7 @@ class EmbreexRays:
     def __init__(self, tris):
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
+
         self.scene = rtcore_scene.EmbreeScene()
         self.mesh = TriangleMesh(self.scene, np.ascontiguousarray(tris, dtype=np.float32))
 
@@ -136,14 +164,19 @@ def raw_rate(ray_scene, tris, batch=1_000_000, rounds=5, dtype=np.float64) -> fl
     `rounds` timings of 2 calls per thread (one timing swings from 8 to 14 M/s on the classroom
     on this machine)."""
     from concurrent.futures import ThreadPoolExecutor
+
     rng = np.random.default_rng(0)
     lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
     batches = []
     for _ in range(4):
         d = rng.normal(size=(batch, 3))
-        batches.append((rng.uniform(lo, hi, (batch, 3)).astype(dtype),
-                        (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(dtype)))
-    ray_scene.intersect(*[a[:10] for a in batches[0]])              # builds a lazy BVH untimed
+        batches.append(
+            (
+                rng.uniform(lo, hi, (batch, 3)).astype(dtype),
+                (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(dtype),
+            )
+        )
+    ray_scene.intersect(*[a[:10] for a in batches[0]])  # builds a lazy BVH untimed
     rates = []
     with ThreadPoolExecutor(2) as pool:
         for _ in range(rounds):
@@ -159,6 +192,7 @@ def our_bake(surface, bake_scene, samples, points_before):
     together, as Cycles' time includes its scene sync, BVH and texel setup. Returns (I_z,
     seconds, tracer result)."""
     from hhd_lightmapper.core import bake, hhd, tracer
+
     t = time.perf_counter()
     settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=BOUNCES)
     result = bake.trace_surface(surface, points_before.width, points_before.height, bake_scene, settings)
@@ -166,7 +200,7 @@ def our_bake(surface, bake_scene, samples, points_before):
     iz = hhd.irradz(result.sh, points.normal)
     seconds = time.perf_counter() - t
     assert np.array_equal(points.texel, points_before.texel)
-    result.setup_seconds = seconds - result.seconds          # Embree scene + bake points
+    result.setup_seconds = seconds - result.seconds  # Embree scene + bake points
     return iz, seconds, result
 
 
@@ -175,7 +209,9 @@ def cycles_bake(receivers, points, samples, seed=0) -> np.ndarray:
     reference uses another seed: Cycles' samples for one seed are nested, so a low-sample bake
     would otherwise share its first samples with the reference and look better than it is."""
     import bpy
+
     from scenekit.blender import select
+
     scene = bpy.context.scene
     scene.render.engine = 'CYCLES'
     scene.cycles.device, scene.cycles.samples, scene.cycles.seed = 'CPU', samples, seed
@@ -211,16 +247,20 @@ def time_at(rows, level):
 
 def print_table(name, r, levels):
     ours = r["ours"][-1]
-    print(f"\n{name}: {r['triangles']} triangles, {r['texels']} texels; raw embreex {r['raw_rays_per_s'] / 1e6:.1f} M rays/s "
-          f"(our binding alone {r['raw_ours_rays_per_s'] / 1e6:.1f}); "
-          f"our bake {ours['rays_per_s'] / 1e6:.2f} M rays/s ({100 * ours['rays_per_s'] / r['raw_rays_per_s']:.0f}% of raw), "
-          f"{ours['texel_samples_per_s'] / 1e6:.2f} M texel-samples/s; reference: Cycles {r['reference']['samples']} spp")
+    print(
+        f"\n{name}: {r['triangles']} triangles, {r['texels']} texels; raw embreex {r['raw_rays_per_s'] / 1e6:.1f} M rays/s "
+        f"(our binding alone {r['raw_ours_rays_per_s'] / 1e6:.1f}); "
+        f"our bake {ours['rays_per_s'] / 1e6:.2f} M rays/s ({100 * ours['rays_per_s'] / r['raw_rays_per_s']:.0f}% of raw), "
+        f"{ours['texel_samples_per_s'] / 1e6:.2f} M texel-samples/s; reference: Cycles {r['reference']['samples']} spp"
+    )
     print(f"{'I_z RMSE':>10s} {'ours (s)':>10s} {'Cycles (s)':>11s} {'ratio':>7s}")
     for level in levels:
         row = r["time_to_error"][f"{level:g}"]
         o, c = row["ours"], row["cycles"]
         ratio = f"{c / o:.2f}×" if o and c else "—"
-        print(f"{level:10.0%} {o if o is None else round(o, 1)!s:>10s} {c if c is None else round(c, 1)!s:>11s} {ratio:>7s}")
+        print(
+            f"{level:10.0%} {o if o is None else round(o, 1)!s:>10s} {c if c is None else round(c, 1)!s:>11s} {ratio:>7s}"
+        )
 
 
 if __name__ == "__main__":

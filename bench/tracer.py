@@ -9,6 +9,7 @@ core.embree, on 2 threads); (b) the bake's rays/s (every ray it traces, shadow
 rays included) and texel-samples/s on 2 threads, and its ratio to raw Embree.
 Writes bench/results/tracer.json.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,14 +25,13 @@ from hhd_lightmapper.core import bakepoints, rays, tracer, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from time_to_error import EmbreexRays
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))   # scenekit
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # scenekit
 from scenekit.meshes import sphere_field  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def raw_rate(scene, tris: np.ndarray, threads: int, batch: int = 1_000_000, rounds: int = 3,
-             dtype=np.float64) -> float:
+def raw_rate(scene, tris: np.ndarray, threads: int, batch: int = 1_000_000, rounds: int = 3, dtype=np.float64) -> float:
     """Closest-hit rays/s of `scene.intersect(origins, directions)` alone (inputs converted to
     `dtype` before timing)."""
     rng = np.random.default_rng(0)
@@ -41,7 +41,7 @@ def raw_rate(scene, tris: np.ndarray, threads: int, batch: int = 1_000_000, roun
         o = rng.uniform(lo, hi, (batch, 3))
         d = rng.normal(size=(batch, 3))
         batches.append((o.astype(dtype), (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(dtype)))
-    scene.intersect(*[a[:10] for a in batches[0]])                  # builds a lazy BVH untimed
+    scene.intersect(*[a[:10] for a in batches[0]])  # builds a lazy BVH untimed
     t0 = time.perf_counter()
     with ThreadPoolExecutor(threads) as pool:
         list(pool.map(lambda od: scene.intersect(*od), batches))
@@ -61,24 +61,38 @@ def main():
     tris = v[f]
     res = unwrap.unwrap([unwrap.UnwrapMesh("field", v, f)], unwrap.UnwrapSettings(resolution=args.resolution))
     normals = np.repeat(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])[:, None], 3, axis=1)
-    surface = bakepoints.SurfaceTriangles(tris, normals, res.objects[0].uv.astype(float), np.zeros(len(f), int),
-                                          np.full((len(f), 3), 0.6))
+    surface = bakepoints.SurfaceTriangles(
+        tris, normals, res.objects[0].uv.astype(float), np.zeros(len(f), int), np.full((len(f), 3), 0.6)
+    )
     ray_scene = rays.RayScene(tris)
     points = bakepoints.build(surface, args.resolution, args.resolution, occluders=ray_scene)
-    scene = BakeScene(tris, np.full((len(f), 3), 0.6), lights=[SunLight(np.array([0.4, 0.3, 0.866]), np.full(3, 3.0))],
-                      world=np.array([0.3, 0.45, 0.8]))
+    scene = BakeScene(
+        tris,
+        np.full((len(f), 3), 0.6),
+        lights=[SunLight(np.array([0.4, 0.3, 0.866]), np.full(3, 3.0))],
+        world=np.array([0.3, 0.45, 0.8]),
+    )
     theirs = EmbreexRays(tris)
     raw1, raw2 = raw_rate(theirs, tris, 1, dtype=np.float32), raw_rate(theirs, tris, 2, dtype=np.float32)
     ours2 = raw_rate(ray_scene, tris, 2)
-    result = tracer.bake(points, scene, tracer.BakeSettings(samples=args.samples, bounces=2, threads=2),
-                         ray_scene=ray_scene)
+    result = tracer.bake(
+        points, scene, tracer.BakeSettings(samples=args.samples, bounces=2, threads=2), ray_scene=ray_scene
+    )
     bake_rate = result.rays / result.seconds
     texel_samples = len(points.texel) * result.samples / result.seconds
-    row = {"triangles": len(f), "texels": len(points.texel), "samples": result.samples,
-           "raw_rays_per_s_1_thread": raw1, "raw_rays_per_s_2_threads": raw2,
-           "our_binding_rays_per_s_2_threads": ours2,
-           "bake_rays_per_s": bake_rate, "bake_texel_samples_per_s": texel_samples,
-           "bake_over_raw_2_threads": bake_rate / raw2, "bake_seconds": result.seconds, "rays": result.rays}
+    row = {
+        "triangles": len(f),
+        "texels": len(points.texel),
+        "samples": result.samples,
+        "raw_rays_per_s_1_thread": raw1,
+        "raw_rays_per_s_2_threads": raw2,
+        "our_binding_rays_per_s_2_threads": ours2,
+        "bake_rays_per_s": bake_rate,
+        "bake_texel_samples_per_s": texel_samples,
+        "bake_over_raw_2_threads": bake_rate / raw2,
+        "bake_seconds": result.seconds,
+        "rays": result.rays,
+    }
     for k, val in row.items():
         print(f"{k:28s} {val:,.3f}" if isinstance(val, float) else f"{k:28s} {val:,}")
     RESULTS.mkdir(exist_ok=True)

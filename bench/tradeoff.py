@@ -33,6 +33,7 @@ wall time, log-log, a line per knob, the Pareto front over all knobs dashed) and
 cheapest measured setting whose worst-scene I_z RMSE is within it (core/presets.py holds these;
 tests/test_presets.py checks they agree).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -79,17 +80,17 @@ def knob_points(quick: bool) -> list[dict]:
     """The bake settings measured, each {"knob", "label", settings...}."""
     pts = []
     add = lambda knob, label, **kw: pts.append({"knob": knob, "label": label, **BASE, **kw})
-    for s in ([4, 16, 64, 256] if quick else [4, 16, 64, 256, 1024]):
+    for s in [4, 16, 64, 256] if quick else [4, 16, 64, 256, 1024]:
         add("samples", f"{s} spp", samples=s)
     for b in (1, 2, 8):
         add("bounces", f"{b} bounces", bounces=b)
-    for s, b in ([] if quick else [(16, 1), (64, 2), (1024, 2)]):
+    for s, b in [] if quick else [(16, 1), (64, 2), (1024, 2)]:
         add("samples × bounces", f"{s} spp, {b} bounces", samples=s, bounces=b)
-    for t in ([0.1] if quick else [0.2, 0.1, 0.05, 0.025]):
+    for t in [0.1] if quick else [0.2, 0.1, 0.05, 0.025]:
         add("noise target", f"target {100 * t:g}%", samples=2048, noise_target=t)
-    for sec in ([3.0] if quick else [3.0, 15.0]):
+    for sec in [3.0] if quick else [3.0, 15.0]:
         add("time budget", f"budget {sec:g} s", samples=2048, time_budget=sec)
-    for f in ([2.0] if quick else [0.5, 2.0]):
+    for f in [2.0] if quick else [0.5, 2.0]:
         add("texel density", f"density × {f:g}", density_factor=f)
     return pts
 
@@ -101,9 +102,12 @@ def main() -> int:
     ap.add_argument("--cycles-samples", type=int, default=512, help="Cycles render of the view (two halves)")
     ap.add_argument("--replot", action="store_true", help="presets and plots from bench/results/tradeoff.json")
     ap.add_argument("--memory-only", action="store_true", help="measure peak memory into the saved results")
-    ap.add_argument("--images-only", action="store_true",
-                    help="render the Cycles references again and recompute the image errors of the saved "
-                         "EEVEE renders in --out (a run's folder)")
+    ap.add_argument(
+        "--images-only",
+        action="store_true",
+        help="render the Cycles references again and recompute the image errors of the saved "
+        "EEVEE renders in --out (a run's folder)",
+    )
     ap.add_argument("--quick", action="store_true", help="fewer points and a 1024-spp reference")
     ap.add_argument("--out", type=Path, default=Path(tempfile.mkdtemp(prefix="hhd-bench-tradeoff-")))
     args = ap.parse_args()
@@ -113,21 +117,27 @@ def main() -> int:
         args.reference_samples, args.cycles_samples = min(args.reference_samples, 512), min(args.cycles_samples, 128)
     global QUADRATURE
     from hhd_lightmapper.core import hhd
+
     QUADRATURE = hhd.hemisphere_quadrature(16, 32)
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "bench"))            # preview
-    sys.path.insert(0, str(ROOT))                      # scenekit
+    sys.path.insert(0, str(ROOT / "bench"))  # preview
+    sys.path.insert(0, str(ROOT))  # scenekit
     import bpy  # noqa: F401
+
     import hhd_lightmapper
+
     hhd_lightmapper.register()
     if args.memory_only:
         return memory_only(args)
     if args.images_only:
         return images_only(args)
-    results = {"settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
-               "base": BASE, "scenes": {}}
+    results = {
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+        "base": BASE,
+        "scenes": {},
+    }
     saved = RESULTS / "tradeoff.json"
-    if saved.is_file() and set(args.scenes) < set(ALL_SCENES):   # measuring some scenes again: keep the others
+    if saved.is_file() and set(args.scenes) < set(ALL_SCENES):  # measuring some scenes again: keep the others
         previous = json.loads(saved.read_text())
         results["scenes"] = {k: v for k, v in previous["scenes"].items() if k not in args.scenes}
     for name in args.scenes:
@@ -156,8 +166,10 @@ def markdown(results: dict, presets: dict) -> str:
     """The README's tables: knobs per scene, encoders, adaptive stopping, presets."""
     scenes = list(results["scenes"])
     cell = lambda row, k, f="{:.1f}": "—" if row.get(k) is None else f.format(row[k])
-    out = ["| knob | setting | " + " | ".join(f"{s}: time s / I_z % / image %" for s in scenes) + " |",
-           "| --- | --- | " + " | ".join("---" for _ in scenes) + " |"]
+    out = [
+        "| knob | setting | " + " | ".join(f"{s}: time s / I_z % / image %" for s in scenes) + " |",
+        "| --- | --- | " + " | ".join("---" for _ in scenes) + " |",
+    ]
     first = results["scenes"][scenes[0]]
     for i, row in enumerate(first["rows"]):
         if row["knob"] == "encoder":
@@ -168,35 +180,67 @@ def markdown(results: dict, presets: dict) -> str:
             cells.append(f"{cell(r, 'seconds')} / {cell(r, 'iz_rmse')} / {cell(r, 'image_rmse')}")
         out.append(f"| {row['knob']} | {row['label']} | " + " | ".join(cells) + " |")
     refs = [results["scenes"][s]["reference"] for s in scenes]
-    out.append("| reference | " + refs[0]["label"] + " | " + " | ".join(
-        f"{cell(r, 'seconds')} / {cell(r, 'iz_rmse')} (its noise) / {cell(r, 'image_rmse')}" for r in refs) + " |")
-    out += ["", "| encoder | " + " | ".join(f"{s}: hemispherical % (reference SH) / encode s" for s in scenes) + " |",
-            "| --- | " + " | ".join("---" for _ in scenes) + " |"]
+    out.append(
+        "| reference | "
+        + refs[0]["label"]
+        + " | "
+        + " | ".join(f"{cell(r, 'seconds')} / {cell(r, 'iz_rmse')} (its noise) / {cell(r, 'image_rmse')}" for r in refs)
+        + " |"
+    )
+    out += [
+        "",
+        "| encoder | " + " | ".join(f"{s}: hemispherical % (reference SH) / encode s" for s in scenes) + " |",
+        "| --- | " + " | ".join("---" for _ in scenes) + " |",
+    ]
     for i, row in enumerate(first["rows"]):
         if row["knob"] != "encoder":
             continue
         rs = [results["scenes"][s]["rows"][i] for s in scenes]
-        out.append(f"| {row['label']} | " + " | ".join(
-            f"{cell(r, 'hemispherical_rmse_of_reference', '{:.2f}')} / {cell(r, 'reencode_seconds', '{:.2f}')}" for r in rs) + " |")
-    out += ["", "| scene | setting | time s | mean spp | I_z % | fixed counts: time to the same error | speed-up |",
-            "| --- | --- | --- | --- | --- | --- | --- |"]
+        out.append(
+            f"| {row['label']} | "
+            + " | ".join(
+                f"{cell(r, 'hemispherical_rmse_of_reference', '{:.2f}')} / {cell(r, 'reencode_seconds', '{:.2f}')}"
+                for r in rs
+            )
+            + " |"
+        )
+    out += [
+        "",
+        "| scene | setting | time s | mean spp | I_z % | fixed counts: time to the same error | speed-up |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for s, rows in results.get("adaptive", {}).items():
         for r in rows:
-            t = "out of range" if r["fixed_seconds_same_error"] is None else (
-                f"{'~' if r['extrapolated'] else ''}{r['fixed_seconds_same_error']:.1f} s")
+            t = (
+                "out of range"
+                if r["fixed_seconds_same_error"] is None
+                else (f"{'~' if r['extrapolated'] else ''}{r['fixed_seconds_same_error']:.1f} s")
+            )
             sp = "—" if r["speedup"] is None else f"{r['speedup']:.2f}×"
-            out.append(f"| {s} | {r['label']} | {r['seconds']:.1f} | {r['mean_samples'] or 0:.0f} | {r['iz_rmse']:.1f} | {t} | {sp} |")
-    out += ["", "| preset | worst-scene I_z ≤ | samples | bounces | noise target | " + " | ".join(
-        f"{s}: time s / I_z % / image % / memory MB" for s in scenes) + " |",
-            "| --- | --- | --- | --- | --- | " + " | ".join("---" for _ in scenes) + " |"]
+            out.append(
+                f"| {s} | {r['label']} | {r['seconds']:.1f} | {r['mean_samples'] or 0:.0f} | {r['iz_rmse']:.1f} | {t} | {sp} |"
+            )
+    out += [
+        "",
+        "| preset | worst-scene I_z ≤ | samples | bounces | noise target | "
+        + " | ".join(f"{s}: time s / I_z % / image % / memory MB" for s in scenes)
+        + " |",
+        "| --- | --- | --- | --- | --- | " + " | ".join("---" for _ in scenes) + " |",
+    ]
     for name, p in presets.items():
         if not p["found"]:
-            out.append(f"| {name.title()} | {p['level']:g}% | not reached | | | " + " | ".join("" for _ in scenes) + " |")
+            out.append(
+                f"| {name.title()} | {p['level']:g}% | not reached | | | " + " | ".join("" for _ in scenes) + " |"
+            )
             continue
-        cells = [f"{cell(r, 'seconds')} / {cell(r, 'iz_rmse')} / {cell(r, 'image_rmse')} / {cell(r, 'peak_memory_mb', '{:.0f}')}"
-                 for r in p["per_scene"].values()]
-        out.append(f"| {name.title()} | {p['level']:g}% | {p['samples']} | {p['bounces']} | "
-                   f"{100 * p['noise_target']:g}% | " + " | ".join(cells) + " |")
+        cells = [
+            f"{cell(r, 'seconds')} / {cell(r, 'iz_rmse')} / {cell(r, 'image_rmse')} / {cell(r, 'peak_memory_mb', '{:.0f}')}"
+            for r in p["per_scene"].values()
+        ]
+        out.append(
+            f"| {name.title()} | {p['level']:g}% | {p['samples']} | {p['bounces']} | "
+            f"{100 * p['noise_target']:g}% | " + " | ".join(cells) + " |"
+        )
     return "\n".join(out) + "\n"
 
 
@@ -206,8 +250,10 @@ class Scene:
 
     def __init__(self, name: str, args):
         import bpy
+
         from preview import configure_output
         from scenekit import blender, scenes
+
         self.name, self.args = name, args
         self.folder = (args.out / name).resolve()
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -225,6 +271,7 @@ class Scene:
 
     def unwrap(self, density: float) -> None:
         import bpy
+
         if density == self.density:
             return
         s = self.scene.hhd
@@ -237,8 +284,10 @@ class Scene:
         trace_memory, the peak of numpy's allocations during the bake (tracemalloc; kept off
         for timed bakes)."""
         import bpy
+
         from hhd_lightmapper.bridge import bake_session
         from hhd_lightmapper.core import lightmap_files
+
         s = self.scene.hhd
         s.preset = 'CUSTOM'
         s.samples, s.bounces, s.seed = point["samples"], point["bounces"], point.get("seed", 0)
@@ -256,18 +305,27 @@ class Scene:
         session.finish()
         files = results[0].files
         sidecar = json.loads(files.sidecar.read_text())
-        return {"seconds": seconds, "peak_memory_mb": peak / 2 ** 20 if trace_memory else None, "texels": results[0].texels,
-                "rays": results[0].rays, "mean_samples": sidecar["bake"]["mean_samples_per_texel"],
-                "stopped_by": sidecar["bake"]["stopped_by"], "data": lightmap_files.read_texel_data(files)}
+        return {
+            "seconds": seconds,
+            "peak_memory_mb": peak / 2**20 if trace_memory else None,
+            "texels": results[0].texels,
+            "rays": results[0].rays,
+            "mean_samples": sidecar["bake"]["mean_samples_per_texel"],
+            "stopped_by": sidecar["bake"]["stopped_by"],
+            "data": lightmap_files.read_texel_data(files),
+        }
 
     def eevee(self, mode: str, folder: Path, tag: str) -> np.ndarray:
         import bpy
+
         from preview import render
+
         s = self.scene.hhd
         s.output_dir, s.preview_mode = str(folder), mode
         assert bpy.ops.hhd.preview_show() == {'FINISHED'}
         try:
             from hhd_lightmapper import blender_compat
+
             self.scene.render.engine = blender_compat.eevee_engine()
             self.scene.eevee.taa_render_samples = 8
             return render(bpy, self.scene, self.folder / f"eevee_{tag}.exr")
@@ -277,14 +335,18 @@ class Scene:
 
 def measure_scene(name: str, args) -> dict:
     from hhd_lightmapper.core import hhd
+
     sc = Scene(name, args)
     t = time.perf_counter()
     cycles, cycles_floor, mask = cycles_reference(sc, args.cycles_samples)
     cycles_seconds = time.perf_counter() - t
     density = DENSITY[name]
     sc.unwrap(density)
-    print(f"[{name}] Cycles view reference {args.cycles_samples} spp: {cycles_seconds:.0f} s, "
-          f"noise floor {cycles_floor:.2f}%", flush=True)
+    print(
+        f"[{name}] Cycles view reference {args.cycles_samples} spp: {cycles_seconds:.0f} s, "
+        f"noise floor {cycles_floor:.2f}%",
+        flush=True,
+    )
 
     half = dict(BASE, samples=args.reference_samples // 2, bounces=8)
     ref_a = sc.bake(sc.folder / "reference_a", dict(half, seed=1))
@@ -294,10 +356,13 @@ def measure_scene(name: str, args) -> dict:
     n_v = ref_a["data"].normal[baked]
     ref_iz = lum_iz(ref_sh, n_v)
     mean_iz = ref_iz.mean()
-    scale = np.maximum(ref_iz, FLOOR * mean_iz)          # what errors are relative to, per texel
+    scale = np.maximum(ref_iz, FLOOR * mean_iz)  # what errors are relative to, per texel
     iz_floor = 100 * 0.5 * rms((lum_iz(ref_a["data"].sh[baked], n_v) - lum_iz(ref_b["data"].sh[baked], n_v)) / scale)
-    print(f"[{name}] {ref_a['texels']} texels; reference {args.reference_samples} spp, 8 bounces: "
-          f"{ref_a['seconds'] + ref_b['seconds']:.0f} s; its I_z noise {iz_floor:.2f}%", flush=True)
+    print(
+        f"[{name}] {ref_a['texels']} texels; reference {args.reference_samples} spp, 8 bounces: "
+        f"{ref_a['seconds'] + ref_b['seconds']:.0f} s; its I_z noise {iz_floor:.2f}%",
+        flush=True,
+    )
 
     def errors(data, encoder=None, mode="HHD", folder=None, tag=""):
         row = {}
@@ -330,12 +395,24 @@ def measure_scene(name: str, args) -> dict:
             base_bake = (b, folder)
     sc.unwrap(density)
     rows += encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors)
-    reference_row = {"knob": "reference", "label": f"{args.reference_samples} spp, 8 bounces",
-                     "seconds": ref_a["seconds"] + ref_b["seconds"], "peak_memory_mb": ref_a["peak_memory_mb"],
-                     "iz_rmse": iz_floor, **errors(None, folder=sc.folder / "reference_a", tag="reference")}
-    result = {"texels": ref_a["texels"], "density": density, "mean_iz": float(mean_iz),
-              "cycles_seconds": cycles_seconds, "cycles_noise_floor": cycles_floor, "iz_noise_floor": iz_floor,
-              "reference": reference_row, "rows": rows}
+    reference_row = {
+        "knob": "reference",
+        "label": f"{args.reference_samples} spp, 8 bounces",
+        "seconds": ref_a["seconds"] + ref_b["seconds"],
+        "peak_memory_mb": ref_a["peak_memory_mb"],
+        "iz_rmse": iz_floor,
+        **errors(None, folder=sc.folder / "reference_a", tag="reference"),
+    }
+    result = {
+        "texels": ref_a["texels"],
+        "density": density,
+        "mean_iz": float(mean_iz),
+        "cycles_seconds": cycles_seconds,
+        "cycles_noise_floor": cycles_floor,
+        "iz_noise_floor": iz_floor,
+        "reference": reference_row,
+        "rows": rows,
+    }
     attach_memory(result, memory_by_density(sc, density))
     return result
 
@@ -344,7 +421,9 @@ def encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors) -> list[dict]:
     """Encoder settings: re-encode the base bake (files + EEVEE) and the reference SH (the pure
     encoding error, `hemispherical_rmse_of_reference`)."""
     import bpy
+
     from hhd_lightmapper.core import hhd
+
     b, folder = base_bake
     rows = []
     for label, enc in ENCODERS.items():
@@ -357,13 +436,20 @@ def encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors) -> list[dict]:
         core_kwargs = {k: (v.lower() if isinstance(v, str) else v) for k, v in enc.items()}
         default_seconds = rows[0]["reencode_seconds"] if rows else seconds
         # the bake as if it had encoded with these settings: its time with the encode swapped
-        row = {"knob": "encoder", "label": label, **BASE, "encoder": core_kwargs,
-               "seconds": b["seconds"] + seconds - default_seconds, "reencode_seconds": seconds,
-               "peak_memory_mb": b["peak_memory_mb"]}
+        row = {
+            "knob": "encoder",
+            "label": label,
+            **BASE,
+            "encoder": core_kwargs,
+            "seconds": b["seconds"] + seconds - default_seconds,
+            "reencode_seconds": seconds,
+            "peak_memory_mb": b["peak_memory_mb"],
+        }
         row.update(errors(b["data"], core_kwargs, mode=enc.get("model", "HHD"), folder=folder, tag=slug(label)))
         params = hhd.encode(ref_sh, n_v, **core_kwargs)
-        row["hemispherical_rmse_of_reference"] = 100 * rms(hhd.hemispherical_rmse(ref_sh, n_v, params, quadrature=QUADRATURE)
-                                                           @ hhd.LUMINANCE / scale)
+        row["hemispherical_rmse_of_reference"] = 100 * rms(
+            hhd.hemispherical_rmse(ref_sh, n_v, params, quadrature=QUADRATURE) @ hhd.LUMINANCE / scale
+        )
         rows.append(row)
         print(f"[{sc.name}] {'encoder':18s} {label:22s} {fmt_row(row)}", flush=True)
     set_encoder(sc.scene.hhd, {})
@@ -380,7 +466,9 @@ def cycles_reference(sc: Scene, samples: int):
     """(Cycles render of the view (H, W, 3), its noise floor in %, receiver mask): diffuse only
     (bench/preview.py), 8 bounces, two halves with different seeds."""
     import bpy
+
     from preview import diffuse_cycles, render
+
     scene = sc.scene
     diffuse_cycles(bpy, scene, samples // 2, 8)
     scene.render.film_transparent = True
@@ -391,7 +479,7 @@ def cycles_reference(sc: Scene, samples: int):
     scene.render.film_transparent = False
     mask = (halves[0][..., 3] > 0.999) & (halves[1][..., 3] > 0.999)
     image = 0.5 * (halves[0][..., :3] + halves[1][..., :3])
-    floor = 0.5 * image_rmse(halves[0][..., :3], halves[1][..., :3], mask)   # σ of the mean of two halves
+    floor = 0.5 * image_rmse(halves[0][..., :3], halves[1][..., :3], mask)  # σ of the mean of two halves
     return image, floor, mask & ~emitter_mask(sc)
 
 
@@ -399,8 +487,10 @@ def emitter_mask(sc: Scene) -> np.ndarray:
     """Pixels of the emitting objects (not receivers: their look is their emission), from a
     1-sample render of them alone on a transparent film."""
     import bpy
+
     from preview import render
     from scenekit import scenes
+
     emitters = [o for o in sc.scene.objects if o.type == 'MESH' and o.name in scenes.EMITTERS]
     if not emitters:
         return np.zeros((sc.scene.render.resolution_y, sc.scene.render.resolution_x), bool)
@@ -418,6 +508,7 @@ def emitter_mask(sc: Scene) -> np.ndarray:
 # ---- measures -------------------------------------------------------------------------------
 def lum_iz(sh, n_v):
     from hhd_lightmapper.core import hhd
+
     return hhd.irradz(sh, n_v) @ hhd.LUMINANCE
 
 
@@ -455,6 +546,7 @@ def attach_memory(res: dict, memory: dict) -> None:
 def images_only(args) -> int:
     """Image errors of the EEVEE renders a run left in args.out against fresh Cycles references."""
     from hhd_lightmapper.core import exr
+
     results = json.loads((RESULTS / "tradeoff.json").read_text())
     for name, res in results["scenes"].items():
         sc = Scene(name, args)
@@ -478,8 +570,13 @@ def memory_only(args) -> int:
         sc = Scene(name, args)
         memory = memory_by_density(sc, DENSITY[name])
         attach_memory(results["scenes"][name], memory)
-        print(f"[{name}] peak memory: " + ", ".join(f"density × {f:g}: {m['texels']} texels, {m['peak_memory_mb']:.0f} MB"
-                                                   for f, m in memory.items()), flush=True)
+        print(
+            f"[{name}] peak memory: "
+            + ", ".join(
+                f"density × {f:g}: {m['texels']} texels, {m['peak_memory_mb']:.0f} MB" for f, m in memory.items()
+            ),
+            flush=True,
+        )
     return finish(results)
 
 
@@ -489,13 +586,17 @@ def slug(label: str) -> str:
 
 def fmt_row(row: dict) -> str:
     f = lambda k: f"{row[k]:7.2f}" if row.get(k) is not None else "      —"
-    return (f"{row['seconds']:8.1f} s {f('peak_memory_mb')} MB  I_z {f('iz_rmse')}%  "
-            f"hemi {f('hemispherical_rmse')}%  image {f('image_rmse')}%")
+    return (
+        f"{row['seconds']:8.1f} s {f('peak_memory_mb')} MB  I_z {f('iz_rmse')}%  "
+        f"hemi {f('hemispherical_rmse')}%  image {f('image_rmse')}%"
+    )
 
 
 def print_table(name: str, res: dict) -> None:
-    print(f"\n{name}: {res['texels']} texels at {res['density']:g} texels/m; relative RMSE in %; "
-          f"floors: reference I_z noise {res['iz_noise_floor']:.2f}%, Cycles image noise {res['cycles_noise_floor']:.2f}%")
+    print(
+        f"\n{name}: {res['texels']} texels at {res['density']:g} texels/m; relative RMSE in %; "
+        f"floors: reference I_z noise {res['iz_noise_floor']:.2f}%, Cycles image noise {res['cycles_noise_floor']:.2f}%"
+    )
     print(f"{'knob':18s} {'setting':22s} {'time':>10s} {'memory':>10s} {'I_z':>12s} {'hemi':>13s} {'image':>14s}")
     for row in res["rows"] + [res["reference"]]:
         print(f"{row['knob']:18s} {row['label']:22s} {fmt_row(row)}")
@@ -517,29 +618,41 @@ def adaptive_vs_fixed(res: dict) -> list[dict]:
         order = np.argsort(e)
         time_same_error = float(np.exp(np.interp(le, e[order], t[order]))) if e.min() <= le <= e.max() else None
         extrapolated = time_same_error is None and le < e[-1] and e[-2] > e[-1]
-        if extrapolated:          # beyond the most samples measured: continue the last segment's slope
+        if extrapolated:  # beyond the most samples measured: continue the last segment's slope
             time_same_error = float(np.exp(t[-1] + (le - e[-1]) * (t[-1] - t[-2]) / (e[-1] - e[-2])))
         error_same_time = float(np.exp(np.interp(lt, t, e))) if t.min() <= lt <= t.max() else None
-        out.append({"label": r["label"], "seconds": r["seconds"], "iz_rmse": r["iz_rmse"],
-                    "mean_samples": r.get("mean_samples"), "stopped_by": r.get("stopped_by"),
-                    "fixed_seconds_same_error": time_same_error, "fixed_error_same_time": error_same_time,
-                    "speedup": time_same_error / r["seconds"] if time_same_error else None,
-                    "extrapolated": bool(extrapolated)})
+        out.append(
+            {
+                "label": r["label"],
+                "seconds": r["seconds"],
+                "iz_rmse": r["iz_rmse"],
+                "mean_samples": r.get("mean_samples"),
+                "stopped_by": r.get("stopped_by"),
+                "fixed_seconds_same_error": time_same_error,
+                "fixed_error_same_time": error_same_time,
+                "speedup": time_same_error / r["seconds"] if time_same_error else None,
+                "extrapolated": bool(extrapolated),
+            }
+        )
     return out
 
 
 def print_adaptive(adaptive: dict) -> None:
     print("\nAdaptive stopping and time budgets against fixed sample counts (same bounces):")
-    print(f"{'scene':10s} {'setting':14s} {'time':>8s} {'mean spp':>9s} {'I_z':>7s} {'fixed: time for it':>19s} "
-          f"{'speed-up':>9s} {'fixed: error in it':>19s}")
+    print(
+        f"{'scene':10s} {'setting':14s} {'time':>8s} {'mean spp':>9s} {'I_z':>7s} {'fixed: time for it':>19s} "
+        f"{'speed-up':>9s} {'fixed: error in it':>19s}"
+    )
     for scene, rows in adaptive.items():
         for r in rows:
             fs = f"{r['fixed_seconds_same_error']:.1f} s" if r["fixed_seconds_same_error"] else "out of range"
             fs = f"~{fs} (extrap.)" if r.get("extrapolated") else fs
             sp = f"{r['speedup']:.2f}×" if r["speedup"] else "—"
             fe = f"{r['fixed_error_same_time']:.2f}%" if r["fixed_error_same_time"] else "out of range"
-            print(f"{scene:10s} {r['label']:14s} {r['seconds']:7.1f}s {r['mean_samples'] or 0:9.0f} "
-                  f"{r['iz_rmse']:6.2f}% {fs:>19s} {sp:>9s} {fe:>19s}")
+            print(
+                f"{scene:10s} {r['label']:14s} {r['seconds']:7.1f}s {r['mean_samples'] or 0:9.0f} "
+                f"{r['iz_rmse']:6.2f}% {fs:>19s} {sp:>9s} {fe:>19s}"
+            )
 
 
 # ---- presets and plots ----------------------------------------------------------------------
@@ -560,17 +673,36 @@ def derive_presets(results: dict) -> dict:
     complete = {k: v for k, v in by_setting.items() if len(v) == n_scenes}
     presets = {}
     for name, level in PRESET_LEVELS.items():
-        ok = [(sum(r["seconds"] for r in v.values()), k, v) for k, v in complete.items()
-              if max(r["iz_rmse"] for r in v.values()) <= level]
+        ok = [
+            (sum(r["seconds"] for r in v.values()), k, v)
+            for k, v in complete.items()
+            if max(r["iz_rmse"] for r in v.values()) <= level
+        ]
         if not ok:
             presets[name] = {"level": level, "found": False}
             continue
         _, (samples, bounces, noise), rows = min(ok, key=lambda x: x[0])
-        presets[name] = {"level": level, "found": True, "samples": samples, "bounces": bounces,
-                         "noise_target": noise,
-                         "per_scene": {s: {k: r.get(k) for k in ("seconds", "peak_memory_mb", "iz_rmse",
-                                                                  "hemispherical_rmse", "image_rmse", "mean_samples")}
-                                       for s, r in rows.items()}}
+        presets[name] = {
+            "level": level,
+            "found": True,
+            "samples": samples,
+            "bounces": bounces,
+            "noise_target": noise,
+            "per_scene": {
+                s: {
+                    k: r.get(k)
+                    for k in (
+                        "seconds",
+                        "peak_memory_mb",
+                        "iz_rmse",
+                        "hemispherical_rmse",
+                        "image_rmse",
+                        "mean_samples",
+                    )
+                }
+                for s, r in rows.items()
+            },
+        }
     return presets
 
 
@@ -580,19 +712,28 @@ def print_presets(presets: dict) -> None:
         if not p["found"]:
             print(f"  {name:10s} ≤ {p['level']:g}%: no measured setting reaches it")
             continue
-        scenes = ", ".join(f"{s} {r['seconds']:.1f} s / {r['iz_rmse']:.1f}% / image {r['image_rmse']:.1f}%"
-                           for s, r in p["per_scene"].items())
-        print(f"  {name:10s} ≤ {p['level']:g}%: {p['samples']} spp, {p['bounces']} bounces, "
-              f"noise target {100 * p['noise_target']:g}%  ({scenes})")
+        scenes = ", ".join(
+            f"{s} {r['seconds']:.1f} s / {r['iz_rmse']:.1f}% / image {r['image_rmse']:.1f}%"
+            for s, r in p["per_scene"].items()
+        )
+        print(
+            f"  {name:10s} ≤ {p['level']:g}%: {p['samples']} spp, {p['bounces']} bounces, "
+            f"noise target {100 * p['noise_target']:g}%  ({scenes})"
+        )
 
 
 def plot(results: dict, presets: dict) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     scenes = list(results["scenes"])
     knobs = list(dict.fromkeys(r["knob"] for res in results["scenes"].values() for r in res["rows"]))
-    for metric, label in (("iz_rmse", "relative I_z RMSE (%)"), ("image_rmse", "EEVEE image vs Cycles, relative RMSE (%)")):
+    for metric, label in (
+        ("iz_rmse", "relative I_z RMSE (%)"),
+        ("image_rmse", "EEVEE image vs Cycles, relative RMSE (%)"),
+    ):
         fig, axes = plt.subplots(1, len(scenes), figsize=(5.2 * len(scenes), 4.2), squeeze=False)
         for ax, scene in zip(axes[0], scenes):
             res = results["scenes"][scene]
@@ -605,7 +746,9 @@ def plot(results: dict, presets: dict) -> None:
             if ref.get(metric) is not None:
                 ax.plot([ref["seconds"]], [ref[metric]], "k*", ms=9, label="reference")
             front = pareto([r for r in res["rows"] if r.get(metric) is not None], metric)
-            ax.plot([r["seconds"] for r in front], [r[metric] for r in front], "k--", lw=1, alpha=0.6, label="Pareto front")
+            ax.plot(
+                [r["seconds"] for r in front], [r[metric] for r in front], "k--", lw=1, alpha=0.6, label="Pareto front"
+            )
             ax.set_xscale("log")
             ax.set_yscale("log")
             ax.set_title(f"{scene} ({res['texels']} texels)", fontsize=10)

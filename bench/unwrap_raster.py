@@ -15,6 +15,7 @@ times another implementation with the same API (e.g. the previous one, copied ou
 all of them selected and its default padding (8 texels: 2 mip levels) (needs bpy), and counts
 the texels shared between charts as the bake rasterises them.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,7 +30,7 @@ import numpy as np
 
 from hhd_lightmapper.core import bakepoints, rays, unwrap
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))   # scenekit
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # scenekit
 from scenekit.meshes import sphere_field, texel_overlaps  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -42,7 +43,7 @@ def measure(fn):
     seconds = time.perf_counter() - t0
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    return out, seconds, peak / 2 ** 20
+    return out, seconds, peak / 2**20
 
 
 def run(n_triangles: int, resolution: int) -> dict:
@@ -55,11 +56,19 @@ def run(n_triangles: int, resolution: int) -> dict:
     points, t_points, m_points = measure(lambda: bakepoints.build(surface, resolution, resolution))
     scene = rays.RayScene(v[f])
     buried, t_buried, _ = measure(lambda: bakepoints.find_buried(points, scene))
-    return {"triangles": int(len(f)), "resolution": resolution, "charts": result.charts,
-            "utilisation_percent": 100 * result.utilisation[0], "texels": int(len(points.texel)),
-            "unwrap_s": t_unwrap, "unwrap_peak_MiB": m_unwrap,
-            "bake_points_s": t_points, "bake_points_peak_MiB": m_points,
-            "buried_test_s": t_buried, "buried_texels": int(buried.sum())}
+    return {
+        "triangles": int(len(f)),
+        "resolution": resolution,
+        "charts": result.charts,
+        "utilisation_percent": 100 * result.utilisation[0],
+        "texels": int(len(points.texel)),
+        "unwrap_s": t_unwrap,
+        "unwrap_peak_MiB": m_unwrap,
+        "bake_points_s": t_points,
+        "bake_points_peak_MiB": m_points,
+        "buried_test_s": t_buried,
+        "buried_texels": int(buried.sum()),
+    }
 
 
 RESOLUTION = {10_000: 1024, 100_000: 2048, 1_000_000: 4096}
@@ -79,16 +88,25 @@ def unwrap_only(n_triangles: int, resolution: int, module) -> str:
     module.unwrap([mesh], settings)
     warm = time.perf_counter() - t0
     stats = getattr(result, "stats", {})
-    split = (f"chart {stats['chart_s']:.1f} s in {stats.get('chart_processes', 0)} process(es), "
-             f"pack {stats['pack_s']:.1f} s in {stats['packs']} pack(s)") if stats else ""
-    return (f"| {len(f):,} | {resolution}² | {result.charts} | {100 * result.utilisation[0]:.1f}% | "
-            f"{result.objects[0].texels:,.0f} | {cold:.1f} | {split} | {warm:.2f} |")
+    split = (
+        (
+            f"chart {stats['chart_s']:.1f} s in {stats.get('chart_processes', 0)} process(es), "
+            f"pack {stats['pack_s']:.1f} s in {stats['packs']} pack(s)"
+        )
+        if stats
+        else ""
+    )
+    return (
+        f"| {len(f):,} | {resolution}² | {result.charts} | {100 * result.utilisation[0]:.1f}% | "
+        f"{result.objects[0].texels:,.0f} | {cold:.1f} | {split} | {warm:.2f} |"
+    )
 
 
 def scene_meshes(path: str) -> list:
     """UnwrapMeshes (world space, with polygon indices) and loop-triangle vertex indices of
     every mesh object in the .blend at `path`, read as the Unwrap operator reads them."""
     import bpy
+
     bpy.ops.wm.open_mainfile(filepath=str(path))
     out = []
     for obj in sorted((o for o in bpy.data.objects if o.type == 'MESH'), key=lambda o: o.name):
@@ -123,22 +141,25 @@ def scene_row(path: str, resolution: int, padding: int, module) -> str:
     t0 = time.perf_counter()
     try:
         result = module.unwrap(meshes, settings)
-    except Exception as exc:                                      # the old code could not fit the bedroom
-        return f"| {Path(path).stem} | {len(meshes)} | {sum(len(m.triangles) for m in meshes):,} | " \
-               f"{resolution}², padding {padding} | failed after {time.perf_counter() - t0:.0f} s: {exc} |"
+    except Exception as exc:  # the old code could not fit the bedroom
+        return (
+            f"| {Path(path).stem} | {len(meshes)} | {sum(len(m.triangles) for m in meshes):,} | "
+            f"{resolution}², padding {padding} | failed after {time.perf_counter() - t0:.0f} s: {exc} |"
+        )
     cold = time.perf_counter() - t0
     t0 = time.perf_counter()
     module.unwrap(meshes, settings)
     warm = time.perf_counter() - t0
     shared, twice = _overlaps([o.uv for o in result.objects], resolution)
     stats = getattr(result, "stats", {})
-    split = (f"chart {stats['chart_s']:.1f} s, pack {stats['pack_s']:.1f} s ({stats['packs']} packs)"
-             if stats else "")
-    return (f"| {Path(path).stem} | {len(meshes)} | {sum(len(m.triangles) for m in meshes):,} | "
-            f"{resolution}², padding {padding} | "
-            f"{result.charts} | {100 * result.utilisation[0]:.1f}% | {sum(o.texels for o in result.objects):,.0f} | "
-            f"{cold:.1f} ({split}) | {warm:.2f} | "
-            f"{shared:,} | {twice:,.0f} |")
+    split = f"chart {stats['chart_s']:.1f} s, pack {stats['pack_s']:.1f} s ({stats['packs']} packs)" if stats else ""
+    return (
+        f"| {Path(path).stem} | {len(meshes)} | {sum(len(m.triangles) for m in meshes):,} | "
+        f"{resolution}², padding {padding} | "
+        f"{result.charts} | {100 * result.utilisation[0]:.1f}% | {sum(o.texels for o in result.objects):,.0f} | "
+        f"{cold:.1f} ({split}) | {warm:.2f} | "
+        f"{shared:,} | {twice:,.0f} |"
+    )
 
 
 def _overlaps(uvs, size):
@@ -159,8 +180,10 @@ def main():
     args = ap.parse_args()
     module = importlib.import_module(args.module)
     if args.scenes:
-        print("| scene | objects | triangles | atlas | charts | used | texels | unwrap s | again s | "
-              "texels in 2 charts | texels covered twice |")
+        print(
+            "| scene | objects | triangles | atlas | charts | used | texels | unwrap s | again s | "
+            "texels in 2 charts | texels covered twice |"
+        )
         for path in args.scenes:
             print(scene_row(path, args.resolution, args.padding, module), flush=True)
         return
@@ -171,14 +194,19 @@ def main():
         return
     resolution = RESOLUTION
     rows = []
-    print(f"{'triangles':>10} {'atlas':>6} {'charts':>7} {'used%':>6} {'texels':>9} {'unwrap s':>9} "
-          f"{'MiB':>6} {'points s':>9} {'MiB':>7} {'buried s':>9}")
+    print(
+        f"{'triangles':>10} {'atlas':>6} {'charts':>7} {'used%':>6} {'texels':>9} {'unwrap s':>9} "
+        f"{'MiB':>6} {'points s':>9} {'MiB':>7} {'buried s':>9}"
+    )
     for n in args.sizes:
         r = run(n, resolution.get(n, 2048))
         rows.append(r)
-        print(f"{r['triangles']:>10} {r['resolution']:>6} {r['charts']:>7} {r['utilisation_percent']:>6.1f} "
-              f"{r['texels']:>9} {r['unwrap_s']:>9.2f} {r['unwrap_peak_MiB']:>6.0f} {r['bake_points_s']:>9.2f} "
-              f"{r['bake_points_peak_MiB']:>7.0f} {r['buried_test_s']:>9.2f}", flush=True)
+        print(
+            f"{r['triangles']:>10} {r['resolution']:>6} {r['charts']:>7} {r['utilisation_percent']:>6.1f} "
+            f"{r['texels']:>9} {r['unwrap_s']:>9.2f} {r['unwrap_peak_MiB']:>6.0f} {r['bake_points_s']:>9.2f} "
+            f"{r['bake_points_peak_MiB']:>7.0f} {r['buried_test_s']:>9.2f}",
+            flush=True,
+        )
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "unwrap_raster.json").write_text(json.dumps(rows, indent=2))
 

@@ -11,12 +11,13 @@ by every parallel stage: the bake points' probes, the tracer and the EXR compres
 itself stays on one thread: numpy holds the GIL for most of it, so a pool gained too little to
 keep). The sidecar records the count under `bake` → `threads`; the files do not depend on it.
 """
+
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -36,6 +37,7 @@ _STAGES = (0.08, 0.84, 0.08)
 class AtlasInput:
     """One atlas to bake: its name (file stem), size in texels, the receiving triangles and the
     names of the objects they belong to (`surface.object_index` indexes `objects`)."""
+
     name: str
     width: int
     height: int
@@ -46,6 +48,7 @@ class AtlasInput:
 @dataclass
 class PipelineSettings:
     """trace: the tracer's settings; encoder: the encoding and its options (`core.encoding`)."""
+
     trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
     encoder: EncoderSettings = field(default_factory=EncoderSettings)
 
@@ -88,13 +91,21 @@ def points_of(atlas: AtlasInput, ray_scene: RayScene | None, threads: int = 0, c
     """Stage 1 for one atlas: its bake points (buried and near-cover probes against `ray_scene`,
     all the scene's geometry). Raises BakeError naming an object whose UVs cover no texel.
     `threads`: workers of the probe passes (0 = every core)."""
-    points = bakepoints.build(atlas.surface, atlas.width, atlas.height, occluders=ray_scene,
-                              check=lambda: _check_cancel(cancel), threads=threads)
+    points = bakepoints.build(
+        atlas.surface,
+        atlas.width,
+        atlas.height,
+        occluders=ray_scene,
+        check=lambda: _check_cancel(cancel),
+        threads=threads,
+    )
     counts = np.bincount(points.object_index, minlength=len(atlas.objects))
     empty = [atlas.objects[k] for k in np.unique(atlas.surface.object_index) if counts[k] == 0]
     if empty:
-        raise BakeError(f"{', '.join(repr(n) for n in empty)}: the lightmap UVs cover no texel of "
-                        f"atlas '{atlas.name}' (zero-area UVs): run Unwrap again")
+        raise BakeError(
+            f"{', '.join(repr(n) for n in empty)}: the lightmap UVs cover no texel of "
+            f"atlas '{atlas.name}' (zero-area UVs): run Unwrap again"
+        )
     return points
 
 
@@ -104,22 +115,40 @@ def ray_scene_of(scene: BakeScene) -> RayScene | None:
     return RayScene(scene.triangles) if len(scene.triangles) else None
 
 
-def trace_surface(surface: SurfaceTriangles, width: int, height: int, scene: BakeScene,
-                  settings: tracer.BakeSettings, *, ray_scene: RayScene | None = None,
-                  progress=None, cancel=None, executor=None) -> TracedAtlas:
+def trace_surface(
+    surface: SurfaceTriangles,
+    width: int,
+    height: int,
+    scene: BakeScene,
+    settings: tracer.BakeSettings,
+    *,
+    ray_scene: RayScene | None = None,
+    progress=None,
+    cancel=None,
+    executor=None,
+) -> TracedAtlas:
     """Stages 1–2 for receivers that do not need files (tests, benches): bake points of
     `surface` in a width × height atlas, traced in `scene`. `ray_scene`: the scene's RayScene if
     already built; `executor`: see `tracer.bake`."""
     ray_scene = ray_scene if ray_scene is not None else ray_scene_of(scene)
-    atlas = AtlasInput("atlas", width, height, surface, [str(k) for k in range(int(surface.object_index.max(initial=-1)) + 1)])
+    atlas = AtlasInput(
+        "atlas", width, height, surface, [str(k) for k in range(int(surface.object_index.max(initial=-1)) + 1)]
+    )
     points = points_of(atlas, ray_scene, settings.threads, cancel)
-    return tracer.bake(points, scene, settings, progress=progress, cancel=cancel, ray_scene=ray_scene,
-                       executor=executor)
+    return tracer.bake(
+        points, scene, settings, progress=progress, cancel=cancel, ray_scene=ray_scene, executor=executor
+    )
 
 
-def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings, out_dir,
-        progress: Callable[[float, str], None] | None = None, cancel: Callable[[], bool] | None = None,
-        extra_sidecar: dict | None = None) -> list[AtlasResult]:
+def run(
+    atlases: list[AtlasInput],
+    scene: BakeScene,
+    settings: PipelineSettings,
+    out_dir,
+    progress: Callable[[float, str], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    extra_sidecar: dict | None = None,
+) -> list[AtlasResult]:
     """Bake every atlas and write its files into `out_dir`: bake points of every atlas first
     (so a bad object fails before any tracing), then per atlas trace → post stages → image →
     encode → write. `progress(fraction, message)` is called often (at least once per tracer
@@ -137,18 +166,23 @@ def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings,
     for i, atlas in enumerate(atlases):
         _check_cancel(cancel)
         points.append(points_of(atlas, ray_scene, threads, cancel))
-        report.report(_STAGES[0] * (i + 1) / len(atlases), f"bake points of '{atlas.name}': {len(points[-1].texel)} texels")
+        report.report(
+            _STAGES[0] * (i + 1) / len(atlases), f"bake points of '{atlas.name}': {len(points[-1].texel)} texels"
+        )
     t_points = time.perf_counter() - t0
     total_texels = sum(len(p.texel) for p in points)
     results, done_texels = [], 0
     t_trace = time.perf_counter()
     with exr.Staging() as staging:
         for i, (atlas, pts) in enumerate(zip(atlases, points)):
-            def on_trace(f, msg, base=done_texels, n=len(pts.texel), written=i / len(atlases)):
+
+            def on_trace(f, msg, base=done_texels, n=len(pts.texel), written=i / len(atlases), name=atlas.name):
                 frac = (base + f * n) / total_texels
-                report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{atlas.name}': {msg}")
-            trace = _atlas_settings(settings.trace, time.perf_counter() - t_trace, len(pts.texel),
-                                    total_texels - done_texels)
+                report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{name}': {msg}")
+
+            trace = _atlas_settings(
+                settings.trace, time.perf_counter() - t_trace, len(pts.texel), total_texels - done_texels
+            )
             traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
             done_texels += len(pts.texel)
             _check_cancel(cancel)
@@ -156,8 +190,10 @@ def run(atlases: list[AtlasInput], scene: BakeScene, settings: PipelineSettings,
             # each atlas is written as soon as it is traced: its SH lives on only as float32 images
             results.append(_write(staging, atlas, traced, settings, Path(out_dir), t_points, extra_sidecar or {}))
             del traced
-            report.report(_STAGES[0] + _STAGES[1] * done_texels / total_texels
-                          + _STAGES[2] * (i + 1) / len(atlases), f"wrote '{atlas.name}'")
+            report.report(
+                _STAGES[0] + _STAGES[1] * done_texels / total_texels + _STAGES[2] * (i + 1) / len(atlases),
+                f"wrote '{atlas.name}'",
+            )
         _check_cancel(cancel)
         staging.commit()
     return results
@@ -172,25 +208,39 @@ def _atlas_settings(trace: tracer.BakeSettings, spent: float, texels: int, texel
     return replace(trace, time_budget=max(share, 1e-3))
 
 
-def _write(staging, atlas: AtlasInput, traced: TracedAtlas, settings: PipelineSettings, out_dir: Path,
-           t_points: float, extra: dict) -> AtlasResult:
+def _write(
+    staging,
+    atlas: AtlasInput,
+    traced: TracedAtlas,
+    settings: PipelineSettings,
+    out_dir: Path,
+    t_points: float,
+    extra: dict,
+) -> AtlasResult:
     """The last stages of one atlas: image → encode → write (files staged, committed with the
     other atlases' at the end)."""
     t = time.perf_counter()
     files = lightmap_files.AtlasFiles(out_dir, atlas.name)
     seconds = {"bake_points": t_points, "trace": traced.seconds}
     sidecar = dict(extra)
-    sidecar.update({
-        "bake": {**asdict(settings.trace), "samples_taken": traced.samples, "passes": traced.passes,
-                 "mean_samples_per_texel": traced.mean_samples, "stopped_by": traced.stopped_by,
-                 "rays": traced.rays},
-        "objects": lightmap_files.object_rects(traced.points, atlas.objects),
-        "timings_seconds": seconds,
-    })
-    data = encoding.TexelData.from_points(traced.points, traced.sh)                  # image
+    sidecar.update(
+        {
+            "bake": {
+                **asdict(settings.trace),
+                "samples_taken": traced.samples,
+                "passes": traced.passes,
+                "mean_samples_per_texel": traced.mean_samples,
+                "stopped_by": traced.stopped_by,
+                "rays": traced.rays,
+            },
+            "objects": lightmap_files.object_rects(traced.points, atlas.objects),
+            "timings_seconds": seconds,
+        }
+    )
+    data = encoding.TexelData.from_points(traced.points, traced.sh)  # image
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder))  # encode
     del data
-    lightmap_files.write_atlas(staging, files, encoded, sidecar)                    # write
+    lightmap_files.write_atlas(staging, files, encoded, sidecar)  # write
     seconds["encode_and_write"] = time.perf_counter() - t
     return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds)
 

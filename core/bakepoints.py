@@ -12,6 +12,7 @@ themselves (T of them) are `BakePoints.mesh` (`SurfaceMesh`). Bake points are pl
 they pickle, and hold no live object (the cover probe `build` flags texels with is shared with
 the tracer through `covers.shared_probe`, not through them).
 """
+
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
@@ -48,6 +49,7 @@ class SurfaceTriangles:
     albedo per triangle (linear RGB); optional textures: texture_index (T,) int (-1: constant),
     texture_uv (T, 3, 2) the material's own UVs, textures [core.textures.Texture].
     """
+
     positions: np.ndarray
     normals: np.ndarray
     uv: np.ndarray
@@ -67,6 +69,7 @@ class SurfaceMesh:
     object_index (T,) int; vertex (T, 3) int64 welded corner ids: corners at exactly equal
     positions share an id (`weld`), so triangles sharing an edge in space can be found even
     where the lightmap UVs split it (a seam)."""
+
     positions: np.ndarray
     texel_uv: np.ndarray
     normals: np.ndarray
@@ -76,9 +79,13 @@ class SurfaceMesh:
     @classmethod
     def from_surface(cls, surface: SurfaceTriangles, width: int, height: int) -> SurfaceMesh:
         positions = np.asarray(surface.positions, dtype=np.float64)
-        return cls(positions=positions, texel_uv=np.asarray(surface.uv, dtype=np.float64) * [width, height],
-                   normals=np.asarray(surface.normals, dtype=np.float64),
-                   object_index=np.asarray(surface.object_index), vertex=weld(positions))
+        return cls(
+            positions=positions,
+            texel_uv=np.asarray(surface.uv, dtype=np.float64) * [width, height],
+            normals=np.asarray(surface.normals, dtype=np.float64),
+            object_index=np.asarray(surface.object_index),
+            vertex=weld(positions),
+        )
 
 
 def weld(positions: np.ndarray) -> np.ndarray:
@@ -87,7 +94,7 @@ def weld(positions: np.ndarray) -> np.ndarray:
     of a hash of the position (deterministic). Sorted by a 64-bit hash of each corner's bits
     (one sort of T·3 keys); corners whose hashes collide but whose positions differ make it
     fall back to a lexicographic sort of the coordinates."""
-    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3) + 0.0          # -0.0 -> 0.0
+    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3) + 0.0  # -0.0 -> 0.0
     if len(p) == 0:
         return np.zeros((0, 3), np.int64)
     bits = p.view(np.uint64)
@@ -98,7 +105,7 @@ def weld(positions: np.ndarray) -> np.ndarray:
     order = np.argsort(key)
     same = key[order][1:] == key[order][:-1]
     ordered = np.take(p, order, axis=0)
-    if (same & (ordered[1:] != ordered[:-1]).any(axis=1)).any():       # a collision: sort the values
+    if (same & (ordered[1:] != ordered[:-1]).any(axis=1)).any():  # a collision: sort the values
         order = np.lexsort(p.T[::-1])
         ordered = np.take(p, order, axis=0)
         same = (ordered[1:] == ordered[:-1]).all(axis=1)
@@ -114,6 +121,7 @@ class BakePoints:
     near_cover (P,) bool (part of the texel may lie under a coplanar face: core.covers);
     offset: ray origin offset, scene units; texel_size (P,) world size of a texel, metres;
     mesh: the receiving triangles `triangle` indexes (`SurfaceMesh`)."""
+
     width: int
     height: int
     texel: np.ndarray
@@ -135,8 +143,9 @@ class BakePoints:
         surface along the face normal."""
         return self.position[rows] + self.face_normal[rows] * self.offset
 
-    def sample_origins(self, rng: np.random.Generator, idx: np.ndarray, k: int,
-                       footprint: float | None = None) -> np.ndarray:
+    def sample_origins(
+        self, rng: np.random.Generator, idx: np.ndarray, k: int, footprint: float | None = None
+    ) -> np.ndarray:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
         footprint (`footprint` texels wide, default FOOTPRINT) inside its chosen triangle, as
         Cycles bakes a texel: rejection sampling, JITTER_TRIES tries, then as many over the whole
@@ -145,10 +154,18 @@ class BakePoints:
         randomly shifted Hammersley set)."""
         tri = self.triangle[idx]
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1).astype(np.float64)
-        return kernels.get().texel_origins(corner, self.mesh.texel_uv[tri], self.mesh.positions[tri],
-                                           self.position[idx], self.face_normal[idx], self.offset, k,
-                                           FOOTPRINT if footprint is None else footprint, JITTER_TRIES,
-                                           int(rng.integers(1 << 63)))
+        return kernels.get().texel_origins(
+            corner,
+            self.mesh.texel_uv[tri],
+            self.mesh.positions[tri],
+            self.position[idx],
+            self.face_normal[idx],
+            self.offset,
+            k,
+            FOOTPRINT if footprint is None else footprint,
+            JITTER_TRIES,
+            int(rng.integers(1 << 63)),
+        )
 
     def texel_points(self, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Ray origins `(len(idx), k, 3)` at `offsets` (k, 2) texel units from each texel's corner,
@@ -167,8 +184,15 @@ class BakePoints:
         return out.reshape((self.height, self.width) + values.shape[1:])
 
 
-def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScene | None = None,
-          check=None, chunk: int = 1 << 18, threads: int = 0) -> BakePoints:
+def build(
+    surface: SurfaceTriangles,
+    width: int,
+    height: int,
+    occluders: RayScene | None = None,
+    check=None,
+    chunk: int = 1 << 18,
+    threads: int = 0,
+) -> BakePoints:
     """Bake points of every covered texel. `occluders` (all geometry that casts shadows, the
     receivers included) enables the buried-texel test; without it nothing is flagged.
     `check()`, if given, is called between chunks of work (it raises to stop: a cancel).
@@ -187,14 +211,26 @@ def build(surface: SurfaceTriangles, width: int, height: int, occluders: RayScen
     del cov
     n = len(tri)
     points = BakePoints(
-        width=width, height=height, texel=texel, position=np.empty((n, 3)), normal=np.empty((n, 3)),
-        face_normal=np.empty((n, 3)), albedo=np.empty((n, 3)), coverage=coverage, triangle=tri,
-        object_index=np.asarray(surface.object_index)[tri], texel_size=np.empty(n),
-        offset=ray_offset(pos), buried=np.zeros(n, bool), mesh=mesh, near_cover=np.zeros(n, bool))
+        width=width,
+        height=height,
+        texel=texel,
+        position=np.empty((n, 3)),
+        normal=np.empty((n, 3)),
+        face_normal=np.empty((n, 3)),
+        albedo=np.empty((n, 3)),
+        coverage=coverage,
+        triangle=tri,
+        object_index=np.asarray(surface.object_index)[tri],
+        texel_size=np.empty(n),
+        offset=ray_offset(pos),
+        buried=np.zeros(n, bool),
+        mesh=mesh,
+        near_cover=np.zeros(n, bool),
+    )
     for s in range(0, n, chunk):
         if check is not None:
             check()
-        _fill_points(points, surface, slice(s, s + chunk), centroid[s:s + chunk])
+        _fill_points(points, surface, slice(s, s + chunk), centroid[s : s + chunk])
     if occluders is not None:
         points.buried = find_buried(points, occluders, check=check, threads=threads)
         probe = covers.shared_probe(occluders, points.offset, mesh.positions)
@@ -206,7 +242,7 @@ def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, cen
     """Position, n_v, face normal, albedo and texel size of the texels `rows`, whose overlap
     centroids (texel space) are `centroid`."""
     tri = points.triangle[rows]
-    pos = points.mesh.positions[tri]                                            # (n, 3, 3)
+    pos = points.mesh.positions[tri]  # (n, 3, 3)
     bary = _barycentric(centroid, points.mesh.texel_uv[tri])
     points.position[rows] = np.einsum("pk,pki->pi", bary, pos)
     normal = _normalise(np.einsum("pk,pki->pi", bary, points.mesh.normals[tri]))
@@ -249,13 +285,14 @@ def _texel_world_size(pos: np.ndarray, texel_uv: np.ndarray) -> np.ndarray:
     units are `texel_uv (n, 3, 2)`: √(world area / texel area)."""
     world = 0.5 * np.linalg.norm(np.cross(pos[:, 1] - pos[:, 0], pos[:, 2] - pos[:, 0]), axis=1)
     t = texel_uv
-    texels = 0.5 * np.abs((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1])
-                          - (t[:, 2, 0] - t[:, 0, 0]) * (t[:, 1, 1] - t[:, 0, 1]))
+    texels = 0.5 * np.abs(
+        (t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1]) - (t[:, 2, 0] - t[:, 0, 0]) * (t[:, 1, 1] - t[:, 0, 1])
+    )
     return np.sqrt(world / np.maximum(texels, 1e-12))
 
 
 def _albedo(surface: SurfaceTriangles, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    albedo = np.asarray(surface.albedo)[tri].astype(np.float64)   # gather first: called per chunk
+    albedo = np.asarray(surface.albedo)[tri].astype(np.float64)  # gather first: called per chunk
     if surface.texture_index is None or not surface.textures:
         return albedo
     tex_index = np.asarray(surface.texture_index)[tri]
@@ -267,14 +304,15 @@ def _albedo(surface: SurfaceTriangles, tri: np.ndarray, bary: np.ndarray) -> np.
     return albedo
 
 
-def find_near_cover(points: BakePoints, probe: CoverProbe, check=None, chunk: int = 1 << 15,
-                    threads: int = 0) -> np.ndarray:
+def find_near_cover(
+    points: BakePoints, probe: CoverProbe, check=None, chunk: int = 1 << 15, threads: int = 0
+) -> np.ndarray:
     """Texels part of whose samples may start under a coplanar face (core.covers): the bake point,
     the footprint's corners and the texel's corners (where the samples' fallback can reach),
     mapped into the texel's triangle, are probed. The tracer probes every sample of the texels
     flagged here, so the flag only has to be conservative at the scale of a texel. (P,) bool."""
     corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
-    offsets = np.concatenate([0.5 + FOOTPRINT * (corners - 0.5), corners])   # texel units from its corner
+    offsets = np.concatenate([0.5 + FOOTPRINT * (corners - 0.5), corners])  # texel units from its corner
     flags = np.zeros(len(points.texel), bool)
 
     def probe_chunk(rows: slice):
@@ -282,6 +320,7 @@ def find_near_cover(points: BakePoints, probe: CoverProbe, check=None, chunk: in
         origins = np.concatenate([points.origins(idx)[:, None, :], points.texel_points(idx, offsets)], axis=1)
         normals = np.repeat(points.face_normal[idx], origins.shape[1], axis=0)
         flags[idx] = probe.covered(origins.reshape(-1, 3), normals).reshape(len(idx), -1).any(axis=1)
+
     _for_chunks(probe_chunk, len(flags), chunk, check, threads)
     return flags
 
@@ -306,13 +345,14 @@ def _for_chunks(work, n: int, chunk: int, check=None, threads: int = 0) -> None:
 def _probe_directions(n: int) -> np.ndarray:
     """n fixed directions over the upper hemisphere (z up), cosine-spread (Fibonacci spiral)."""
     k = np.arange(n) + 0.5
-    r = np.sqrt(k / n) * 0.95            # stay ~18° off the horizon: grazing probes are useless
+    r = np.sqrt(k / n) * 0.95  # stay ~18° off the horizon: grazing probes are useless
     phi = k * np.pi * (3.0 - np.sqrt(5.0))
     return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - r * r)], axis=1)
 
 
-def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES, check=None,
-                chunk: int = 1 << 15, threads: int = 0) -> np.ndarray:
+def find_buried(
+    points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES, check=None, chunk: int = 1 << 15, threads: int = 0
+) -> np.ndarray:
     """Texels whose hemisphere is closed by nearby geometry seen from behind (the inside of a
     box pushed into the floor): at least BURIED_FRACTION of short probe rays (length 4 texels)
     hit back faces. The bake stores such texels black and never uses them as dilation sources,
@@ -320,12 +360,13 @@ def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES
     their rays end on the volume's inner faces.) Returns (P,) bool. Works in chunks of texels
     (bounded memory) on `threads` workers (0 = every core), calling `check()` between chunks. Every texel gets
     the first probes − need + 1 probes, only those with a back-face hit among them the rest:
-    the same answer (the others cannot reach `need`) for ~60% of the rays on open surfaces."""
+    the same answer (the others cannot reach `need`) for most of the rays on open surfaces."""
     from .sh import tangent_frames
+
     buried = np.zeros(len(points.texel), bool)
     local = _probe_directions(probes)
-    need = int(np.ceil(BURIED_FRACTION * probes))      # back-face hits that make a texel buried
-    first = probes - need + 1     # with none in these, the rest cannot add up to `need`: not buried
+    need = int(np.ceil(BURIED_FRACTION * probes))  # back-face hits that make a texel buried
+    first = probes - need + 1  # with none in these, the rest cannot add up to `need`: not buried
 
     def back_hits(sl, rows, directions):
         """Back-face hits (len(rows),) of the probes `directions` from the texels sl[rows]."""
@@ -339,8 +380,9 @@ def find_buried(points: BakePoints, scene: RayScene, probes: int = BURIED_PROBES
 
     def probe_chunk(sl: slice):
         hits = back_hits(sl, slice(None), local[:first])
-        rows = np.flatnonzero(hits > 0)               # most texels (open surfaces) stop here
+        rows = np.flatnonzero(hits > 0)  # most texels (open surfaces) stop here
         hits[rows] += back_hits(sl, rows, local[first:])
         buried[sl] = hits >= need
+
     _for_chunks(probe_chunk, len(buried), chunk, check, threads)
     return buried

@@ -3,6 +3,7 @@
 Linear RGB throughout is Blender's scene-linear Rec.709 (sRGB primaries, D65), so luminance is
 the Rec.709 relative luminance: ITU-R BT.709-6, item 3.2 (Y = 0.2126 R + 0.7152 G + 0.0722 B).
 """
+
 from __future__ import annotations
 
 import numpy as np

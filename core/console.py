@@ -1,5 +1,6 @@
 """A progress line for headless runs (no bpy): one updating line on a terminal, a new line every
 few percent when stdout is a log file (build machines), so either way the log shows progress."""
+
 from __future__ import annotations
 
 import contextlib
@@ -27,8 +28,7 @@ class ConsoleProgress:
             self.stream.write("\r" + line[:150].ljust(150))
             if fraction >= 1.0:
                 self.stream.write("\n")
-        elif (fraction - self.last_fraction >= self.step or now - self.last_time >= self.min_interval
-              or fraction >= 1.0):
+        elif fraction - self.last_fraction >= self.step or now - self.last_time >= self.min_interval or fraction >= 1.0:
             self.stream.write(line + "\n")
         else:
             return

@@ -3,6 +3,7 @@
 The extension enables even when a wheel is missing (for example on a platform without wheels);
 the feature that needs it then reports which package is missing instead of failing at enable.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -28,12 +29,13 @@ def require(name: str) -> ModuleType:
         raise DependencyMissing(
             f"The Python package '{dist}' (needed for {use}) is not available: {exc}. "
             "Install the HHD Lightmapper build for your platform (it bundles the wheel), "
-            f"or run Blender's Python with `pip install {dist}`.") from exc
+            f"or run Blender's Python with `pip install {dist}`."
+        ) from exc
 
 
 def status() -> dict[str, str | None]:
     """For each compiled dependency: its version string if importable, else None."""
-    out = {}
+    out: dict[str, str | None] = {}
     for name in COMPILED:
         try:
             module = importlib.import_module(name)

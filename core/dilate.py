@@ -6,6 +6,7 @@ source texel, growing outward one ring per step (8-neighbourhood, so the fill is
 nearest source). The propagation works on texel indices, so any number of channels costs one
 gather at the end. Texels farther than `rings` from every source get the mean of all sources.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,7 +27,7 @@ def nearest_source(valid: np.ndarray, rings: int) -> np.ndarray:
         padded = np.pad(index, 1, constant_values=-1)
         grown = index.copy()
         for dy, dx in _NEIGHBOURS:
-            neighbour = padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+            neighbour = padded[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
             take = (grown < 0) & (neighbour >= 0)
             grown[take] = neighbour[take]
         if np.array_equal(grown, index):
@@ -45,7 +46,7 @@ class Fill:
         self.valid = np.flatnonzero(valid)
         source = nearest_source(valid, rings).reshape(-1)
         self.empty = np.flatnonzero(~valid.reshape(-1))
-        self.source = source[self.empty]              # -1: no source within `rings`
+        self.source = source[self.empty]  # -1: no source within `rings`
         self.black = np.flatnonzero(black) if black is not None else np.zeros(0, np.int64)
 
     def apply(self, image: np.ndarray, keep_black: bool = False) -> np.ndarray:

@@ -18,6 +18,7 @@ time 7, tfar 8, mask 9, id 10, flags 11; hit: Ng 12–14 (unnormalised, CCW wind
 primID 17, geomID 18, instID 19. `rtcOccluded1` reads the first 12 words and sets tfar to -inf
 on a hit.
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -27,6 +28,7 @@ import re
 import threading
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
@@ -38,11 +40,17 @@ _INVALID = 0xFFFFFFFF
 _GEOMETRY_TRIANGLE = 0
 _BUFFER_INDEX, _BUFFER_VERTEX = 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
-_RAY_WORDS = 32                     # RTCRayHit is 80–96 bytes by build options; 128 is enough
+_RAY_WORDS = 32  # RTCRayHit is 80–96 bytes by build options; 128 is enough
 
-_HANDLE = ctypes.c_size_t          # Embree handles and pointers, passed as integers
-_ERRORS = {1: "unknown error", 2: "invalid argument", 3: "invalid operation", 4: "out of memory",
-           5: "unsupported CPU", 6: "cancelled"}
+_HANDLE = ctypes.c_size_t  # Embree handles and pointers, passed as integers
+_ERRORS = {
+    1: "unknown error",
+    2: "invalid argument",
+    3: "invalid operation",
+    4: "out of memory",
+    5: "unsupported CPU",
+    6: "cancelled",
+}
 
 
 def find_library(paths) -> str | None:
@@ -58,8 +66,8 @@ def _embreex_files() -> list[Path]:
         paths = [Path(f.locate()) for f in files]
     except importlib.metadata.PackageNotFoundError:
         paths = []
-    if not paths:                          # no record (copied install): look where wheels put it
-        package = Path(deps.require("embreex").__file__).parent
+    if not paths:  # no record (copied install): look where wheels put it
+        package = Path(str(deps.require("embreex").__file__)).parent
         for folder in (package, package / ".dylibs", package.parent / "embreex.libs"):
             paths += list(folder.glob("*")) if folder.is_dir() else []
     return paths
@@ -83,26 +91,40 @@ def library() -> SimpleNamespace:
 
 def _load() -> SimpleNamespace:
     deps.require("embreex")
-    importlib.import_module("embreex.rtcore_scene")   # the platform loads Embree and TBB its way
+    importlib.import_module("embreex.rtcore_scene")  # the platform loads Embree and TBB its way
     path = find_library(_embreex_files())
     if path is None:
         raise DependencyMissing(
             "The installed 'embreex' package ships no Embree 4 library (looked for libembree4 / "
-            "embree4 among its files). Install the HHD Lightmapper build for your platform.")
+            "embree4 among its files). Install the HHD Lightmapper build for your platform."
+        )
     lib = ctypes.CDLL(path)
     c = SimpleNamespace()
     for name, restype, argtypes in (
-            ("rtcNewDevice", _HANDLE, [ctypes.c_char_p]),
-            ("rtcGetDeviceError", ctypes.c_int, [_HANDLE]),
-            ("rtcNewScene", _HANDLE, [_HANDLE]),
-            ("rtcReleaseScene", None, [_HANDLE]),
-            ("rtcCommitScene", None, [_HANDLE]),
-            ("rtcNewGeometry", _HANDLE, [_HANDLE, ctypes.c_int]),
-            ("rtcSetSharedGeometryBuffer", None, [_HANDLE, ctypes.c_int, ctypes.c_uint, ctypes.c_int,
-                                                  _HANDLE, ctypes.c_size_t, ctypes.c_size_t, ctypes.c_size_t]),
-            ("rtcCommitGeometry", None, [_HANDLE]),
-            ("rtcAttachGeometry", ctypes.c_uint, [_HANDLE, _HANDLE]),
-            ("rtcReleaseGeometry", None, [_HANDLE])):
+        ("rtcNewDevice", _HANDLE, [ctypes.c_char_p]),
+        ("rtcGetDeviceError", ctypes.c_int, [_HANDLE]),
+        ("rtcNewScene", _HANDLE, [_HANDLE]),
+        ("rtcReleaseScene", None, [_HANDLE]),
+        ("rtcCommitScene", None, [_HANDLE]),
+        ("rtcNewGeometry", _HANDLE, [_HANDLE, ctypes.c_int]),
+        (
+            "rtcSetSharedGeometryBuffer",
+            None,
+            [
+                _HANDLE,
+                ctypes.c_int,
+                ctypes.c_uint,
+                ctypes.c_int,
+                _HANDLE,
+                ctypes.c_size_t,
+                ctypes.c_size_t,
+                ctypes.c_size_t,
+            ],
+        ),
+        ("rtcCommitGeometry", None, [_HANDLE]),
+        ("rtcAttachGeometry", ctypes.c_uint, [_HANDLE, _HANDLE]),
+        ("rtcReleaseGeometry", None, [_HANDLE]),
+    ):
         function = getattr(lib, name)
         function.restype, function.argtypes = restype, argtypes
         setattr(c, name, function)
@@ -116,8 +138,8 @@ def _load() -> SimpleNamespace:
 # ---- query kernels (numba) ----------------------------------------------------------------------
 # Bound to numba ExternalFunctions by `_compile`: the compiled code calls Embree by symbol name,
 # which keeps the kernels cacheable on disk (a raw ctypes pointer would not be).
-rtc_intersect1 = None
-rtc_occluded1 = None
+rtc_intersect1: Any = None
+rtc_occluded1: Any = None
 
 
 def _ray_scratch():
@@ -133,13 +155,13 @@ def _set_ray(f, w, b, origins, directions, tmax, i):
     f[b + 0] = origins[i, 0]
     f[b + 1] = origins[i, 1]
     f[b + 2] = origins[i, 2]
-    f[b + 3] = 0.0                          # tnear: callers offset origins themselves
+    f[b + 3] = 0.0  # tnear: callers offset origins themselves
     f[b + 4] = directions[i, 0]
     f[b + 5] = directions[i, 1]
     f[b + 6] = directions[i, 2]
     f[b + 7] = 0.0
     f[b + 8] = tmax[i]
-    w[b + 9] = _INVALID                   # mask: every geometry
+    w[b + 9] = _INVALID  # mask: every geometry
     w[b + 10] = 0
     w[b + 11] = 0
 
@@ -185,6 +207,7 @@ def _compile(lib) -> SimpleNamespace:
     numba = deps.require("numba")
     from llvmlite import binding as llvm
     from numba import types
+
     module = globals()
     for symbol, name in (("rtcIntersect1", "rtc_intersect1"), ("rtcOccluded1", "rtc_occluded1")):
         llvm.add_symbol(symbol, ctypes.cast(getattr(lib, symbol), ctypes.c_void_p).value)
@@ -208,21 +231,21 @@ class Scene:
         n = len(tri)
         # Embree reads vertices with 16-byte loads: one float of padding after the last
         self._vertices = np.zeros(9 * n + 1, np.float32)
-        self.triangles = self._vertices[:9 * n].reshape(n, 3, 3)     # (T, 3, 3) float32, Embree's
+        self.triangles = self._vertices[: 9 * n].reshape(n, 3, 3)  # (T, 3, 3) float32, Embree's
         self.triangles[:] = tri
         self.triangles.flags.writeable = False
         self._indices = np.arange(3 * n, dtype=np.uint32)
         self.handle = c.rtcNewScene(self._lib.device)
         geometry = c.rtcNewGeometry(self._lib.device, _GEOMETRY_TRIANGLE)
-        c.rtcSetSharedGeometryBuffer(geometry, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3,
-                                     self._vertices.ctypes.data, 0, 12, 3 * n)
-        c.rtcSetSharedGeometryBuffer(geometry, _BUFFER_INDEX, 0, _FORMAT_UINT3,
-                                     self._indices.ctypes.data, 0, 12, n)
+        c.rtcSetSharedGeometryBuffer(
+            geometry, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3, self._vertices.ctypes.data, 0, 12, 3 * n
+        )
+        c.rtcSetSharedGeometryBuffer(geometry, _BUFFER_INDEX, 0, _FORMAT_UINT3, self._indices.ctypes.data, 0, 12, n)
         c.rtcCommitGeometry(geometry)
         c.rtcAttachGeometry(self.handle, geometry)
         c.rtcReleaseGeometry(geometry)
         _check(c, self._lib.device, "set up the ray-tracing scene")
-        self._error = None
+        self._error: BakeError | None = None
         self._built = threading.Thread(target=self._commit, name="embree-build", daemon=True)
         self._built.start()
 
@@ -230,7 +253,7 @@ class Scene:
         try:
             self._lib.c.rtcCommitScene(self.handle)
             _check(self._lib.c, self._lib.device, "build the ray-tracing scene")
-        except BakeError as exc:            # Embree's error codes are per thread: read here
+        except BakeError as exc:  # Embree's error codes are per thread: read here
             self._error = exc
 
     def wait(self) -> None:
@@ -272,4 +295,3 @@ def _check(c, device, doing: str) -> None:
     code = c.rtcGetDeviceError(device)
     if code:
         raise BakeError(f"Embree could not {doing}: {_ERRORS.get(code, f'error {code}')}.")
-

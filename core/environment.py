@@ -10,6 +10,7 @@ plus a small floor (the luminance is the maximum over the pixel's 3×3 neighbour
 bilinear filtering spreads a bright pixel's radiance half a pixel into its neighbours), then a uniform point inside it; `pdf` returns the matching density per
 steradian for any direction, so BSDF-sampled rays that miss can be MIS-weighted against it.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -28,17 +29,19 @@ class EnvironmentMap:
     """pixels (H, W, 3): linear RGB radiance (image × Background strength), row 0 at v = 0;
     mapping (3, 3): world direction → lookup direction (normalised after the product); group:
     the light group the world belongs to ("": the default set)."""
+
     pixels: np.ndarray
     mapping: np.ndarray = field(default_factory=lambda: np.eye(3))
     group: str = field(default="", kw_only=True)
 
     def __post_init__(self):
-        self.pixels = np.ascontiguousarray(np.nan_to_num(np.asarray(self.pixels, np.float64)[..., :3],
-                                                         nan=0.0, posinf=0.0, neginf=0.0).clip(0.0))
+        self.pixels = np.ascontiguousarray(
+            np.nan_to_num(np.asarray(self.pixels, np.float64)[..., :3], nan=0.0, posinf=0.0, neginf=0.0).clip(0.0)
+        )
         self.mapping = np.asarray(self.mapping, np.float64)
         self.inverse = np.linalg.inv(self.mapping)
         h, w = self.pixels.shape[:2]
-        theta = np.pi * (1.0 - (np.arange(h) + 0.5) / h)          # row centre's polar angle
+        theta = np.pi * (1.0 - (np.arange(h) + 0.5) / h)  # row centre's polar angle
         weight = _neighbourhood_max(self.pixels @ LUMINANCE) * np.sin(theta)[:, None]
         total = weight.sum()
         uniform = np.broadcast_to(np.sin(theta)[:, None], (h, w))
@@ -95,7 +98,7 @@ class EnvironmentMap:
         row = np.minimum((uv[:, 1] * h).astype(np.int64), h - 1)
         b = self._lookup(dirs)
         sin_theta = np.sqrt(np.maximum(1.0 - b[:, 2] ** 2, 1e-12))
-        density_b = self.pixel_probability[row * w + col] * (w * h) / (2.0 * np.pi ** 2 * sin_theta)
+        density_b = self.pixel_probability[row * w + col] * (w * h) / (2.0 * np.pi**2 * sin_theta)
         return density_b * _direction_jacobian(self.mapping, dirs)
 
 
@@ -104,7 +107,7 @@ def _neighbourhood_max(lum: np.ndarray) -> np.ndarray:
     out = lum.copy()
     padded = np.pad(lum, ((1, 1), (0, 0)), mode="edge")
     for dy in (0, 1, 2):
-        row = padded[dy:dy + lum.shape[0]]
+        row = padded[dy : dy + lum.shape[0]]
         for dx in (-1, 0, 1):
             out = np.maximum(out, np.roll(row, dx, axis=1))
     return out
@@ -124,6 +127,9 @@ def _sample_wrap_x(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     x1, y1 = (x0 + 1) % w, np.minimum(y0 + 1, h - 1)
     x0 %= w
-    return ((1 - fx) * (1 - fy) * image[y0, x0] + fx * (1 - fy) * image[y0, x1]
-            + (1 - fx) * fy * image[y1, x0] + fx * fy * image[y1, x1])
-
+    return (
+        (1 - fx) * (1 - fy) * image[y0, x0]
+        + fx * (1 - fy) * image[y0, x1]
+        + (1 - fx) * fy * image[y1, x0]
+        + fx * fy * image[y1, x1]
+    )

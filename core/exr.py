@@ -9,6 +9,7 @@ in the same folder, which is then renamed over the target (`os.replace` is atomi
 system). `Staging` extends this to a set of files that must all be replaced together: a bake
 stages every file and renames them only once all were written.
 """
+
 from __future__ import annotations
 
 import os
@@ -50,7 +51,7 @@ def set_threads(threads: int) -> None:
     Blender's own OpenEXR). ZIP blocks are compressed independently, so the bytes written do not
     depend on it."""
     openexr = deps.require("OpenEXR")
-    count = threads if threads > 1 else 0           # 0: OpenEXR's single-threaded mode
+    count = threads if threads > 1 else 0  # 0: OpenEXR's single-threaded mode
     if openexr.global_thread_count() != count:
         openexr.set_global_thread_count(count)
 
@@ -84,7 +85,7 @@ def read(path) -> tuple[dict[str, np.ndarray], dict]:
         raise BakeError(f"EXR file not found: {path}")
     try:
         f = openexr.File(str(path), separate_channels=True)
-    except Exception as exc:      # the binding raises plain exceptions for corrupt files
+    except Exception as exc:  # the binding raises plain exceptions for corrupt files
         raise BakeError(f"cannot read EXR file {path}: {exc}") from exc
     channels = {name: ch.pixels for name, ch in f.channels().items()}
     return channels, dict(f.header())

@@ -3,9 +3,9 @@
 The tracer is a wavefront over numpy batches with Embree queries in between; what happens per
 sample between two queries (making camera rays over a texel, turning a hit into the next
 bounce, projecting radiance to SH) is written here as loops over samples and compiled, one
-pass over memory instead of a dozen numpy temporaries: in numpy this work took 1.7× Embree's
-time on the classroom (a 1-thread profile), compiled about as long as Embree's. Compiled with `nogil`, so the tracer's threads run them in parallel, and
-`cache`, so only the first bake after an install compiles (a few seconds).
+pass over memory instead of a dozen numpy temporaries (in numpy this work outweighed Embree's
+own; ARCHITECTURE.md). Compiled with `nogil`, so the tracer's threads run them in parallel,
+and `cache`, so only the first bake after an install compiles.
 
 Randomness: a kernel that samples takes a 64-bit `seed` (drawn by the caller from the chunk's
 numpy Generator) and runs its own SplitMix64 stream from it (`uniform`; cheaper than numba's
@@ -16,6 +16,7 @@ Conventions: directions world space, unit; SH basis and frames as `core.sh` (`sh
 `sh.tangent_frames`, the tests compare them; `add_pass` takes I_z from `sh.zonal_band1`).
 Nothing here compiles until `get()` is first called: numba is imported lazily (`deps`).
 """
+
 from __future__ import annotations
 
 import math
@@ -69,9 +70,11 @@ def local_to_world(nx, ny, nz, lx, ly, lz):
     sign = 1.0 if nz >= 0.0 else -1.0
     a = -1.0 / (sign + nz)
     b = nx * ny * a
-    return (lx * (1.0 + sign * nx * nx * a) + ly * b + lz * nx,
-            lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny,
-            lz * nz - (lx * sign * nx + ly * ny))
+    return (
+        lx * (1.0 + sign * nx * nx * a) + ly * b + lz * nx,
+        lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny,
+        lz * nz - (lx * sign * nx + ly * ny),
+    )
 
 
 # ---- kernels ---------------------------------------------------------------------------------
@@ -89,7 +92,7 @@ def hemisphere_rays(normals, k, seed):
     for t in range(n):
         nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
         for g in range(4):
-            for i in range(q):                                  # a random permutation of 0..q-1
+            for i in range(q):  # a random permutation of 0..q-1
                 state, u = uniform(state)
                 j = min(int(u * (i + 1)), i)
                 perm[i] = perm[j]
@@ -152,7 +155,7 @@ def texel_origins(corner, tri_uv, tri_pos, centroid, face_normal, offset, k, foo
                         out[s, c] = w0 * tri_pos[t, 0, c] + w1 * tri_pos[t, 1, c] + w2 * tri_pos[t, 2, c]
                     found = True
                     break
-            if not found:                       # the overlap's centroid, as Cycles gives up
+            if not found:  # the overlap's centroid, as Cycles gives up
                 for c in range(3):
                     out[s, c] = centroid[t, c]
             for c in range(3):
@@ -160,8 +163,24 @@ def texel_origins(corner, tri_uv, tri_pos, centroid, face_normal, offset, k, foo
     return out
 
 
-def advance_paths(live, acc, throughput, o, d, t, prim, ng, tri_albedo, row_albedo, sky,
-                  radiance, offset, roulette, max_survival, seed):
+def advance_paths(
+    live,
+    acc,
+    throughput,
+    o,
+    d,
+    t,
+    prim,
+    ng,
+    tri_albedo,
+    row_albedo,
+    sky,
+    radiance,
+    offset,
+    roulette,
+    max_survival,
+    seed,
+):
     """One wavefront step after a closest-hit query of the rays o + t·d (R, 3), (R,), one row per
     live path: `live` (R,) its sample index, `acc` (R, 3) radiance gathered so far, `throughput`
     (R, 3). A ray that missed (prim < 0) adds throughput × `sky` (its row of sky (R, 3), or
@@ -181,7 +200,7 @@ def advance_paths(live, acc, throughput, o, d, t, prim, ng, tri_albedo, row_albe
     per_row_sky = sky.shape[0] == r and r > 1
     per_row_albedo = row_albedo.shape[0] > 0
     tp = np.empty((r, 3))
-    survive = np.zeros(r)                     # 0: missed; > 0 survives with it; < 0: roulette victim
+    survive = np.zeros(r)  # 0: missed; > 0 survives with it; < 0: roulette victim
     survivors = 0
     victims = 0
     for i in range(r):
@@ -229,7 +248,7 @@ def advance_paths(live, acc, throughput, o, d, t, prim, ng, tri_albedo, row_albe
             out_tp[j, c] = tp[i, c]
         gx, gy, gz = float(ng[i, 0]), float(ng[i, 1]), float(ng[i, 2])
         length = math.sqrt(gx * gx + gy * gy + gz * gz)
-        if length == 0.0:                       # a degenerate triangle: face the ray
+        if length == 0.0:  # a degenerate triangle: face the ray
             gx, gy, gz, length = d[i, 0], d[i, 1], d[i, 2], 1.0
         scale = 1.0 / length
         if gx * d[i, 0] + gy * d[i, 1] + gz * d[i, 2] > 0.0:
@@ -264,10 +283,8 @@ def project_hemisphere(dirs, radiance, pdf, normals, k):
     traceless quadratic forms and ∫ ωωᵀ dω = (2π/3)·I over a hemisphere), with β the mean
     radiance of the *other* half's cosine samples: independent of this half's samples, so the
     estimate stays unbiased, and constant radiance is reproduced exactly (the furnace test)
-    while near-constant skies lose most of the pdf-shape noise. Per-texel I_z noise at 32 spp,
-    3 bounces (classroom / demo room / outdoor bench scene): 7.8 / 4.8 / 1.9%, against
-    10.3 / 6.0 / 2.3% when I_z came from the cosine half alone (RMS difference of two seeds,
-    measured when this estimator replaced that one)."""
+    while near-constant skies lose most of the pdf-shape noise (lower per-texel I_z noise than
+    taking I_z from the cosine half alone: README, "Speed vs accuracy")."""
     n = normals.shape[0]
     q = k // 4
     out = np.zeros((n, 9, 3))
@@ -278,8 +295,8 @@ def project_hemisphere(dirs, radiance, pdf, normals, k):
             sa = 0.0
             sb = 0.0
             for i in range(q):
-                sa += radiance[base + 3 * q + i, c]      # cosine half B: β for half A
-                sb += radiance[base + q + i, c]          # cosine half A: β for half B
+                sa += radiance[base + 3 * q + i, c]  # cosine half B: β for half A
+                sb += radiance[base + q + i, c]  # cosine half A: β for half B
             beta[0, c] = sa / q
             beta[1, c] = sb / q
         for j in range(k):
@@ -345,8 +362,7 @@ def add_pass(idx, estimate, normals, luminance, total, m2, iz, iz_sq, passes):
 
 
 _HELPERS = ("uniform", "radical_inverse", "sh_basis", "zonal_band1", "local_to_world")
-_KERNELS = ("hemisphere_rays", "texel_origins", "advance_paths", "project_hemisphere", "accumulate_grouped",
-            "add_pass")
+_KERNELS = ("hemisphere_rays", "texel_origins", "advance_paths", "project_hemisphere", "accumulate_grouped", "add_pass")
 _compiled: SimpleNamespace | None = None
 _lock = threading.Lock()
 
@@ -360,7 +376,7 @@ def get() -> SimpleNamespace:
             numba = deps.require("numba")
             jit = numba.njit(nogil=True, cache=True, error_model="numpy")
             module = globals()
-            for name in _HELPERS:           # rebinding the globals: kernels then call compiled helpers
+            for name in _HELPERS:  # rebinding the globals: kernels then call compiled helpers
                 module[name] = jit(module[name])
             _compiled = SimpleNamespace(**{name: jit(module[name]) for name in _KERNELS})
     return _compiled

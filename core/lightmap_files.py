@@ -12,6 +12,7 @@ Writing (`write_atlas`) takes the encode stage's `EncodedAtlas`: it turns rows t
 (top-down), stores each layer as its Channel's dtype says (HALF_OR_FLOAT: half when every value
 fits, else float32: never clipped), writes the sidecar and the preview images. It encodes nothing.
 """
+
 from __future__ import annotations
 
 import json
@@ -22,38 +23,46 @@ import numpy as np
 
 from . import exr
 from .bakepoints import BakePoints
-from .encoding import FLOAT, HALF, HALF_OR_FLOAT, SH_FILE, TEXELS_FILE, EncodedAtlas, FileSpec, TexelData
-from .encoding.hhd import FILE as _HHD_FILE
-from .encoding.raw import FILES as RAW_FILES
+from .encoding import (
+    CONVENTIONS,
+    FLOAT,
+    HALF,
+    HALF_OR_FLOAT,
+    HHD_FILE,
+    RAW_FILES,
+    SH_FILE,
+    TEXELS_FILE,
+    EncodedAtlas,
+    FileSpec,
+    TexelData,
+)
 from .errors import BakeError
 
-__all__ = ["CONVENTIONS", "FORMAT", "FORMAT_VERSION", "SH_CHANNELS", "AtlasFiles", "TexelData", "channel_table",
-           "exr_channels", "object_rects", "read_sidecar", "read_texel_data", "stage_preview", "write_atlas"]
+__all__ = [
+    "CONVENTIONS",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "SH_CHANNELS",
+    "AtlasFiles",
+    "TexelData",
+    "channel_table",
+    "exr_channels",
+    "object_rects",
+    "read_sidecar",
+    "read_texel_data",
+    "stage_preview",
+    "write_atlas",
+]
 
 FORMAT = "hhd-lightmap"
 FORMAT_VERSION = 1
 SH_CHANNELS = SH_FILE.exr_names
 
-CONVENTIONS = {
-    "world": "Blender world space: right-handed, Z up, metres",
-    "uv": "lightmap UV (0,0) is the bottom-left texel corner; EXR scanline 0 is the top row (v = 1); "
-          "texel (x, y) counted from the bottom sits in scanline height-1-y",
-    "sh_basis": "real L2 SH, order (0,0),(1,-1),(1,0),(1,1),(2,-2),(2,-1),(2,0),(2,1),(2,2); "
-                "Y1 ∝ (-y, z, -x), Y2 ∝ (xy, -yz, 3z²-1, -xz, x²-y²); orthonormal over the sphere",
-    "sh_quantity": "incident radiance over the hemisphere of n_v (zero below it), linear RGB",
-    "irradiance": "I(n) = (1/π) ∫ L(ω) max(n·ω, 0) dω, so diffuse outgoing radiance = albedo × I",
-    "hhd": "I(n) = Iz · [ wa·(1 + n·nv)/2 + (1 − wa)·max(n·d, 0)/(d·nv) ]",
-    "ahd": "I(n) = Iz · [ wa + (1 − wa)·max(n·d, 0)/(d·nv) ]",
-    "self_bounce": "optional: + albedo · Iz · (1 − n·nv)/2",
-    "direction": "d in world space, octahedral: encode p = d.xy/(|x|+|y|+|z|); if d.z < 0: "
-                 "p = (1 − |p.yx|)·sign(p); d·nv ≥ 0.02 guaranteed",
-    "luminance": "Rec.709 (0.2126, 0.7152, 0.0722)",
-}
-
 
 @dataclass
 class AtlasFiles:
     """Paths of one atlas's files (they share `folder` and `name`)."""
+
     folder: Path
     name: str
 
@@ -63,7 +72,7 @@ class AtlasFiles:
 
     @property
     def hhd(self) -> Path:
-        return self.path(_HHD_FILE)
+        return self.path(HHD_FILE)
 
     @property
     def sh(self) -> Path:
@@ -113,8 +122,10 @@ def exr_channels(spec: FileSpec, images: dict[str, np.ndarray]) -> dict[str, np.
 def channel_table(spec: FileSpec, channels: dict[str, np.ndarray]) -> dict:
     """The sidecar's table of one file: EXR channel → {type: "half" | "float", meaning}."""
     meanings = {n: ch.meaning for ch in spec.channels for n in ch.exr_names}
-    return {name: {"type": "half" if a.dtype == np.float16 else "float", "meaning": meanings[name]}
-            for name, a in channels.items()}
+    return {
+        name: {"type": "half" if a.dtype == np.float16 else "float", "meaning": meanings[name]}
+        for name, a in channels.items()
+    }
 
 
 def write_atlas(staging: exr.Staging, files: AtlasFiles, encoded: EncodedAtlas, sidecar: dict) -> None:
@@ -133,14 +144,20 @@ def write_atlas(staging: exr.Staging, files: AtlasFiles, encoded: EncodedAtlas, 
         del channels
     tables.update({k: v for k, v in sidecar.get("channels", {}).items() if k not in tables})
     doc = dict(sidecar)
-    doc.update({
-        "format": FORMAT, "format_version": FORMAT_VERSION, "atlas": files.name,
-        "width": encoded.width, "height": encoded.height,
-        "files": {spec.key: files.path(spec).name for spec in (encoded.encoding_file, *RAW_FILES)},
-        "channels": tables, "conventions": CONVENTIONS,
-        "encoder": dict(encoded.settings),
-        "stats": encoded.stats,
-    })
+    doc.update(
+        {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "atlas": files.name,
+            "width": encoded.width,
+            "height": encoded.height,
+            "files": {spec.key: files.path(spec).name for spec in (encoded.encoding_file, *RAW_FILES)},
+            "channels": tables,
+            "conventions": CONVENTIONS,
+            "encoder": dict(encoded.settings),
+            "stats": encoded.stats,
+        }
+    )
     staging.write_text(files.sidecar, json.dumps(doc, indent=2, ensure_ascii=False))
 
 
@@ -183,7 +200,9 @@ def read_texel_data(files: AtlasFiles) -> TexelData:
     sh = np.stack([exr.from_exr_rows(sh_ch[n]) for n in SH_CHANNELS], axis=-1).astype(np.float32, copy=False)
     h, w = sh.shape[:2]
     normal_layer, coverage_layer = TEXELS_FILE.channels
-    normal = np.stack([exr.from_exr_rows(tx_ch[n]) for n in normal_layer.exr_names], axis=-1).astype(np.float32, copy=False)
+    normal = np.stack([exr.from_exr_rows(tx_ch[n]) for n in normal_layer.exr_names], axis=-1).astype(
+        np.float32, copy=False
+    )
     coverage = exr.from_exr_rows(tx_ch[coverage_layer.exr_names[0]]).astype(np.float32, copy=False)
     return TexelData(sh=sh.reshape(h, w, 9, 3), normal=normal, coverage=coverage)
 
@@ -200,6 +219,12 @@ def object_rects(points: BakePoints, names: list[str]) -> list[dict]:
             out.append({"name": name, "texels": 0, "rect": None, "uv_rect": None})
             continue
         x0, x1, y0, y1 = int(x[mine].min()), int(x[mine].max()) + 1, int(y[mine].min()), int(y[mine].max()) + 1
-        out.append({"name": name, "texels": int(mine.sum()), "rect": [x0, y0, x1, y1],
-                    "uv_rect": [x0 / points.width, y0 / points.height, x1 / points.width, y1 / points.height]})
+        out.append(
+            {
+                "name": name,
+                "texels": int(mine.sum()),
+                "rect": [x0, y0, x1, y1],
+                "uv_rect": [x0 / points.width, y0 / points.height, x1 / points.width, y1 / points.height],
+            }
+        )
     return out

@@ -4,6 +4,7 @@ Cigolle et al. 2014, "A Survey of Efficient Representations for Independent Unit
 The highlight direction is stored this way in world space (DESIGN.md). Decoding renormalises, so
 any 2-channel value decodes to a unit vector.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -8,6 +8,7 @@ it is resolved once per bake, so every stage uses the same count and the sidecar
 Results never depend on the count: work is split into fixed-size chunks whatever the thread
 count, each chunk seeded by its index, and combined in chunk order.
 """
+
 from __future__ import annotations
 
 import os
@@ -24,7 +25,7 @@ def machine_threads() -> int:
     logical CPUs."""
     try:
         count = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):          # macOS and Windows have no sched_getaffinity
+    except (AttributeError, OSError):  # macOS and Windows have no sched_getaffinity
         count = os.cpu_count() or 1
     return max(1, count)
 

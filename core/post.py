@@ -6,6 +6,7 @@ the one place that decides which run, in order, from the pipeline settings; `cor
 applies them to every atlas with `apply`. A new post stage is a module with its function and
 a line here (and the setting that switches it on in `bake.PipelineSettings`).
 """
+
 from __future__ import annotations
 
 from .stages import PostStage, TracedAtlas

@@ -5,6 +5,7 @@ each preset's time and error on the bench scenes): a preset is a maximum sample 
 bounce count and a noise target (relative standard error of I_z at which a texel stops early,
 0 = every texel takes every sample).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -12,9 +13,9 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Preset:
-    samples: int            # most samples per texel
+    samples: int  # most samples per texel
     bounces: int
-    noise_target: float     # relative standard error of I_z (0.05 = 5 %); 0 = off
+    noise_target: float  # relative standard error of I_z (0.05 = 5 %); 0 = off
     description: str
 
     def knobs(self) -> tuple[int, int, float]:

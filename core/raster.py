@@ -8,6 +8,7 @@ are vectorised over (triangle, texel) pairs; triangles are processed in chunks t
 Texel space: x = u · width, y = v · height; texel (i, j) is the square [i, i+1] × [j, j+1] and
 its flat index is j · width + i.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -24,6 +25,7 @@ class Coverage:
 
     triangle (P,) int, texel (P,) int flat index, area (P,) overlap in texel units (≤ 1),
     point (P, 2) overlap centroid in texel space."""
+
     triangle: np.ndarray
     texel: np.ndarray
     area: np.ndarray
@@ -50,8 +52,9 @@ def rasterise(uv: np.ndarray, width: int, height: int, check=None) -> Coverage:
         if check is not None:
             check()
         stop = start + max(1, int(np.searchsorted(np.cumsum(counts[start:]), PAIRS_PER_CHUNK)))
-        parts.append(_rasterise_chunk(p[start:stop], lo[start:stop], hi[start:stop],
-                                      counts[start:stop], live[start:stop], width))
+        parts.append(
+            _rasterise_chunk(p[start:stop], lo[start:stop], hi[start:stop], counts[start:stop], live[start:stop], width)
+        )
         start = stop
     if not parts:
         return Coverage(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
@@ -74,25 +77,33 @@ def _rasterise_chunk(p, lo, hi, counts, tri_ids, width):
     iy = lo[tri, 1] + k // span_x
     x0, y0 = ix.astype(np.float64), iy.astype(np.float64)
     # Edge functions of the CCW triangle: e(c) = m·(c - a) ≥ 0 inside, m the inward normal.
-    a, b = p, np.roll(p, -1, axis=1)                               # edges a→b, (T, 3, 2)
-    m = np.stack([-(b - a)[..., 1], (b - a)[..., 0]], axis=-1)     # (T, 3, 2)
-    off = np.einsum("tki,tki->tk", m, a)                           # m·a
-    mt, offt = m[tri], off[tri]                                    # (P, 3, 2), (P, 3)
-    base = mt[..., 0] * x0[:, None] + mt[..., 1] * y0[:, None] - offt   # e at corner (x0, y0)
+    a, b = p, np.roll(p, -1, axis=1)  # edges a→b, (T, 3, 2)
+    m = np.stack([-(b - a)[..., 1], (b - a)[..., 0]], axis=-1)  # (T, 3, 2)
+    off = np.einsum("tki,tki->tk", m, a)  # m·a
+    mt, offt = m[tri], off[tri]  # (P, 3, 2), (P, 3)
+    base = mt[..., 0] * x0[:, None] + mt[..., 1] * y0[:, None] - offt  # e at corner (x0, y0)
     e_max = base + np.maximum(mt[..., 0], 0) + np.maximum(mt[..., 1], 0)
     e_min = base + np.minimum(mt[..., 0], 0) + np.minimum(mt[..., 1], 0)
-    overlap = (e_max > 0).all(axis=1)                              # no separating edge axis
-    full = overlap & (e_min >= 0).all(axis=1)                      # whole texel inside
+    overlap = (e_max > 0).all(axis=1)  # no separating edge axis
+    full = overlap & (e_min >= 0).all(axis=1)  # whole texel inside
     pt = p[tri]
-    inside_texel = overlap & ~full & ((pt[..., 0] >= x0[:, None]) & (pt[..., 0] <= x0[:, None] + 1)
-                                      & (pt[..., 1] >= y0[:, None]) & (pt[..., 1] <= y0[:, None] + 1)).all(axis=1)
+    inside_texel = (
+        overlap
+        & ~full
+        & (
+            (pt[..., 0] >= x0[:, None])
+            & (pt[..., 0] <= x0[:, None] + 1)
+            & (pt[..., 1] >= y0[:, None])
+            & (pt[..., 1] <= y0[:, None] + 1)
+        ).all(axis=1)
+    )
     area = np.zeros(len(tri))
     centroid = np.zeros((len(tri), 2))
     area[full] = 1.0
     centroid[full] = np.stack([x0[full] + 0.5, y0[full] + 0.5], axis=1)
     area[inside_texel] = np.abs(_signed_area(pt[inside_texel]))
     centroid[inside_texel] = pt[inside_texel].mean(axis=1)
-    clip = overlap & ~full & ~inside_texel        # partial overlaps: exact integrals
+    clip = overlap & ~full & ~inside_texel  # partial overlaps: exact integrals
     area[clip], centroid[clip] = _overlap_with_texels(pt[clip], x0[clip], y0[clip])
     keep = area > 0.0
     return Coverage(tri_ids[tri[keep]], (iy * width + ix)[keep], area[keep], centroid[keep])
@@ -122,10 +133,10 @@ def _overlap_with_texels(tri, x0, y0):
         for level in (0.0, 1.0):
             x_cross = a[:, 0] + np.divide(level - a[:, 1], slope, out=np.full_like(dx, -1.0), where=slope != 0.0)
             cuts.append(np.clip(x_cross, lo, hi))
-        xs = np.sort(np.stack(cuts, axis=1), axis=1)                       # (P, 4)
+        xs = np.sort(np.stack(cuts, axis=1), axis=1)  # (P, 4)
         direction = np.sign(dx)
 
-        def g(x):
+        def g(x, a=a, slope=slope):
             return np.clip(a[:, 1] + (x - a[:, 0]) * slope, 0.0, 1.0)
 
         for u, v in ((xs[:, 0], xs[:, 1]), (xs[:, 1], xs[:, 2]), (xs[:, 2], xs[:, 3])):
@@ -151,6 +162,5 @@ def choose_per_texel(cov: Coverage):
     texels_sorted = cov.texel[order]
     first = np.concatenate([[True], texels_sorted[1:] != texels_sorted[:-1]])
     chosen = order[first]
-    total = np.bincount(np.searchsorted(texels_sorted[first], cov.texel), weights=cov.area,
-                        minlength=len(chosen))
+    total = np.bincount(np.searchsorted(texels_sorted[first], cov.texel), weights=cov.area, minlength=len(chosen))
     return chosen, np.minimum(total, 1.0)

@@ -2,6 +2,7 @@
 
 Rays start at their origin (tnear 0): callers offset origins themselves (`ray_offset`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,7 +25,7 @@ def ray_offset(positions: np.ndarray) -> float:
 def bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned bounding box (lo (3,), hi (3,)) float64 of points (..., 3)."""
     p = np.asarray(points).reshape(-1, 3)
-    # per column: a reduction along axis 0 of an (N, 3) array is ~10× slower in numpy
+    # per column: a reduction along axis 0 of an (N, 3) array is much slower in numpy
     lo = np.array([p[:, i].min() for i in range(3)], dtype=np.float64)
     hi = np.array([p[:, i].max() for i in range(3)], dtype=np.float64)
     return lo, hi
@@ -37,11 +38,16 @@ class RayScene:
 
     def __init__(self, triangles: np.ndarray):
         self._scene = embree.Scene(triangles)
-        self.triangles = self._scene.triangles      # float32 (T, 3, 3), Embree's own (read-only)
+        self.triangles = self._scene.triangles  # float32 (T, 3, 3), Embree's own (read-only)
         self.n_triangles = len(self.triangles)
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None,
-                  barycentrics: bool = False):
+    def intersect(
+        self,
+        origins: np.ndarray,
+        directions: np.ndarray,
+        tmax: np.ndarray | float | None = None,
+        barycentrics: bool = False,
+    ):
         """Closest hits. Returns (t (R,) float32 distance or inf, prim (R,) int32 or -1,
         ng (R, 3) float32 unnormalised geometric normal, CCW winding; zeros on a miss), plus
         (u, v) (R,) with hit = (1-u-v)·p0 + u·p1 + v·p2 when `barycentrics`."""
@@ -51,7 +57,7 @@ class RayScene:
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float) -> np.ndarray:
         """Whether anything lies within `tmax` (R,) along each ray: (R,) bool. Embree's any-hit
-        query (stops at the first hit found): ~1.6× the rate of `intersect` for shadow rays."""
+        query (stops at the first hit found: cheaper than `intersect` for shadow rays)."""
         o, d = _rays(origins), _rays(directions)
         return self._scene.occluded(o, d, _reach(tmax, len(o)))
 

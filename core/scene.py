@@ -14,6 +14,7 @@ Lights are plain data here; how each type is sampled lives in one place, `core.t
 `group` (every light, and `BakeScene.emission_group` per emissive triangle) names the light group
 a light belongs to ("": the default set).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -28,6 +29,7 @@ if TYPE_CHECKING:
 @dataclass
 class SunLight:
     """direction (3,) unit, towards the sun; irradiance (3,) W/m²; angle: angular diameter, rad."""
+
     direction: np.ndarray
     irradiance: np.ndarray
     angle: float = 0.0
@@ -42,6 +44,7 @@ class SunLight:
 class PointLight:
     """position (3,) m; power (3,) W; radius m (0: a true point, noise-free); soft_falloff:
     Blender's use_soft_falloff (disk facing the shaded point) rather than a sphere."""
+
     position: np.ndarray
     power: np.ndarray
     radius: float = 0.0
@@ -59,7 +62,8 @@ class SpotLight(PointLight):
     way it points; size: full cone angle, rad; blend in [0, 1]. Cycles' attenuation:
     smoothstep((cos φ - cos(size/2)) / ((1 - cos(size/2)) · blend)), φ the angle between the
     spot axis and the direction from the light to the shaded point (a hard edge for blend 0)."""
-    direction: np.ndarray = None
+
+    direction: np.ndarray = None  # type: ignore[assignment]  # required: a default only because PointLight's fields have them
     size: float = np.pi / 4
     blend: float = 0.15
 
@@ -69,6 +73,7 @@ class AreaLight:
     """A one-sided Lambertian emitter: position (3,) centre; axis_u, axis_v (3,) half-extent
     vectors of the light's plane (length = half size); normal (3,) unit, the side it emits to;
     power (3,) W; shape 'SQUARE' | 'RECTANGLE' | 'DISK' | 'ELLIPSE'. Radiance P / (π A)."""
+
     position: np.ndarray
     axis_u: np.ndarray
     axis_v: np.ndarray
@@ -94,6 +99,7 @@ class BakeScene:
     background radiance (3,) or None (black); environment: an HDRI world
     (`environment.EnvironmentMap`, importance-sampled with MIS) in place of `world`; notes: what
     the extraction approximated."""
+
     triangles: np.ndarray
     albedo: np.ndarray
     emission: np.ndarray | None = None
@@ -111,11 +117,12 @@ class BakeScene:
         out = self.albedo[prim]
         if self.texture_index is None or not self.textures:
             return out
-        tex = self.texture_index[prim]
+        tex, texture_uv = self.texture_index[prim], self.texture_uv
+        assert texture_uv is not None, "texture_index without texture_uv"
         for k, image in enumerate(self.textures):
             rows = np.nonzero(tex == k)[0]
             if len(rows):
-                uv = self.texture_uv[prim[rows]]
+                uv = texture_uv[prim[rows]]
                 w = np.stack([1.0 - u[rows] - v[rows], u[rows], v[rows]], axis=1)
                 out[rows] = image.sample(np.einsum("rk,rki->ri", w, uv))
         return out
@@ -126,7 +133,7 @@ class BakeScene:
         if self.emission is not None:
             self.emission = np.asarray(self.emission, dtype=np.float64)
             if not self.emission.any():
-                self.emission = None          # model only what the scene has
+                self.emission = None  # model only what the scene has
         if self.world is not None:
             self.world = np.asarray(self.world, dtype=np.float64)
             if not self.world.any():

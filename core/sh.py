@@ -10,6 +10,7 @@ Array conventions: directions `(N, 3)` unit vectors; SH `(N, 9, C)` (C colour ch
 normalisation of DESIGN.md, E(n) = (1/π) ∫ L(ω) max(n·ω, 0) dω, so that a white diffuse surface
 under radiance 1 has E = 1, and radiance SH becomes irradiance SH by scaling bands by 1, 2/3, 1/4.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,11 +20,11 @@ N_COEFFS = 9
 BAND = np.array([0, 1, 1, 1, 2, 2, 2, 2, 2])
 
 # Normalisation constants, from ∫_S Y² = 1.
-Y00 = 0.5 / np.sqrt(np.pi)              # 0.282095
-C1 = np.sqrt(3.0 / (4.0 * np.pi))       # 0.488603  (band 1)
-C2 = 0.5 * np.sqrt(15.0 / np.pi)        # 1.092548  (xy, yz, xz)
-C20 = 0.25 * np.sqrt(5.0 / np.pi)       # 0.315392  (3z² - 1)
-C22 = 0.25 * np.sqrt(15.0 / np.pi)      # 0.546274  (x² - y²)
+Y00 = 0.5 / np.sqrt(np.pi)  # 0.282095
+C1 = np.sqrt(3.0 / (4.0 * np.pi))  # 0.488603  (band 1)
+C2 = 0.5 * np.sqrt(15.0 / np.pi)  # 1.092548  (xy, yz, xz)
+C20 = 0.25 * np.sqrt(5.0 / np.pi)  # 0.315392  (3z² - 1)
+C22 = 0.25 * np.sqrt(15.0 / np.pi)  # 0.546274  (x² - y²)
 
 #: Per-band factors turning radiance SH into irradiance SH (normalised clamped-cosine
 #: convolution, Ramamoorthi & Hanrahan 2001 divided by π): 1, 2/3, 1/4.
@@ -41,8 +42,17 @@ def basis(x, y, z):
     """The 9 basis values at the unit direction (x, y, z), as a tuple. Plain arithmetic on its
     arguments (floats, or arrays of one shape, the first value then being a float), so numba
     compiles it for the tracer's kernels (`kernels.sh_basis`) and `evaluate` uses it on arrays."""
-    return (Y00, -C1 * y, C1 * z, -C1 * x, C2 * x * y, -C2 * y * z, C20 * (3.0 * z * z - 1.0),
-            -C2 * x * z, C22 * (x * x - y * y))
+    return (
+        Y00,
+        -C1 * y,
+        C1 * z,
+        -C1 * x,
+        C2 * x * y,
+        -C2 * y * z,
+        C20 * (3.0 * z * z - 1.0),
+        -C2 * x * z,
+        C22 * (x * x - y * y),
+    )
 
 
 def zonal_band1(s1m1, s10, s11, nx, ny, nz):
@@ -115,12 +125,16 @@ def tangent_frames(normals: np.ndarray) -> np.ndarray:
 
 
 # Band 2 as quadratic forms: Σ_m s_m Y2m(ω) = ωᵀ Q ω with Q traceless symmetric.
-def _band2_to_quadratic(s: list) -> dict:
+def _band2_to_quadratic(s) -> dict:
     """Band-2 coefficients (5 arrays) -> entries of the traceless symmetric Q with
     Σ_m s_m Y2m(ω) = ωᵀ Q ω, as {(i, j): array} for i ≤ j."""
     return {
-        (0, 1): 0.5 * C2 * s[0], (1, 2): -0.5 * C2 * s[1], (0, 2): -0.5 * C2 * s[3],
-        (0, 0): -C20 * s[2] + C22 * s[4], (1, 1): -C20 * s[2] - C22 * s[4], (2, 2): 2.0 * C20 * s[2],
+        (0, 1): 0.5 * C2 * s[0],
+        (1, 2): -0.5 * C2 * s[1],
+        (0, 2): -0.5 * C2 * s[3],
+        (0, 0): -C20 * s[2] + C22 * s[4],
+        (1, 1): -C20 * s[2] - C22 * s[4],
+        (2, 2): 2.0 * C20 * s[2],
     }
 
 
@@ -133,23 +147,31 @@ def rotate(sh: np.ndarray, m: np.ndarray) -> np.ndarray:
     products and strided slices are several times slower.
     """
     sh = np.asarray(sh, dtype=np.float64)
-    s = np.ascontiguousarray(np.moveaxis(_as_nkc(sh), 1, 0))          # (9, N, C)
+    s = np.ascontiguousarray(np.moveaxis(_as_nkc(sh), 1, 0))  # (9, N, C)
     mt = np.ascontiguousarray(np.asarray(m, dtype=np.float64).transpose(1, 2, 0))[..., None]  # (3,3,N,1)
     v = (-s[3], -s[1], s[2])
-    v2 = [mt[0, j] * v[0] + mt[1, j] * v[1] + mt[2, j] * v[2] for j in range(3)]   # Mᵀ v
+    v2 = [mt[0, j] * v[0] + mt[1, j] * v[1] + mt[2, j] * v[2] for j in range(3)]  # Mᵀ v
     qd = _band2_to_quadratic(s[4:9])
     q = [[qd[(min(a, b), max(a, b))] for b in range(3)] for a in range(3)]
-    mq = [[q[a][0] * mt[0, j] + q[a][1] * mt[1, j] + q[a][2] * mt[2, j] for j in range(3)]
-          for a in range(3)]
+    mq = [[q[a][0] * mt[0, j] + q[a][1] * mt[1, j] + q[a][2] * mt[2, j] for j in range(3)] for a in range(3)]
 
-    def q2(i, j):                                                       # (MᵀQM)_ij
+    def q2(i, j):  # (MᵀQM)_ij
         return mt[0, i] * mq[0][j] + mt[1, i] * mq[1][j] + mt[2, i] * mq[2][j]
 
-    out = np.stack([
-        s[0], -v2[1], v2[2], -v2[0],
-        2.0 * q2(0, 1) / C2, -2.0 * q2(1, 2) / C2, q2(2, 2) / (2.0 * C20), -2.0 * q2(0, 2) / C2,
-        (q2(0, 0) - q2(1, 1)) / (2.0 * C22),
-    ], axis=1)
+    out = np.stack(
+        [
+            s[0],
+            -v2[1],
+            v2[2],
+            -v2[0],
+            2.0 * q2(0, 1) / C2,
+            -2.0 * q2(1, 2) / C2,
+            q2(2, 2) / (2.0 * C20),
+            -2.0 * q2(0, 2) / C2,
+            (q2(0, 0) - q2(1, 1)) / (2.0 * C22),
+        ],
+        axis=1,
+    )
     return out[..., 0] if sh.ndim == 2 else out
 
 

@@ -4,6 +4,7 @@ Built from the textbook definition (associated Legendre functions with the Condo
 phase, Y_l^m = √2 K cos(mφ) P_l^m, K P_l^0, √2 K sin(|m|φ) P_l^|m|) one direction at a time in
 pure Python, sharing nothing with `sh.py` so that the two can check each other.
 """
+
 from __future__ import annotations
 
 import math

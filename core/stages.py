@@ -8,12 +8,17 @@ another process or on another machine. A post stage (a denoiser, seam stitching)
 ones for the same texels; `core.bake.run` applies the configured post stages in order between
 tracing and encoding.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # bakepoints imports the compiled kernels; the data types need no import at run time
+    from .bakepoints import BakePoints
 
 
 @dataclass
@@ -27,7 +32,8 @@ class TracedAtlas:
     hemisphere samples each texel took (they differ under a noise target or a time budget).
     Run statistics: samples (the most a texel took), passes, rays traced, seconds of wall time,
     stopped_by ("samples", "noise_target": every texel converged, "time_budget"), threads."""
-    points: object
+
+    points: BakePoints
     sh: np.ndarray
     sh_error: np.ndarray
     texel_samples: np.ndarray
@@ -41,13 +47,13 @@ class TracedAtlas:
     @property
     def valid(self) -> np.ndarray:
         """(P,) bool: texels with a bake value of their own (not buried under geometry)."""
-        return ~np.asarray(self.points.buried, bool)
+        return np.logical_not(self.points.buried)
 
     @property
     def mean_samples(self) -> float:
         return float(self.texel_samples.mean()) if len(self.texel_samples) else 0.0
 
-    def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> "TracedAtlas":
+    def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TracedAtlas:
         """A copy carrying new SH (and standard error) for the same texels: what a post stage returns."""
         return replace(self, sh=sh, sh_error=self.sh_error if sh_error is None else sh_error)
 

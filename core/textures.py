@@ -1,4 +1,5 @@
 """Texture lookups and colour decoding shared by bake points and the tracer. No bpy."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -11,6 +12,7 @@ class Texture:
     """An albedo image as Blender's Image Texture node samples it: pixels (H, W, 3) linear RGB,
     row 0 at v = 0; interpolation 'Linear' | 'Closest' (Cubic/Smart are sampled as Linear);
     extension 'REPEAT' | 'EXTEND' | 'CLIP' (CLIP: black outside [0, 1]²; MIRROR as REPEAT)."""
+
     pixels: np.ndarray
     interpolation: str = "Linear"
     extension: str = "REPEAT"
@@ -48,8 +50,12 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray, clamp: bool = False) -> n
         ys = (np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1))
     else:
         xs, ys = (x0 % w, (x0 + 1) % w), (y0 % h, (y0 + 1) % h)
-    return ((1 - fx) * (1 - fy) * image[ys[0], xs[0]] + fx * (1 - fy) * image[ys[0], xs[1]]
-            + (1 - fx) * fy * image[ys[1], xs[0]] + fx * fy * image[ys[1], xs[1]])
+    return (
+        (1 - fx) * (1 - fy) * image[ys[0], xs[0]]
+        + fx * (1 - fy) * image[ys[0], xs[1]]
+        + (1 - fx) * fy * image[ys[1], xs[0]]
+        + fx * fy * image[ys[1], xs[1]]
+    )
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:

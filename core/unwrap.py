@@ -13,6 +13,7 @@ not a lost session): charting, once per mesh content and cached (`chart_key`), i
 processes when there is enough work; then packing of the cached charts, re-packed with a smaller
 density (never re-charted) until they fit the atlas.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -24,9 +25,9 @@ import sys
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -79,6 +80,7 @@ class UnwrapMesh:
     vertex indices; resolution / texel_density: per-object overrides (None = the settings');
     polygons: (T,) index ≥ 0 of the polygon each triangle belongs to (its triangles stay in one
     chart, its corners on one vertex share one UV); None: every triangle is its own polygon."""
+
     name: str
     positions: np.ndarray
     triangles: np.ndarray
@@ -93,6 +95,7 @@ class UnwrapSettings:
     texel_density: texels per metre; the atlas size is then chosen to fit (≤ MAX_RESOLUTION).
     padding: texels between charts (≥ 2 for bilinear filtering; 2^k more per mip level).
     per_object: one atlas per object instead of one shared atlas."""
+
     resolution: int = 1024
     texel_density: float | None = None
     padding: int = 4
@@ -103,6 +106,7 @@ class UnwrapSettings:
 class ObjectUV:
     """uv (T, 3, 2) float32 per triangle corner in [0, 1]² of atlas `atlas`; texels: texels its
     charts cover (UV area × width × height); rect: (x0, y0, x1, y1) texel bounds in the atlas."""
+
     name: str
     uv: np.ndarray
     atlas: int
@@ -116,9 +120,10 @@ class UnwrapResult:
     """stats: how the unwrap went ("charted" / "cached" meshes, "chart_s" / "pack_s" seconds,
     "chart_processes", "packs": packs summed over atlases, "tries": per atlas, the densities
     packed and whether they fitted [(texels per metre, fitted)])."""
+
     objects: list[ObjectUV]
-    atlas_sizes: list[tuple[int, int]]      # (width, height) per atlas
-    utilisation: list[float]               # fraction of each atlas covered by charts (padding included)
+    atlas_sizes: list[tuple[int, int]]  # (width, height) per atlas
+    utilisation: list[float]  # fraction of each atlas covered by charts (padding included)
     charts: int
     warnings: list[str] = field(default_factory=list)
     stats: dict = field(default_factory=dict)
@@ -135,6 +140,7 @@ class Charts:
     per (chart, vertex); uv (U, 2) float32 chart-local coordinates; folded: polygons that overlap
     themselves however they are flattened (e.g. self-intersecting n-gons). Read-only (shared by
     the cache)."""
+
     chart: np.ndarray
     corner: np.ndarray
     uv: np.ndarray
@@ -157,8 +163,7 @@ def validate(mesh: UnwrapMesh) -> None:
     if t.size == 0:
         raise BakeError(f"'{mesh.name}' has no faces to unwrap")
     if p.ndim != 2 or p.shape[1] != 3 or t.ndim != 2 or t.shape[1] != 3:
-        raise BakeError(f"'{mesh.name}': positions must be (V, 3) and triangles (T, 3), got "
-                        f"{p.shape} and {t.shape}")
+        raise BakeError(f"'{mesh.name}': positions must be (V, 3) and triangles (T, 3), got {p.shape} and {t.shape}")
     if not np.isfinite(p).all():
         raise BakeError(f"'{mesh.name}' has NaN or infinite vertex coordinates")
     if t.min() < 0 or t.max() >= len(p):
@@ -166,8 +171,10 @@ def validate(mesh: UnwrapMesh) -> None:
     if mesh.polygons is not None:
         poly = np.asarray(mesh.polygons)
         if poly.shape != (len(t),) or not np.issubdtype(poly.dtype, np.integer) or poly.min() < 0:
-            raise BakeError(f"'{mesh.name}': polygons must give one polygon index ≥ 0 per triangle "
-                            f"({len(t)}), got an array of shape {poly.shape} and type {poly.dtype}")
+            raise BakeError(
+                f"'{mesh.name}': polygons must give one polygon index ≥ 0 per triangle "
+                f"({len(t)}), got an array of shape {poly.shape} and type {poly.dtype}"
+            )
     if not (triangle_areas(p, t) > 0).any():
         raise BakeError(f"'{mesh.name}' has only zero-area faces: nothing to bake")
 
@@ -178,9 +185,12 @@ def triangle_areas(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
 
 
-def unwrap(meshes: list[UnwrapMesh], settings: UnwrapSettings,
-           progress: Callable[[float, str], None] | None = None,
-           cancel: Callable[[], bool] | None = None) -> UnwrapResult:
+def unwrap(
+    meshes: list[UnwrapMesh],
+    settings: UnwrapSettings,
+    progress: Callable[[float, str], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> UnwrapResult:
     """Chart and pack `meshes`: one shared atlas, or one per object when settings.per_object or
     an object overrides resolution/density (overridden objects get their own atlas).
 
@@ -193,14 +203,14 @@ def unwrap(meshes: list[UnwrapMesh], settings: UnwrapSettings,
     groups = _group(meshes, settings)
     for _, resolution, density, _ in groups:
         _check_scale(resolution, density)
-    deps.require("xatlas")          # a missing wheel is a clear message here, not in the child
-    stats = {"packs": 0, "tries": []}
+    deps.require("xatlas")  # a missing wheel is a clear message here, not in the child
+    stats: dict = {"packs": 0, "tries": []}
     t0 = time.perf_counter()
     keys = [chart_key(m) for m in meshes]
     _check(cancel)
     charts = chart_meshes(meshes, stats, _stage(progress, 0.0, 0.8), keys, cancel)
     stats["chart_s"] = time.perf_counter() - t0
-    result = UnwrapResult([None] * len(meshes), [], [], 0, stats=stats)
+    result = UnwrapResult([None] * len(meshes), [], [], 0, stats=stats)  # type: ignore[list-item]  # filled below
     for gi, (indices, resolution, density, shared) in enumerate(groups):
         stage = _stage(progress, 0.8 + 0.2 * gi / len(groups), 0.2 / len(groups))
         if stage:
@@ -208,8 +218,17 @@ def unwrap(meshes: list[UnwrapMesh], settings: UnwrapSettings,
 
         def pack(part, stage=stage, resolution=resolution, density=density):
             _check(cancel)
-            return _pack([meshes[i] for i in part], [charts[i] for i in part], [keys[i] for i in part],
-                         resolution, density, settings.padding, stage, cancel)
+            return _pack(
+                [meshes[i] for i in part],
+                [charts[i] for i in part],
+                [keys[i] for i in part],
+                resolution,
+                density,
+                settings.padding,
+                stage,
+                cancel,
+            )
+
         for k, (part, atlas) in enumerate(_spill(indices, pack, charts, resolution, density, settings.padding)):
             # a density-driven atlas is xatlas's own size; a fixed one is resolution² (charts fit in it)
             w, h = (atlas["width"], atlas["height"]) if density is not None else (resolution, resolution)
@@ -262,7 +281,7 @@ def _spill(indices, pack, charts, resolution, density, padding):
             try:
                 packed.append((part, pack(part)))
             except AtlasFull:
-                if len(part) == 1:      # one object alone: more atlases cannot help
+                if len(part) == 1:  # one object alone: more atlases cannot help
                     raise
                 break
         else:
@@ -296,7 +315,8 @@ def _deal(indices, boxes, count, resolution, density, padding):
     area of their padded chart boxes; each group keeps the input order."""
     t = _area_density(boxes, resolution, density, padding)
     weight = [xatlas_worker.box_area(b, padding, t) for b in boxes]
-    load, parts = [0.0] * count, [[] for _ in range(count)]
+    load = [0.0] * count
+    parts: list[list[int]] = [[] for _ in range(count)]
     for k in sorted(range(len(indices)), key=lambda k: -weight[k]):
         g = min(range(count), key=load.__getitem__)
         load[g] += weight[k]
@@ -306,11 +326,19 @@ def _deal(indices, boxes, count, resolution, density, padding):
 
 def _warnings(meshes, charts, objects) -> list[str]:
     """Objects with polygons that fold over themselves, and objects with too few texels."""
-    out = [f"'{m.name}': {c.folded} polygon(s) overlap themselves when flattened (twisted or "
-           "self-intersecting faces), so their lightmap texels overlap: triangulate them (Face > "
-           "Triangulate Faces) or fix their shape" for m, c in zip(meshes, charts) if c.folded]
-    return out + [f"'{o.name}' gets only {o.texels:.0f} lightmap texels: raise the resolution or its texel "
-                  "density to see lighting detail on it" for o in objects if o.texels < FEW_TEXELS]
+    out = [
+        f"'{m.name}': {c.folded} polygon(s) overlap themselves when flattened (twisted or "
+        "self-intersecting faces), so their lightmap texels overlap: triangulate them (Face > "
+        "Triangulate Faces) or fix their shape"
+        for m, c in zip(meshes, charts)
+        if c.folded
+    ]
+    return out + [
+        f"'{o.name}' gets only {o.texels:.0f} lightmap texels: raise the resolution or its texel "
+        "density to see lighting detail on it"
+        for o in objects
+        if o.texels < FEW_TEXELS
+    ]
 
 
 def _stage(progress, start, span):
@@ -323,14 +351,22 @@ def _stage(progress, start, span):
 def _group(meshes, settings):
     """[(mesh indices, resolution, density, shared)] per atlas to build (before any spill):
     the shared atlas first, then one per object with its own (shared False)."""
-    shared = [i for i, m in enumerate(meshes)
-              if not settings.per_object and m.resolution is None and m.texel_density is None]
+    shared = [
+        i for i, m in enumerate(meshes) if not settings.per_object and m.resolution is None and m.texel_density is None
+    ]
     groups = [(shared, settings.resolution, settings.texel_density, True)] if shared else []
     for i, m in enumerate(meshes):
         if i not in shared:
-            groups.append(([i], m.resolution or settings.resolution,
-                           m.texel_density if m.texel_density is not None else
-                           (None if m.resolution is not None else settings.texel_density), False))
+            groups.append(
+                (
+                    [i],
+                    m.resolution or settings.resolution,
+                    m.texel_density
+                    if m.texel_density is not None
+                    else (None if m.resolution is not None else settings.texel_density),
+                    False,
+                )
+            )
     return groups
 
 
@@ -342,8 +378,8 @@ def _check_scale(resolution, density):
 
 
 # --- charting: once per mesh content, cached, in parallel child processes ---
-_CACHE: OrderedDict[bytes, Charts] = OrderedDict()            # chart_key → charts
-_PACKED: OrderedDict[tuple, dict] = OrderedDict()              # (keys, settings) → pack result
+_CACHE: OrderedDict[bytes, Charts] = OrderedDict()  # chart_key → charts
+_PACKED: OrderedDict[tuple, dict] = OrderedDict()  # (keys, settings) → pack result
 
 
 def clear_chart_cache() -> None:
@@ -373,15 +409,19 @@ def _centred(positions) -> np.ndarray:
     return p - p.mean(axis=0)
 
 
-def chart_meshes(meshes: list[UnwrapMesh], stats: dict | None = None,
-                 progress: Callable[[float, str], None] | None = None,
-                 keys: list[bytes] | None = None, cancel: Callable[[], bool] | None = None) -> list[Charts]:
+def chart_meshes(
+    meshes: list[UnwrapMesh],
+    stats: dict | None = None,
+    progress: Callable[[float, str], None] | None = None,
+    keys: list[bytes] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> list[Charts]:
     """Charts of every mesh: from the cache when a mesh with the same content was charted
     before in this session, else charted now (identical meshes once), in up to CHART_PROCESSES
     child processes at once. keys: the meshes' `chart_key`s, if already computed; cancel: as in
     `unwrap` (the cache is only filled once every child has finished)."""
     keys = keys if keys is not None else [chart_key(m) for m in meshes]
-    todo = {}
+    todo: dict = {}
     for key, m in zip(keys, meshes):
         if key not in _CACHE:
             todo.setdefault(key, m)
@@ -420,10 +460,10 @@ def _chart_uncached(meshes, stats, progress, cancel=None):
 
     if progress:
         progress(0.0, f"xatlas: charting {sum(len(m.triangles) for m in meshes)} triangles")
-    results = [None] * len(jobs)
+    results: list = [None] * len(jobs)
     with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
         futures = {pool.submit(run, job): k for k, job in enumerate(jobs)}
-        for done, future in enumerate(as_completed(futures), 1):   # progress from this thread only
+        for done, future in enumerate(as_completed(futures), 1):  # progress from this thread only
             results[futures[future]] = future.result()
             if progress:
                 progress(done / len(jobs), f"xatlas: charted {done} of {len(jobs)} parts")
@@ -448,7 +488,8 @@ def _chart_jobs(meshes):
         pieces = _connected_pieces(tri, len(m.positions), share) if n > 1 and len(tri) > share else [None]
         for rows in pieces:
             items.append(_piece(i, m, tri, rows))
-    bins, load = [[] for _ in range(n)], [0] * n
+    bins: list[list] = [[] for _ in range(n)]
+    load = [0] * n
     for item in sorted(items, key=lambda it: -len(it[3])):
         k = load.index(min(load))
         bins[k].append(item)
@@ -459,7 +500,7 @@ def _chart_jobs(meshes):
 def _cores() -> int:
     try:
         return len(os.sched_getaffinity(0))
-    except AttributeError:          # macOS, Windows
+    except AttributeError:  # macOS, Windows
         return os.cpu_count() or 1
 
 
@@ -536,18 +577,23 @@ def _pack(meshes, charts, keys, resolution, density, padding, progress=None, can
         _PACKED.move_to_end(cache_key)
         return dict(_PACKED[cache_key], packs=0)
     if density is not None:
-        result = _pack_at([density], charts, meshes, 0, padding, density * xatlas_worker.PACK_UNITS_PER_TEXEL,
-                          cancel)[0]
+        result = _pack_at([density], charts, meshes, 0, padding, density * xatlas_worker.PACK_UNITS_PER_TEXEL, cancel)[
+            0
+        ]
         if max(result["width"], result["height"]) > MAX_RESOLUTION:
-            raise AtlasFull(f"texel density {density:g}/m needs a {result['width']}×{result['height']} atlas for "
-                            f"{_names(meshes)}, larger than {MAX_RESOLUTION}²: lower the density or give some "
-                            "objects their own atlas")
+            raise AtlasFull(
+                f"texel density {density:g}/m needs a {result['width']}×{result['height']} atlas for "
+                f"{_names(meshes)}, larger than {MAX_RESOLUTION}²: lower the density or give some "
+                "objects their own atlas"
+            )
         result.update(texels_per_metre=density, packs=1)
     else:
         result = _fit(meshes, charts, resolution, padding, progress, cancel)
     _PACKED[cache_key] = result
-    while len(_PACKED) > 1 and (len(_PACKED) > PACK_CACHE_ENTRIES or
-                                sum(sum(u.nbytes for u in r["uv"]) for r in _PACKED.values()) > PACK_CACHE_BYTES):
+    while len(_PACKED) > 1 and (
+        len(_PACKED) > PACK_CACHE_ENTRIES
+        or sum(sum(u.nbytes for u in r["uv"]) for r in _PACKED.values()) > PACK_CACHE_BYTES
+    ):
         _PACKED.popitem(last=False)
     return result
 
@@ -560,23 +606,34 @@ def _fit(meshes, charts, resolution, padding, progress=None, cancel=None):
     _, boxes = xatlas_worker.chart_boxes(payload)
     q, fill = 2 * padding + 2, min(xatlas_worker.FIRST_FILL)
     if xatlas_worker.box_density(boxes, resolution, padding, fill) is None:
-        raise AtlasFull(f"{_names(meshes)}: {len(boxes)} charts with padding {padding} need at least "
-                        f"{len(boxes) * q * q:.0f} texels for their padding alone, more than {fill:.0%} of a "
-                        f"{resolution}² atlas: raise the resolution, lower the padding, or give some objects "
-                        "their own atlas")
+        raise AtlasFull(
+            f"{_names(meshes)}: {len(boxes)} charts with padding {padding} need at least "
+            f"{len(boxes) * q * q:.0f} texels for their padding alone, more than {fill:.0%} of a "
+            f"{resolution}² atlas: raise the resolution, lower the padding, or give some objects "
+            "their own atlas"
+        )
     triangles = sum(len(m.triangles) for m in meshes)
     if _cores() < 2 or triangles <= ONE_CHILD_TRIANGLES:
-        job = {"task": "fit", "charts": payload, "resolution": int(resolution), "padding": int(padding),
-               "fills": (float(np.mean(xatlas_worker.FIRST_FILL)),)}
+        job = {
+            "task": "fit",
+            "charts": payload,
+            "resolution": int(resolution),
+            "padding": int(padding),
+            "fills": (float(np.mean(xatlas_worker.FIRST_FILL)),),
+        }
         result = _run_worker(job, [m.name for m in meshes], triangles, cancel)
     else:
+
         def pack_at(densities, units):
             return _pack_at(densities, charts, meshes, resolution, padding, units, cancel)
+
         result = xatlas_worker.fit(pack_at, boxes, resolution, padding, xatlas_worker.FIRST_FILL, True, progress)
     if not result["fits"]:
-        raise AtlasFull(f"could not fit the {len(boxes)} charts of {_names(meshes)} into one {resolution}² atlas "
-                        f"with padding {padding}: raise the resolution, lower the padding, or give some objects "
-                        "their own atlas")
+        raise AtlasFull(
+            f"could not fit the {len(boxes)} charts of {_names(meshes)} into one {resolution}² atlas "
+            f"with padding {padding}: raise the resolution, lower the padding, or give some objects "
+            "their own atlas"
+        )
     return result
 
 
@@ -587,8 +644,14 @@ def _pack_at(densities, charts, meshes, resolution, padding, units, cancel=None)
     triangles = sum(len(m.triangles) for m in meshes)
 
     def run(density):
-        job = {"task": "pack", "charts": payload, "texels_per_metre": float(density),
-               "resolution": int(resolution), "padding": int(padding), "units": float(units)}
+        job = {
+            "task": "pack",
+            "charts": payload,
+            "texels_per_metre": float(density),
+            "resolution": int(resolution),
+            "padding": int(padding),
+            "units": float(units),
+        }
         return _run_worker(job, names, triangles, cancel)
 
     if len(densities) == 1:
@@ -612,7 +675,7 @@ def _run_worker(job, names, triangles, cancel=None):
     for _ in range(XATLAS_ATTEMPTS):
         _check(cancel)
         run = _run_child(payload, timeout, cancel)
-        _check(cancel)          # a Ctrl-C on the terminal also reaches the child: not a crash
+        _check(cancel)  # a Ctrl-C on the terminal also reaches the child: not a crash
         if run is None:
             failures.append(f"no answer after {timeout:.0f} s")
             continue
@@ -631,8 +694,9 @@ def _run_child(payload: bytes, timeout: float, cancel=None):
     `timeout` seconds (then killed). Raises BakeCancelled, the child killed and reaped, once
     cancel() returns True. The pipes are served by a helper thread (`communicate` cannot be
     retried after a timeout while input remains to be written), this one only waits."""
-    proc = subprocess.Popen([sys.executable, "-I", _WORKER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-I", _WORKER], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
     streams = []
     talker = threading.Thread(target=lambda: streams.append(proc.communicate(payload)), daemon=True)
     talker.start()
@@ -649,7 +713,7 @@ def _run_child(payload: bytes, timeout: float, cancel=None):
     finally:
         if talker.is_alive():
             proc.kill()
-            talker.join()       # the pipes close with the child: communicate returns and reaps it
+            talker.join()  # the pipes close with the child: communicate returns and reaps it
         proc.wait()
 
 
@@ -667,14 +731,18 @@ def _describe_failure(run) -> str:
 def _object_uv(mesh, atlas, k, atlas_index, w, h):
     # the worker's UVs are normalised by xatlas's atlas size; rescale to the final atlas size.
     scale = np.array([atlas["width"] / w, atlas["height"] / h], dtype=np.float64)
-    uv = (atlas["uv"][k] * scale).astype(np.float32)                    # (T, 3, 2)
+    uv = (atlas["uv"][k] * scale).astype(np.float32)  # (T, 3, 2)
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    areas = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * w * h     # texels²
+    areas = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * w * h  # texels²
     live = areas > 0
     if live.any():
         px = uv[live].reshape(-1, 2) * [w, h]
-        rect = (int(np.floor(px[:, 0].min())), int(np.floor(px[:, 1].min())),
-                int(np.ceil(px[:, 0].max())), int(np.ceil(px[:, 1].max())))
+        rect = (
+            int(np.floor(px[:, 0].min())),
+            int(np.floor(px[:, 1].min())),
+            int(np.ceil(px[:, 0].max())),
+            int(np.ceil(px[:, 1].max())),
+        )
     else:
         rect = (0, 0, 0, 0)
     return ObjectUV(mesh.name, uv, atlas_index, float(areas.sum()), rect, atlas["mesh_charts"][k])

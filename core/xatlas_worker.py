@@ -31,6 +31,7 @@ imported) and a job dict: {"task": "chart", "meshes": [(positions (V, 3) float64
 {"task": "pack", "charts": [(chart, corner, uv)], "texels_per_metre", "resolution", "padding",
 "units"} → `pack`'s result; stdout = pickle of the result.
 """
+
 import os
 import pickle
 import sys
@@ -61,7 +62,7 @@ REFINE_SECONDS, REFINE_ROUNDS, REFINE_REACH, REFINE_TOLERANCE = 3.0, 3, 1.15, 0.
 #: falls under xatlas's zero-area threshold (FLT_EPSILON in input units), which would drop it.
 PACK_UNITS_PER_TEXEL = 1024.0
 _NONE = 0xFFFFFFFF
-_ATLASES = []       # every Atlas (and its input arrays) stays alive until os._exit: no destructor runs
+_ATLASES: list = []  # every Atlas (and its input arrays) stays alive until os._exit: no destructor runs
 
 
 def chart(meshes):
@@ -69,6 +70,7 @@ def chart(meshes):
     `_finish_charts`)."""
     import numpy as np
     import xatlas
+
     out = []
     for positions, triangles, polygons in meshes:
         positions = np.asarray(positions, dtype=np.float64)
@@ -79,10 +81,9 @@ def chart(meshes):
         tri_chart, corner_uv, corner_vertex = _xatlas_charts(atlas, scaled, triangles)
         if polygons is None:
             polygons = np.arange(len(triangles), dtype=np.int64)
-        else:                                           # numbered 0 … P-1
+        else:  # numbered 0 … P-1
             polygons = np.unique(np.asarray(polygons, dtype=np.int64), return_inverse=True)[1].ravel()
-        out.append(_finish_charts(positions, triangles.astype(np.int64), polygons, tri_chart, corner_uv,
-                                  corner_vertex))
+        out.append(_finish_charts(positions, triangles.astype(np.int64), polygons, tri_chart, corner_uv, corner_vertex))
     return out
 
 
@@ -93,6 +94,7 @@ def _chart_scale(positions, triangles):
     their smaller triangles (the 1st percentile by area) are under SMALL_TRIANGLE: then they are
     scaled up to that size."""
     import numpy as np
+
     areas = _areas(positions, triangles.astype(np.int64))
     areas = areas[areas > 0]
     small = float(np.percentile(areas, 1)) if len(areas) else SMALL_TRIANGLE
@@ -105,23 +107,25 @@ def _xatlas_charts(atlas, positions, triangles):
     (T, 3) int64, one per (chart, vertex))."""
     import numpy as np
     import xatlas
+
     atlas.add_mesh(positions, triangles)
     area = _areas(positions.astype(np.float64), triangles.astype(np.int64)).sum()
     options = xatlas.PackOptions()
     options.padding, options.bilinear, options.rotate_charts = 0, False, False
     options.resolution = 0
-    options.texels_per_unit = float(np.sqrt(0.75 * CHART_PASS_RESOLUTION ** 2 / max(area, 1e-30)))
+    options.texels_per_unit = float(np.sqrt(0.75 * CHART_PASS_RESOLUTION**2 / max(area, 1e-30)))
     chart_options = xatlas.ChartOptions()
     chart_options.max_iterations = CHART_ITERATIONS
     atlas.generate(chart_options=chart_options, pack_options=options)
     _, indices, uvs = atlas[0]
     _, vertex_chart = atlas.get_mesh_vertex_assignment(0)
     vertex_chart = np.where(vertex_chart == _NONE, -1, vertex_chart.astype(np.int64))
-    invalid = [c for c in range(atlas.get_mesh_chart_count(0))
-               if atlas.get_mesh_chart(0, c).type == xatlas.ChartType.Invalid]
+    invalid = [
+        c for c in range(atlas.get_mesh_chart_count(0)) if atlas.get_mesh_chart(0, c).type == xatlas.ChartType.Invalid
+    ]
     tri_chart = vertex_chart[indices[:, 0]]
     if invalid:
-        tri_chart[np.isin(tri_chart, invalid)] = -1          # overlapping: redone per polygon
+        tri_chart[np.isin(tri_chart, invalid)] = -1  # overlapping: redone per polygon
     corner_uv = uvs.astype(np.float64)[indices] * [atlas.width, atlas.height]
     return tri_chart, corner_uv, indices.astype(np.int64)
 
@@ -132,10 +136,12 @@ def _finish_charts(positions, triangles, polygons, tri_chart, corner_uv, corner_
     (T, 3) int32, uv (U, 2) float32, folded: polygons that overlap themselves even flattened
     alone, e.g. self-intersecting n-gons)."""
     import numpy as np
+
     bad_poly = _split_polygons(triangles, polygons, tri_chart, corner_vertex)
     while True:
-        chart, key, uv, planar = _assemble(positions, triangles, polygons, tri_chart, corner_uv,
-                                           corner_vertex, bad_poly)
+        chart, key, uv, planar = _assemble(
+            positions, triangles, polygons, tri_chart, corner_uv, corner_vertex, bad_poly
+        )
         invalid = _invalid_charts(uv, chart, key, len(planar))
         redo = invalid & ~planar
         if not redo.any():
@@ -150,10 +156,11 @@ def _assemble(positions, triangles, polygons, tri_chart, corner_uv, corner_verte
     Returns (chart (T,) numbered from 0, -1 for no area; corner key (T, 3), one per (chart,
     vertex); corner UVs (T, 3, 2) in metres; planar (C,) bool: the chart is one polygon)."""
     import numpy as np
+
     bad = bad_poly[polygons]
     chart = tri_chart.copy()
     uv = corner_uv.copy()
-    key = np.where(bad[:, None], -1, corner_vertex)              # xatlas's (chart, vertex)
+    key = np.where(bad[:, None], -1, corner_vertex)  # xatlas's (chart, vertex)
     first = int(tri_chart.max()) + 1 if (tri_chart >= 0).any() else 0
     if bad.any():
         p_chart, p_uv = _planar_charts(positions, triangles[bad], polygons[bad])
@@ -176,6 +183,7 @@ def _invalid_charts(uv, chart, key, n_charts):
     every boundary loop, on its triangles' side, the boundary winds once around (twice: a
     second layer, e.g. a ring whose inner edge xatlas laid inside its own outer part)."""
     import numpy as np
+
     live = chart >= 0
     uv, chart, key = uv[live], chart[live], key[live]
     invalid = np.zeros(n_charts, dtype=bool)
@@ -187,8 +195,9 @@ def _invalid_charts(uv, chart, key, n_charts):
     directed = np.stack([key, np.roll(key, -1, axis=1)], axis=-1).reshape(-1, 2)
     ends = np.stack([uv, np.roll(uv, -1, axis=1)], axis=2).reshape(-1, 2, 2)
     undirected = np.sort(directed, axis=1)
-    _, inverse, counts = np.unique(undirected[:, 0] * (int(key.max()) + 1) + undirected[:, 1],
-                                   return_inverse=True, return_counts=True)
+    _, inverse, counts = np.unique(
+        undirected[:, 0] * (int(key.max()) + 1) + undirected[:, 1], return_inverse=True, return_counts=True
+    )
     counts = counts[inverse.ravel()]
     edge_chart = np.repeat(chart, 3)
     invalid[edge_chart[counts > 2]] = True
@@ -205,28 +214,29 @@ def _layered_charts(ends, directed, chart, orientation):
     chart (E,)) are linked into loops; one point per loop is tested against its chart's whole
     boundary. orientation (C,): +1 counter-clockwise charts, -1 mirrored ones."""
     import numpy as np
+
     if len(ends) == 0:
         return np.zeros(0, dtype=np.int64)
     # pair each vertex's incoming edges with its outgoing ones: a permutation of the edges
     out_order = np.lexsort((directed[:, 0], chart))
     in_order = np.lexsort((directed[:, 1], chart))
     if not (directed[out_order, 0] == directed[in_order, 1]).all():
-        return np.unique(chart)                          # ragged boundary: check every chart
+        return np.unique(chart)  # ragged boundary: check every chart
     succ = np.empty(len(ends), dtype=np.int64)
     succ[in_order] = out_order
     loop = np.arange(len(ends))
     step = succ.copy()
-    for _ in range(int(np.ceil(np.log2(len(ends) + 1)))):       # smallest edge index per loop
+    for _ in range(int(np.ceil(np.log2(len(ends) + 1)))):  # smallest edge index per loop
         loop = np.minimum(loop, loop[step])
         step = step[step]
     sample = np.unique(loop)
-    several = np.bincount(chart[sample])[chart[sample]] > 1    # one simple loop winds once
+    several = np.bincount(chart[sample])[chart[sample]] > 1  # one simple loop winds once
     sample = sample[several]
     if len(sample) == 0:
         return np.zeros(0, dtype=np.int64)
     a, b = ends[sample, 0], ends[sample, 1]
     left = np.stack([-(b - a)[:, 1], (b - a)[:, 0]], axis=1)
-    point = 0.5 * (a + b) + 1e-6 * orientation[chart[sample]][:, None] * left   # triangles' side
+    point = 0.5 * (a + b) + 1e-6 * orientation[chart[sample]][:, None] * left  # triangles' side
     edges = np.nonzero(np.isin(chart, chart[sample]))[0]
     wind = np.zeros(len(sample))
     for who, edge in _rows_at_height(chart[sample], point[:, 1], chart[edges], ends[edges, :, 1]):
@@ -240,13 +250,14 @@ def _rows_at_height(point_chart, y, edge_chart, edge_y):
     the only edges that can add to a point's winding number, in chunks (see `_chunks`).
     edge_y (E, 2)."""
     import numpy as np
+
     lo, hi = edge_y.min(axis=1), edge_y.max(axis=1)
     rank = np.unique(np.concatenate([y, lo, hi]), return_inverse=True)[1].ravel()
     n = len(rank) + 1
-    key = point_chart * n + rank[:len(y)]
+    key = point_chart * n + rank[: len(y)]
     order = np.argsort(key, kind="stable")
-    start = np.searchsorted(key[order], edge_chart * n + rank[len(y):len(y) + len(lo)])
-    stop = np.searchsorted(key[order], edge_chart * n + rank[len(y) + len(lo):])
+    start = np.searchsorted(key[order], edge_chart * n + rank[len(y) : len(y) + len(lo)])
+    stop = np.searchsorted(key[order], edge_chart * n + rank[len(y) + len(lo) :])
     count = stop - start
     for rows in _chunks(count):
         edge = np.repeat(rows, count[rows])
@@ -259,6 +270,7 @@ def _winding(p, a, b):
     edge crosses the horizontal line through p on p's right, upwards or downwards (Sunday's
     rule). Summed over a closed boundary: its winding number around p."""
     import numpy as np
+
     side = _orient(a, b, p)
     up = (a[:, 1] <= p[:, 1]) & (b[:, 1] > p[:, 1]) & (side > 0)
     down = (a[:, 1] > p[:, 1]) & (b[:, 1] <= p[:, 1]) & (side < 0)
@@ -271,6 +283,7 @@ def _crossing_charts(ends, vertices, chart, n_charts):
     long, or 1/√E of the chart's size if larger, doubled while the bins would hold too many
     entries); edges sharing a cell and no vertex are tested with strict orientation signs."""
     import numpy as np
+
     if len(ends) < 2:
         return np.zeros(0, dtype=np.int64)
     length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
@@ -299,8 +312,7 @@ def _crossing_charts(ends, vertices, chart, n_charts):
         shared = (vertices[a][:, :, None] == vertices[b][:, None, :]).any(axis=(1, 2))
         a, b = a[~shared], b[~shared]
         p1, q1, p2, q2 = ends[a, 0], ends[a, 1], ends[b, 0], ends[b, 1]
-        cross = ((_orient(p1, q1, p2) * _orient(p1, q1, q2) < 0) &
-                 (_orient(p2, q2, p1) * _orient(p2, q2, q1) < 0))
+        cross = (_orient(p1, q1, p2) * _orient(p1, q1, q2) < 0) & (_orient(p2, q2, p1) * _orient(p2, q2, q1) < 0)
         found.append(np.unique(chart[a[cross]]))
     return np.unique(np.concatenate(found)) if found else np.zeros(0, dtype=np.int64)
 
@@ -309,11 +321,12 @@ def _pairs_in_runs(keys):
     """Index pairs (i, j), i < j, of entries in the same run of equal sorted `keys`, yielded in
     chunks of about MAX_PAIRS pairs (memory stays bounded whatever the runs' sizes)."""
     import numpy as np
+
     start = np.concatenate([[True], keys[1:] != keys[:-1]])
     run_start = np.maximum.accumulate(np.where(start, np.arange(len(keys)), 0))
     run_id = np.cumsum(start) - 1
-    run_end = np.bincount(run_id) + run_start[start]                        # exclusive, per run
-    after = run_end[run_id] - np.arange(len(keys)) - 1                      # partners after i
+    run_end = np.bincount(run_id) + run_start[start]  # exclusive, per run
+    after = run_end[run_id] - np.arange(len(keys)) - 1  # partners after i
     for rows in _chunks(after):
         i = np.repeat(rows, after[rows])
         j = i + 1 + np.arange(len(i)) - np.repeat(np.cumsum(after[rows]) - after[rows], after[rows])
@@ -324,6 +337,7 @@ def _chunks(counts):
     """Consecutive index ranges (as arrays) of `counts` each summing to about MAX_PAIRS at most
     (a single larger count is a chunk of its own)."""
     import numpy as np
+
     total = np.cumsum(counts)
     start = 0
     while start < len(counts):
@@ -342,6 +356,7 @@ def _split_polygons(triangles, polygons, tri_chart, corner_vertex):
     """(P,) bool: polygons xatlas did not keep whole: a triangle without a chart, or a vertex
     that is two different chart vertices (different charts or a seam) inside the polygon."""
     import numpy as np
+
     n_poly = int(polygons.max()) + 1
     bad = np.zeros(n_poly, dtype=bool)
     bad[polygons[tri_chart < 0]] = True
@@ -349,7 +364,7 @@ def _split_polygons(triangles, polygons, tri_chart, corner_vertex):
     np.minimum.at(lo, polygons, tri_chart)
     np.maximum.at(hi, polygons, tri_chart)
     bad |= (hi >= 0) & (lo != hi)
-    pv = (np.repeat(polygons, 3) * (int(triangles.max()) + 1) + triangles.ravel())
+    pv = np.repeat(polygons, 3) * (int(triangles.max()) + 1) + triangles.ravel()
     order = np.argsort(pv, kind="stable")
     pv_sorted, out_sorted = pv[order], corner_vertex.ravel()[order]
     differs = (pv_sorted[1:] == pv_sorted[:-1]) & (out_sorted[1:] != out_sorted[:-1])
@@ -362,7 +377,8 @@ def _planar_charts(positions, triangles, polygons):
     triangulates it). Returns (chart (t,) int64 numbered from 0, -1 for polygons without area;
     corner UVs (t, 3, 2) in metres)."""
     import numpy as np
-    p = positions[triangles]                                                 # (t, 3, 3)
+
+    p = positions[triangles]  # (t, 3, 3)
     ids, poly_index = np.unique(polygons, return_inverse=True)
     cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     normal = np.zeros((len(ids), 3))
@@ -375,10 +391,11 @@ def _planar_charts(positions, triangles, polygons):
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
     v = np.cross(n, u)
     origin = np.zeros((len(ids), 3))
-    origin[poly_index[::-1]] = p[::-1, 0]                    # a vertex of each polygon
+    origin[poly_index[::-1]] = p[::-1, 0]  # a vertex of each polygon
     local = p - origin[poly_index][:, None, :]
-    uv = np.stack([np.einsum("tki,ti->tk", local, u[poly_index]),
-                   np.einsum("tki,ti->tk", local, v[poly_index])], axis=-1)
+    uv = np.stack(
+        [np.einsum("tki,ti->tk", local, u[poly_index]), np.einsum("tki,ti->tk", local, v[poly_index])], axis=-1
+    )
     chart = np.where(flat[poly_index], -1, poly_index)
     return chart, uv
 
@@ -386,6 +403,7 @@ def _planar_charts(positions, triangles, polygons):
 def _extent(p, index, n):
     """Bounding-box diagonal (n,) of the triangles `p (t, 3, 3)` grouped by `index`."""
     import numpy as np
+
     lo = np.full((n, 3), np.inf)
     hi = np.full((n, 3), -np.inf)
     np.minimum.at(lo, index, p.min(axis=1))
@@ -396,6 +414,7 @@ def _extent(p, index, n):
 def _renumber(chart):
     """Chart ids made consecutive from 0 (-1 kept): (old id (C,) of each new id, chart (T,))."""
     import numpy as np
+
     ids, inverse = np.unique(chart, return_inverse=True)
     inverse = inverse.reshape(chart.shape)
     if len(ids) and ids[0] < 0:
@@ -409,7 +428,8 @@ def _to_metres(p, uv, chart, n_charts):
     stretch xatlas's charting pass gives small charts, then a uniform scale making the chart's
     UV area its 3D area. Charts are moved to start at (0, 0)."""
     import numpy as np
-    d_uv = np.roll(uv, -1, axis=1) - uv                                    # (t, 3, 2) edges
+
+    d_uv = np.roll(uv, -1, axis=1) - uv  # (t, 3, 2) edges
     d_p = np.roll(p, -1, axis=1) - p
     d_len2 = np.einsum("tki,tki->tk", d_p, d_p)
     ok = d_len2 > 0
@@ -420,18 +440,19 @@ def _to_metres(p, uv, chart, n_charts):
 
     def total(w):
         return np.bincount(edge_chart, weights=w.ravel(), minlength=n_charts)
+
     sxx, sxy, syy, sx, sy = total(x * x), total(x * y), total(y * y), total(x), total(y)
     det = sxx * syy - sxy * sxy
     solvable = det > 1e-9 * np.maximum(sxx * syy, 1e-300)
     safe = np.where(solvable, det, 1.0)
     a, b = (syy * sx - sxy * sy) / safe, (sxx * sy - sxy * sx) / safe
-    iso = total(x + y) / np.maximum(total((x + y) ** 2), 1e-300)            # one scale for both
+    iso = total(x + y) / np.maximum(total((x + y) ** 2), 1e-300)  # one scale for both
     fit = solvable & (a > 0) & (b > 0)
     a, b = np.where(fit, a, iso), np.where(fit, b, iso)
     scaled = uv * np.stack([np.sqrt(a), np.sqrt(b)], axis=1)[chart][:, None, :]
     area_uv = np.bincount(chart, weights=np.abs(_signed_area(scaled)), minlength=n_charts)
     area_3d = np.bincount(chart, weights=_areas3(p), minlength=n_charts)
-    has_area = (area_uv > 0) & (area_3d > 0)                     # a needle: its edge lengths only
+    has_area = (area_uv > 0) & (area_3d > 0)  # a needle: its edge lengths only
     factor = np.sqrt(np.where(has_area, area_3d, 1.0) / np.where(has_area, area_uv, 1.0))
     scaled *= factor[chart][:, None, None]
     lo = np.full((n_charts, 2), np.inf)
@@ -443,12 +464,12 @@ def _uv_vertices(chart, key, uv):
     """Number the UV vertices: one per distinct corner key. Returns (chart (T,) int32, corner
     (T, 3) int32, -1 on triangles without a chart; uv (U, 2) float32 of each UV vertex)."""
     import numpy as np
+
     live = key >= 0
     ids, first, inverse = np.unique(key[live], return_index=True, return_inverse=True)
     corner = np.full(key.shape, -1, dtype=np.int64)
     corner[live] = inverse.ravel()
-    return (chart.astype(np.int32), corner.astype(np.int32),
-            np.ascontiguousarray(uv[live][first], dtype=np.float32))
+    return (chart.astype(np.int32), corner.astype(np.int32), np.ascontiguousarray(uv[live][first], dtype=np.float32))
 
 
 def _areas(positions, triangles):
@@ -459,6 +480,7 @@ def _areas(positions, triangles):
 def _areas3(p):
     """Area (t,) of triangles given by their corners `(t, 3, 3)`."""
     import numpy as np
+
     return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
 
 
@@ -476,11 +498,12 @@ def pack(charts, texels_per_metre, resolution, padding, units):
     [0, 1]²], "mesh_charts": [charts per mesh], "charts", "utilisation"}. units: pack input units
     per metre (see PACK_UNITS_PER_TEXEL)."""
     import numpy as np
+
     inputs = [_uv_mesh(chart, corner, uv, units) for chart, corner, uv in charts]
     atlas = _pack_once(inputs, texels_per_metre / units, resolution, padding)
     if resolution and atlas.atlas_count > 1:
         used = np.array([atlas.get_utilization(i) for i in range(atlas.atlas_count)])
-        return {"fits": False, "spilled": float(used[1:].sum() / max(used.sum(), 1e-30))}
+        return {"fits": False, "spilled": float(used[1:].sum()) / max(float(used.sum()), 1e-30)}
     return _result(atlas, inputs)
 
 
@@ -496,6 +519,7 @@ def fit(pack_at, boxes, resolution, padding, fills, side_by_side, progress=None)
     import time
 
     import numpy as np
+
     tries = [box_density(boxes, resolution, padding, fill) for fill in fills]
     units = tries[0] * PACK_UNITS_PER_TEXEL
     best, spilled, log, refined = None, np.inf, [], 0
@@ -521,7 +545,7 @@ def fit(pack_at, boxes, resolution, padding, fills, side_by_side, progress=None)
         if upper <= best[0] * (1.0 + REFINE_TOLERANCE) or seconds > REFINE_SECONDS or refined >= REFINE_ROUNDS:
             return dict(best[1], texels_per_metre=float(best[0]), packs=len(log), tries=log)
         n = 2 if side_by_side else 1
-        tries = [best[0] * (upper / best[0]) ** ((n - k) / (n + 1)) for k in range(n)]   # largest first
+        tries = [best[0] * (upper / best[0]) ** ((n - k) / (n + 1)) for k in range(n)]  # largest first
         refined += 1
     return {"fits": False, "tries": log}
 
@@ -530,6 +554,7 @@ def chart_boxes(charts):
     """(total UV area in m², bounding boxes (C, 2) in metres, width and height, of every chart)
     of the charts [(chart, corner, uv)] of several meshes; each chart starts at (0, 0)."""
     import numpy as np
+
     area, boxes = 0.0, [np.zeros((0, 2))]
     for chart, corner, uv in charts:
         live = chart >= 0
@@ -563,6 +588,7 @@ def _density_for_area(boxes, padding, texels):
     """The density t ≥ 0 at which `box_area` is `texels` (the positive root of a quadratic in
     t), or None when even t = 0 needs more."""
     import numpy as np
+
     q = 2.0 * padding + 2.0
     a = float((boxes[:, 0] * boxes[:, 1]).sum())
     b = q * float(boxes.sum())
@@ -576,7 +602,7 @@ def _shrunk(boxes, padding, t, spilled):
     """The density to try after t spilled a share `spilled` of its used area into further
     atlases: where the padded boxes cover (1 - spilled)·SHRINK_MARGIN² of what they cover at t
     (so the padding, which does not shrink with t, is accounted for), and t·SHRINK_MIN at most."""
-    target = max(1.0 - spilled, 0.25) * SHRINK_MARGIN ** 2 * box_area(boxes, padding, t)
+    target = max(1.0 - spilled, 0.25) * SHRINK_MARGIN**2 * box_area(boxes, padding, t)
     shrunk = _density_for_area(boxes, padding, target)
     return min(t * SHRINK_MIN, shrunk if shrunk is not None else 0.5 * t)
 
@@ -586,17 +612,21 @@ def _uv_mesh(chart, corner, uv, units):
     indices (L, 3) uint32, chart per live triangle (L, 1) uint32 as the 'material' that keeps
     charts apart, live triangle mask (T,), corner (T, 3), uv in metres)."""
     import numpy as np
+
     live = chart >= 0
-    return {"uv": np.ascontiguousarray(uv.astype(np.float64) * units, dtype=np.float32),
-            "indices": np.ascontiguousarray(corner[live], dtype=np.uint32),
-            "materials": np.ascontiguousarray(chart[live, None], dtype=np.uint32),
-            "live": live, "corner": corner, "chart": chart}
-
-
+    return {
+        "uv": np.ascontiguousarray(uv.astype(np.float64) * units, dtype=np.float32),
+        "indices": np.ascontiguousarray(corner[live], dtype=np.uint32),
+        "materials": np.ascontiguousarray(chart[live, None], dtype=np.uint32),
+        "live": live,
+        "corner": corner,
+        "chart": chart,
+    }
 
 
 def _pack_once(inputs, texels_per_unit, resolution, padding):
     import xatlas
+
     atlas = xatlas.Atlas()
     _ATLASES.append((atlas, inputs))
     for m in inputs:
@@ -612,20 +642,30 @@ def _pack_once(inputs, texels_per_unit, resolution, padding):
 
 def _result(atlas, inputs):
     import numpy as np
+
     uv, mesh_charts = [], []
     for k, m in enumerate(inputs):
         _, _, out = atlas[k]
         _, vertex_chart = atlas.get_mesh_vertex_assignment(k)
-        vertex_uv = _place_dropped_vertices(out.astype(np.float64), m["uv"].astype(np.float64),
-                                            np.where(vertex_chart == _NONE, -1, vertex_chart.astype(np.int64)),
-                                            m["corner"][m["live"]])
+        vertex_uv = _place_dropped_vertices(
+            out.astype(np.float64),
+            m["uv"].astype(np.float64),
+            np.where(vertex_chart == _NONE, -1, vertex_chart.astype(np.int64)),
+            m["corner"][m["live"]],
+        )
         corners = np.zeros(m["corner"].shape + (2,), dtype=np.float32)
         corners[m["live"]] = vertex_uv[m["corner"][m["live"]]]
         uv.append(corners)
         mesh_charts.append(int(atlas.get_mesh_chart_count(k)))
-    return {"fits": True, "width": int(atlas.width), "height": int(atlas.height), "uv": uv,
-            "mesh_charts": mesh_charts, "charts": int(atlas.chart_count),
-            "utilisation": float(atlas.get_utilization(0))}
+    return {
+        "fits": True,
+        "width": int(atlas.width),
+        "height": int(atlas.height),
+        "uv": uv,
+        "mesh_charts": mesh_charts,
+        "charts": int(atlas.chart_count),
+        "utilisation": float(atlas.get_utilization(0)),
+    }
 
 
 def _place_dropped_vertices(out, uv_in, vertex_chart, corner):
@@ -634,20 +674,21 @@ def _place_dropped_vertices(out, uv_in, vertex_chart, corner):
     triangles stay in place and every loop of the vertex keeps one UV. `vertex_chart` (U,) is
     xatlas's packed chart per vertex (-1: left out); corner (L, 3) the triangles packed."""
     import numpy as np
+
     used = np.zeros(len(out), dtype=bool)
     used[corner.ravel()] = True
     missing = used & (vertex_chart < 0)
     if not missing.any():
         return out
     chart = vertex_chart.copy()
-    for _ in range(16):                   # spread chart ids to left-out corners of the same triangle
+    for _ in range(16):  # spread chart ids to left-out corners of the same triangle
         tri = chart[corner].max(axis=1)
         fill = (chart[corner] < 0) & (tri[:, None] >= 0)
         if not fill.any():
             break
         chart[corner[fill]] = np.broadcast_to(tri[:, None], corner.shape)[fill]
     out = out.copy()
-    out[(chart < 0) & missing] = 0.0      # a chart xatlas dropped whole: it has no area
+    out[(chart < 0) & missing] = 0.0  # a chart xatlas dropped whole: it has no area
     todo = missing & (chart >= 0)
     if todo.any():
         known = (vertex_chart >= 0) & np.isin(vertex_chart, np.unique(chart[todo]))
@@ -661,6 +702,7 @@ def _affine_fits(src, dst, group):
     """Least-squares affine maps taking src (n, 2) to dst (n, 2) per group id: (maps (G, 3, 2)
     acting on [src - centre, 1], centre (G, 2) of each group's src points)."""
     import numpy as np
+
     n = int(group.max()) + 1
     count = np.maximum(np.bincount(group, minlength=n), 1)
     centre = np.stack([np.bincount(group, weights=src[:, k], minlength=n) for k in range(2)], axis=1)
@@ -682,13 +724,19 @@ def main():
     elif job["task"] == "fit":
         charts, resolution, padding = job["charts"], job["resolution"], job["padding"]
         _, boxes = chart_boxes(charts)
-        result = fit(lambda densities, units: [pack(charts, t, resolution, padding, units) for t in densities],
-                     boxes, resolution, padding, job["fills"], False)
+        result = fit(
+            lambda densities, units: [pack(charts, t, resolution, padding, units) for t in densities],
+            boxes,
+            resolution,
+            padding,
+            job["fills"],
+            False,
+        )
     else:
         result = pack(job["charts"], job["texels_per_metre"], job["resolution"], job["padding"], job["units"])
     sys.stdout.buffer.write(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
     sys.stdout.buffer.flush()
-    os._exit(0)     # skip xatlas's destructors (see the module docstring)
+    os._exit(0)  # skip xatlas's destructors (see the module docstring)
 
 
 if __name__ == "__main__":

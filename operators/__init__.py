@@ -1,4 +1,5 @@
 """Thin bpy operators: one per module, registered in `classes` order."""
+
 import bpy
 
 from .bake import HHD_OT_bake
@@ -7,7 +8,14 @@ from .encode import HHD_OT_encode, HHD_OT_open_output
 from .preview import HHD_OT_preview_hide, HHD_OT_preview_show
 from .unwrap import HHD_OT_unwrap
 
-classes = (HHD_OT_check_dependencies, HHD_OT_unwrap, HHD_OT_bake, HHD_OT_encode, HHD_OT_open_output,
-           HHD_OT_preview_show, HHD_OT_preview_hide)
+classes = (
+    HHD_OT_check_dependencies,
+    HHD_OT_unwrap,
+    HHD_OT_bake,
+    HHD_OT_encode,
+    HHD_OT_open_output,
+    HHD_OT_preview_show,
+    HHD_OT_preview_hide,
+)
 
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -6,6 +6,7 @@ stdout when headless). From the UI `invoke` runs it modally: the core pipeline w
 status text, Esc cancels within a chunk of texels, and the .blend is only changed once the bake
 has finished (images loaded).
 """
+
 import bpy
 
 from ..bridge import bake_session
@@ -33,6 +34,7 @@ def receivers_poll(cls, context) -> bool:
 
 class HHD_OT_bake(modal_work.ModalWork, bpy.types.Operator):
     """Path-trace the lightmaps of the receivers, encode them to HHD and write the EXR files"""
+
     bl_idname = "hhd.bake"
     bl_label = "Bake Lightmaps"
     bl_options = {'REGISTER'}
@@ -77,7 +79,7 @@ class HHD_OT_bake(modal_work.ModalWork, bpy.types.Operator):
         error = None
         try:
             self.session.run(progress=progress)
-        except Exception as exc:      # reported (or re-raised) by _done, after the progress line
+        except Exception as exc:  # reported (or re-raised) by _done, after the progress line
             error = exc
         finally:
             if progress:

@@ -1,4 +1,5 @@
 """Operator: report whether the compiled dependencies (embreex, xatlas, OpenEXR) load."""
+
 import bpy
 
 from ..core import deps
@@ -6,6 +7,7 @@ from ..core import deps
 
 class HHD_OT_check_dependencies(bpy.types.Operator):
     """Check that the bundled ray tracer, unwrapper and EXR libraries load on this machine"""
+
     bl_idname = "hhd.check_dependencies"
     bl_label = "Check Dependencies"
 

@@ -3,6 +3,7 @@
 Reads each receiver atlas's SH and texel EXRs from the output folder and writes a new HHD EXR and
 sidecar (atomically); no tracing. The loaded images are reloaded.
 """
+
 import os
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from .bake import receivers_poll
 
 class HHD_OT_encode(bpy.types.Operator):
     """Encode the last bake again from its SH EXR with the current encoder settings (no tracing)"""
+
     bl_idname = "hhd.encode"
     bl_label = "Re-encode"
     bl_options = {'REGISTER'}
@@ -56,6 +58,7 @@ def reencode_objects(objects, settings, out_dir: str | None = None, threads: int
 
 class HHD_OT_open_output(bpy.types.Operator):
     """Open the output folder in the system's file browser"""
+
     bl_idname = "hhd.open_output"
     bl_label = "Open Output Folder"
 

@@ -4,8 +4,8 @@ The bake and the unwrap share it (and so run one at a time). The work function t
 data (the core pipeline: Embree, numpy and child processes release the GIL); what it reads from
 Blender is read before it starts and what it writes is written on the main thread afterwards.
 """
-import threading
 
+import threading
 
 
 class ModalWork:
@@ -14,8 +14,9 @@ class ModalWork:
     makes `cancel()` return True (the work then raises BakeCancelled); when the thread ends,
     `_work_done(context, result, error)` runs on the main thread and returns the operator's
     result. TITLE names the work in the status bar."""
+
     TITLE = "HHD"
-    running = False          # shared by every subclass: one modal job at a time
+    running = False  # shared by every subclass: one modal job at a time
 
     def _start_work(self, context, work):
         self._cancel = threading.Event()
@@ -32,7 +33,7 @@ class ModalWork:
     def _run_work(self, work):
         try:
             self._state["result"] = work(self._on_progress, self._cancel.is_set)
-        except Exception as exc:        # handed to the main thread by modal
+        except Exception as exc:  # handed to the main thread by modal
             self._state["error"] = exc
 
     def _on_progress(self, fraction, message):

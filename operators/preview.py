@@ -1,4 +1,5 @@
 """Operators: show / hide the baked lighting in EEVEE (`bpy.ops.hhd.preview_show()` / `preview_hide()`)."""
+
 from pathlib import Path
 
 import bpy
@@ -25,6 +26,7 @@ def atlas_files_of(objects, settings) -> dict:
 
 class HHD_OT_preview_show(bpy.types.Operator):
     """Show the baked lightmaps on the receivers' materials in EEVEE, decoded as a game engine would"""
+
     bl_idname = "hhd.preview_show"
     bl_label = "Show Preview"
     bl_options = {'REGISTER', 'UNDO'}
@@ -52,6 +54,7 @@ class HHD_OT_preview_show(bpy.types.Operator):
 
 class HHD_OT_preview_hide(bpy.types.Operator):
     """Remove the preview and restore every material exactly as it was"""
+
     bl_idname = "hhd.preview_hide"
     bl_label = "Hide Preview"
     bl_options = {'REGISTER', 'UNDO'}

@@ -6,6 +6,7 @@ script or in background mode `execute` runs them in a row (a progress line on st
 headless); from the UI `invoke` runs the core unwrap on a thread with a progress bar, and Esc
 cancels it before anything was written, so a cancelled unwrap leaves every mesh untouched.
 """
+
 from dataclasses import dataclass
 
 import bpy
@@ -20,18 +21,21 @@ from . import modal_work
 
 class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
     """Chart and pack lightmap UVs with xatlas into the lightmap UV layer of the selected meshes"""
+
     bl_idname = "hhd.unwrap"
     bl_label = "Unwrap Lightmap UVs"
     bl_options = {'REGISTER', 'UNDO'}
     TITLE = "HHD unwrap"
 
     make_single_user: BoolProperty(
-        name="Make Single User", default=False,
-        description="Give linked duplicates their own mesh first (they cannot share lightmap UVs)")
+        name="Make Single User",
+        default=False,
+        description="Give linked duplicates their own mesh first (they cannot share lightmap UVs)",
+    )
 
     @classmethod
     def poll(cls, context):
-        if modal_work.busy(cls):         # one bake or unwrap at a time
+        if modal_work.busy(cls):  # one bake or unwrap at a time
             return False
         if not mesh_data.target_meshes(context.selected_objects):
             cls.poll_message_set("Select one or more mesh objects")
@@ -45,8 +49,9 @@ class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
         console = ConsoleProgress() if bpy.app.background else None
         wm.progress_begin(0, 100)
         try:
-            outcome = unwrap_objects(objects, settings, self.make_single_user,
-                                     console or (lambda f, _msg: wm.progress_update(int(100 * f))))
+            outcome = unwrap_objects(
+                objects, settings, self.make_single_user, console or (lambda f, _msg: wm.progress_update(int(100 * f)))
+            )
         except BakeError as exc:
             outcome = exc
         finally:
@@ -96,6 +101,7 @@ class UnwrapJob:
     """What `read_objects` read: the objects, their core meshes (world space) and loop indices
     (T, 3) per triangle corner, the core settings, whether linked duplicates must be made single
     user when writing, and each mesh's loop count (to notice a mesh edited meanwhile)."""
+
     objects: list
     meshes: list
     loops: list
@@ -110,16 +116,27 @@ def read_objects(objects, settings, make_single_user=False) -> UnwrapJob:
     shared = mesh_data.shared_meshes(objects)
     if shared and not make_single_user:
         mesh, names = next(iter(shared.items()))
-        raise BakeError(f"{', '.join(repr(n) for n in names)} share the mesh '{mesh}': one lightmap UV "
-                        "layer cannot give them separate texels. Make them single user (Object > Relations > "
-                        "Make Single User > Object & Data), or unwrap with 'Make Single User'")
+        raise BakeError(
+            f"{', '.join(repr(n) for n in names)} share the mesh '{mesh}': one lightmap UV "
+            "layer cannot give them separate texels. Make them single user (Object > Relations > "
+            "Make Single User > Object & Data), or unwrap with 'Make Single User'"
+        )
     read = [mesh_data.read_unwrap_mesh(o) for o in objects]
     padding = settings.padding or core_unwrap.padding_for_mips(settings.mip_levels)
     core_settings = core_unwrap.UnwrapSettings(
-        resolution=settings.resolution, texel_density=settings.texel_density or None,
-        padding=padding, per_object=settings.atlas_mode == 'PER_OBJECT')
-    return UnwrapJob(list(objects), [m for m, _ in read], [loops for _, loops in read], core_settings,
-                     bool(shared), [len(o.data.loops) for o in objects])
+        resolution=settings.resolution,
+        texel_density=settings.texel_density or None,
+        padding=padding,
+        per_object=settings.atlas_mode == 'PER_OBJECT',
+    )
+    return UnwrapJob(
+        list(objects),
+        [m for m, _ in read],
+        [loops for _, loops in read],
+        core_settings,
+        bool(shared),
+        [len(o.data.loops) for o in objects],
+    )
 
 
 def compute(job: UnwrapJob, progress=None, cancel=None) -> core_unwrap.UnwrapResult:
@@ -151,10 +168,14 @@ def write_objects(job: UnwrapJob, settings, result):
     sizes = ", ".join(f"{w}×{h}" for w, h in result.atlas_sizes)
     used = ", ".join(f"{100 * u:.0f}%" for u in result.utilisation)
     per_object = ", ".join(f"{o.name}: {o.texels:.0f}" for o in result.objects)
-    atlases = f"atlas {sizes}" if len(result.atlas_sizes) == 1 else \
-        f"{len(result.atlas_sizes)} atlases ({', '.join(names[a] for a in sorted(names))}) {sizes}"
-    summary = (f"{len(objects)} object(s), {result.charts} charts, {atlases}, {used} used; "
-               f"texels per object: {per_object}")
+    atlases = (
+        f"atlas {sizes}"
+        if len(result.atlas_sizes) == 1
+        else f"{len(result.atlas_sizes)} atlases ({', '.join(names[a] for a in sorted(names))}) {sizes}"
+    )
+    summary = (
+        f"{len(objects)} object(s), {result.charts} charts, {atlases}, {used} used; texels per object: {per_object}"
+    )
     return summary, warnings
 
 
@@ -169,8 +190,9 @@ def _check_unchanged(job: UnwrapJob) -> None:
             raise BakeError(f"'{obj.name}' was edited while unwrapping: unwrap again")
 
 
-def atlas_names(objects: list[str], atlas_of: list[int], taken: set[str] = frozenset(),
-                part: list[int] | None = None) -> dict[int, str]:
+def atlas_names(
+    objects: list[str], atlas_of: list[int], taken: set[str] = frozenset(), part: list[int] | None = None
+) -> dict[int, str]:
     """File-name stems per atlas index: "Lightmap" for an atlas shared by several objects (or the
     only atlas), "Lightmap_1", "Lightmap_2", … for the further atlases a full shared atlas spilled
     into (`part[atlas]` > 0, see `core.unwrap.UnwrapResult.part`), "Lightmap_<object>" for an

@@ -3,6 +3,7 @@
 The Render tab holds scene-wide bake settings already (Cycles' Bake panel lives there), and the
 settings here are per scene, not per view, so they sit beside it rather than in a 3D View tab.
 """
+
 import bpy
 
 from .main import HHD_PT_main

@@ -1,4 +1,5 @@
 """The HHD Lightmapper panel in Properties > Render: receivers → unwrap → bake → preview → files."""
+
 import bpy
 
 

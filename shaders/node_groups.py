@@ -14,6 +14,7 @@ DESIGN.md units):
 Each group carries GROUP_VERSION in a custom property and is rebuilt when it differs, so a .blend
 made with an older extension gets the current maths.
 """
+
 from __future__ import annotations
 
 import bpy
@@ -22,8 +23,13 @@ from ..core import hhd, sh
 from ..core.encoding.preview import sampled
 
 GROUP_VERSION = 1
-GROUPS = {"HHD": "HHD Lightmap", "AHD": "AHD Lightmap", "L1": "L1 SH Lightmap", "L2": "L2 SH Lightmap",
-          "SCALAR": "Scalar Lightmap"}
+GROUPS = {
+    "HHD": "HHD Lightmap",
+    "AHD": "AHD Lightmap",
+    "L1": "L1 SH Lightmap",
+    "L2": "L2 SH Lightmap",
+    "SCALAR": "Scalar Lightmap",
+}
 
 
 class Builder:
@@ -105,9 +111,11 @@ def octahedral_decode(b: Builder, oct_xy):
     x, y, _ = b.xyz(oct_xy)
     z = b.math("SUBTRACT", b.math("SUBTRACT", 1.0, b.math("ABSOLUTE", x)), b.math("ABSOLUTE", y))
     t = b.math("MAXIMUM", b.math("MULTIPLY", z, -1.0), 0.0)
-    def fold(c):      # c − t·sign_not_zero(c), sign_not_zero(c) = 1 − 2·[c < 0]
+
+    def fold(c):  # c − t·sign_not_zero(c), sign_not_zero(c) = 1 − 2·[c < 0]
         sign = b.math("SUBTRACT", 1.0, b.math("MULTIPLY", b.math("LESS_THAN", c, 0.0), 2.0))
         return b.math("SUBTRACT", c, b.math("MULTIPLY", t, sign))
+
     return b.vec("NORMALIZE", b.combine(fold(x), fold(y), z))
 
 
@@ -115,10 +123,19 @@ def build_hhd(model: str):
     """HHD or AHD group (model 'HHD' | 'AHD')."""
     tree = _new_tree(GROUPS[model])
     iz_layer, wa_layer, dir_layer = sampled(model)
-    _interface(tree, [(iz_layer.name, 'NodeSocketColor', (0, 0, 0, 1)), (wa_layer.name, 'NodeSocketColor', (1, 1, 1, 1)),
-                      (dir_layer.name, 'NodeSocketVector', None), ("Normal", 'NodeSocketVector', None),
-                      ("Vertex Normal", 'NodeSocketVector', None), ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1)),
-                      ("Self Bounce", 'NodeSocketFloat', 0.0)], ["Irradiance", "Radiance"])
+    _interface(
+        tree,
+        [
+            (iz_layer.name, 'NodeSocketColor', (0, 0, 0, 1)),
+            (wa_layer.name, 'NodeSocketColor', (1, 1, 1, 1)),
+            (dir_layer.name, 'NodeSocketVector', None),
+            ("Normal", 'NodeSocketVector', None),
+            ("Vertex Normal", 'NodeSocketVector', None),
+            ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1)),
+            ("Self Bounce", 'NodeSocketFloat', 0.0),
+        ],
+        ["Irradiance", "Radiance"],
+    )
     b = Builder(tree)
     i = b.node("NodeGroupInput").outputs
     n = b.vec("NORMALIZE", i["Normal"])
@@ -134,7 +151,9 @@ def build_hhd(model: str):
     bracket = b.vec("ADD", b.vec("SCALE", wa, scale=ambient), b.vec("SCALE", one_minus_wa, scale=directional))
     irradiance = b.vec("MULTIPLY", i[iz_layer.name], bracket)
     bounce = b.math("MULTIPLY", b.math("MULTIPLY", b.math("SUBTRACT", 1.0, n_nv), 0.5), i["Self Bounce"])
-    irradiance = b.vec("ADD", irradiance, b.vec("SCALE", b.vec("MULTIPLY", i["Albedo"], i[iz_layer.name]), scale=bounce))
+    irradiance = b.vec(
+        "ADD", irradiance, b.vec("SCALE", b.vec("MULTIPLY", i["Albedo"], i[iz_layer.name]), scale=bounce)
+    )
     _finish(b, irradiance, i["Albedo"])
     return tree
 
@@ -144,20 +163,29 @@ def _basis(b: Builder, n):
     x, y, z = b.xyz(n)
     k = sh.COSINE_KERNEL
     mul = lambda a, c: b.math("MULTIPLY", a, float(c))
-    return [float(sh.Y00 * k[0]), mul(y, -sh.C1 * k[1]), mul(z, sh.C1 * k[2]), mul(x, -sh.C1 * k[3]),
-            mul(b.math("MULTIPLY", x, y), sh.C2 * k[4]), mul(b.math("MULTIPLY", y, z), -sh.C2 * k[5]),
-            mul(b.math("SUBTRACT", mul(b.math("MULTIPLY", z, z), 3.0), 1.0), sh.C20 * k[6]),
-            mul(b.math("MULTIPLY", x, z), -sh.C2 * k[7]),
-            mul(b.math("SUBTRACT", b.math("MULTIPLY", x, x), b.math("MULTIPLY", y, y)), sh.C22 * k[8])]
+    return [
+        float(sh.Y00 * k[0]),
+        mul(y, -sh.C1 * k[1]),
+        mul(z, sh.C1 * k[2]),
+        mul(x, -sh.C1 * k[3]),
+        mul(b.math("MULTIPLY", x, y), sh.C2 * k[4]),
+        mul(b.math("MULTIPLY", y, z), -sh.C2 * k[5]),
+        mul(b.math("SUBTRACT", mul(b.math("MULTIPLY", z, z), 3.0), 1.0), sh.C20 * k[6]),
+        mul(b.math("MULTIPLY", x, z), -sh.C2 * k[7]),
+        mul(b.math("SUBTRACT", b.math("MULTIPLY", x, x), b.math("MULTIPLY", y, y)), sh.C22 * k[8]),
+    ]
 
 
 def build_sh(order: int):
     """L1 (order 1, 4 coefficients) or L2 (order 2, 9) SH irradiance group."""
-    layers = sampled(f"L{order}")        # SH0 … in coefficient order
+    layers = sampled(f"L{order}")  # SH0 … in coefficient order
     tree = _new_tree(GROUPS[f"L{order}"])
-    _interface(tree, [(layer.name, 'NodeSocketColor', (0, 0, 0, 1)) for layer in layers]
-               + [("Normal", 'NodeSocketVector', None), ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1))],
-               ["Irradiance", "Radiance"])
+    _interface(
+        tree,
+        [(layer.name, 'NodeSocketColor', (0, 0, 0, 1)) for layer in layers]
+        + [("Normal", 'NodeSocketVector', None), ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1))],
+        ["Irradiance", "Radiance"],
+    )
     b = Builder(tree)
     i = b.node("NodeGroupInput").outputs
     weights = _basis(b, b.vec("NORMALIZE", i["Normal"]))
@@ -172,8 +200,11 @@ def build_sh(order: int):
 def build_scalar():
     tree = _new_tree(GROUPS["SCALAR"])
     (iz_layer,) = sampled("SCALAR")
-    _interface(tree, [(iz_layer.name, 'NodeSocketColor', (0, 0, 0, 1)), ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1))],
-               ["Irradiance", "Radiance"])
+    _interface(
+        tree,
+        [(iz_layer.name, 'NodeSocketColor', (0, 0, 0, 1)), ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1))],
+        ["Irradiance", "Radiance"],
+    )
     b = Builder(tree)
     i = b.node("NodeGroupInput").outputs
     _finish(b, i[iz_layer.name], i["Albedo"])

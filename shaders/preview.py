@@ -15,6 +15,7 @@ The material's original Surface link is recorded in the material (`hhd_preview` 
 removes every preview node, restores that link and deletes the record and the object attributes,
 so the node tree is exactly as before. Edits the artist makes to the material meanwhile are kept.
 """
+
 from __future__ import annotations
 
 import json
@@ -45,8 +46,9 @@ def _principled(tree):
     if output is None or not output.inputs["Surface"].is_linked:
         return None
     node = output.inputs["Surface"].links[0].from_node
-    return node if node.type == 'BSDF_PRINCIPLED' else next(
-        (n for n in tree.nodes if n.type == 'BSDF_PRINCIPLED'), None)
+    return (
+        node if node.type == 'BSDF_PRINCIPLED' else next((n for n in tree.nodes if n.type == 'BSDF_PRINCIPLED'), None)
+    )
 
 
 def _output(tree):
@@ -110,12 +112,17 @@ def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) ->
     if RECORD in mat:
         hide_on_material(mat)
     output = _output(tree)
-    if output is None:      # named with the prefix, so Hide removes it again
+    if output is None:  # named with the prefix, so Hide removes it again
         output = _new(tree, "ShaderNodeOutputMaterial", "Output", (300, 0), None)
     note = None
     link = output.inputs["Surface"].links[0] if output.inputs["Surface"].is_linked else None
-    mat[RECORD] = json.dumps({"output": output.name, "from_node": link.from_node.name if link else None,
-                              "from_socket": link.from_socket.identifier if link else None})
+    mat[RECORD] = json.dumps(
+        {
+            "output": output.name,
+            "from_node": link.from_node.name if link else None,
+            "from_socket": link.from_socket.identifier if link else None,
+        }
+    )
     frame = _new(tree, "NodeFrame", "Frame", (output.location.x + 300, output.location.y), None)
     x0, y0 = output.location.x + 320, output.location.y - 40
     uv = _new(tree, "ShaderNodeUVMap", "UV", (x0, y0), frame)
@@ -141,7 +148,7 @@ def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) ->
         tree.links.new(geometry.outputs["Normal"], gi["Vertex Normal"])
         gi["Self Bounce"].default_value = 1.0 if self_bounce else 0.0
     y = y0
-    for layer in sampled(kind):         # each layer's preview image into the input of its name
+    for layer in sampled(kind):  # each layer's preview image into the input of its name
         tree.links.new(_atlas_image(tree, layer.preview, atlases, uv.outputs["UV"], x0 + 250, y, frame), gi[layer.name])
         y -= 280
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 850, y0), frame)
@@ -180,7 +187,7 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
     A material shared by objects of several atlases samples each object's own atlas."""
     notes = []
     index = {name: i for i, name in enumerate(sorted({f.name for f in atlas_files.values()}))}
-    materials: dict[str, tuple] = {}            # material name → (material, {atlas name: files})
+    materials: dict[str, tuple] = {}  # material name → (material, {atlas name: files})
     for obj in objects:
         files = atlas_files[obj.name]
         obj[RECORD], obj[ATLAS] = 1.0, float(index[files.name])

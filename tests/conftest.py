@@ -5,6 +5,7 @@ imported (BLENDER_USER_RESOURCES), so the tests never read or write the develope
 Blender config. The `extension` fixture builds the package with Blender's own tool and installs
 and enables it through Blender's extension machinery, exactly as a user's Blender would.
 """
+
 import os
 import sys
 import tempfile
@@ -17,8 +18,8 @@ USER_RESOURCES = Path(tempfile.mkdtemp(prefix="hhd-blender-user-"))
 os.environ["BLENDER_USER_RESOURCES"] = str(USER_RESOURCES)
 assert "bpy" not in sys.modules, "bpy was imported before the user config could be isolated"
 
-sys.path.insert(0, str(ROOT / "tools"))       # build_extension
-sys.path.insert(0, str(ROOT))                 # scenekit, the shared test/bench scenes
+sys.path.insert(0, str(ROOT / "tools"))  # build_extension
+sys.path.insert(0, str(ROOT))  # scenekit, the shared test/bench scenes
 
 EXTENSION_MODULE = "bl_ext.user_default.hhd_lightmapper"
 
@@ -26,6 +27,7 @@ EXTENSION_MODULE = "bl_ext.user_default.hhd_lightmapper"
 def this_platform() -> str:
     """Blender's platform name for the running machine, e.g. 'linux-x64'."""
     import platform
+
     system = {"Linux": "linux", "Darwin": "macos", "Windows": "windows"}[platform.system()]
     arch = {"x86_64": "x64", "AMD64": "x64", "arm64": "arm64", "aarch64": "arm64"}[platform.machine()]
     return f"{system}-{arch}"
@@ -35,6 +37,7 @@ def this_platform() -> str:
 def built_zips(tmp_path_factory):
     """Every platform's validated extension zip, built by Blender's extension tool."""
     import build_extension
+
     return build_extension.build(tmp_path_factory.mktemp("dist"))
 
 
@@ -42,10 +45,12 @@ def built_zips(tmp_path_factory):
 def extension(built_zips):
     """The extension installed from its zip into the isolated user repo and enabled."""
     import bpy
+
     tag = this_platform().replace("-", "_")
     zip_path = next(z for z in built_zips if z.stem.endswith(tag))
     result = bpy.ops.extensions.package_install_files(
-        filepath=str(zip_path), repo="user_default", enable_on_install=True)
+        filepath=str(zip_path), repo="user_default", enable_on_install=True
+    )
     assert result == {"FINISHED"}
     assert EXTENSION_MODULE in bpy.context.preferences.addons
     return EXTENSION_MODULE

@@ -1,6 +1,7 @@
 """Bake the same receivers with our tracer and with Cycles' Diffuse bake (Direct + Indirect,
 Color off: irradiance in DESIGN.md's unit) and compare I_z texel by texel, with a tolerance
 derived from both estimators' measured noise. The scenes are built with scenekit/blender.py."""
+
 import numpy as np
 
 from scenekit.blender import LAYER, RES, select
@@ -10,13 +11,16 @@ def cycles_footprint() -> float:
     """Width (texels) of the square Cycles' Diffuse bake averages a texel over in the running
     Blender: the whole texel from 5.2.1, the central ½ × ½ before (halved UV differentials)."""
     import bpy
+
     return 1.0 if bpy.app.version >= (5, 2, 1) else 0.5
 
 
 def ours(receivers, samples, bounces, seed):
     import bpy
+
     from hhd_lightmapper.bridge import mesh_data, scene_data
     from hhd_lightmapper.core import bake, hhd, tracer
+
     depsgraph = bpy.context.evaluated_depsgraph_get()
     surface = mesh_data.read_surface(receivers, LAYER, depsgraph)
     scene = scene_data.read_bake_scene(depsgraph)
@@ -27,6 +31,7 @@ def ours(receivers, samples, bounces, seed):
 
 def cycles(receivers, points, samples, bounces, seed):
     import bpy
+
     scene = bpy.context.scene
     scene.cycles.samples = samples
     scene.cycles.seed = seed
@@ -42,8 +47,7 @@ def cycles(receivers, points, samples, bounces, seed):
             node.image = image
             mat.node_tree.nodes.active = node
     select(receivers)
-    bpy.ops.object.bake(type='DIFFUSE', pass_filter={'DIRECT', 'INDIRECT'}, margin=0, use_clear=True,
-                        uv_layer=LAYER)
+    bpy.ops.object.bake(type='DIFFUSE', pass_filter={'DIRECT', 'INDIRECT'}, margin=0, use_clear=True, uv_layer=LAYER)
     px = np.array(image.pixels[:], dtype=np.float64).reshape(RES * RES, 4)[:, :3]
     return px[points.texel]
 
@@ -57,11 +61,20 @@ def compare(receivers, samples=64, bounces=1, cycles_samples=64):
     keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
     o, c = 0.5 * (o1 + o2)[keep], 0.5 * (c1 + c2)[keep]
     # Each mean of two runs has variance (σ²)/2 per texel, and σ² ≈ E[(run1 - run2)²]/2.
-    texel_noise = ((o1 - o2)[keep] ** 2 + (c1 - c2)[keep] ** 2) / 4    # per texel, each channel
+    texel_noise = ((o1 - o2)[keep] ** 2 + (c1 - c2)[keep] ** 2) / 4  # per texel, each channel
     noise = np.mean(texel_noise)
-    return dict(points=points, keep=keep, ours=o, cycles=c, mean=float(np.mean(c)), texel_noise=texel_noise,
-                bias=float(np.mean(o - c)), rms=float(np.sqrt(np.mean((o - c) ** 2))),
-                noise_rms=float(np.sqrt(noise)), se_mean=float(np.sqrt(noise / o.size)))
+    return dict(
+        points=points,
+        keep=keep,
+        ours=o,
+        cycles=c,
+        mean=float(np.mean(c)),
+        texel_noise=texel_noise,
+        bias=float(np.mean(o - c)),
+        rms=float(np.sqrt(np.mean((o - c) ** 2))),
+        noise_rms=float(np.sqrt(noise)),
+        se_mean=float(np.sqrt(noise / o.size)),
+    )
 
 
 def assert_agree(r, allowance=0.01):
@@ -71,4 +84,3 @@ def assert_agree(r, allowance=0.01):
     tol_bias = 4 * r["se_mean"] + allowance * r["mean"]
     assert abs(r["bias"]) <= tol_bias, (r["bias"], tol_bias, r["mean"])
     assert r["rms"] <= 1.5 * r["noise_rms"] + allowance * r["mean"], (r["rms"], r["noise_rms"], r["mean"])
-

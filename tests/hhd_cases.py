@@ -1,4 +1,5 @@
 """Lighting set-ups with known HHD answers, as hemisphere-sampled radiance SH."""
+
 import numpy as np
 
 from hhd_lightmapper.core import sh
@@ -24,5 +25,7 @@ def tilted(normals, theta, rng):
     """Unit directions at angle theta from each normal, random azimuth `(N, 3)`."""
     f = sh.tangent_frames(normals)
     phi = rng.uniform(0, 2 * np.pi, len(normals))
-    local = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.full(len(normals), np.cos(theta))], 1)
+    local = np.stack(
+        [np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.full(len(normals), np.cos(theta))], 1
+    )
     return np.einsum("nij,nj->ni", f, local)

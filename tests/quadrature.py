@@ -5,6 +5,7 @@ exact for polynomials in (x, y, z) of degree < 2·n_z in z and < n_phi in φ, so
 to band 4 integrate to machine precision with the defaults; kinked integrands (clamped cosines)
 converge as O(h²) and need more points.
 """
+
 import numpy as np
 
 

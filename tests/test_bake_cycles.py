@@ -3,6 +3,7 @@
 Tolerance (see cycles_compare.assert_agree): both estimators are run twice with different
 seeds; the spread gives each one's per-texel noise, from which the expected residual RMS and
 the standard error of the mean difference follow. A 1% allowance covers what is not noise."""
+
 import math
 
 import numpy as np
@@ -60,7 +61,7 @@ def test_hard_shadow_edge_texels_average_the_same_footprint_as_cycles(floor, mon
     residual = np.sqrt(np.mean((r["ours"][edge] - r["cycles"][edge]) ** 2))
     noise = np.sqrt(np.mean(r["texel_noise"][edge]))
     assert residual <= 1.5 * noise + 0.01 * lit, (residual, noise, lit, edge.sum())
-    monkeypatch.setattr(bakepoints, "FOOTPRINT", 1.5 - cycles_footprint)       # 0.5 <-> 1.0
+    monkeypatch.setattr(bakepoints, "FOOTPRINT", 1.5 - cycles_footprint)  # 0.5 <-> 1.0
     points, other, _ = cc.ours([floor], 64, 0, seed=1)
     keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
     other_residual = np.sqrt(np.mean((other[keep][edge] - r["cycles"][edge]) ** 2))
@@ -90,21 +91,35 @@ def test_point(floor):
 @pytest.mark.parametrize("soft_falloff", [True, False])
 def test_point_with_radius(floor, soft_falloff):
     lamp = kit.light('POINT', location=(-0.3, -0.2, 1.2), energy=300.0, shadow_soft_size=0.25)
-    lamp.data.use_soft_falloff = soft_falloff      # disk facing the point (default) or sphere
+    lamp.data.use_soft_falloff = soft_falloff  # disk facing the point (default) or sphere
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
 @pytest.mark.parametrize("radius", [0.0, 0.2])
 def test_spot(floor, radius):
-    kit.light('SPOT', location=(0.3, -0.4, 1.5), rotation=(math.radians(15), 0, 0), energy=500.0,
-             shadow_soft_size=radius, spot_size=math.radians(70), spot_blend=0.4)
+    kit.light(
+        'SPOT',
+        location=(0.3, -0.4, 1.5),
+        rotation=(math.radians(15), 0, 0),
+        energy=500.0,
+        shadow_soft_size=radius,
+        spot_size=math.radians(70),
+        spot_blend=0.4,
+    )
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
 @pytest.mark.parametrize("shape", ["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"])
 def test_area(floor, shape):
-    kit.light('AREA', location=(-0.2, 0.1, 1.0), rotation=(math.radians(20), 0, 0), energy=150.0,
-             shape=shape, size=0.6, size_y=0.3)
+    kit.light(
+        'AREA',
+        location=(-0.2, 0.1, 1.0),
+        rotation=(math.radians(20), 0, 0),
+        energy=150.0,
+        shape=shape,
+        size=0.6,
+        size_y=0.3,
+    )
     cc.assert_agree(cc.compare([floor], samples=64, bounces=1))
 
 
@@ -124,8 +139,13 @@ def test_hdri_world(floor, rotation):
 
 
 def test_emissive_mesh(floor):
-    kit.plane("Lamp", (0, 0, 1.0), 0.8, kit.material("Lamp", (0.0, 0.0, 0.0), emission=(1.0, 0.9, 0.7, 8.0)),
-             rotation=(math.pi, 0, 0))
+    kit.plane(
+        "Lamp",
+        (0, 0, 1.0),
+        0.8,
+        kit.material("Lamp", (0.0, 0.0, 0.0), emission=(1.0, 0.9, 0.7, 8.0)),
+        rotation=(math.pi, 0, 0),
+    )
     cc.assert_agree(cc.compare([floor], samples=128, bounces=1))
 
 
@@ -133,22 +153,25 @@ def test_cornell_box_interreflection(extension):
     """A closed room with a red and a green wall, lit by a ceiling lamp (emissive) and a point
     light: three diffuse bounces in both renderers."""
     kit.clear_scene()
-    white, red, green = (kit.material(n, c) for n, c in
-                         (("White", (0.75, 0.75, 0.75)), ("Red", (0.7, 0.1, 0.08)), ("Green", (0.1, 0.6, 0.12))))
+    white, red, green = (
+        kit.material(n, c)
+        for n, c in (("White", (0.75, 0.75, 0.75)), ("Red", (0.7, 0.1, 0.08)), ("Green", (0.1, 0.6, 0.12)))
+    )
     floor = kit.plane("Floor", (0, 0, 0), 2.0, white)
     kit.plane("Ceiling", (0, 0, 2.0), 2.0, white, rotation=(math.pi, 0, 0))
     kit.plane("Back", (0, 1.0, 1.0), 2.0, white, rotation=(math.pi / 2, 0, 0))
     kit.plane("Front", (0, -1.0, 1.0), 2.0, white, rotation=(-math.pi / 2, 0, 0))
     kit.plane("Left", (-1.0, 0, 1.0), 2.0, red, rotation=(0, math.pi / 2, 0))
     kit.plane("Right", (1.0, 0, 1.0), 2.0, green, rotation=(0, -math.pi / 2, 0))
-    kit.plane("Lamp", (0, 0, 1.98), 0.6, kit.material("Lamp", (0, 0, 0), emission=(1, 1, 1, 6.0)),
-             rotation=(math.pi, 0, 0))
+    kit.plane(
+        "Lamp", (0, 0, 1.98), 0.6, kit.material("Lamp", (0, 0, 0), emission=(1, 1, 1, 6.0)), rotation=(math.pi, 0, 0)
+    )
     kit.light('POINT', location=(0.4, -0.3, 1.5), energy=60.0, shadow_soft_size=0.0)
     kit.unwrap([floor])
     r = cc.compare([floor], samples=128, bounces=3, cycles_samples=128)
     assert r["mean"] > 0.5
     red_side = r["points"].position[r["keep"], 0] < -0.6
-    assert (r["ours"][red_side, 0] > r["ours"][red_side, 1]).mean() > 0.9   # colour bleeding
+    assert (r["ours"][red_side, 0] > r["ours"][red_side, 1]).mean() > 0.9  # colour bleeding
     cc.assert_agree(r, allowance=0.02)
 
 
@@ -162,7 +185,7 @@ def test_box_pushed_into_the_floor_leaves_no_light_under_it(extension):
     kit.unwrap([floor])
     points, iz, _ = cc.ours([floor], samples=32, bounces=2, seed=3)
     x, y = np.abs(points.position[:, 0]), np.abs(points.position[:, 1])
-    under = np.maximum(x, y) < 0.5 - 0.5 * points.texel_size     # any part of the texel under the box
+    under = np.maximum(x, y) < 0.5 - 0.5 * points.texel_size  # any part of the texel under the box
     outside = np.maximum(x, y) > 0.5 + 2 * points.texel_size
     assert under.sum() > 100
     assert iz[under].max() == 0.0
@@ -177,6 +200,7 @@ def test_floor_under_a_coplanar_face_stays_dark_as_in_cycles(extension):
     1.38 under the box, where Cycles is dark). The whole floor, the part under the box included,
     must agree with Cycles within the noise rule."""
     import bmesh
+
     kit.clear_scene()
     floor = kit.plane("Floor", (0, 0, 0), 2.0, kit.material("Floor", (0.8, 0.8, 0.8)))
     tray = kit.box("Tray", (0.0, 0.0, 0.2), (1.0, 1.0, 0.4), kit.material("Tray", (0.6, 0.5, 0.4)))
@@ -201,23 +225,33 @@ def test_texture_albedo_reaches_bake_points_and_bounce_light(extension):
     """A wall textured red | blue (sRGB byte image through its own UV map) lit by the sun bleeds
     its colours onto the floor as in Cycles; the wall's bake points carry the decoded texture."""
     import bpy
+
     from hhd_lightmapper.bridge import mesh_data
     from hhd_lightmapper.core import bakepoints, textures
+
     kit.clear_scene()
     floor = kit.plane("Floor", (0, 0, 0), 2.0, kit.material("Floor", (0.8, 0.8, 0.8)))
-    wall = kit.plane("Wall", (0, 1.0, 0.6), 2.0, kit.textured_material("Wall", (0.9, 0.1, 0.1), (0.1, 0.2, 0.9), "UVMap"),
-                    rotation=(math.pi / 2, 0, 0))
-    kit.light('SUN', rotation=(math.radians(50), 0, 0), energy=4.0)      # towards +y: lights the wall's floor side
+    wall = kit.plane(
+        "Wall",
+        (0, 1.0, 0.6),
+        2.0,
+        kit.textured_material("Wall", (0.9, 0.1, 0.1), (0.1, 0.2, 0.9), "UVMap"),
+        rotation=(math.pi / 2, 0, 0),
+    )
+    kit.light('SUN', rotation=(math.radians(50), 0, 0), energy=4.0)  # towards +y: lights the wall's floor side
     kit.unwrap([floor, wall])
     r = cc.compare([floor], samples=64, bounces=1)
     near_wall = r["points"].position[r["keep"], 1] > 0.6
-    left, right = near_wall & (r["points"].position[r["keep"], 0] < -0.3), near_wall & (r["points"].position[r["keep"], 0] > 0.3)
-    assert r["ours"][left, 0].mean() > r["ours"][right, 0].mean()       # red bleeds on the left
-    assert r["ours"][right, 2].mean() > r["ours"][left, 2].mean()       # blue on the right
+    left, right = (
+        near_wall & (r["points"].position[r["keep"], 0] < -0.3),
+        near_wall & (r["points"].position[r["keep"], 0] > 0.3),
+    )
+    assert r["ours"][left, 0].mean() > r["ours"][right, 0].mean()  # red bleeds on the left
+    assert r["ours"][right, 2].mean() > r["ours"][left, 2].mean()  # blue on the right
     cc.assert_agree(r)
     surface = mesh_data.read_surface([wall], kit.LAYER, bpy.context.evaluated_depsgraph_get())
     points = bakepoints.build(surface, kit.RES, kit.RES)
-    stored = lambda c: np.round(np.array(c) * 255) / 255          # a byte image holds 8-bit sRGB
+    stored = lambda c: np.round(np.array(c) * 255) / 255  # a byte image holds 8-bit sRGB
     red, blue = textures.srgb_to_linear(stored([0.9, 0.1, 0.1])), textures.srgb_to_linear(stored([0.1, 0.2, 0.9]))
     x = points.position[:, 0]
     np.testing.assert_allclose(points.albedo[x < -0.2].mean(axis=0), red, atol=1e-6)
@@ -230,10 +264,12 @@ def test_emission_shader_emitter_reflects_nothing(extension):
     kit.clear_scene()
     white = kit.material("White", (0.8, 0.8, 0.8))
     floor = kit.plane("Floor", (0, 0, 0), 2.0, white)
-    for name, centre, rotation in (("Back", (0, 1.0, 1.0), (math.pi / 2, 0, 0)),
-                                   ("Front", (0, -1.0, 1.0), (-math.pi / 2, 0, 0)),
-                                   ("Left", (-1.0, 0, 1.0), (0, math.pi / 2, 0)),
-                                   ("Right", (1.0, 0, 1.0), (0, -math.pi / 2, 0))):
+    for name, centre, rotation in (
+        ("Back", (0, 1.0, 1.0), (math.pi / 2, 0, 0)),
+        ("Front", (0, -1.0, 1.0), (-math.pi / 2, 0, 0)),
+        ("Left", (-1.0, 0, 1.0), (0, math.pi / 2, 0)),
+        ("Right", (1.0, 0, 1.0), (0, -math.pi / 2, 0)),
+    ):
         kit.plane(name, centre, 2.0, white, rotation=rotation)
     lamp = bpy_emission_material("Ceiling Lamp", (1.0, 0.95, 0.9), 2.0)
     kit.plane("Ceiling", (0, 0, 2.0), 2.0, lamp, rotation=(math.pi, 0, 0))
@@ -245,6 +281,7 @@ def test_emission_shader_emitter_reflects_nothing(extension):
 
 def bpy_emission_material(name, colour, strength):
     import bpy
+
     mat = bpy.data.materials.new(name)
     blender_compat.ensure_node_tree(mat)
     nodes = mat.node_tree.nodes

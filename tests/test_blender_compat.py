@@ -3,6 +3,7 @@
 pyproject.toml turns a DeprecationWarning raised from our modules into an error for the whole
 suite; these tests check that Blender really warns where we expect (so the rule has teeth) and
 that our helpers do not."""
+
 import re
 import warnings
 from pathlib import Path
@@ -22,7 +23,9 @@ def deprecations(action) -> list[str]:
 
 def test_node_tree_helpers_work_and_raise_no_deprecation():
     import bpy
+
     from hhd_lightmapper import blender_compat as bc
+
     mat = bpy.data.materials.new("compat")
     world = bpy.data.worlds.new("compat")
     try:
@@ -36,7 +39,7 @@ def test_node_tree_helpers_work_and_raise_no_deprecation():
             assert deprecations(lambda: setattr(mat, "use_nodes", True))
         else:
             mat.use_nodes = False
-            assert bc.node_tree_of(mat) is None      # 4.x renders it without nodes
+            assert bc.node_tree_of(mat) is None  # 4.x renders it without nodes
     finally:
         bpy.data.materials.remove(mat)
         bpy.data.worlds.remove(world)
@@ -44,7 +47,9 @@ def test_node_tree_helpers_work_and_raise_no_deprecation():
 
 def test_eevee_engine_id_is_accepted_by_this_blender():
     import bpy
+
     from hhd_lightmapper import blender_compat as bc
+
     scene = bpy.context.scene
     before = scene.render.engine
     scene.render.engine = bc.eevee_engine()
@@ -57,7 +62,10 @@ def test_no_deprecated_flag_outside_the_compat_module():
     offenders = []
     for path in ROOT.rglob("*.py"):
         rel = path.relative_to(ROOT)
-        if rel.parts[0].startswith((".venv", "build", "dist", "wheels")) or rel.name in ("blender_compat.py", Path(__file__).name):
+        if rel.parts[0].startswith((".venv", "build", "dist", "wheels")) or rel.name in (
+            "blender_compat.py",
+            Path(__file__).name,
+        ):
             continue
         for i, line in enumerate(path.read_text().splitlines(), 1):
             if re.search(r"\.use_nodes\b", line):

@@ -1,4 +1,5 @@
 """The headless progress line and Ctrl-C as a cancel flag (core/console.py, no bpy)."""
+
 import io
 import os
 import signal
@@ -22,11 +23,11 @@ def test_first_ctrl_c_sets_the_cancel_flag_second_interrupts_and_the_handler_com
     before = signal.getsignal(signal.SIGINT)
     with interrupt_as_cancel() as cancel:
         assert not cancel()
-        os.kill(os.getpid(), signal.SIGINT)     # handled at the next bytecode: sets the flag only
+        os.kill(os.getpid(), signal.SIGINT)  # handled at the next bytecode: sets the flag only
         assert cancel()
         with pytest.raises(KeyboardInterrupt):
             os.kill(os.getpid(), signal.SIGINT)
-            for _ in range(1000):               # give the interpreter a bytecode boundary
+            for _ in range(1000):  # give the interpreter a bytecode boundary
                 pass
     assert signal.getsignal(signal.SIGINT) is before
 

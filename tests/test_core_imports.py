@@ -1,4 +1,5 @@
 """Every core module imports with bpy and mathutils unavailable (core never imports Blender)."""
+
 import subprocess
 import sys
 import textwrap

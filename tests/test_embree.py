@@ -1,5 +1,6 @@
 """Our Embree binding (core.embree through core.rays) against a brute-force numpy ray-triangle
 intersection, against embreex's own API, and on the library lookup of every shipped wheel."""
+
 import threading
 import zipfile
 from pathlib import Path
@@ -10,12 +11,11 @@ import pytest
 from hhd_lightmapper.core import embree, rays
 
 
-
 def brute_force(tri, origins, dirs, tmax):
     """Closest hit of each ray over all triangles (Möller–Trumbore, float64, both faces):
     (t or inf, prim or -1, u, v)."""
     p0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    pvec = np.cross(dirs[:, None, :], e2[None])                           # (R, T, 3)
+    pvec = np.cross(dirs[:, None, :], e2[None])  # (R, T, 3)
     det = np.einsum("tj,rtj->rt", e1, pvec)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / det
@@ -49,9 +49,9 @@ def test_closest_hits_match_brute_force_intersection(scene):
     tri, origins, dirs, tmax = scene
     t, prim, ng, u, v = rays.RayScene(tri).intersect(origins, dirs, tmax, barycentrics=True)
     t_ref, prim_ref, u_ref, v_ref = brute_force(tri, origins, dirs, tmax)
-    assert (prim >= 0).sum() > 1000 and (prim < 0).sum() > 500                # decisive both ways
+    assert (prim >= 0).sum() > 1000 and (prim < 0).sum() > 500  # decisive both ways
     agree = prim == prim_ref
-    assert agree.mean() > 0.998                       # float32 ties at shared depths may differ
+    assert agree.mean() > 0.998  # float32 ties at shared depths may differ
     hit = agree & (prim >= 0)
     np.testing.assert_allclose(t[hit], t_ref[hit], rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(u[hit], u_ref[hit], atol=1e-4)
@@ -70,7 +70,7 @@ def test_occlusion_agrees_with_the_closest_hit_and_dtypes_agree(scene):
     np.testing.assert_array_equal(rs.occluded(origins, dirs, reach), prim >= 0)
     t32, prim32, _ = rs.intersect(origins.astype(np.float32), dirs.astype(np.float32), reach)
     assert np.mean(prim32 == prim) > 0.999
-    assert rs.occluded(origins, dirs, 0.0).sum() == 0       # zero-length rays see nothing
+    assert rs.occluded(origins, dirs, 0.0).sum() == 0  # zero-length rays see nothing
     scalar = rs.occluded(origins, dirs, 0.5)
     np.testing.assert_array_equal(scalar, rs.occluded(origins, dirs, np.full(len(origins), 0.5)))
 
@@ -79,6 +79,7 @@ def test_agrees_with_embreex_own_api(scene):
     """The same Embree library through embreex's classes (copying) and ours (shared buffers)."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
+
     tri, origins, dirs, tmax = scene
     theirs = rtcore_scene.EmbreeScene()
     TriangleMesh(theirs, tri.astype(np.float32))
@@ -95,12 +96,13 @@ def test_scene_owns_its_copy_and_threads_query_it_together(scene):
     mine = tri.copy()
     rs = rays.RayScene(mine)
     expected = rs.intersect(origins, dirs, tmax)[1]
-    mine[:] = 0.0                                      # the caller's array is not Embree's
+    mine[:] = 0.0  # the caller's array is not Embree's
     del mine
     results = [None] * 4
 
     def work(i):
         results[i] = rs.intersect(origins, dirs, tmax)[1]
+
     threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
     for th in threads:
         th.start()
@@ -112,7 +114,7 @@ def test_scene_owns_its_copy_and_threads_query_it_together(scene):
 
 def test_degenerate_input_empty_scene_nan_triangles_and_nan_rays():
     ray_o, ray_d = np.array([[0.1, 0.1, -1.0], [np.nan, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
-    for tri in (np.zeros((0, 3, 3)), np.zeros((3, 3, 3))):            # nothing / zero-area only
+    for tri in (np.zeros((0, 3, 3)), np.zeros((3, 3, 3))):  # nothing / zero-area only
         rs = rays.RayScene(tri)
         t, prim, ng = rs.intersect(ray_o, ray_d)
         assert np.all(prim == -1) and np.all(np.isinf(t))
@@ -120,21 +122,22 @@ def test_degenerate_input_empty_scene_nan_triangles_and_nan_rays():
     good = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
     rs = rays.RayScene(np.array([[[np.nan, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], good]))
     t, prim, _ = rs.intersect(ray_o, ray_d)
-    assert prim.tolist() == [1, -1]                    # the NaN triangle is skipped, ids kept
+    assert prim.tolist() == [1, -1]  # the NaN triangle is skipped, ids kept
     np.testing.assert_allclose(t[0], 1.0, rtol=1e-6)
     assert rs.intersect(np.zeros((0, 3)), np.zeros((0, 3)))[1].shape == (0,)
 
 
 def test_the_embree_library_is_found_in_every_shipped_embreex_wheel():
-    import fetch_wheels                                # downloads (hash-checked) what is missing
+    import fetch_wheels  # downloads (hash-checked) what is missing
+
     wheels = [w for w in fetch_wheels.fetch() if w.name.startswith("embreex-")]
-    assert len(wheels) == 8                            # 4 platforms x CPython 3.11, 3.13
+    assert len(wheels) == 8  # 4 platforms x CPython 3.11, 3.13
     for wheel in wheels:
         names = zipfile.ZipFile(wheel).namelist()
         found = embree.find_library(names)
         assert found is not None and "embree4" in Path(found).name, wheel.name
         assert "tbb" not in found and not found.endswith((".py", ".pyd", ".pxd")), wheel.name
-        assert embree.find_library([n for n in names if n != found]) is None      # exactly one
+        assert embree.find_library([n for n in names if n != found]) is None  # exactly one
 
 
 def test_the_library_is_found_in_this_install():

@@ -1,6 +1,7 @@
 """The channel specification and the encode stage (no Blender): the spec drives the files, the
 sidecar, the preview and docs/format.md; writing does not encode; an encoding is one module
 plus a registry line."""
+
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,8 +47,9 @@ def write(tmp_path, data, settings=encoding.EncoderSettings(), raw_files=True, s
 def test_docs_format_md_holds_the_current_channel_tables():
     text = (ROOT / "docs" / "format.md").read_text(encoding="utf-8")
     for block in doc_tables.blocks():
-        assert block in text, ("docs/format.md is stale: run python -m hhd_lightmapper.core.encoding.doc_tables\n"
-                               + block)
+        assert block in text, (
+            "docs/format.md is stale: run python -m hhd_lightmapper.core.encoding.doc_tables\n" + block
+        )
     assert doc_tables.update(text) == text
 
 
@@ -60,7 +62,7 @@ def test_files_and_sidecar_follow_the_spec(tmp_path, ambient):
     for spec in (hhd_file, raw.SH_FILE, raw.TEXELS_FILE):
         channels, _ = exr.read(files.path(spec))
         assert set(channels) == set(spec.exr_names)
-        assert list(doc["channels"][spec.key]) == spec.exr_names               # spec order
+        assert list(doc["channels"][spec.key]) == spec.exr_names  # spec order
         meanings = {n: ch.meaning for ch in spec.channels for n in ch.exr_names}
         for name, entry in doc["channels"][spec.key].items():
             assert entry["meaning"] == meanings[name]
@@ -77,6 +79,7 @@ def test_writing_does_not_encode(tmp_path, monkeypatch):
 
     def fail(*args, **kwargs):
         raise AssertionError("the writer called the encoder")
+
     monkeypatch.setattr(hhd, "encode", fail)
     files = lightmap_files.AtlasFiles(tmp_path, "Lightmap")
     with exr.Staging() as staging:
@@ -93,13 +96,13 @@ def test_encode_stage_matches_the_encoder_and_fills_by_the_spec(tmp_path):
     params = hhd.encode(data.sh[baked], data.normal[baked])
     iz = np.stack([exr.from_exr_rows(channels[f"Iz.{c}"]) for c in "RGB"], -1)
     np.testing.assert_allclose(iz[baked], params.irradz, rtol=1e-3, atol=1e-6)
-    assert (iz[data.coverage < 0] == 0).all()                      # DILATE_BURIED_BLACK
-    assert (iz[data.coverage == 0] > 0).all()                      # dilated everywhere else
+    assert (iz[data.coverage < 0] == 0).all()  # DILATE_BURIED_BLACK
+    assert (iz[data.coverage == 0] > 0).all()  # dilated everywhere else
     sh_ch, _ = exr.read(files.sh)
     sh0 = exr.from_exr_rows(sh_ch["SH0.G"])
     assert (sh0[data.coverage < 0] == 0).all() and (sh0[data.coverage == 0] != 0).all()
     tx_ch, _ = exr.read(files.texels)
-    assert np.array_equal(exr.from_exr_rows(tx_ch["Coverage.V"]), data.coverage)     # NO_FILL
+    assert np.array_equal(exr.from_exr_rows(tx_ch["Coverage.V"]), data.coverage)  # NO_FILL
 
 
 def test_reencoding_the_files_gives_the_fresh_encoding_bit_for_bit(tmp_path):
@@ -129,18 +132,25 @@ def test_preview_modes_sample_layers_whose_images_the_writer_stages(tmp_path):
     assert [layer.name for layer in preview.sampled("L2")] == [f"SH{k}" for k in range(9)]
     assert [layer.name for layer in preview.sampled("HHD")] == ["Iz", "Wa", "Direction"]
     rgb, _ = exr.read(files.preview_image("wa"))
-    assert np.array_equal(rgb["R"], rgb["G"]) and np.array_equal(rgb["R"], rgb["B"])   # one component, repeated
+    assert np.array_equal(rgb["R"], rgb["G"]) and np.array_equal(rgb["R"], rgb["B"])  # one component, repeated
 
 
 @dataclass
 class _L1:
     """A toy encoding: the first 4 SH coefficients, as a new module would define it."""
+
     options: encoding.EncoderSettings
     file: FileSpec = field(default=None)
     settings: dict = field(default=None)
 
-    FILE = FileSpec("l1", "_l1.exr", tuple(Channel(f"L1_{k}", tuple("RGB"), FLOAT, "L1 radiance SH coefficient",
-                                                   fill=DILATE_BURIED_BLACK) for k in range(4)))
+    FILE = FileSpec(
+        "l1",
+        "_l1.exr",
+        tuple(
+            Channel(f"L1_{k}", tuple("RGB"), FLOAT, "L1 radiance SH coefficient", fill=DILATE_BURIED_BLACK)
+            for k in range(4)
+        ),
+    )
 
     def __post_init__(self):
         self.file, self.settings = self.FILE, {"model": self.options.model}
@@ -163,8 +173,8 @@ def test_an_encoding_is_one_module_plus_a_registry_line(tmp_path, monkeypatch):
     assert doc["stats"]["l1_texels"] == doc["stats"]["texels_baked"] == int(data.baked.sum())
     channels, _ = exr.read(files.path(_L1.FILE))
     sh_ch, _ = exr.read(files.sh)
-    assert channels["L1_2.B"].tobytes() == sh_ch["SH2.B"].tobytes()     # same values, same fill
-    assert any("`L1_0.R`" in block for block in doc_tables.blocks())    # docs/format.md would need it
+    assert channels["L1_2.B"].tobytes() == sh_ch["SH2.B"].tobytes()  # same values, same fill
+    assert any("`L1_0.R`" in block for block in doc_tables.blocks())  # docs/format.md would need it
 
 
 def test_unknown_model_is_refused():
@@ -179,8 +189,14 @@ def test_encoder_settings_live_in_the_encoding_and_bake_re_exports_them():
 
 
 def test_texel_data_carries_the_standard_error_when_asked():
-    points = SimpleNamespace(texel=np.array([0, 5]), width=3, height=2, buried=np.array([False, True]),
-                             coverage=np.array([1.0, 1.0]), normal=np.tile([0.0, 0.0, 1.0], (2, 1)))
+    points = SimpleNamespace(
+        texel=np.array([0, 5]),
+        width=3,
+        height=2,
+        buried=np.array([False, True]),
+        coverage=np.array([1.0, 1.0]),
+        normal=np.tile([0.0, 0.0, 1.0], (2, 1)),
+    )
     points.image = lambda values, fill=0.0, dtype=np.float64: _image(points, values, dtype)
     sh = np.ones((2, 9, 3))
     data = encoding.TexelData.from_points(points, sh, sh_error=np.full((2, 9, 3), 0.5, np.float32))

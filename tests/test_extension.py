@@ -1,4 +1,5 @@
 """The packaged extension: manifest, per-platform build, install, enable, register cycles."""
+
 import sys
 import tomllib
 import zipfile
@@ -19,9 +20,10 @@ def test_manifest_declares_licence_permissions_and_platform_wheels():
     m = manifest()
     assert m["schema_version"] == "1.0.0" and m["id"] == "hhd_lightmapper"
     assert m["license"] == ["SPDX:GPL-3.0-or-later"]
-    assert list(m["permissions"]) == ["files"]        # no network, no clipboard, ...
+    assert list(m["permissions"]) == ["files"]  # no network, no clipboard, ...
     assert m["blender_version_min"] >= "4.2.0"
     import fetch_wheels
+
     by_platform = {}
     for w in m["wheels"]:
         by_platform.setdefault(fetch_wheels.wheel_platform(Path(w).name), set()).add(Path(w).name.split("-")[0])
@@ -34,11 +36,12 @@ def test_manifest_declares_licence_permissions_and_platform_wheels():
         name = Path(w).name
         tags.setdefault((fetch_wheels.wheel_platform(name), name.split("-")[0]), set()).add(name.split("-")[-3])
     assert all(t == {"cp311", "cp313"} for t in tags.values()), tags
-    assert m["blender_version_min"] >= "4.2.13"   # older 4.2 installers ignore the cpXY tag
+    assert m["blender_version_min"] >= "4.2.13"  # older 4.2 installers ignore the cpXY tag
 
 
 def test_every_manifest_wheel_is_hash_pinned_and_no_unlisted_wheel_ships():
     import fetch_wheels
+
     listed = fetch_wheels.manifest_wheels()
     assert len(listed) == len(set(listed)) and set(listed) == set(fetch_wheels.SHA256)
     assert all(len(h) == 64 for h in fetch_wheels.SHA256.values())
@@ -54,12 +57,13 @@ def test_each_platform_zip_holds_only_its_wheels_and_no_dev_files(built_zips):
         assert "core/hhd.py" in names or "core/deps.py" in names
         assert not [n for n in names if n.startswith(("tests/", "bench/", "tools/", ".ci/", "docs/"))]
         wheels = [n for n in names if n.endswith(".whl")]
-        assert len(wheels) == 10, (z.name, wheels)                  # 5 packages x cp311, cp313
+        assert len(wheels) == 10, (z.name, wheels)  # 5 packages x cp311, cp313
         assert not [n for n in names if n.startswith(".venv")]
 
 
 def test_installed_extension_is_enabled_with_settings(extension):
     import bpy
+
     assert extension in bpy.context.preferences.addons
     settings = bpy.context.scene.hhd
     for name in ("uv_layer", "resolution", "samples", "bounces", "output_dir"):
@@ -70,11 +74,12 @@ def test_installed_extension_is_enabled_with_settings(extension):
 
 def test_disable_enable_twice_leaves_nothing_behind(extension):
     import bpy
+
     for _ in range(2):
         bpy.ops.preferences.addon_disable(module=extension)
         assert not hasattr(bpy.types.Scene, "hhd")
         assert not hasattr(bpy.types, "HHD_PT_main")
-        assert "check_dependencies" not in dir(bpy.ops.hhd)     # operators unregistered too
+        assert "check_dependencies" not in dir(bpy.ops.hhd)  # operators unregistered too
         bpy.ops.preferences.addon_enable(module=extension)
         assert hasattr(bpy.types.Scene, "hhd")
         assert hasattr(bpy.types, "HHD_PT_main")
@@ -83,14 +88,15 @@ def test_disable_enable_twice_leaves_nothing_behind(extension):
 
 def test_missing_compiled_wheel_is_a_message_not_a_failed_enable(extension, monkeypatch):
     import bpy
+
     from hhd_lightmapper.core import deps
     from hhd_lightmapper.core.errors import DependencyMissing
 
     bpy.ops.preferences.addon_disable(module=extension)
-    monkeypatch.setitem(sys.modules, "embreex", None)      # as if the wheel were absent
-    bpy.ops.preferences.addon_enable(module=extension)     # enabling must still work
+    monkeypatch.setitem(sys.modules, "embreex", None)  # as if the wheel were absent
+    bpy.ops.preferences.addon_enable(module=extension)  # enabling must still work
     assert hasattr(bpy.types.Scene, "hhd")
-    with pytest.raises(RuntimeError, match="embreex"):     # the operator reports it as an error
+    with pytest.raises(RuntimeError, match="embreex"):  # the operator reports it as an error
         bpy.ops.hhd.check_dependencies()
     with pytest.raises(DependencyMissing, match="embreex.*ray tracing"):
         deps.require("embreex")
@@ -98,7 +104,9 @@ def test_missing_compiled_wheel_is_a_message_not_a_failed_enable(extension, monk
 
 def test_a_preset_sets_its_knobs_and_an_edit_makes_it_custom(extension):
     import bpy
+
     from hhd_lightmapper.core import presets
+
     s = bpy.context.scene.hhd
     for name, preset in presets.PRESETS.items():
         s.preset = name

@@ -1,10 +1,11 @@
 """The papers' claims, reproduced numerically (2024 'Hemispherical Lighting Insights', 2018 brief)."""
+
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import hhd, sh, synthetic
-from hhd_cases import delta_light_sh, hemisphere_light_sh, tilted
 import quadrature as quad
+from hhd_cases import delta_light_sh, hemisphere_light_sh, tilted
+from hhd_lightmapper.core import hhd, synthetic
 
 
 @pytest.fixture
@@ -57,12 +58,12 @@ def test_light_on_the_horizon_error_vanishes_as_d_approaches_it(rng):
     for dz in (0.5, 0.2, 0.1, 0.02, 0.005, 0.001):
         d = np.array([[np.sqrt(1 - dz * dz), 0.0, dz]])
         errors.append(hhd.fit_error(s, n, d)[0][0])
-    assert all(a > b for a, b in zip(errors, errors[1:]))        # monotone towards the light
-    assert errors[-1] < 1e-5 * errors[0]                         # → 0 in the limit
+    assert all(a > b for a, b in zip(errors, errors[1:]))  # monotone towards the light
+    assert errors[-1] < 1e-5 * errors[0]  # → 0 in the limit
     p = hhd.encode(s, n)
     assert np.einsum("ni,ni->n", p.direction, n)[0] == pytest.approx(hhd.MIN_COS, abs=1e-4)
     floor_cost = hhd.fit_error(s, n, p.direction)[0][0]
-    assert floor_cost < 5e-3 * errors[0]                          # the floor's residual is small
+    assert floor_cost < 5e-3 * errors[0]  # the floor's residual is small
 
 
 def test_optimal_linear_direction_is_polluted_by_the_hemisphere_light(rng):

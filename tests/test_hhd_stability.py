@@ -1,13 +1,19 @@
 """The encoder at the extremes: black, ringing, huge/tiny values, horizon, float32, NaN/Inf."""
+
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import hhd, octahedral, sh, synthetic
-from hhd_cases import delta_light_sh, hemisphere_light_sh
 import quadrature as quad
+from hhd_cases import delta_light_sh
+from hhd_lightmapper.core import hhd, octahedral, sh, synthetic
 
-VARIANTS = [dict(), dict(model="ahd"), dict(ambient="rgb"), dict(direction="optimal_linear", gram="sphere"),
-            dict(phi_search=True)]
+VARIANTS = [
+    dict(),
+    dict(model="ahd"),
+    dict(ambient="rgb"),
+    dict(direction="optimal_linear", gram="sphere"),
+    dict(phi_search=True),
+]
 
 
 def assert_well_formed(p, n):
@@ -154,6 +160,6 @@ def test_octahedral_round_trip_and_worst_errors():
     np.testing.assert_allclose(octahedral.decode(octahedral.encode(d)), d, atol=1e-12)
     assert (np.abs(octahedral.encode(d)) <= 1).all()
     worst = {bits: np.degrees(octahedral.worst_angular_error(bits, n=100_000)) for bits in (4, 8, 16)}
-    assert 10.0 < worst[4] < 20.0        # 8 bits per direction
-    assert 0.5 < worst[8] < 1.2          # 16 bits per direction (2 × 8)
-    assert worst[16] < 0.01              # 32 bits per direction (2 × 16)
+    assert 10.0 < worst[4] < 20.0  # 8 bits per direction
+    assert 0.5 < worst[8] < 1.2  # 16 bits per direction (2 × 8)
+    assert worst[16] < 0.01  # 32 bits per direction (2 × 16)

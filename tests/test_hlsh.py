@@ -1,9 +1,10 @@
 """HLSH against an independent least-squares fit, and the paper's exact constants."""
+
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import hlsh, sh, sh_reference
 import quadrature as quad
+from hhd_lightmapper.core import hlsh, sh, sh_reference
 
 # Cosine-convolution factors per band up to l = 4 (E = (1/π)∫ L max(n·ω,0)): 1, 2/3, 1/4, 0, -1/24.
 A_L4 = [1.0, 2.0 / 3.0, 0.25, 0.0, -1.0 / 24.0]
@@ -21,11 +22,11 @@ def reference_fit(r_local, cos_alpha):
     Returns (I_z, C_a, c_x, c_y)."""
     dirs, w = quad.cap(cos_alpha, n_z=24, n_phi=48)
     radiance = sh.evaluate(dirs) @ r_local
-    proj = basis_l4(dirs).T @ (w * radiance)                          # masked, projected to l ≤ 4
-    iz = (w * radiance) @ dirs[:, 2] / np.pi                           # exact occluded irradiance at z
+    proj = basis_l4(dirs).T @ (w * radiance)  # masked, projected to l ≤ 4
+    iz = (w * radiance) @ dirs[:, 2] / np.pi  # exact occluded irradiance at z
     hemi, hw = quad.hemisphere(n_z=24, n_phi=48)
     bands = np.repeat(np.arange(5), [1, 3, 5, 7, 9])
-    irr = basis_l4(hemi) @ (proj * np.array(A_L4)[bands])             # band-limited irradiance
+    irr = basis_l4(hemi) @ (proj * np.array(A_L4)[bands])  # band-limited irradiance
     design = np.column_stack([1.0 - hemi[:, 2], hemi[:, 0], hemi[:, 1]])
     rhs = irr - iz * hemi[:, 2]
     sw = np.sqrt(hw)
@@ -51,8 +52,17 @@ def test_hemisphere_matrix_constants_are_exact():
     """At cos α = 0 the fit's matrix is the slide's: C_a row [1/(4√π), 0, 2203/(8192√(3π)), 0, 0, 0,
     -7√5/(128√π), 0, 0] and c_x, c_y rows with -2573/(4096√(3π)) and -11√15/(128√π)."""
     z = np.array([[0.0, 0.0, 1.0]])
-    rows = np.array([[v[0, 0] for v in (lambda p: (p.ambient, p.vector[:, 0], p.vector[:, 1]))(
-        hlsh.project(np.eye(9)[k][None, :, None], z))] for k in range(9)]).T
+    rows = np.array(
+        [
+            [
+                v[0, 0]
+                for v in (lambda p: (p.ambient, p.vector[:, 0], p.vector[:, 1]))(
+                    hlsh.project(np.eye(9)[k][None, :, None], z)
+                )
+            ]
+            for k in range(9)
+        ]
+    ).T
     sp, s3p = np.sqrt(np.pi), np.sqrt(3 * np.pi)
     expected = np.zeros((3, 9))
     expected[0, [0, 2, 6]] = [1 / (4 * sp), 2203 / (8192 * s3p), -7 * np.sqrt(5) / (128 * sp)]
@@ -73,7 +83,7 @@ def test_world_space_projection_equals_local_frame_projection():
     local = hlsh.project(sh.to_local(coeffs, frames), np.tile([0.0, 0.0, 1.0], (40, 1)), 0.2)
     np.testing.assert_allclose(np.einsum("nij,njc->nic", frames, local.vector), world.vector, atol=1e-12)
     np.testing.assert_allclose(world.ambient, local.ambient, atol=1e-12)
-    np.testing.assert_allclose(world.evaluate(n), world.irradz, atol=1e-12)   # exact at N
+    np.testing.assert_allclose(world.evaluate(n), world.irradz, atol=1e-12)  # exact at N
 
 
 def test_cone_angle_from_visibility():

@@ -11,6 +11,7 @@
   (xatlas), Embree and our compiled kernels are the same versions in both. Runs once, from the
   5.3 suite, using the 4.2 environment that `make test` creates beside it.
 """
+
 import json
 import os
 import subprocess
@@ -30,7 +31,8 @@ ENVS = {"5.3": ROOT / ".venv", "4.2": ROOT / ".venv-4.2"}
 
 def bpy_version() -> str:
     import bpy
-    return "%d.%d.%d" % bpy.app.version
+
+    return ".".join(str(v) for v in bpy.app.version)
 
 
 def bare_env() -> Path:
@@ -41,8 +43,9 @@ def bare_env() -> Path:
     python = env / "bin" / "python"
     if (env / ".installed").exists():
         return python
-    pins = next(p for p in (ROOT / "requirements.txt", ROOT / "requirements-4.2.txt")
-                if f"bpy=={version}\n" in p.read_text())
+    pins = next(
+        p for p in (ROOT / "requirements.txt", ROOT / "requirements-4.2.txt") if f"bpy=={version}\n" in p.read_text()
+    )
     base = getattr(sys, "_base_executable", sys.executable)
     subprocess.run([base, "-m", "venv", "--clear", str(env)], check=True)
     subprocess.run([str(python), "-m", "pip", "install", "--quiet", f"bpy=={version}", "-c", str(pins)], check=True)
@@ -58,10 +61,13 @@ def run_json(cmd: list[str], **kw) -> dict:
 
 def iz_image(folder: Path, python: str) -> np.ndarray:
     """(H, W) I_z luminance of a bake, read in a subprocess of the given environment."""
-    script = ("import json, sys, numpy as np; from hhd_lightmapper.core import exr; "
-              "ch, _ = exr.read(sys.argv[1]); "
-              "iz = np.stack([ch['Iz.' + c] for c in 'RGB'], -1).astype(np.float64) @ [0.2126, 0.7152, 0.0722]; "
-              "np.save(sys.argv[2], iz)")
+    script = (
+        "import json, sys, numpy as np; from hhd_lightmapper.core import exr; "
+        "from hhd_lightmapper.core.colour import LUMINANCE; "
+        "ch, _ = exr.read(sys.argv[1]); "
+        "iz = np.stack([ch['Iz.' + c] for c in 'RGB'], -1).astype(np.float64) @ LUMINANCE; "
+        "np.save(sys.argv[2], iz)"
+    )
     target = folder / "iz.npy"
     subprocess.run([python, "-c", script, str(folder / "Lightmap_hhd.exr"), str(target)], check=True)
     return np.load(target)
@@ -70,10 +76,18 @@ def iz_image(folder: Path, python: str) -> np.ndarray:
 def test_zip_installs_enables_and_bakes_in_a_bpy_only_environment(built_zips, tmp_path):
     zip_path = next(z for z in built_zips if z.stem.endswith(this_platform().replace("-", "_")))
     python = bare_env()
-    check = subprocess.run([str(python), "-c", "import importlib.util as u; print([m for m in "
-                            "('embreex', 'xatlas', 'OpenEXR', 'numba', 'llvmlite') if u.find_spec(m)])"],
-                           capture_output=True, text=True, check=True)
-    assert check.stdout.strip() == "[]"                    # nothing of ours outside the zip
+    check = subprocess.run(
+        [
+            str(python),
+            "-c",
+            "import importlib.util as u; print([m for m in "
+            "('embreex', 'xatlas', 'OpenEXR', 'numba', 'llvmlite') if u.find_spec(m)])",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert check.stdout.strip() == "[]"  # nothing of ours outside the zip
     report = run_json([str(python), str(TRY), str(zip_path), "--out", str(tmp_path / "bake")])
     assert report["blender"].split()[0] == bpy_version()
     assert report["texels"] > 30000 and 0.2 < report["mean_iz"] < 5.0, report
@@ -86,15 +100,40 @@ def test_zip_installs_enables_and_bakes_in_a_bpy_only_environment(built_zips, tm
 
 
 def cli_bake(python: str, scene: Path, out: Path) -> None:
-    cmd = [python, "-m", "hhd_lightmapper.cli", str(scene), "bake", "--unwrap", "--resolution", "256",
-           "--samples", "8", "--bounces", "1", "--seed", "0", "--objects", "Floor", "Cube", "--out", str(out)]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=900,
-                          env={**os.environ, "BLENDER_USER_RESOURCES": str(out) + "-user"})
+    cmd = [
+        python,
+        "-m",
+        "hhd_lightmapper.cli",
+        str(scene),
+        "bake",
+        "--unwrap",
+        "--resolution",
+        "256",
+        "--samples",
+        "8",
+        "--bounces",
+        "1",
+        "--seed",
+        "0",
+        "--objects",
+        "Floor",
+        "Cube",
+        "--out",
+        str(out),
+    ]
+    done = subprocess.run(
+        cmd,
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env={**os.environ, "BLENDER_USER_RESOURCES": str(out) + "-user"},
+    )
     assert done.returncode == 0, (cmd, done.stdout[-2000:], done.stderr[-4000:])
 
 
 def test_cli_bake_gives_the_same_iz_on_blender_4_2_and_5_3(tmp_path):
     import bpy
+
     if bpy.app.version < (5, 0, 0):
         pytest.skip("runs once, from the bpy 5.3 suite (it drives both environments)")
     pythons = {name: env / "bin" / "python" for name, env in ENVS.items()}
@@ -106,13 +145,13 @@ def test_cli_bake_gives_the_same_iz_on_blender_4_2_and_5_3(tmp_path):
         pytest.skip(message)
     images, versions = {}, {}
     for name, python in pythons.items():
-        scene = tmp_path / f"scene-{name}.blend"            # each version builds it itself
+        scene = tmp_path / f"scene-{name}.blend"  # each version builds it itself
         run_json([str(python), str(TRY), "--scene-only", str(scene)])
         cli_bake(str(python), scene, tmp_path / name)
         images[name] = iz_image(tmp_path / name, str(python))
         versions[name] = json.loads((tmp_path / name / "Lightmap.json").read_text())
     new, old = images["5.3"], images["4.2"]
     assert new.shape == old.shape and (new > 0).sum() > 30000
-    assert np.array_equal(new > 0, old > 0)                # same unwrap, same covered texels
+    assert np.array_equal(new > 0, old > 0)  # same unwrap, same covered texels
     assert np.abs(new - old).max() <= 1e-4 * new[new > 0].mean(), np.abs(new - old).max()
     assert [o["texels"] for o in versions["5.3"]["objects"]] == [o["texels"] for o in versions["4.2"]["objects"]]

@@ -1,10 +1,10 @@
 """The tracer's compiled kernels against numpy references written from their definitions."""
+
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import kernels, sh
-
 import quadrature as quad
+from hhd_lightmapper.core import kernels, sh
 
 K = kernels.get()
 
@@ -31,7 +31,7 @@ def test_grouped_accumulation_matches_the_sh_basis_with_broadcast_rows_and_zero_
     out = np.zeros((12, 9, 3))
     K.accumulate_grouped(dirs, values, weights, 8, out)
     np.testing.assert_allclose(out, sh_reference(dirs, values, weights, 8), atol=1e-12)
-    K.accumulate_grouped(dirs, values, weights, 8, out)                       # adds in place
+    K.accumulate_grouped(dirs, values, weights, 8, out)  # adds in place
     np.testing.assert_allclose(out, 2 * sh_reference(dirs, values, weights, 8), atol=1e-12)
     sun, irradiance = np.broadcast_to(unit(rng, 1), (96, 3)), np.broadcast_to([1.0, 2.0, 3.0], (96, 3))
     out = np.zeros((12, 9, 3))
@@ -60,10 +60,10 @@ def test_hemisphere_ray_groups_are_stratified_uniform_and_cosine():
     k, q = 16, 4
     normals, dirs, _ = hemisphere_rays(300, k)
     frames = sh.tangent_frames(normals)
-    local = np.einsum("tji,tsj->tsi", frames, dirs.reshape(-1, k, 3))          # world -> (t, b, n)
+    local = np.einsum("tji,tsj->tsi", frames, dirs.reshape(-1, k, 3))  # world -> (t, b, n)
     z, phi = local[..., 2], np.mod(np.arctan2(local[..., 1], local[..., 0]), 2 * np.pi)
     for g in range(4):
-        zg, pg = z[:, g * q:(g + 1) * q], phi[:, g * q:(g + 1) * q]
+        zg, pg = z[:, g * q : (g + 1) * q], phi[:, g * q : (g + 1) * q]
         u1 = zg if g % 2 == 0 else 1.0 - zg * zg
         np.testing.assert_array_equal(np.sort(np.floor(u1 * q), axis=1), np.tile(np.arange(q), (300, 1)))
         np.testing.assert_array_equal(np.sort(np.floor(pg / (2 * np.pi) * q), axis=1), np.tile(np.arange(q), (300, 1)))
@@ -82,8 +82,8 @@ def project_reference(dirs, radiance, pdf, normals, k):
     """The control-variate estimator of kernels.project_hemisphere, from its docstring."""
     q = k // 4
     r = radiance.reshape(-1, k, 3)
-    beta_a, beta_b = r[:, 3 * q:].mean(axis=1), r[:, q:2 * q].mean(axis=1)
-    adjusted = np.concatenate([r[:, :2 * q] - beta_a[:, None], r[:, 2 * q:] - beta_b[:, None]], axis=1)
+    beta_a, beta_b = r[:, 3 * q :].mean(axis=1), r[:, q : 2 * q].mean(axis=1)
+    adjusted = np.concatenate([r[:, : 2 * q] - beta_a[:, None], r[:, 2 * q :] - beta_b[:, None]], axis=1)
     estimate = sh_reference(dirs, adjusted.reshape(-1, 3), 1.0 / (pdf * k), k)
     hemisphere = np.zeros((len(normals), 9))
     hemisphere[:, 0] = 2 * np.pi * sh.Y00
@@ -94,8 +94,11 @@ def project_reference(dirs, radiance, pdf, normals, k):
 def test_projection_matches_the_control_variate_estimator(rng):
     normals, dirs, pdf = hemisphere_rays(40, 16)
     radiance = rng.random((len(dirs), 3)) * 5.0
-    np.testing.assert_allclose(K.project_hemisphere(dirs, radiance, pdf, normals, 16),
-                               project_reference(dirs, radiance, pdf, normals, 16), atol=1e-10)
+    np.testing.assert_allclose(
+        K.project_hemisphere(dirs, radiance, pdf, normals, 16),
+        project_reference(dirs, radiance, pdf, normals, 16),
+        atol=1e-10,
+    )
 
 
 def test_projection_of_constant_radiance_is_the_exact_masked_hemisphere():
@@ -104,7 +107,7 @@ def test_projection_of_constant_radiance_is_the_exact_masked_hemisphere():
     got = K.project_hemisphere(dirs, np.full((len(dirs), 3), 2.5), pdf, normals, 8)
     qd, w = quad.hemisphere(n_z=200, n_phi=400)
     for t, n in enumerate(normals):
-        world = qd @ sh.tangent_frames(n[None])[0].T                      # local (t, b, n) -> world
+        world = qd @ sh.tangent_frames(n[None])[0].T  # local (t, b, n) -> world
         np.testing.assert_allclose(got[t], 2.5 * (w @ sh.evaluate(world))[:, None] * np.ones(3), atol=1e-4)
 
 
@@ -116,7 +119,7 @@ def hits(rng, r=4000):
     d[:, 2] = -np.sign(o[:, 2]) * np.abs(d[:, 2])
     t = (-o[:, 2] / d[:, 2]).astype(np.float32)
     prim = np.where(rng.random(r) < 0.5, 0, -1).astype(np.int32)
-    ng = np.tile(np.array([0.0, 0.0, 3.0], np.float32), (r, 1))          # not unit, CCW up
+    ng = np.tile(np.array([0.0, 0.0, 3.0], np.float32), (r, 1))  # not unit, CCW up
     return o, d, t, prim, ng
 
 
@@ -128,29 +131,30 @@ def advance(rng, roulette=False, throughput=None, row_albedo=np.zeros((0, 3)), s
     tp = np.full((r, 3), 0.5) if throughput is None else throughput
     radiance = np.full((2 * r, 3), -1.0)
     tri_albedo = np.array([[0.8, 0.6, 0.4]])
-    out = K.advance_paths(live, acc, tp, o, d, t, prim, ng, tri_albedo, row_albedo, sky, radiance,
-                          1e-3, roulette, 0.95, 7)
+    out = K.advance_paths(
+        live, acc, tp, o, d, t, prim, ng, tri_albedo, row_albedo, sky, radiance, 1e-3, roulette, 0.95, 7
+    )
     return (o, d, t, prim, live, acc, tp, radiance), out
 
 
 def test_advance_ends_misses_with_the_sky_and_continues_hits_from_the_facing_side(rng):
     (o, d, t, prim, live, acc, tp, radiance), out = advance(rng)
     new_live, new_acc, new_tp, x, n, nd, pdf, weight, s = out
-    rows = new_live // 2                                                # live = 2 × input row
+    rows = new_live // 2  # live = 2 × input row
     miss = prim < 0
     np.testing.assert_allclose(radiance[live[miss]], acc[miss] + tp[miss] * [0.2, 0.3, 0.4])
-    np.testing.assert_array_equal(rows, np.flatnonzero(~miss))          # no roulette: every hit survives
+    np.testing.assert_array_equal(rows, np.flatnonzero(~miss))  # no roulette: every hit survives
     assert s == len(rows) and (weight == 1.0).all()
     np.testing.assert_array_equal(new_acc, acc[rows])
     np.testing.assert_allclose(new_tp, tp[rows] * [0.8, 0.6, 0.4])
-    assert (radiance[live[rows]] == -1.0).all()                         # continuing paths not written
-    facing = -np.sign(d[rows, 2])                                       # the side the ray came from
+    assert (radiance[live[rows]] == -1.0).all()  # continuing paths not written
+    facing = -np.sign(d[rows, 2])  # the side the ray came from
     np.testing.assert_allclose(n, np.stack([0 * facing, 0 * facing, facing], 1))
     np.testing.assert_allclose(x, o[rows] + d[rows] * t[rows, None].astype(np.float64) + n * 1e-3, atol=1e-6)
     cos = np.einsum("ri,ri->r", nd, n)
     assert cos.min() >= 0.0
     np.testing.assert_allclose(pdf, cos / np.pi, atol=1e-12)
-    assert abs(cos.mean() - 2 / 3) < 0.02                               # cosine-distributed
+    assert abs(cos.mean() - 2 / 3) < 0.02  # cosine-distributed
 
 
 def test_advance_roulette_keeps_victims_for_their_light_and_reweights_survivors(rng):
@@ -165,8 +169,8 @@ def test_advance_roulette_keeps_victims_for_their_light_and_reweights_survivors(
     miss = prim < 0
     np.testing.assert_allclose(radiance[live[miss]], acc[miss] + 0.3 * sky[miss])
     hit = np.flatnonzero(~miss)
-    np.testing.assert_array_equal(np.sort(new_live // 2), hit)         # every hit, once
-    assert (radiance[new_live] == -1.0).all()                           # none written yet
+    np.testing.assert_array_equal(np.sort(new_live // 2), hit)  # every hit, once
+    assert (radiance[new_live] == -1.0).all()  # none written yet
     survive = 0.3
     assert abs(s / len(hit) - survive) < 4 * np.sqrt(survive * (1 - survive) / len(hit))
     np.testing.assert_allclose(weight, 1 / survive)
@@ -181,26 +185,29 @@ def test_texel_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(r
     n, k = 200, 16
     corner = rng.integers(0, 50, (n, 2)).astype(float)
     big = np.array([[-100.0, -100.0], [300.0, -100.0], [-100.0, 300.0]])
-    tri_pos = np.concatenate([np.tile(big, (n, 1, 1)), np.zeros((n, 3, 1))], axis=2)      # world = texel space
+    tri_pos = np.concatenate([np.tile(big, (n, 1, 1)), np.zeros((n, 3, 1))], axis=2)  # world = texel space
     up = np.tile([0.0, 0.0, 1.0], (n, 1))
     out = K.texel_origins(corner, np.tile(big, (n, 1, 1)), tri_pos, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 3)
     local = out[:, :2].reshape(n, k, 2) - corner[:, None, :]
     assert local.min() >= 0.25 and local.max() <= 0.75
-    np.testing.assert_array_equal(np.sort(np.floor((local[..., 0] - 0.25) * 2 * k), axis=1), np.tile(np.arange(k), (n, 1)))
+    np.testing.assert_array_equal(
+        np.sort(np.floor((local[..., 0] - 0.25) * 2 * k), axis=1), np.tile(np.arange(k), (n, 1))
+    )
     # half the footprint: the triangle x + y ≤ 1 through the texel's centre (corner at 0)
     half = np.array([[-5.0, 6.0], [6.0, -5.0], [-5.0, -5.0]])
     tri = np.tile(half, (n, 1, 1))
     tri_pos = np.concatenate([tri, np.zeros((n, 3, 1))], axis=2)
     out = K.texel_origins(np.zeros((n, 2)), tri, tri_pos, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 4)
     assert (out[:, 0] + out[:, 1] <= 1.0 + 1e-12).all() and out[:, :2].min() >= 0.0
-    assert (out[:, :2].min(axis=1) >= 0.25).mean() > 0.99         # 10 misses in a row (2⁻¹⁰): whole texel
-    assert abs(out[:, 0].mean() - (0.25 + 0.5 / 3)) < 0.01          # centroid of the lower-left half
+    assert (out[:, :2].min(axis=1) >= 0.25).mean() > 0.99  # 10 misses in a row (2⁻¹⁰): whole texel
+    assert abs(out[:, 0].mean() - (0.25 + 0.5 / 3)) < 0.01  # centroid of the lower-left half
 
 
 def test_add_pass_keeps_the_running_mean_variance_and_iz_of_each_texel(rng):
     """Per-texel passes in any order and subset: total = Σ x, m2 = Σ (x - mean)² (two-pass
     numpy), iz = Σ I_z luminance (hhd.irradz), passes counted."""
     from hhd_lightmapper.core import hhd
+
     n = 7
     normals = unit(rng, n)
     total, m2 = np.zeros((n, 9, 3)), np.zeros((n, 9, 3), np.float32)
@@ -208,7 +215,7 @@ def test_add_pass_keeps_the_running_mean_variance_and_iz_of_each_texel(rng):
     seen = [[] for _ in range(n)]
     for subset in ([0, 1, 2, 3, 4, 5, 6], [1, 3, 5], [0, 1, 2, 3, 4, 5, 6], [3], [2, 3, 6]):
         idx = np.array(subset)
-        est = 1e3 * rng.normal(size=(len(idx), 9, 3)) + 5e3     # large mean: Welford's point
+        est = 1e3 * rng.normal(size=(len(idx), 9, 3)) + 5e3  # large mean: Welford's point
         K.add_pass(idx, est, normals, hhd.LUMINANCE, total, m2, iz, iz_sq, passes)
         for j, t in enumerate(idx):
             seen[t].append(est[j])
@@ -217,5 +224,5 @@ def test_add_pass_keeps_the_running_mean_variance_and_iz_of_each_texel(rng):
         assert passes[t] == len(x)
         np.testing.assert_allclose(total[t], x.sum(axis=0), rtol=1e-12)
         np.testing.assert_allclose(m2[t], ((x - x.mean(axis=0)) ** 2).sum(axis=0), rtol=1e-4, atol=1e-3)
-        lum = hhd.irradz(x, np.repeat(normals[t:t + 1], len(x), axis=0)) @ hhd.LUMINANCE
-        np.testing.assert_allclose([iz[t], iz_sq[t]], [lum.sum(), (lum ** 2).sum()], rtol=1e-12)
+        lum = hhd.irradz(x, np.repeat(normals[t : t + 1], len(x), axis=0)) @ hhd.LUMINANCE
+        np.testing.assert_allclose([iz[t], iz_sq[t]], [lum.sum(), (lum**2).sum()], rtol=1e-12)

@@ -1,5 +1,6 @@
 """The files a bake writes (no Blender): EXR round trips, half vs float, atomic replacement,
 dilation, the sidecar, and re-encoding from the SH EXR."""
+
 import json
 
 import numpy as np
@@ -14,7 +15,7 @@ from scenekit import meshes
 def test_float_channels_round_trip_bit_exact_and_rows_are_top_down(tmp_path):
     rng = np.random.default_rng(1)
     a = (rng.standard_normal((7, 5)) * 10.0 ** rng.integers(-30, 30, (7, 5))).astype(np.float32)
-    a[0, 0], a[1, 1] = np.float32(3.4e38), np.float32(1e-45)           # extremes of float32
+    a[0, 0], a[1, 1] = np.float32(3.4e38), np.float32(1e-45)  # extremes of float32
     h = rng.random((7, 5)).astype(np.float16)
     exr.write(tmp_path / "x.exr", {"A.V": a, "B.V": h}, {"note": "hi"})
     channels, header = exr.read(tmp_path / "x.exr")
@@ -24,14 +25,14 @@ def test_float_channels_round_trip_bit_exact_and_rows_are_top_down(tmp_path):
     assert header["note"] == "hi"
     bottom_up = np.arange(6, dtype=np.float32).reshape(3, 2)
     assert np.array_equal(exr.from_exr_rows(exr.to_exr_rows(bottom_up)), bottom_up)
-    assert exr.to_exr_rows(bottom_up)[0, 0] == 4.0      # the top row of the image comes first
+    assert exr.to_exr_rows(bottom_up)[0, 0] == 4.0  # the top row of the image comes first
 
 
 def test_atomic_write_keeps_the_previous_file_when_writing_fails(tmp_path):
     target = tmp_path / "l.exr"
     exr.write(target, {"V.V": np.ones((4, 4), np.float32)})
     before = target.read_bytes()
-    with pytest.raises(TypeError):        # the second channel cannot be stored: fails mid-write
+    with pytest.raises(TypeError):  # the second channel cannot be stored: fails mid-write
         exr.write(target, {"V.V": np.zeros((4, 4), np.float32), "W.V": np.zeros((4, 4), np.float64)})
     assert target.read_bytes() == before
     with pytest.raises(RuntimeError):
@@ -40,7 +41,7 @@ def test_atomic_write_keeps_the_previous_file_when_writing_fails(tmp_path):
             staging.write_text(tmp_path / "side.json", "{}")
             raise RuntimeError("interrupted before commit")
     assert target.read_bytes() == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["l.exr"]        # no temporaries left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["l.exr"]  # no temporaries left
 
 
 def test_dilation_fills_from_the_nearest_source_and_reaches_everything():
@@ -55,7 +56,7 @@ def test_dilation_fills_from_the_nearest_source_and_reaches_everything():
     index = dilate.nearest_source(valid, 3)
     ys, xs = np.nonzero(index >= 0)
     sy, sx = np.divmod(index[index >= 0], 12)
-    assert (np.maximum(abs(ys - sy), abs(xs - sx)) <= 3).all()          # within `rings`, chessboard
+    assert (np.maximum(abs(ys - sy), abs(xs - sx)) <= 3).all()  # within `rings`, chessboard
     far = index < 0
     assert far.any() and np.allclose(out[far], image[valid].mean(axis=0))
     assert np.isfinite(dilate.dilate(np.zeros((4, 4, 1)), np.zeros((4, 4), bool))).all()
@@ -64,10 +65,15 @@ def test_dilation_fills_from_the_nearest_source_and_reaches_everything():
 def plane_bake(tmp_path, sun=(3.0, 2.0, 1.0), resolution=256, encoder=bake.EncoderSettings()):
     v, f = meshes.plane(2.0)
     res = unwrap.unwrap([unwrap.UnwrapMesh("floor", v, f)], unwrap.UnwrapSettings(resolution=resolution))
-    surface = bakepoints.SurfaceTriangles(v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float),
-                                          np.zeros(2, int), np.full((2, 3), 0.5))
-    scene = BakeScene(v[f], np.full((2, 3), 0.5), lights=[SunLight(np.array([0.6, 0.0, 0.8]), np.array(sun))],
-                      world=np.array([0.1, 0.2, 0.3]))
+    surface = bakepoints.SurfaceTriangles(
+        v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float), np.zeros(2, int), np.full((2, 3), 0.5)
+    )
+    scene = BakeScene(
+        v[f],
+        np.full((2, 3), 0.5),
+        lights=[SunLight(np.array([0.6, 0.0, 0.8]), np.array(sun))],
+        world=np.array([0.1, 0.2, 0.3]),
+    )
     settings = bake.PipelineSettings(trace=BakeSettings(samples=16, bounces=1), encoder=encoder)
     bake.run([bake.AtlasInput("Lightmap", resolution, resolution, surface, ["floor"])], scene, settings, tmp_path)
     return lightmap_files.AtlasFiles(tmp_path, "Lightmap")
@@ -87,14 +93,14 @@ def test_written_files_decode_to_the_encoder_output_and_sidecar_describes_them(t
     channels, header = exr.read(files.hhd)
     assert header["hhdFormat"] == "hhd-lightmap"
     iz = np.stack([exr.from_exr_rows(channels[f"Iz.{c}"]) for c in "RGB"], -1)[data.baked].astype(float)
-    np.testing.assert_allclose(iz, params.irradz, rtol=1e-3, atol=1e-6)      # half precision
+    np.testing.assert_allclose(iz, params.irradz, rtol=1e-3, atol=1e-6)  # half precision
     oct_uv = np.stack([exr.from_exr_rows(channels[f"Direction.{a}"]) for a in "XY"], -1)[data.baked].astype(float)
     cos = np.einsum("pi,pi->p", octahedral.decode(oct_uv), params.direction)
     assert cos.min() > np.cos(np.radians(0.1))
     x0, y0, x1, y1 = doc["objects"][0]["rect"]
     assert data.baked[y0:y1, x0:x1].sum() == data.baked.sum()
     everywhere = np.stack([channels[f"Iz.{c}"] for c in "RGB"], -1).astype(float)
-    assert everywhere.min() > 0.1        # dilated: no black texel for bilinear filtering to pull in
+    assert everywhere.min() > 0.1  # dilated: no black texel for bilinear filtering to pull in
 
 
 def test_hdr_values_beyond_half_are_stored_as_float_not_clipped(tmp_path):
@@ -124,11 +130,16 @@ def test_a_cancelled_bake_replaces_no_file(tmp_path):
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     v, f = meshes.plane(2.0)
     res = unwrap.unwrap([unwrap.UnwrapMesh("floor", v, f)], unwrap.UnwrapSettings(resolution=256))
-    surface = bakepoints.SurfaceTriangles(v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float),
-                                          np.zeros(2, int), np.full((2, 3), 0.9))
+    surface = bakepoints.SurfaceTriangles(
+        v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float), np.zeros(2, int), np.full((2, 3), 0.9)
+    )
     calls = []
     with pytest.raises(bake.tracer.BakeCancelled):
-        bake.run([bake.AtlasInput("Lightmap", 256, 256, surface, ["floor"])],
-                 BakeScene(v[f], np.full((2, 3), 0.9), world=np.ones(3)), bake.PipelineSettings(),
-                 files.folder, cancel=lambda: calls.append(1) or len(calls) > 3)
+        bake.run(
+            [bake.AtlasInput("Lightmap", 256, 256, surface, ["floor"])],
+            BakeScene(v[f], np.full((2, 3), 0.9), world=np.ones(3)),
+            bake.PipelineSettings(),
+            files.folder,
+            cancel=lambda: calls.append(1) or len(calls) > 3,
+        )
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before

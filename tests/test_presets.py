@@ -1,5 +1,6 @@
 """Presets: what the panel and the command line offer comes from the measured trade-off
 (bench/tradeoff.py writes bench/results/presets.json; core/presets.py holds the same knobs)."""
+
 import json
 from pathlib import Path
 

@@ -9,6 +9,7 @@ the GPU's bilinear filter has 8-bit weights (an error up to 1/256 of the spread 
 reconstruction over the 2×2 blended texels). So 99% of pixels must be within 1% of the value plus
 2% of that spread, none beyond 5%, and the median within 0.3% (a systematic mistake in the group,
 e.g. a dropped (1 + n·n_v)/2, moves the median by ~1%). Measured: median 0.12%, p99 1.0%."""
+
 import tempfile
 from pathlib import Path
 
@@ -26,11 +27,12 @@ AOVS = ("luv", "n", "nv", "albedo")
 @pytest.fixture
 def baked(extension, tmp_path):
     import bpy
+
     scene = kit.clear_scene()
     floor_mat = normal_mapped_material("Floor")
     floor = kit.plane("Floor", (0, 0, 0), 4, floor_mat)
     cube = kit.box("Cube", (0.6, 0.5, 0.5), (1, 1, 1), kit.material("red", (0.8, 0.2, 0.1)))
-    shared = kit.plane("Unbaked", (5, 0, 0), 1, floor_mat)          # shares the floor's material
+    shared = kit.plane("Unbaked", (5, 0, 0), 1, floor_mat)  # shares the floor's material
     kit.light('SUN', rotation=(0.6, 0.3, 0.4), energy=3.0)
     kit.world((0.1, 0.2, 0.3))
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
@@ -45,6 +47,7 @@ def normal_mapped_material(name):
     """Principled BSDF with a tangent-space Normal Map fed by a smooth float image of tilted
     normals (so the shading normal differs from n_v by up to ~35°)."""
     import bpy
+
     mat = kit.material(name, (0.7, 0.7, 0.6))
     size = 16
     u, v = np.meshgrid((np.arange(size) + 0.5) / size, (np.arange(size) + 0.5) / size)
@@ -67,15 +70,19 @@ def normal_mapped_material(name):
 
 
 def tree_state(mat):
-    nodes = sorted((n.name, n.bl_idname, tuple(n.location), n.parent.name if n.parent else None)
-                   for n in mat.node_tree.nodes)
-    links = sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
-                   for l in mat.node_tree.links)
+    nodes = sorted(
+        (n.name, n.bl_idname, tuple(n.location), n.parent.name if n.parent else None) for n in mat.node_tree.nodes
+    )
+    links = sorted(
+        (l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
+        for l in mat.node_tree.links
+    )
     return nodes, links, sorted(mat.keys())
 
 
 def test_show_and_hide_restore_every_material_exactly(baked):
     import bpy
+
     scene, floor, cube, shared, _ = baked
     before = {m.name: tree_state(m) for m in bpy.data.materials}
     for mode in ("HHD", "AHD", "L1", "L2", "SCALAR"):
@@ -83,7 +90,7 @@ def test_show_and_hide_restore_every_material_exactly(baked):
         assert bpy.ops.hhd.preview_show() == {'FINISHED'}
         group = next(n for n in floor.material_slots[0].material.node_tree.nodes if n.type == 'GROUP')
         assert group.node_tree.name.startswith({"L1": "L1", "L2": "L2", "SCALAR": "Scalar"}.get(mode, mode))
-        assert floor["hhd_preview"] == 1.0 and "hhd_preview" not in shared     # the unbaked user keeps its look
+        assert floor["hhd_preview"] == 1.0 and "hhd_preview" not in shared  # the unbaked user keeps its look
     assert bpy.ops.hhd.preview_hide() == {'FINISHED'}
     assert {m.name: tree_state(m) for m in bpy.data.materials} == before
     assert "hhd_preview" not in floor and "hhd_preview" not in cube
@@ -97,13 +104,16 @@ def render_inputs(scene, mat, path):
     group = next(n for n in tree.nodes if n.type == 'GROUP')
     emission = next(n for n in tree.nodes if n.type == 'EMISSION' and n.name.startswith("HHD Preview"))
     uv = next(n for n in tree.nodes if n.type == 'UVMAP' and n.name.startswith("HHD Preview"))
-    sources = {"luv": uv.outputs["UV"], "n": group.inputs["Normal"].links[0].from_socket,
-               "nv": group.inputs["Vertex Normal"].links[0].from_socket,
-               "albedo": group.inputs["Albedo"].links[0].from_socket if group.inputs["Albedo"].is_linked else None}
+    sources = {
+        "luv": uv.outputs["UV"],
+        "n": group.inputs["Normal"].links[0].from_socket,
+        "nv": group.inputs["Vertex Normal"].links[0].from_socket,
+        "albedo": group.inputs["Albedo"].links[0].from_socket if group.inputs["Albedo"].is_linked else None,
+    }
     radiance = emission.inputs["Color"].links[0].from_socket
     out = {"radiance": render(scene, path / "radiance.exr")}
     for name, socket in sources.items():
-        if name == "luv":    # the film is half float: render UV − offset, offset from a coarse pass
+        if name == "luv":  # the film is half float: render UV − offset, offset from a coarse pass
             tree.links.new(socket, emission.inputs["Color"])
             offset = np.floor(render(scene, path / "luv_coarse.exr").min(axis=0) * 64.0) / 64.0
             shift = tree.nodes.new("ShaderNodeVectorMath")
@@ -132,6 +142,7 @@ def render_inputs(scene, mat, path):
 
 def render(scene, path):
     import bpy
+
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
     channels, _ = exr.read(path)
@@ -141,20 +152,22 @@ def render(scene, path):
 @pytest.mark.slow
 def test_eevee_render_equals_the_numpy_reconstruction(baked, tmp_path):
     import bpy
+
     scene, floor, cube, shared, out = baked
     scene.hhd.preview_mode = 'HHD'
     assert bpy.ops.hhd.preview_show() == {'FINISHED'}
     cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
     scene.collection.objects.link(cam)
     cam.data.type, cam.data.ortho_scale = 'ORTHO', 1.2
-    cam.location = (-0.9, -0.9, 3.0)              # a 1.2 m square of floor beside the cube's shadow
+    cam.location = (-0.9, -0.9, 3.0)  # a 1.2 m square of floor beside the cube's shadow
     scene.camera = cam
     from hhd_lightmapper import blender_compat
+
     scene.render.engine = blender_compat.eevee_engine()
     scene.render.resolution_x = scene.render.resolution_y = 96
     scene.render.resolution_percentage = 100
     scene.render.filter_size = 0.0
-    scene.eevee.taa_render_samples = 1          # no sub-pixel jitter: inputs and output at one point
+    scene.eevee.taa_render_samples = 1  # no sub-pixel jitter: inputs and output at one point
     scene.view_settings.view_transform = 'Standard'
     settings = scene.render.image_settings
     settings.file_format, settings.color_depth = 'OPEN_EXR', '32'
@@ -167,12 +180,14 @@ def test_eevee_render_equals_the_numpy_reconstruction(baked, tmp_path):
     expected = albedo * reconstruct({k: sample_bilinear(v, luv[:, :2], clamp=True) for k, v in files.items()}, n, nv)
     # what the GPU's 8-bit bilinear weights can move: the spread of the reconstruction over the
     # 2×2 texels the lookup blends (each evaluated at this pixel's normals)
-    corners = np.stack([albedo * reconstruct({k: v[c] for k, v in texel_corners(files, luv[:, :2]).items()}, n, nv)
-                        for c in range(4)])
+    corners = np.stack(
+        [albedo * reconstruct({k: v[c] for k, v in texel_corners(files, luv[:, :2]).items()}, n, nv) for c in range(4)]
+    )
     contrast = corners.max(axis=0) - corners.min(axis=0)
-    tilt = np.degrees(np.arccos(np.clip(np.einsum("pi,pi->p", n, nv) / np.linalg.norm(n, axis=1)
-                                        / np.linalg.norm(nv, axis=1), -1, 1)))
-    assert tilt.max() > 20.0                      # the normal map is really in play
+    tilt = np.degrees(
+        np.arccos(np.clip(np.einsum("pi,pi->p", n, nv) / np.linalg.norm(n, axis=1) / np.linalg.norm(nv, axis=1), -1, 1))
+    )
+    assert tilt.max() > 20.0  # the normal map is really in play
     error = np.abs(rendered - expected)
     relative = error / np.maximum(expected, 1e-6)
     assert (error <= 0.01 * expected + 0.02 * contrast + 1e-5).mean() > 0.99, error.max()

@@ -1,9 +1,10 @@
 """SH basis, projection, cosine convolution and rotation against independent references."""
+
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import sh, sh_reference
 import quadrature as quad
+from hhd_lightmapper.core import sh, sh_reference
 
 
 @pytest.fixture
@@ -45,7 +46,7 @@ def test_cosine_convolution_matches_quadrature_of_clamped_cosine(rng):
 
 def test_unit_radiance_gives_unit_irradiance():
     r = np.zeros((1, 9, 3))
-    r[0, 0] = 1.0 / sh.Y00   # constant radiance 1 (= 2√π on Y00)
+    r[0, 0] = 1.0 / sh.Y00  # constant radiance 1 (= 2√π on Y00)
     np.testing.assert_allclose(sh.irradiance(r, np.array([[0.3, -0.4, np.sqrt(0.75)]])), 1.0)
 
 
@@ -55,8 +56,9 @@ def test_rotation_agrees_with_rotating_the_argument(rng):
     m = quad.random_rotations(rng, n)
     w = quad.random_dirs(rng, n)
     rotated = sh.rotate(coeffs, m)
-    np.testing.assert_allclose(sh.evaluate_sh(rotated, w),
-                               sh.evaluate_sh(coeffs, np.einsum("nij,nj->ni", m, w)), atol=1e-12)
+    np.testing.assert_allclose(
+        sh.evaluate_sh(rotated, w), sh.evaluate_sh(coeffs, np.einsum("nij,nj->ni", m, w)), atol=1e-12
+    )
     np.testing.assert_allclose(sh.rotate(coeffs[:, :, 0], m), rotated[:, :, 0], atol=1e-12)
 
 
@@ -85,4 +87,3 @@ def test_local_frame_round_trip_and_zenith_value(rng):
     np.testing.assert_allclose(sh.to_world(local, frames), coeffs, atol=1e-12)
     z = np.tile([0.0, 0.0, 1.0], (30, 1))
     np.testing.assert_allclose(sh.evaluate_sh(local, z), sh.evaluate_sh(coeffs, n), atol=1e-12)
-

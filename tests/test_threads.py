@@ -1,6 +1,7 @@
 """Thread counts (no Blender): all cores by default, 0 = all, negative refused, Blender's
 Threads setting mapped, and the files of a bake byte-identical whatever the thread count (the
 sidecar differs only in the count it records and the timings)."""
+
 import json
 import os
 
@@ -29,7 +30,7 @@ def test_machine_threads_is_what_this_process_may_use_and_zero_means_all():
 
 
 def test_blender_threads_setting_maps_auto_to_all_and_fixed_to_its_value():
-    assert parallel.blender_threads("AUTO", 7) == 0          # Blender reports its own count in AUTO
+    assert parallel.blender_threads("AUTO", 7) == 0  # Blender reports its own count in AUTO
     assert parallel.blender_threads("FIXED", 3) == 3
     assert parallel.blender_threads("FIXED", 0) == 1
     with pytest.raises(BakeError, match="threads mode"):
@@ -43,12 +44,18 @@ def floor_and_box():
     box_v, box_f = meshes.cube(0.6, centre=(1.0, 1.0, 0.3))
     floor = v[f]
     tris = np.concatenate([floor, box_v[box_f]])
-    surface = bakepoints.SurfaceTriangles(floor, np.tile([0, 0, 1.0], (2, 3, 1)), floor[..., :2] / 2.0,
-                                          np.zeros(2, int), np.full((2, 3), 0.5))
-    scene = BakeScene(tris, np.full((len(tris), 3), 0.6),
-                      lights=[SunLight(np.array([0.6, 0.2, 0.77]), np.array([3.0, 2.5, 2.0])),
-                              PointLight(np.array([0.3, 1.6, 0.8]), np.array([40.0, 30.0, 20.0]), radius=0.1)],
-                      world=np.array([0.1, 0.2, 0.3]))
+    surface = bakepoints.SurfaceTriangles(
+        floor, np.tile([0, 0, 1.0], (2, 3, 1)), floor[..., :2] / 2.0, np.zeros(2, int), np.full((2, 3), 0.5)
+    )
+    scene = BakeScene(
+        tris,
+        np.full((len(tris), 3), 0.6),
+        lights=[
+            SunLight(np.array([0.6, 0.2, 0.77]), np.array([3.0, 2.5, 2.0])),
+            PointLight(np.array([0.3, 1.6, 0.8]), np.array([40.0, 30.0, 20.0]), radius=0.1),
+        ],
+        world=np.array([0.1, 0.2, 0.3]),
+    )
     return bake.AtlasInput("Lightmap", RESOLUTION, RESOLUTION, surface, ["floor"]), scene
 
 
@@ -75,12 +82,12 @@ def test_one_thread_and_many_write_byte_identical_files(tmp_path):
     many = bake_with(tmp_path / "many", MANY)
     default = bake_with(tmp_path / "default", 0)
     exrs = {k: v for k, v in file_bytes(one.folder).items() if k.endswith(".exr")}
-    assert len(exrs) == 3 + 12                                     # hhd, sh, texels + the preview's
+    assert len(exrs) == 3 + 12  # hhd, sh, texels + the preview's
     for other in (many, default):
         assert {k: v for k, v in file_bytes(other.folder).items() if k.endswith(".exr")} == exrs
     docs = [lightmap_files.read_sidecar(f.sidecar) for f in (one, many, default)]
     assert [d["bake"]["threads"] for d in docs] == [1, MANY, parallel.machine_threads()]
-    assert docs[0]["stats"]["texels_buried"] > 0                    # the box's footprint
+    assert docs[0]["stats"]["texels_buried"] > 0  # the box's footprint
     assert without_run_details(docs[0]) == without_run_details(docs[1]) == without_run_details(docs[2])
 
 
@@ -93,11 +100,12 @@ def test_reencode_is_byte_identical_whatever_the_thread_count_and_records_it(tmp
     bake.reencode(files, encoder, threads=MANY)
     assert files.hhd.read_bytes() == encoded_one
     doc = lightmap_files.read_sidecar(files.sidecar)
-    assert doc["reencode_threads"] == MANY and doc["bake"]["threads"] == 2     # the bake's own count stays
+    assert doc["reencode_threads"] == MANY and doc["bake"]["threads"] == 2  # the bake's own count stays
 
 
 def test_exr_compression_threads_do_not_change_the_bytes(tmp_path):
     import OpenEXR
+
     rng = np.random.default_rng(4)
     channels = {"A.V": rng.random((300, 200)).astype(np.float32), "B.V": rng.random((300, 200)).astype(np.float16)}
     written = []

@@ -1,5 +1,6 @@
 """The tracer on its own (no Blender): furnace, exact delta lights, determinism, threads,
 progress, cancel, buried texels."""
+
 import numpy as np
 import pytest
 
@@ -12,8 +13,9 @@ from scenekit import meshes
 def floor_points(extra_v=None, extra_f=None):
     v, f = meshes.plane(2.0)
     res = unwrap.unwrap([unwrap.UnwrapMesh("floor", v, f)], unwrap.UnwrapSettings(resolution=256))
-    surface = bakepoints.SurfaceTriangles(v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float),
-                                          np.zeros(2, int), np.full((2, 3), 0.5))
+    surface = bakepoints.SurfaceTriangles(
+        v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float), np.zeros(2, int), np.full((2, 3), 0.5)
+    )
     tris = v[f] if extra_v is None else np.concatenate([v[f], extra_v[extra_f]])
     return bakepoints.build(surface, 256, 256, occluders=rays.RayScene(tris)), tris
 
@@ -25,7 +27,7 @@ def test_furnace_gives_exact_irradiance_and_the_masked_hemisphere_sh():
     np.testing.assert_allclose(hhd.irradz(result.sh, points.normal), 1.0, rtol=1e-12)
     local = sh.to_local(result.sh, sh.tangent_frames(points.normal))
     expected = np.zeros(9)
-    expected[0], expected[2] = np.sqrt(np.pi), np.sqrt(3 * np.pi) / 2      # masked constant hemisphere
+    expected[0], expected[2] = np.sqrt(np.pi), np.sqrt(3 * np.pi) / 2  # masked constant hemisphere
     mean = local.mean(axis=0)[:, 0]
     se = np.sqrt((result.sh_error[:, :, 0] ** 2).sum(axis=0)) / len(points.texel)
     assert (np.abs(mean - expected) <= 5 * se + 1e-12).all(), (mean, se)
@@ -34,19 +36,28 @@ def test_furnace_gives_exact_irradiance_and_the_masked_hemisphere_sh():
 def test_unshadowed_sun_is_noise_free_and_exact():
     points, tris = floor_points()
     sun = SunLight(np.array([0.6, 0.0, 0.8]), np.array([3.0, 2.0, 1.0]))
-    result = tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5), lights=[sun]),
-                         tracer.BakeSettings(samples=16, bounces=0))
-    np.testing.assert_allclose(hhd.irradz(result.sh, points.normal), np.tile([3.0, 2.0, 1.0], (len(points.texel), 1)) * 0.8 / np.pi,
-                               rtol=1e-9)
-    np.testing.assert_allclose(result.sh, np.tile(sh.evaluate(sun.direction[None])[0][:, None] * sun.irradiance,
-                                                  (len(points.texel), 1, 1)), atol=1e-12)
+    result = tracer.bake(
+        points, BakeScene(tris, np.full((len(tris), 3), 0.5), lights=[sun]), tracer.BakeSettings(samples=16, bounces=0)
+    )
+    np.testing.assert_allclose(
+        hhd.irradz(result.sh, points.normal), np.tile([3.0, 2.0, 1.0], (len(points.texel), 1)) * 0.8 / np.pi, rtol=1e-9
+    )
+    np.testing.assert_allclose(
+        result.sh,
+        np.tile(sh.evaluate(sun.direction[None])[0][:, None] * sun.irradiance, (len(points.texel), 1, 1)),
+        atol=1e-12,
+    )
 
 
 def test_same_seed_same_result_whatever_the_thread_count():
     wall_v, wall_f = meshes.cube(1.0, centre=(0.0, 0.0, 0.5))
     points, tris = floor_points(wall_v * [0.2, 1.0, 1.0], wall_f)
-    scene = BakeScene(tris, np.full((len(tris), 3), 0.6), lights=[SunLight(np.array([0.5, 0.1, 0.86]), np.ones(3))],
-                      world=np.array([0.2, 0.3, 0.5]))
+    scene = BakeScene(
+        tris,
+        np.full((len(tris), 3), 0.6),
+        lights=[SunLight(np.array([0.5, 0.1, 0.86]), np.ones(3))],
+        world=np.array([0.2, 0.3, 0.5]),
+    )
     settings = dict(samples=32, bounces=2, seed=5, chunk_texels=4096)
     a = tracer.bake(points, scene, tracer.BakeSettings(threads=1, **settings))
     b = tracer.bake(points, scene, tracer.BakeSettings(threads=2, **settings))
@@ -60,15 +71,20 @@ def test_progress_is_reported_and_cancel_stops_within_a_chunk():
     points, tris = floor_points()
     scene = BakeScene(tris, np.full((len(tris), 3), 0.5), world=np.ones(3))
     seen = []
-    tracer.bake(points, scene, tracer.BakeSettings(samples=32, chunk_texels=8192),
-                progress=lambda f, msg: seen.append((f, msg)))
+    tracer.bake(
+        points, scene, tracer.BakeSettings(samples=32, chunk_texels=8192), progress=lambda f, msg: seen.append((f, msg))
+    )
     fractions = [f for f, _ in seen]
     assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
     assert "pass 2 of 2" in seen[-1][1] and "rays/s" in seen[-1][1]
     calls = []
     with pytest.raises(tracer.BakeCancelled):
-        tracer.bake(points, scene, tracer.BakeSettings(samples=64, chunk_texels=8192),
-                    cancel=lambda: calls.append(1) or len(calls) > 2)
+        tracer.bake(
+            points,
+            scene,
+            tracer.BakeSettings(samples=64, chunk_texels=8192),
+            cancel=lambda: calls.append(1) or len(calls) > 2,
+        )
     assert len(calls) == 3
 
 
@@ -77,10 +93,11 @@ def test_buried_texels_bake_black_and_odd_pass_sizes_are_refused():
     v = v * [0.03, 2.0, 1.2] + [0.0, 0.0, 0.4]
     points, tris = floor_points(v, f)
     assert points.buried.any()
-    result = tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5), world=np.ones(3)),
-                         tracer.BakeSettings(samples=16))
+    result = tracer.bake(
+        points, BakeScene(tris, np.full((len(tris), 3), 0.5), world=np.ones(3)), tracer.BakeSettings(samples=16)
+    )
     assert (result.sh[points.buried] == 0).all()
-    clear = np.abs(points.position[:, 0]) > 0.015 + 3 * points.texel_size   # away from the wall
+    clear = np.abs(points.position[:, 0]) > 0.015 + 3 * points.texel_size  # away from the wall
     assert (hhd.irradz(result.sh, points.normal)[clear] > 0).all()
     with pytest.raises(BakeError, match="multiple of 4"):
         tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5)), tracer.BakeSettings(pass_samples=15))
@@ -89,6 +106,7 @@ def test_buried_texels_bake_black_and_odd_pass_sizes_are_refused():
 def sky_environment(rotation=np.eye(3)):
     """A sky gradient with a bright 1-pixel sun (the hard case for bilinear vs sampling)."""
     from hhd_lightmapper.core.environment import EnvironmentMap
+
     h, w = 32, 64
     z = np.cos(np.pi * (1.0 - (np.arange(h) + 0.5) / h))
     img = np.tile(((0.2 + 0.8 * z.clip(0))[:, None, None] * np.array([0.3, 0.5, 1.0])), (1, w, 1))
@@ -128,16 +146,19 @@ def test_hdri_world_bake_matches_quadrature_of_the_environment():
     rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     env = sky_environment(rotation)
     points, tris = floor_points()
-    result = tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5), environment=env),
-                         tracer.BakeSettings(samples=32, bounces=1))
+    result = tracer.bake(
+        points,
+        BakeScene(tris, np.full((len(tris), 3), 0.5), environment=env),
+        tracer.BakeSettings(samples=32, bounces=1),
+    )
     dirs, weight = sphere_quadrature(env)
     up = dirs[:, 2] > 0
     reference = sh.project(dirs[up], env.radiance(dirs[up]), weight[up]).reshape(9, 3)
     mean = result.sh.mean(axis=0)
-    se = np.sqrt((result.sh_error ** 2).sum(axis=0)) / len(points.texel)
+    se = np.sqrt((result.sh_error**2).sum(axis=0)) / len(points.texel)
     assert (np.abs(mean - reference) <= 4 * se + 1e-9).all(), (mean - reference) / se
     iz = hhd.irradz(result.sh, points.normal)
-    assert (iz.std(axis=0) / iz.mean(axis=0)).max() < 0.5        # per-texel noise at 32 spp
+    assert (iz.std(axis=0) / iz.mean(axis=0)).max() < 0.5  # per-texel noise at 32 spp
 
 
 def test_emissive_triangles_are_light_sampled_without_bias():
@@ -158,10 +179,10 @@ def test_emissive_triangles_are_light_sampled_without_bias():
     to = quad[None] - points.position[pick][:, None]
     dist = np.linalg.norm(to, axis=2)
     dirs = to / dist[..., None]
-    weight = (0.16 / (s * s)) * np.abs(dirs[..., 2]) / dist ** 2            # dω = cos dA / d²
+    weight = (0.16 / (s * s)) * np.abs(dirs[..., 2]) / dist**2  # dω = cos dA / d²
     y = sh.evaluate(dirs.reshape(-1, 3)).reshape(len(pick), s * s, 9)
     reference = np.einsum("pqk,pq->pk", y, weight)[..., None] * emission[-1]
-    diff = (result.sh[pick] - reference).sum(axis=0)                       # summed over texels
+    diff = (result.sh[pick] - reference).sum(axis=0)  # summed over texels
     se = np.sqrt((result.sh_error[pick] ** 2).sum(axis=0))
     assert (np.abs(diff) <= 4 * se + 1e-9).all(), diff / se
     relative_noise = result.sh_error[pick, 0] / np.maximum(reference[:, 0], 1e-12)
@@ -189,13 +210,13 @@ def test_noise_target_stops_converged_texels_and_meets_the_target():
     adaptive = tracer.bake(points, scene, tracer.BakeSettings(samples=1024, bounces=1, noise_target=target))
     taken = adaptive.texel_samples[open_]
     assert taken.min() >= tracer.MIN_ADAPTIVE_PASSES * 16
-    assert taken.min() < taken.max()                  # easy texels stopped before the hard ones
+    assert taken.min() < taken.max()  # easy texels stopped before the hard ones
     assert adaptive.mean_samples < 0.5 * 1024
     # the error it reaches: relative RMS over the texels ≈ the target (the reference has noise too)
     iz = luminance_iz(adaptive, points)[open_]
     floor = tracer.NOISE_FLOOR * reference[open_].mean()
     relative = (iz - reference[open_]) / np.maximum(reference[open_], floor)
-    assert np.sqrt(np.mean(relative ** 2)) < 1.5 * target, np.sqrt(np.mean(relative ** 2))
+    assert np.sqrt(np.mean(relative**2)) < 1.5 * target, np.sqrt(np.mean(relative**2))
     # fixed counts with the same mean sample count are noisier where it matters: the slow texels
     slow = taken >= np.percentile(taken, 90)
     fixed = tracer.bake(points, scene, tracer.BakeSettings(samples=int(adaptive.mean_samples // 16 * 16), bounces=1))
@@ -214,12 +235,16 @@ def test_noise_target_is_deterministic_whatever_the_thread_count():
 
 def test_noise_target_on_black_and_constant_texels_stops_at_the_minimum():
     points, tris = floor_points()
-    black = tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5)),
-                        tracer.BakeSettings(samples=512, noise_target=0.01))
+    black = tracer.bake(
+        points, BakeScene(tris, np.full((len(tris), 3), 0.5)), tracer.BakeSettings(samples=512, noise_target=0.01)
+    )
     assert black.stopped_by == "noise_target" and black.samples == tracer.MIN_ADAPTIVE_PASSES * 16
     assert np.all(black.sh == 0.0)
-    furnace = tracer.bake(points, BakeScene(tris, np.full((len(tris), 3), 0.5), world=np.full(3, 1e30)),
-                          tracer.BakeSettings(samples=512, noise_target=0.01))
+    furnace = tracer.bake(
+        points,
+        BakeScene(tris, np.full((len(tris), 3), 0.5), world=np.full(3, 1e30)),
+        tracer.BakeSettings(samples=512, noise_target=0.01),
+    )
     assert furnace.stopped_by == "noise_target" and np.isfinite(furnace.sh).all()
 
 
@@ -228,7 +253,7 @@ def test_time_budget_stops_after_the_first_pass_with_an_estimate_everywhere():
     result = tracer.bake(points, scene, tracer.BakeSettings(samples=1 << 20, bounces=1, time_budget=0.5))
     assert result.stopped_by == "time_budget"
     assert result.texel_samples.min() >= 16 and result.samples < 1 << 20
-    assert result.seconds < 60                        # far from the 65536 passes it was allowed
+    assert result.seconds < 60  # far from the 65536 passes it was allowed
     assert np.isfinite(result.sh).all()
     fixed = tracer.bake(points, scene, tracer.BakeSettings(samples=64, bounces=1))
     assert luminance_iz(result, points).mean() == pytest.approx(luminance_iz(fixed, points).mean(), rel=0.02)
@@ -243,17 +268,21 @@ def test_negative_noise_target_or_budget_is_refused():
 
 def test_bake_point_stage_checks_for_cancel_between_chunks():
     from hhd_lightmapper.core.errors import BakeCancelled
+
     v, f = meshes.plane(2.0)
     res = unwrap.unwrap([unwrap.UnwrapMesh("floor", v, f)], unwrap.UnwrapSettings(resolution=1024))
-    surface = bakepoints.SurfaceTriangles(v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float),
-                                          np.zeros(2, int), np.full((2, 3), 0.5))
+    surface = bakepoints.SurfaceTriangles(
+        v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float), np.zeros(2, int), np.full((2, 3), 0.5)
+    )
     calls = []
     points = bakepoints.build(surface, 1024, 1024, occluders=rays.RayScene(v[f]), check=lambda: calls.append(1))
-    assert len(calls) >= len(points.texel) // (1 << 16)      # at least once per chunk of the buried test
+    assert len(calls) >= len(points.texel) // (1 << 16)  # at least once per chunk of the buried test
+
     def cancel_on_third():
         calls.append(1)
         if len(calls) > 2:
             raise BakeCancelled("bake cancelled")
+
     calls.clear()
     with pytest.raises(BakeCancelled):
         bakepoints.build(surface, 1024, 1024, occluders=rays.RayScene(v[f]), check=cancel_on_third)
@@ -270,9 +299,9 @@ def test_running_statistics_match_the_passes_mean_and_standard_error():
     acc = tracer.Statistics(n, np.tile([0.0, 0.0, 1.0], (n, 1)))
     passes = {t: [] for t in range(n)}
     for p in range(7):
-        idx = np.arange(n) if p < 3 else np.array([0, 2, 3, 5])        # later passes skip texels 1, 4
+        idx = np.arange(n) if p < 3 else np.array([0, 2, 3, 5])  # later passes skip texels 1, 4
         est = 1e6 + rng.normal(size=(len(idx), 9, 3))
-        est[idx == 3] = 2.5                                             # texel 3: every pass agrees
+        est[idx == 3] = 2.5  # texel 3: every pass agrees
         acc.add(idx, est)
         for row, t in enumerate(idx):
             passes[t].append(est[row])

@@ -1,6 +1,7 @@
 """bpy.ops.hhd.unwrap on real Blender meshes (ngons, loose parts, degenerate faces, negative
 scale, modifiers, linked duplicates, quads and n-gons whose layer must give every texel to one
 chart), through the installed extension."""
+
 import os
 from pathlib import Path
 
@@ -18,6 +19,7 @@ LAYER = "HHD_Lightmap"
 @pytest.fixture
 def scene(extension):
     import bpy
+
     for o in list(bpy.data.objects):
         bpy.data.objects.remove(o)
     for m in list(bpy.data.meshes):
@@ -32,12 +34,14 @@ def scene(extension):
 
 def add(op, **kw):
     import bpy
+
     op(**kw)
     return bpy.context.active_object
 
 
 def uv_triangles(obj, name=LAYER, evaluated=False):
     import bpy
+
     mesh = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).to_mesh() if evaluated else obj.data
     mesh.calc_loop_triangles()
     loops = np.zeros(len(mesh.loop_triangles) * 3, int)
@@ -52,16 +56,22 @@ def uv_triangles(obj, name=LAYER, evaluated=False):
 
 def awkward_objects():
     import bpy
-    objs = [add(bpy.ops.mesh.primitive_cube_add, location=(0, 0, 0)),
-            add(bpy.ops.mesh.primitive_uv_sphere_add, location=(3, 0, 0)),
-            add(bpy.ops.mesh.primitive_circle_add, fill_type='NGON', location=(6, 0, 0))]
+
+    objs = [
+        add(bpy.ops.mesh.primitive_cube_add, location=(0, 0, 0)),
+        add(bpy.ops.mesh.primitive_uv_sphere_add, location=(3, 0, 0)),
+        add(bpy.ops.mesh.primitive_circle_add, fill_type='NGON', location=(6, 0, 0)),
+    ]
     mirrored = add(bpy.ops.mesh.primitive_cube_add, location=(0, 3, 0))
     mirrored.scale = (-1.0, 1.0, 2.0)
     objs.append(mirrored)
     # a mesh with a loose vertex, a loose edge and a zero-area face
     mesh = bpy.data.meshes.new("Awkward")
-    mesh.from_pydata([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (5, 5, 5), (6, 6, 6), (7, 7, 7), (2, 0, 0), (3, 0, 0)],
-                     [(5, 6)], [(0, 1, 2, 3), (1, 7, 8)])
+    mesh.from_pydata(
+        [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (5, 5, 5), (6, 6, 6), (7, 7, 7), (2, 0, 0), (3, 0, 0)],
+        [(5, 6)],
+        [(0, 1, 2, 3), (1, 7, 8)],
+    )
     awkward = bpy.data.objects.new("Awkward", mesh)
     bpy.context.scene.collection.objects.link(awkward)
     objs.append(awkward)
@@ -73,12 +83,13 @@ def awkward_objects():
 
 def test_unwrap_writes_only_its_layer_and_packs_without_overlap(scene):
     import bpy
+
     objs = awkward_objects()
     before = {o.name: {l.name: np.array([d.uv[:] for d in l.data]) for l in o.data.uv_layers} for o in objs}
     active_before = {o.name: o.data.uv_layers.active.name if o.data.uv_layers.active else None for o in objs}
     select(objs)
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
-    for _ in range(2):                                   # re-running replaces only that layer
+    for _ in range(2):  # re-running replaces only that layer
         for o in objs:
             layers = [l.name for l in o.data.uv_layers]
             assert layers.count(LAYER) == 1
@@ -103,19 +114,21 @@ def test_unwrap_writes_only_its_layer_and_packs_without_overlap(scene):
 
 def test_subdivision_modifier_carries_the_lightmap_uvs_into_the_evaluated_mesh(scene):
     import bpy
+
     obj = add(bpy.ops.mesh.primitive_cube_add)
     obj.modifiers.new("Subdivision", 'SUBSURF').levels = 2
     select([obj])
     bpy.ops.hhd.unwrap()
     base = set(raster.rasterise(uv_triangles(obj), 512, 512).texel.tolist())
     evaluated = uv_triangles(obj, evaluated=True)
-    assert len(evaluated) == 16 * 12                     # 6 quads → 96 quads at level 2 → 192 triangles
+    assert len(evaluated) == 16 * 12  # 6 quads → 96 quads at level 2 → 192 triangles
     inside = set(raster.rasterise(evaluated, 512, 512).texel.tolist())
-    assert len(inside - base) <= 0.02 * len(inside)      # subdivided UVs stay inside the base charts
+    assert len(inside - base) <= 0.02 * len(inside)  # subdivided UVs stay inside the base charts
 
 
 def test_linked_duplicates_are_refused_with_the_fix_then_fixed_on_request(scene):
     import bpy
+
     a = add(bpy.ops.mesh.primitive_cube_add)
     b = bpy.data.objects.new("Linked Copy", a.data)
     b.location = (3, 0, 0)
@@ -123,13 +136,14 @@ def test_linked_duplicates_are_refused_with_the_fix_then_fixed_on_request(scene)
     select([a, b])
     with pytest.raises(RuntimeError, match="share the mesh.*single user"):
         bpy.ops.hhd.unwrap()
-    assert LAYER not in a.data.uv_layers                 # nothing changed
+    assert LAYER not in a.data.uv_layers  # nothing changed
     assert bpy.ops.hhd.unwrap(make_single_user=True) == {'FINISHED'}
     assert a.data != b.data and LAYER in a.data.uv_layers and LAYER in b.data.uv_layers
 
 
 def test_per_object_override_gets_its_own_atlas_and_poll_explains(scene):
     import bpy
+
     a = add(bpy.ops.mesh.primitive_cube_add)
     b = add(bpy.ops.mesh.primitive_cube_add, location=(3, 0, 0))
     b.hhd.resolution = 256
@@ -156,6 +170,7 @@ def layer_uv(obj, name=LAYER):
 def reported_texels(summary, name):
     """The texel count the unwrap summary gives object `name`."""
     import re
+
     return float(re.search(rf"{re.escape(name)}: (\d+)", summary).group(1))
 
 
@@ -164,9 +179,12 @@ def modelled_objects():
     displaced into waves and bumps (non-planar quads that xatlas cuts along their diagonals)."""
     import bmesh
     import bpy
-    objs = [add(bpy.ops.mesh.primitive_cube_add, location=(0, 0, 0)),
-            add(bpy.ops.mesh.primitive_uv_sphere_add, location=(3, 0, 0)),
-            add(bpy.ops.mesh.primitive_monkey_add, location=(6, 0, 0))]
+
+    objs = [
+        add(bpy.ops.mesh.primitive_cube_add, location=(0, 0, 0)),
+        add(bpy.ops.mesh.primitive_uv_sphere_add, location=(3, 0, 0)),
+        add(bpy.ops.mesh.primitive_monkey_add, location=(6, 0, 0)),
+    ]
     bevelled = add(bpy.ops.mesh.primitive_cube_add, location=(0, 3, 0))
     bm = bmesh.new()
     bm.from_mesh(bevelled.data)
@@ -193,18 +211,21 @@ def test_written_layer_gives_every_texel_to_one_chart_of_one_object(scene, count
     objects or two charts or twice by one chart, and the covered area is the texel count the
     unwrap reports (cube + UV sphere + Suzanne at 1024²: the case of issue 19)."""
     import bpy
+
     scene.hhd.resolution = 1024
     objs = modelled_objects()[:count]
     select(objs)
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
     report = meshes.texel_overlaps([layer_uv(o) for o in objs], 1024, 1024)
     reported = [reported_texels(scene.hhd.unwrap_summary, o.name) for o in objs]
-    print(f"\n{count} objects: texels shared by objects {report['objects']}, by charts {report['charts']}; "
-          f"covered/reported {[(round(a), r) for a, r in zip(report['area'], reported)]}")
+    print(
+        f"\n{count} objects: texels shared by objects {report['objects']}, by charts {report['charts']}; "
+        f"covered/reported {[(round(a), r) for a, r in zip(report['area'], reported)]}"
+    )
     assert report["objects"] == 0 and report["charts"] == 0
     for k in range(count):
-        assert report["summed"][k] == pytest.approx(report["area"][k], rel=1e-6)   # no texel covered twice
-        assert report["area"][k] == pytest.approx(reported[k], abs=1.0)            # as the summary says
+        assert report["summed"][k] == pytest.approx(report["area"][k], rel=1e-6)  # no texel covered twice
+        assert report["area"][k] == pytest.approx(reported[k], abs=1.0)  # as the summary says
         assert report["touched"][k] - report["partial"][k] <= reported[k] <= report["touched"][k]
 
 
@@ -216,13 +237,14 @@ def test_a_shared_scene_selected_whole_shares_no_texel(extension, tmp_path):
     """staircase2 (27 objects, 31k polygons, a real .blend from ../shared/scenes), every mesh
     selected, unwrapped at 1024²: no texel shared between objects or charts."""
     import bpy
+
     if bpy.app.version < (5, 0, 0):
         pytest.skip("the shared .blend files are saved by Blender 5.0, whose file header 4.x cannot read")
     if not STAIRCASE.exists():
         if os.environ.get("CI"):
             pytest.fail(f"{STAIRCASE} is missing: CI lays shared/ beside the clone")
         pytest.skip(f"{STAIRCASE} not found (shared/ lies beside the repository)")
-    before = tmp_path / "before.blend"                      # the session's file, reopened after
+    before = tmp_path / "before.blend"  # the session's file, reopened after
     bpy.ops.wm.save_as_mainfile(filepath=str(before), copy=True)
     bpy.ops.wm.open_mainfile(filepath=str(STAIRCASE))
     s = bpy.context.scene

@@ -1,5 +1,6 @@
 """Lightmap UVs of quads and n-gons: one UV per polygon corner, no texel shared between charts,
 charts cached by mesh content and re-packed (never re-charted) while fitting the atlas."""
+
 import numpy as np
 import pytest
 
@@ -18,12 +19,23 @@ def fresh_cache():
 def quads_and_ngons():
     """Bumpy (non-planar) quads, a warped concave 12-gon, a quad with a zero-area triangle (three
     corners in a row) and a quad with no area at all, as one mesh with polygon indices."""
-    in_a_row = (np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 0.3]], float) + [0, 4, 0],
-                np.array([[0, 1, 2], [0, 2, 3]]), np.array([0, 0]))
-    flat = (np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], float) + [0, 6, 0],
-            np.array([[0, 1, 2], [0, 2, 3]]), np.array([0, 0]))
-    return meshes.combine(meshes.bumpy_quads(), meshes.ngon(centre=(4.0, 1.0, 0.0)),
-                          meshes.ngon(sides=7, concave=False, bump=0.4, centre=(4.0, 4.0, 0.0)), in_a_row, flat)
+    in_a_row = (
+        np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 0.3]], float) + [0, 4, 0],
+        np.array([[0, 1, 2], [0, 2, 3]]),
+        np.array([0, 0]),
+    )
+    flat = (
+        np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], float) + [0, 6, 0],
+        np.array([[0, 1, 2], [0, 2, 3]]),
+        np.array([0, 0]),
+    )
+    return meshes.combine(
+        meshes.bumpy_quads(),
+        meshes.ngon(centre=(4.0, 1.0, 0.0)),
+        meshes.ngon(sides=7, concave=False, bump=0.4, centre=(4.0, 4.0, 0.0)),
+        in_a_row,
+        flat,
+    )
 
 
 def corner_uv_spread(uv, triangles, polygons):
@@ -39,8 +51,9 @@ def corner_uv_spread(uv, triangles, polygons):
 @pytest.mark.parametrize("build", [meshes.bumpy_quads, meshes.ngon, quads_and_ngons])
 def test_every_loop_of_a_polygon_gets_one_uv(build):
     v, f, poly = build()
-    res = unwrap.unwrap([unwrap.UnwrapMesh("polygons", v, f, polygons=poly)],
-                        unwrap.UnwrapSettings(resolution=512, padding=4))
+    res = unwrap.unwrap(
+        [unwrap.UnwrapMesh("polygons", v, f, polygons=poly)], unwrap.UnwrapSettings(resolution=512, padding=4)
+    )
     assert corner_uv_spread(res.objects[0].uv, f, poly) == 0.0
     assert not res.warnings
 
@@ -50,14 +63,16 @@ def test_charts_of_quads_and_ngons_share_no_texel_and_cover_what_is_reported():
     covered twice within a chart, and the covered area is the texel count reported."""
     v, f, poly = quads_and_ngons()
     sv, sf = meshes.uv_sphere()
-    res = unwrap.unwrap([unwrap.UnwrapMesh("polygons", v, f, polygons=poly), unwrap.UnwrapMesh("sphere", sv, sf)],
-                        unwrap.UnwrapSettings(resolution=512, padding=2))
+    res = unwrap.unwrap(
+        [unwrap.UnwrapMesh("polygons", v, f, polygons=poly), unwrap.UnwrapMesh("sphere", sv, sf)],
+        unwrap.UnwrapSettings(resolution=512, padding=2),
+    )
     report = meshes.texel_overlaps([o.uv for o in res.objects], 512, 512)
     assert report["objects"] == 0 and report["charts"] == 0
     for o, area, summed in zip(res.objects, report["area"], report["summed"]):
         assert summed == pytest.approx(area, rel=1e-9)
         assert area == pytest.approx(o.texels, rel=1e-6)
-    flat = poly == poly.max()                                     # the quad without area: no texels
+    flat = poly == poly.max()  # the quad without area: no texels
     assert (res.objects[0].uv[f[:, 0] < 0] == 0).all() and (res.objects[0].uv[flat] == 0).all()
 
 
@@ -71,8 +86,8 @@ def test_charts_are_scaled_to_their_true_area():
     area = unwrap.triangle_areas(v, f)
     live = area > 1e-3
     # per triangle within the charts' own distortion; in total within xatlas's rounding of chart sizes
-    assert np.median(texels[live] / area[live]) == pytest.approx(64.0 ** 2, rel=0.05)
-    assert texels.sum() == pytest.approx(64.0 ** 2 * area.sum(), rel=0.1)
+    assert np.median(texels[live] / area[live]) == pytest.approx(64.0**2, rel=0.05)
+    assert texels.sum() == pytest.approx(64.0**2 * area.sum(), rel=0.1)
 
 
 def _chart(triangles_uv, key):
@@ -82,16 +97,16 @@ def _chart(triangles_uv, key):
 
 @pytest.mark.parametrize("max_pairs", [xatlas_worker.MAX_PAIRS, 2])
 def test_charts_that_overlap_themselves_are_found(monkeypatch, max_pairs):
-    monkeypatch.setattr(xatlas_worker, "MAX_PAIRS", max_pairs)         # tested in small chunks too
+    monkeypatch.setattr(xatlas_worker, "MAX_PAIRS", max_pairs)  # tested in small chunks too
     square = [[0, 0], [1, 0], [1, 1], [0, 1]]
     ring_outer = np.array([[0, 0], [3, 0], [3, 3], [0, 3]], float)
     ring_inner = np.array([[1, 1], [2, 1], [2, 2], [1, 2]], float)
     pts = np.vstack([ring_outer, ring_inner])
     ring = [(0, 1, 5), (0, 5, 4), (1, 2, 6), (1, 6, 5), (2, 3, 7), (2, 7, 6), (3, 0, 4), (3, 4, 7)]
-    assert not _chart(pts[ring], ring)                                       # a ring with its hole
+    assert not _chart(pts[ring], ring)  # a ring with its hole
     assert not _chart([np.array(square)[[0, 1, 2]], np.array(square)[[0, 2, 3]]], [(0, 1, 2), (0, 2, 3)])
-    assert _chart([[[0, 0], [1, 0], [0, 1]], [[0, 0], [0, 1], [1, 0]]], [(0, 1, 2), (0, 3, 4)])   # flipped
-    crossing = [[[0, 0], [2, 0], [0, 2]], [[0.5, 0.5], [2.5, 0.5], [0.5, 2.5]]]   # two triangles cross
+    assert _chart([[[0, 0], [1, 0], [0, 1]], [[0, 0], [0, 1], [1, 0]]], [(0, 1, 2), (0, 3, 4)])  # flipped
+    crossing = [[[0, 0], [2, 0], [0, 2]], [[0.5, 0.5], [2.5, 0.5], [0.5, 2.5]]]  # two triangles cross
     assert _chart(crossing, [(0, 1, 2), (3, 4, 5)])
     # no edge crosses, but the boundary winds twice round the middle: a patch on its own vertices
     # lying over the whole square (Suzanne's eye ring: a hole loop laid inside the chart's own part)
@@ -111,14 +126,14 @@ def test_charts_are_cached_by_mesh_content(monkeypatch):
     real = unwrap._run_worker
     monkeypatch.setattr(unwrap, "_run_worker", lambda job, *a: tasks.append(job["task"]) or real(job, *a))
     moved = unwrap.unwrap([unwrap.UnwrapMesh("a", v + [5.0, 0.0, 1.0], f, polygons=poly)], settings)
-    assert moved.stats == dict(moved.stats, charted=0, cached=1) and tasks == []     # nothing charted or packed
+    assert moved.stats == dict(moved.stats, charted=0, cached=1) and tasks == []  # nothing charted or packed
     np.testing.assert_array_equal(moved.objects[0].uv, first.objects[0].uv)
     other = unwrap.unwrap([unwrap.UnwrapMesh("a", v, f, polygons=poly)], unwrap.UnwrapSettings(resolution=256))
-    assert other.stats["charted"] == 0 and tasks and "chart" not in tasks          # re-packed only
+    assert other.stats["charted"] == 0 and tasks and "chart" not in tasks  # re-packed only
     bent = v.copy()
     bent[0, 2] += 0.5
     assert unwrap.unwrap([unwrap.UnwrapMesh("a", bent, f, polygons=poly)], settings).stats["charted"] == 1
-    monkeypatch.setattr(unwrap, "CHART_CACHE_BYTES", 1)                 # bounded: only the newest stays
+    monkeypatch.setattr(unwrap, "CHART_CACHE_BYTES", 1)  # bounded: only the newest stays
     sv, sf = meshes.uv_sphere()
     unwrap.unwrap([unwrap.UnwrapMesh("s", sv, sf)], settings)
     assert len(unwrap._CACHE) == 1
@@ -150,7 +165,7 @@ def test_fitting_packs_the_same_charts_again_at_a_smaller_density(monkeypatch, s
     and the smallest that spilled. In one child, or two densities at a time in parallel ones."""
     monkeypatch.setattr(unwrap, "_cores", lambda: 2 if side_by_side else 1)
     monkeypatch.setattr(unwrap, "ONE_CHILD_TRIANGLES", 0)
-    monkeypatch.setattr(xatlas_worker, "FIRST_FILL", (1.6, 1.5))         # first densities far too high
+    monkeypatch.setattr(xatlas_worker, "FIRST_FILL", (1.6, 1.5))  # first densities far too high
     tasks = []
     real = unwrap._run_worker
     monkeypatch.setattr(unwrap, "_run_worker", lambda job, *a: tasks.append(job["task"]) or real(job, *a))
@@ -160,22 +175,24 @@ def test_fitting_packs_the_same_charts_again_at_a_smaller_density(monkeypatch, s
     assert tasks.count("chart") == 1 and len(tries) == res.stats["packs"]
     assert tasks[1:] == (["pack"] * len(tries) if side_by_side else ["fit"])
     first_fit = [fits for _, fits in tries].index(True)
-    assert first_fit >= 1 and all(b[0] < a[0] for a, b in zip(tries[:first_fit], tries[1:first_fit + 1]))
+    assert first_fit >= 1 and all(b[0] < a[0] for a, b in zip(tries[:first_fit], tries[1 : first_fit + 1]))
     smallest_spilled = min(t for t, fits in tries if not fits)
     assert all(t < smallest_spilled for t, fits in tries if fits)
     uv = res.objects[0].uv.astype(np.float64) * 256
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     best = max(t for t, fits in tries if fits)
     assert 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum() == pytest.approx(
-        best ** 2 * unwrap.triangle_areas(sv, sf).sum(), rel=0.1)
+        best**2 * unwrap.triangle_areas(sv, sf).sum(), rel=0.1
+    )
     assert res.atlas_sizes == [(256, 256)]
 
 
 def test_padding_that_cannot_fit_names_charts_padding_and_texels():
     v, f, poly = meshes.bumpy_quads(n=16, amplitude=0.6)
     with pytest.raises(BakeError, match=r"'bumpy'.*charts with padding 64 need at least \d+ texels.*256²"):
-        unwrap.unwrap([unwrap.UnwrapMesh("bumpy", v, f, polygons=poly)],
-                      unwrap.UnwrapSettings(resolution=256, padding=64))
+        unwrap.unwrap(
+            [unwrap.UnwrapMesh("bumpy", v, f, polygons=poly)], unwrap.UnwrapSettings(resolution=256, padding=64)
+        )
 
 
 def test_polygon_indices_are_checked():

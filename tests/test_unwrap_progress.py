@@ -2,6 +2,7 @@
 children on cancel (nothing cached), the operator prints a progress line headless and a
 cancelled unwrap leaves the UV layers as they were, and the command line's Ctrl-C exits with
 EXIT_CANCELLED leaving the .blend unchanged."""
+
 import importlib
 import os
 import signal
@@ -35,6 +36,7 @@ def child_pids(monkeypatch):
         proc = real(*args, **kw)
         pids.append(proc.pid)
         return proc
+
     monkeypatch.setattr(unwrap.subprocess, "Popen", popen)
     return pids
 
@@ -54,8 +56,11 @@ def gone(pid: int) -> bool:
 
 def test_progress_is_monotonic_and_ends_at_one():
     calls = []
-    unwrap.unwrap([sphere_mesh(rings=24, segments=48), unwrap.UnwrapMesh("Cube", *meshes.cube())],
-                  unwrap.UnwrapSettings(resolution=256), lambda f, msg: calls.append((f, msg)))
+    unwrap.unwrap(
+        [sphere_mesh(rings=24, segments=48), unwrap.UnwrapMesh("Cube", *meshes.cube())],
+        unwrap.UnwrapSettings(resolution=256),
+        lambda f, msg: calls.append((f, msg)),
+    )
     fractions = [f for f, _ in calls]
     assert len(calls) >= 3 and fractions == sorted(fractions) and fractions[-1] == 1.0
     assert all(0.0 <= f <= 1.0 for f in fractions) and all(isinstance(m, str) and m for _, m in calls)
@@ -65,7 +70,7 @@ def test_cancel_while_charting_kills_the_child_and_caches_nothing(child_pids):
     mesh = sphere_mesh()
     asked = []
     start = time.perf_counter()
-    with pytest.raises(BakeCancelled):          # cancelled a few polls after the child started
+    with pytest.raises(BakeCancelled):  # cancelled a few polls after the child started
         unwrap.unwrap([mesh], unwrap.UnwrapSettings(resolution=1024), cancel=lambda: len(asked.append(1) or asked) > 4)
     assert time.perf_counter() - start < 5.0
     assert child_pids and all(gone(pid) for pid in child_pids)
@@ -79,8 +84,12 @@ def test_cancel_while_packing_keeps_the_charts_but_no_atlas(child_pids):
     mesh = sphere_mesh(rings=48, segments=96)
     packing = []
     with pytest.raises(BakeCancelled):
-        unwrap.unwrap([mesh], unwrap.UnwrapSettings(resolution=1024),
-                      lambda f, m: packing.append(1) if f >= 0.8 else None, cancel=lambda: bool(packing))
+        unwrap.unwrap(
+            [mesh],
+            unwrap.UnwrapSettings(resolution=1024),
+            lambda f, m: packing.append(1) if f >= 0.8 else None,
+            cancel=lambda: bool(packing),
+        )
     assert all(gone(pid) for pid in child_pids)
     assert unwrap.chart_key(mesh) in unwrap._CACHE and not unwrap._PACKED
 
@@ -93,8 +102,10 @@ def test_a_cancel_before_the_start_runs_no_child(child_pids):
 
 # --- in Blender ---
 
+
 def uv_bytes() -> dict:
     import bpy
+
     out = {}
     for mesh in bpy.data.meshes:
         for layer in mesh.uv_layers:
@@ -108,6 +119,7 @@ def uv_bytes() -> dict:
 def sphere_scene(extension):
     """One dense UV sphere (object "Sphere") selected, with a lightmap layer already unwrapped."""
     import bpy
+
     for o in list(bpy.data.objects):
         bpy.data.objects.remove(o)
     for m in list(bpy.data.meshes):
@@ -125,21 +137,22 @@ def sphere_scene(extension):
 @pytest.mark.bpy
 def test_operator_prints_progress_headless_and_a_cancel_changes_no_uv(sphere_scene, capfd):
     import bpy
+
     scene, obj = sphere_scene
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
     out = capfd.readouterr().out
     assert "%] xatlas: charting" in out and "[100.0%] xatlas: done" in out
-    obj.rotation_euler.z = 0.3                  # the same mesh rotated: charted again, not cached
+    obj.rotation_euler.z = 0.3  # the same mesh rotated: charted again, not cached
     bpy.context.view_layer.update()
     before = uv_bytes()
     ops = importlib.import_module(EXTENSION_MODULE + ".operators.unwrap")
     cancelled = importlib.import_module(EXTENSION_MODULE + ".core.errors").BakeCancelled
-    job = ops.read_objects([obj], scene.hhd)        # what the modal operator reads, then runs on a thread
+    job = ops.read_objects([obj], scene.hhd)  # what the modal operator reads, then runs on a thread
     seen = []
     with pytest.raises(cancelled):
         ops.compute(job, lambda f, m: seen.append(f), cancel=lambda: bool(seen))
     assert uv_bytes() == before
-    with pytest.raises(cancelled):                # the synchronous path too
+    with pytest.raises(cancelled):  # the synchronous path too
         ops.unwrap_objects([obj], scene.hhd, cancel=lambda: True)
     assert uv_bytes() == before
 
@@ -148,17 +161,23 @@ def test_operator_prints_progress_headless_and_a_cancel_changes_no_uv(sphere_sce
 @pytest.mark.slow
 def test_command_line_unwrap_shows_progress_and_ctrl_c_leaves_the_blend_unchanged(sphere_scene, tmp_path):
     import bpy
+
     blend = tmp_path / "scene.blend"
-    for k in range(3):              # enough triangles that charting takes a while
+    for k in range(3):  # enough triangles that charting takes a while
         bpy.ops.mesh.primitive_uv_sphere_add(segments=256, ring_count=128, location=(3 * (k + 1), 0, 0))
     bpy.ops.object.select_all(action='SELECT')
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     saved = blend.read_bytes()
     command = [sys.executable, "-m", "hhd_lightmapper.cli", str(blend), "unwrap", "--save", "--resolution", "2048"]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    proc = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
     for line in proc.stdout:
-        if "xatlas: charting" in line:          # the children are running
+        if "xatlas: charting" in line:  # the children are running
             time.sleep(0.5)
             proc.send_signal(signal.SIGINT)
             break

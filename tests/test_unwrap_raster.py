@@ -1,4 +1,5 @@
 """xatlas unwrap, conservative rasterisation and bake points against independent references."""
+
 import numpy as np
 import pytest
 
@@ -12,10 +13,12 @@ from scenekit import meshes
 # --- an independent, slow reference: clip one triangle against one texel in pure Python ---
 def clip_area(tri, x0, y0):
     poly = [tuple(p) for p in tri]
-    for inside, cut in ((lambda p: p[0] >= x0, lambda a, b: (x0, a[1] + (x0 - a[0]) * (b[1] - a[1]) / (b[0] - a[0]))),
-                        (lambda p: p[0] <= x0 + 1, lambda a, b: (x0 + 1, a[1] + (x0 + 1 - a[0]) * (b[1] - a[1]) / (b[0] - a[0]))),
-                        (lambda p: p[1] >= y0, lambda a, b: (a[0] + (y0 - a[1]) * (b[0] - a[0]) / (b[1] - a[1]), y0)),
-                        (lambda p: p[1] <= y0 + 1, lambda a, b: (a[0] + (y0 + 1 - a[1]) * (b[0] - a[0]) / (b[1] - a[1]), y0 + 1))):
+    for inside, cut in (
+        (lambda p: p[0] >= x0, lambda a, b: (x0, a[1] + (x0 - a[0]) * (b[1] - a[1]) / (b[0] - a[0]))),
+        (lambda p: p[0] <= x0 + 1, lambda a, b: (x0 + 1, a[1] + (x0 + 1 - a[0]) * (b[1] - a[1]) / (b[0] - a[0]))),
+        (lambda p: p[1] >= y0, lambda a, b: (a[0] + (y0 - a[1]) * (b[0] - a[0]) / (b[1] - a[1]), y0)),
+        (lambda p: p[1] <= y0 + 1, lambda a, b: (a[0] + (y0 + 1 - a[1]) * (b[0] - a[0]) / (b[1] - a[1]), y0 + 1)),
+    ):
         out = []
         for i, a in enumerate(poly):
             b = poly[(i + 1) % len(poly)]
@@ -26,8 +29,15 @@ def clip_area(tri, x0, y0):
         poly = out
         if not poly:
             return 0.0
-    return abs(sum(poly[i][0] * poly[(i + 1) % len(poly)][1] - poly[(i + 1) % len(poly)][0] * poly[i][1]
-                   for i in range(len(poly)))) / 2
+    return (
+        abs(
+            sum(
+                poly[i][0] * poly[(i + 1) % len(poly)][1] - poly[(i + 1) % len(poly)][0] * poly[i][1]
+                for i in range(len(poly))
+            )
+        )
+        / 2
+    )
 
 
 def reference_coverage(uv, w, h):
@@ -56,7 +66,7 @@ def test_raster_matches_the_slow_clipping_reference(mesh_fn):
     some = np.unique(np.linspace(0, len(uv) - 1, 10).astype(int))
     ref = {(int(some[t]), x): a for (t, x), a in reference_coverage(uv[some], 256, 256).items()}
     got = {(int(t), int(x)): a for t, x, a in zip(cov.triangle, cov.texel, cov.area) if t in some}
-    assert set(got) == set(ref)                       # every touched texel, slivers included
+    assert set(got) == set(ref)  # every touched texel, slivers included
     for key, a in ref.items():
         assert got[key] == pytest.approx(a, abs=1e-9)
 
@@ -99,8 +109,9 @@ def test_sample_origins_cover_the_footprint_of_the_texel_inside_its_triangle(mes
     monkeypatch.setattr(bakepoints, "FOOTPRINT", footprint)
     v, f, result = unwrapped(mesh_fn)
     uv = result.objects[0].uv.astype(np.float64)
-    surface = bakepoints.SurfaceTriangles(v[f], meshes.vertex_normals(v, f)[f], uv, np.zeros(len(f), int),
-                                          np.full((len(f), 3), 0.5))
+    surface = bakepoints.SurfaceTriangles(
+        v[f], meshes.vertex_normals(v, f)[f], uv, np.zeros(len(f), int), np.full((len(f), 3), 0.5)
+    )
     pts = bakepoints.build(surface, 256, 256)
     k = 64
     origins = pts.sample_origins(np.random.default_rng(0), np.arange(len(pts.texel)), k)
@@ -113,7 +124,7 @@ def test_sample_origins_cover_the_footprint_of_the_texel_inside_its_triangle(mes
     r1, r2 = np.einsum("ri,ri->r", d, e1), np.einsum("ri,ri->r", d, e2)
     det = g[:, 0] * g[:, 2] - g[:, 1] ** 2
     b1, b2 = (g[:, 2] * r1 - g[:, 1] * r2) / det, (g[:, 0] * r2 - g[:, 1] * r1) / det
-    assert min(b1.min(), b2.min(), (1 - b1 - b2).min()) > -1e-9                    # inside the triangle
+    assert min(b1.min(), b2.min(), (1 - b1 - b2).min()) > -1e-9  # inside the triangle
     t_uv = uv[tri] * 256
     at = t_uv[:, 0] + b1[:, None] * (t_uv[:, 1] - t_uv[:, 0]) + b2[:, None] * (t_uv[:, 2] - t_uv[:, 0])
     local = at - np.repeat(np.stack([pts.texel % 256, pts.texel // 256], 1), k, axis=0)
@@ -131,17 +142,19 @@ def test_choice_between_overlapping_triangles_is_deterministic():
     uv = np.array([[[0.1, 0.1], [0.6, 0.1], [0.1, 0.6]], [[0.1, 0.1], [0.6, 0.1], [0.1, 0.6]]])
     cov = raster.rasterise(uv, 16, 16)
     chosen, total = raster.choose_per_texel(cov)
-    assert (cov.triangle[chosen] == 0).all()                # ties go to the lowest index
+    assert (cov.triangle[chosen] == 0).all()  # ties go to the lowest index
     again, _ = raster.choose_per_texel(raster.rasterise(uv, 16, 16))
     np.testing.assert_array_equal(chosen, again)
-    assert total.max() == pytest.approx(1.0)                # overlapping coverage clips at 1
+    assert total.max() == pytest.approx(1.0)  # overlapping coverage clips at 1
 
 
 def test_shared_atlas_charts_never_share_a_texel_and_density_sets_texel_counts():
     v1, f1 = meshes.cube()
     v2, f2 = meshes.uv_sphere()
-    res = unwrap.unwrap([unwrap.UnwrapMesh("cube", v1, f1), unwrap.UnwrapMesh("sphere", v2, f2)],
-                        unwrap.UnwrapSettings(resolution=512, padding=4))
+    res = unwrap.unwrap(
+        [unwrap.UnwrapMesh("cube", v1, f1), unwrap.UnwrapMesh("sphere", v2, f2)],
+        unwrap.UnwrapSettings(resolution=512, padding=4),
+    )
     assert res.atlas_sizes == [(512, 512)] and 0.3 < res.utilisation[0] <= 1.0
     texels = [set(raster.rasterise(o.uv.astype(float), 512, 512).texel.tolist()) for o in res.objects]
     assert not texels[0] & texels[1]
@@ -150,16 +163,19 @@ def test_shared_atlas_charts_never_share_a_texel_and_density_sets_texel_counts()
     dens = unwrap.unwrap([unwrap.UnwrapMesh("cube", v1 * 2.0, f1)], unwrap.UnwrapSettings(texel_density=40.0))
     # 6 faces of 2 m × 2 m at 40 texels/m: 24 m² × 1600 = 38 400 texels
     assert dens.objects[0].texels == pytest.approx(24 * 1600, rel=0.02)
-    per = unwrap.unwrap([unwrap.UnwrapMesh("a", v1, f1), unwrap.UnwrapMesh("b", v1, f1, resolution=256)],
-                        unwrap.UnwrapSettings(resolution=512))
+    per = unwrap.unwrap(
+        [unwrap.UnwrapMesh("a", v1, f1), unwrap.UnwrapMesh("b", v1, f1, resolution=256)],
+        unwrap.UnwrapSettings(resolution=512),
+    )
     assert per.atlas_sizes == [(512, 512), (256, 256)] and per.objects[1].atlas == 1
 
 
 def test_small_objects_are_warned_about_and_bad_geometry_named():
     v, f = meshes.cube(0.01)
     big_v, big_f = meshes.cube(10.0)
-    res = unwrap.unwrap([unwrap.UnwrapMesh("tiny", v, f), unwrap.UnwrapMesh("big", big_v, big_f)],
-                        unwrap.UnwrapSettings(resolution=256))
+    res = unwrap.unwrap(
+        [unwrap.UnwrapMesh("tiny", v, f), unwrap.UnwrapMesh("big", big_v, big_f)], unwrap.UnwrapSettings(resolution=256)
+    )
     assert any("'tiny'" in w for w in res.warnings)
     bad = v.copy()
     bad[0, 0] = np.nan
@@ -174,19 +190,26 @@ def test_small_objects_are_warned_about_and_bad_geometry_named():
 def test_albedo_is_sampled_from_the_materials_own_uvs():
     v, f = meshes.plane()
     res = unwrap.unwrap([unwrap.UnwrapMesh("p", v, f)], unwrap.UnwrapSettings(resolution=256))
-    tex_uv = v[f][:, :, :2]                              # planar mapping: material UV = (x, y)
+    tex_uv = v[f][:, :, :2]  # planar mapping: material UV = (x, y)
     image = np.zeros((4, 4, 3))
-    image[..., 0] = np.arange(4)[None, :] / 3.0          # red ramps with x
-    surface = bakepoints.SurfaceTriangles(v[f], np.tile([0, 0, 1.0], (2, 3, 1)), res.objects[0].uv.astype(float),
-                                          np.zeros(2, int), np.full((2, 3), 0.5), np.zeros(2, int), tex_uv,
-                                          [textures.Texture(image)])
+    image[..., 0] = np.arange(4)[None, :] / 3.0  # red ramps with x
+    surface = bakepoints.SurfaceTriangles(
+        v[f],
+        np.tile([0, 0, 1.0], (2, 3, 1)),
+        res.objects[0].uv.astype(float),
+        np.zeros(2, int),
+        np.full((2, 3), 0.5),
+        np.zeros(2, int),
+        tex_uv,
+        [textures.Texture(image)],
+    )
     pts = bakepoints.build(surface, 256, 256)
     expected = textures.sample_bilinear(image, pts.position[:, :2])
     np.testing.assert_allclose(pts.albedo, expected, atol=1e-9)
     centre = textures.sample_bilinear(image, np.array([[(2 + 0.5) / 4, (1 + 0.5) / 4]]))
-    np.testing.assert_allclose(centre[0], [2 / 3, 0, 0])   # texel centres are exact
+    np.testing.assert_allclose(centre[0], [2 / 3, 0, 0])  # texel centres are exact
     edge = np.array([[0.01, 0.5]])
-    assert textures.Texture(image, "Linear", "REPEAT").sample(edge)[0, 0] > 0.2   # wraps to the right edge
+    assert textures.Texture(image, "Linear", "REPEAT").sample(edge)[0, 0] > 0.2  # wraps to the right edge
     assert textures.Texture(image, "Linear", "EXTEND").sample(edge)[0, 0] == 0.0
     assert textures.Texture(image, "Closest").sample(np.array([[0.74, 0.5]]))[0, 0] == pytest.approx(2 / 3)
     assert textures.Texture(image, "Linear", "CLIP").sample(np.array([[1.2, 0.5]]))[0, 0] == 0.0
@@ -197,7 +220,7 @@ def test_ray_offset_scales_with_the_scene(scale):
     v, f = meshes.cube(scale)
     off = rays.ray_offset(v)
     assert 1e-6 * scale < off < 1e-4 * scale
-    far = rays.ray_offset(v + 1e4 * scale)            # far from the origin: float32 margin dominates
+    far = rays.ray_offset(v + 1e4 * scale)  # far from the origin: float32 margin dominates
     assert far > 32 * 1.19e-7 * 1e4 * scale
 
 
@@ -205,8 +228,13 @@ def floor_with(obstacle_v, obstacle_f, resolution=256):
     floor_v, floor_f = meshes.plane(4.0)
     floor_v -= [2.0, 2.0, 0.0]
     res = unwrap.unwrap([unwrap.UnwrapMesh("floor", floor_v, floor_f)], unwrap.UnwrapSettings(resolution=resolution))
-    surface = bakepoints.SurfaceTriangles(floor_v[floor_f], np.tile([0, 0, 1.0], (2, 3, 1)),
-                                          res.objects[0].uv.astype(float), np.zeros(2, int), np.full((2, 3), 0.5))
+    surface = bakepoints.SurfaceTriangles(
+        floor_v[floor_f],
+        np.tile([0, 0, 1.0], (2, 3, 1)),
+        res.objects[0].uv.astype(float),
+        np.zeros(2, int),
+        np.full((2, 3), 0.5),
+    )
     scene = rays.RayScene(np.concatenate([floor_v[floor_f], obstacle_v[obstacle_f]]))
     return bakepoints.build(surface, resolution, resolution, occluders=scene), scene
 
@@ -232,6 +260,7 @@ def test_buried_probes_in_two_stages_flag_exactly_what_all_probes_flag():
     pts, scene = floor_with(v, f)
     local = bakepoints._probe_directions(bakepoints.BURIED_PROBES)
     from hhd_lightmapper.core import sh
+
     dirs = np.einsum("pij,kj->pki", sh.tangent_frames(pts.face_normal), local).reshape(-1, 3)
     k = len(local)
     reach = np.repeat(4.0 * pts.texel_size + 4.0 * pts.offset, k)
@@ -254,7 +283,7 @@ def test_closed_box_pushed_into_the_floor_is_dark_inside():
     d[:, 2] = np.abs(d[:, 2])
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     t, prim, ng = scene.intersect(pts.origins()[under], d)
-    assert (prim >= 0).all() and (np.einsum("ri,ri->r", d, ng) > 0).all()   # all inner (back) faces
+    assert (prim >= 0).all() and (np.einsum("ri,ri->r", d, ng) > 0).all()  # all inner (back) faces
 
 
 def _patch(x0, x1, y0, y1, z, up):
@@ -269,13 +298,15 @@ def test_cover_probe_finds_faces_on_or_just_above_the_surface_only(scale, shift)
     floor; the tray's walls beside a point, a same-facing duplicate of the floor and a face a
     few offsets above do not."""
     v, f = meshes.cube(1.0, centre=(0.0, 0.0, 0.5))
-    tray = v[f[[0, 1] + list(range(4, 12))]]                     # no top: faces 2, 3 are the lid
+    tray = v[f[[0, 1] + list(range(4, 12))]]  # no top: faces 2, 3 are the lid
     floor = _patch(-2, 2, -2, 2, 0.0, up=True)
     off = rays.ray_offset(np.concatenate([floor, tray]) * scale + shift)
     rel = off / scale
-    extra = [_patch(1.0, 1.5, -0.5, 0.5, 0.0, up=True),            # duplicate of the floor
-             _patch(-1.5, -1.0, -0.5, 0.5, 3.0 * rel, up=False),   # a few offsets above
-             _patch(-1.5, -1.0, 1.0, 1.5, 0.5 * rel, up=False)]    # within the offset
+    extra = [
+        _patch(1.0, 1.5, -0.5, 0.5, 0.0, up=True),  # duplicate of the floor
+        _patch(-1.5, -1.0, -0.5, 0.5, 3.0 * rel, up=False),  # a few offsets above
+        _patch(-1.5, -1.0, 1.0, 1.5, 0.5 * rel, up=False),
+    ]  # within the offset
     tris = np.concatenate([floor, tray] + extra) * scale + shift
     probe = CoverProbe(tris, off)
     at = np.array([[0.0, 0.0], [0.49, 0.0], [0.51, 0.0], [1.25, 0.0], [-1.25, 0.0], [-1.25, 1.25], [1.5, 1.5]])
@@ -291,18 +322,20 @@ def test_texels_under_an_open_tray_resting_on_the_floor_are_flagged_near_cover()
     inner = np.maximum(np.abs(pts.position[:, 0]), np.abs(pts.position[:, 1]))
     assert pts.near_cover[inner < 0.5 - pts.texel_size].all()
     assert not pts.near_cover[inner > 0.5 + pts.texel_size].any()
-    assert not pts.buried[inner < 0.4].any()          # open: the buried test does not catch it
+    assert not pts.buried[inner < 0.4].any()  # open: the buried test does not catch it
     # the probe keeps only triangles near the receivers (the floor): a box 5 m up is left out,
     # and the flags are those of a probe over every triangle
     far_v, far_f = meshes.cube(1.0, centre=(0.0, 0.0, 5.0))
     with_far = np.concatenate([scene.triangles, far_v[far_f].astype(np.float32)])
     near = CoverProbe(with_far, pts.offset, receivers=pts.mesh.positions)
     assert near.scene.n_triangles == len(scene.triangles)
-    np.testing.assert_array_equal(bakepoints.find_near_cover(pts, near),
-                                  bakepoints.find_near_cover(pts, CoverProbe(with_far, pts.offset)))
+    np.testing.assert_array_equal(
+        bakepoints.find_near_cover(pts, near), bakepoints.find_near_cover(pts, CoverProbe(with_far, pts.offset))
+    )
     # the tracer reuses the bake points' probe when it traces the same Embree scene, else builds its own
     from hhd_lightmapper.core import covers
-    flagged_with = covers.shared_probe(scene, pts.offset, pts.mesh.positions.copy())   # the one build() made
+
+    flagged_with = covers.shared_probe(scene, pts.offset, pts.mesh.positions.copy())  # the one build() made
     bake_scene = BakeScene(scene.triangles.astype(float), np.full((len(scene.triangles), 3), 0.5))
     np.testing.assert_array_equal(bakepoints.find_near_cover(pts, flagged_with), pts.near_cover)
     assert tracer.texel_estimator(pts, bake_scene, tracer.BakeSettings(), scene).covers is flagged_with
@@ -320,14 +353,15 @@ def _crashing_worker(tmp_path, crashes):
         "count.write_text(str(runs + 1))\n"
         f"if runs < {crashes}:\n"
         "    os.kill(os.getpid(), signal.SIGSEGV)\n"
-        f"runpy.run_path({unwrap._WORKER!r}, run_name='__main__')\n")
+        f"runpy.run_path({unwrap._WORKER!r}, run_name='__main__')\n"
+    )
     return str(script)
 
 
 def test_a_crashing_xatlas_child_is_retried_then_named(tmp_path, monkeypatch):
     v, f = meshes.cube()
     unwrap.clear_chart_cache()
-    monkeypatch.setattr(unwrap, "_cores", lambda: 1)           # one child at a time: runs counted in order
+    monkeypatch.setattr(unwrap, "_cores", lambda: 1)  # one child at a time: runs counted in order
     monkeypatch.setattr(unwrap, "_WORKER", _crashing_worker(tmp_path, crashes=1))
     res = unwrap.unwrap([unwrap.UnwrapMesh("cube", v, f)], unwrap.UnwrapSettings(resolution=256))
     # the charting child crashed, then charted; then one child fitted the charts into the atlas
@@ -350,13 +384,13 @@ def test_charts_that_need_more_than_one_atlas_spill_into_several_of_the_same_siz
     one = unwrap.unwrap(objs[:1], unwrap.UnwrapSettings(resolution=256, padding=8))
     assert len(one.atlas_sizes) == 1 and one.part == [0] and one.shared == [True]
     # 40 spheres' padding alone (charts × (2·8 + 2)² texels) is more than one 256² atlas holds
-    assert 40 * one.charts * 18 ** 2 > 256 * 256
+    assert 40 * one.charts * 18**2 > 256 * 256
     res = unwrap.unwrap(objs, unwrap.UnwrapSettings(resolution=256, padding=8))
     n = len(res.atlas_sizes)
     assert n >= 2 and res.atlas_sizes == [(256, 256)] * n
     assert res.part == list(range(n)) and res.shared == [True] * n
-    assert sorted({o.atlas for o in res.objects}) == list(range(n))         # every atlas used
-    for a in range(n):                                                      # objects whole, no texel shared
+    assert sorted({o.atlas for o in res.objects}) == list(range(n))  # every atlas used
+    for a in range(n):  # objects whole, no texel shared
         members = [o for o in res.objects if o.atlas == a]
         texels = [set(raster.rasterise(o.uv.astype(float), 256, 256).texel.tolist()) for o in members]
         assert sum(map(len, texels)) == len(set().union(*texels))
@@ -375,4 +409,4 @@ def test_texel_density_beyond_the_largest_atlas_spills_too(monkeypatch):
     assert len(res.atlas_sizes) >= 2 and all(max(s) <= 512 for s in res.atlas_sizes)
     # the density is kept: every sphere gets the texels of its area at 60 texels/m
     area = unwrap.triangle_areas(objs[0].positions, objs[0].triangles).sum()
-    assert all(o.texels == pytest.approx(area * 60 ** 2, rel=0.1) for o in res.objects)
+    assert all(o.texels == pytest.approx(area * 60**2, rel=0.1) for o in res.objects)

@@ -1,5 +1,6 @@
 """The bake workflow in Blender: operators in background mode end to end, re-encode, errors
 naming the object, cancel leaving the .blend untouched, and the command line's exit codes."""
+
 import hashlib
 import json
 import os
@@ -24,6 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 def baked_scene(extension, tmp_path):
     """Floor + cube, sun + sky, unwrapped at 256², saved as tmp_path/scene.blend."""
     import bpy
+
     scene = kit.clear_scene()
     grey = kit.material("grey")
     floor = kit.plane("Floor", (0, 0, 0), 4, grey)
@@ -41,6 +43,7 @@ def scene_hash() -> str:
     """Hash of what a bake must not change: every mesh's UV layers, every material's node tree
     and every image's identity and source."""
     import bpy
+
     h = hashlib.sha256()
     for mesh in sorted(bpy.data.meshes, key=lambda m: m.name):
         for layer in mesh.uv_layers:
@@ -55,7 +58,9 @@ def scene_hash() -> str:
                 value = getattr(socket, "default_value", None)
                 h.update(repr(tuple(value) if hasattr(value, "__len__") else value).encode())
         for link in mat.node_tree.links:
-            h.update(f"{link.from_node.name}.{link.from_socket.identifier}>{link.to_node.name}.{link.to_socket.identifier}".encode())
+            h.update(
+                f"{link.from_node.name}.{link.from_socket.identifier}>{link.to_node.name}.{link.to_socket.identifier}".encode()
+            )
     for image in sorted(bpy.data.images, key=lambda i: i.name):
         h.update(f"{image.name}|{image.filepath}|{image.packed_file is not None}".encode())
     return h.hexdigest()
@@ -63,20 +68,27 @@ def scene_hash() -> str:
 
 def test_bake_and_reencode_operators_end_to_end(baked_scene):
     import bpy
+
     scene, receivers, folder = baked_scene
     kit.select(receivers)
     assert bpy.ops.hhd.bake() == {'FINISHED'}
     out = folder / "lightmaps"
-    assert sorted(p.name for p in out.iterdir()) == ["Lightmap.json", "Lightmap_hhd.exr", "Lightmap_preview",
-                                                      "Lightmap_sh.exr", "Lightmap_texels.exr"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "Lightmap.json",
+        "Lightmap_hhd.exr",
+        "Lightmap_preview",
+        "Lightmap_sh.exr",
+        "Lightmap_texels.exr",
+    ]
     assert sorted(p.name for p in (out / "Lightmap_preview").iterdir()) == sorted(
-        ["iz.exr", "wa.exr", "dir.exr"] + [f"sh{k}.exr" for k in range(9)])
+        ["iz.exr", "wa.exr", "dir.exr"] + [f"sh{k}.exr" for k in range(9)]
+    )
     doc = json.loads((out / "Lightmap.json").read_text())
     assert [o["name"] for o in doc["objects"]] == ["Cube", "Floor"] and all(o["texels"] > 0 for o in doc["objects"])
     assert doc["bake"]["samples"] == 8 and doc["encoder"]["model"] == "hhd"
     loaded = {Path(bpy.path.abspath(im.filepath)).name: im for im in bpy.data.images}
     assert {"Lightmap_hhd.exr", "Lightmap_sh.exr"} <= set(loaded)
-    assert all(im.packed_file is None for im in loaded.values())          # external, not packed
+    assert all(im.packed_file is None for im in loaded.values())  # external, not packed
     assert "Baked" in scene.hhd.bake_summary
     sh_bytes, hhd_bytes = (out / "Lightmap_sh.exr").read_bytes(), (out / "Lightmap_hhd.exr").read_bytes()
     scene.hhd.model = 'AHD'
@@ -91,6 +103,7 @@ def test_bake_and_reencode_operators_end_to_end(baked_scene):
 
 def test_errors_name_the_object_and_the_problem(baked_scene):
     import bpy
+
     scene, (floor, cube), folder = baked_scene
     cube.data.uv_layers.remove(cube.data.uv_layers[kit.LAYER])
     kit.select([floor, cube])
@@ -102,7 +115,7 @@ def test_errors_name_the_object_and_the_problem(baked_scene):
     with pytest.raises(RuntimeError, match="'Empty Mesh' has no faces"):
         bpy.ops.hhd.bake()
     floor.data.uv_layers[kit.LAYER].data.foreach_set("uv", np.zeros(len(floor.data.loops) * 2, np.float32))
-    floor.data.update()         # 4.x does not re-evaluate the mesh after a raw foreach_set
+    floor.data.update()  # 4.x does not re-evaluate the mesh after a raw foreach_set
     kit.select([floor])
     with pytest.raises(RuntimeError, match="'Floor': the lightmap UVs cover no texel"):
         bpy.ops.hhd.bake()
@@ -111,7 +124,9 @@ def test_errors_name_the_object_and_the_problem(baked_scene):
 
 def test_cancel_leaves_the_blend_and_the_previous_files_unchanged(baked_scene):
     import bpy
+
     from hhd_lightmapper.bridge import bake_session
+
     scene, receivers, folder = baked_scene
     kit.select(receivers)
     assert bpy.ops.hhd.bake() == {'FINISHED'}
@@ -119,17 +134,23 @@ def test_cancel_leaves_the_blend_and_the_previous_files_unchanged(baked_scene):
     before = scene_hash()
     scene.hhd.samples = 64
     before = scene_hash()
-    session = bake_session.BakeSession(bpy.context)          # what the modal operator runs
+    session = bake_session.BakeSession(bpy.context)  # what the modal operator runs
     checks = []
     with pytest.raises(BakeCancelled):
-        session.run(cancel=lambda: checks.append(1) or len(checks) > 2)   # Esc after two chunks
+        session.run(cancel=lambda: checks.append(1) or len(checks) > 2)  # Esc after two chunks
     assert scene_hash() == before
     assert {p: p.read_bytes() for p in (folder / "lightmaps").rglob("*") if p.is_file()} == files
 
 
 def run_cli(blend, *args, env=None, **kw):
-    return subprocess.run([sys.executable, "-m", "hhd_lightmapper.cli", str(blend), *args],
-                          capture_output=True, text=True, env=env, timeout=300, **kw)
+    return subprocess.run(
+        [sys.executable, "-m", "hhd_lightmapper.cli", str(blend), *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+        **kw,
+    )
 
 
 @pytest.mark.slow
@@ -142,11 +163,24 @@ def test_command_line_exit_codes(baked_scene, tmp_path):
     encode = run_cli(blend, "encode", "--out", str(tmp_path / "cli"), "--objects", "Floor", "Cube", "--model", "ahd")
     assert encode.returncode == cli.EXIT_OK, encode.stderr
     assert json.loads((tmp_path / "cli" / "Lightmap.json").read_text())["encoder"]["model"] == "ahd"
-    adaptive = run_cli(blend, "bake", "--out", str(tmp_path / "adaptive"), "--objects", "Floor", "Cube",
-                       "--preset", "reference", "--samples", "96", "--noise-target", "50")
+    adaptive = run_cli(
+        blend,
+        "bake",
+        "--out",
+        str(tmp_path / "adaptive"),
+        "--objects",
+        "Floor",
+        "Cube",
+        "--preset",
+        "reference",
+        "--samples",
+        "96",
+        "--noise-target",
+        "50",
+    )
     assert adaptive.returncode == cli.EXIT_OK, adaptive.stderr
     bake = json.loads((tmp_path / "adaptive" / "Lightmap.json").read_text())["bake"]
-    assert bake["samples"] == 96 and bake["noise_target"] == 0.5       # options override the preset
+    assert bake["samples"] == 96 and bake["noise_target"] == 0.5  # options override the preset
     assert 64 <= bake["mean_samples_per_texel"] <= 96 and bake["bounces"] == presets.get("reference").bounces
 
     usage = run_cli(blend, "bake", "--samples", "many")
@@ -154,7 +188,9 @@ def test_command_line_exit_codes(baked_scene, tmp_path):
     missing = run_cli(blend, "bake", "--objects", "Nope")
     assert missing.returncode == cli.EXIT_INPUT and "no object named 'Nope'" in missing.stderr
     (tmp_path / "a_file").write_text("not a folder")
-    unwritable = run_cli(blend, "bake", "--out", str(tmp_path / "a_file" / "sub"), "--objects", "Floor", "--samples", "2")
+    unwritable = run_cli(
+        blend, "bake", "--out", str(tmp_path / "a_file" / "sub"), "--objects", "Floor", "--samples", "2"
+    )
     assert unwritable.returncode == cli.EXIT_OUTPUT and "cannot write the output" in unwritable.stderr
 
     blocked = tmp_path / "blocked"
@@ -166,12 +202,28 @@ def test_command_line_exit_codes(baked_scene, tmp_path):
 
     # Started with SIGINT ignored, as a shell without job control (CI) starts background commands:
     # the bake must still stop on a SIGINT sent to it.
-    proc = subprocess.Popen([sys.executable, "-m", "hhd_lightmapper.cli", str(blend), "bake", "--out",
-                             str(tmp_path / "interrupted"), "--objects", "Floor", "Cube", "--samples", "4096"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "hhd_lightmapper.cli",
+            str(blend),
+            "bake",
+            "--out",
+            str(tmp_path / "interrupted"),
+            "--objects",
+            "Floor",
+            "Cube",
+            "--samples",
+            "4096",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
     for line in proc.stdout:
-        if "texel-samples/s" in line:          # tracing has started
+        if "texel-samples/s" in line:  # tracing has started
             proc.send_signal(signal.SIGINT)
             break
     _, err = proc.communicate(timeout=120)
@@ -190,7 +242,9 @@ def exr_bytes(folder: Path) -> dict:
 
 def test_bake_and_reencode_honour_blenders_render_threads_setting(baked_scene):
     import bpy
+
     from hhd_lightmapper.core import parallel
+
     scene, receivers, folder = baked_scene
     kit.select(receivers)
     out, sidecar = folder / "lightmaps", folder / "lightmaps" / "Lightmap.json"
@@ -216,9 +270,11 @@ def test_command_line_refuses_a_negative_thread_count(baked_scene, capsys):
 @pytest.mark.slow
 def test_command_line_threads_follow_the_scene_or_the_flag_and_files_are_identical(baked_scene, tmp_path):
     import bpy
+
     from hhd_lightmapper.core import parallel
+
     scene, receivers, folder = baked_scene
-    scene.render.threads_mode, scene.render.threads = 'FIXED', 1       # saved in the .blend
+    scene.render.threads_mode, scene.render.threads = 'FIXED', 1  # saved in the .blend
     blend = folder / "scene.blend"
     bpy.ops.wm.save_mainfile()
     args = ("--objects", "Floor", "Cube", "--preset", "draft")
@@ -228,9 +284,13 @@ def test_command_line_threads_follow_the_scene_or_the_flag_and_files_are_identic
     assert every.returncode == cli.EXIT_OK, every.stderr
     assert exr_bytes(tmp_path / "default") == exr_bytes(tmp_path / "every")
     assert len(exr_bytes(tmp_path / "default")) == 15
-    threads = [json.loads((tmp_path / k / "Lightmap.json").read_text())["bake"]["threads"] for k in ("default", "every")]
+    threads = [
+        json.loads((tmp_path / k / "Lightmap.json").read_text())["bake"]["threads"] for k in ("default", "every")
+    ]
     assert threads == [1, parallel.machine_threads()]
-    encode = run_cli(blend, "encode", "--out", str(tmp_path / "default"), "--objects", "Floor", "Cube", "--threads", "2")
+    encode = run_cli(
+        blend, "encode", "--out", str(tmp_path / "default"), "--objects", "Floor", "Cube", "--threads", "2"
+    )
     assert encode.returncode == cli.EXIT_OK, encode.stderr
     assert json.loads((tmp_path / "default" / "Lightmap.json").read_text())["reencode_threads"] == 2
     encode = run_cli(blend, "encode", "--out", str(tmp_path / "every"), "--objects", "Floor", "Cube")
@@ -244,6 +304,7 @@ def test_a_full_atlas_spills_into_numbered_atlases_that_bake_and_preview(extensi
     makes Lightmap, Lightmap_1, … of the same size, each object whole in one; the bake writes
     each atlas's files and sidecar, and the preview finds every object's atlas."""
     import bpy
+
     scene = kit.clear_scene()
     grey = kit.material("grey")
     spheres = []
@@ -274,6 +335,7 @@ def test_a_full_atlas_spills_into_numbered_atlases_that_bake_and_preview(extensi
     assert all(o["hhd_preview_atlas"] == names.index(o.hhd.atlas) for o in spheres + [floor])
     compares = [n for n in grey.node_tree.nodes if n.type == 'MATH' and n.operation == 'COMPARE']
     assert sorted(n.inputs[1].default_value for n in compares) == sorted(
-        float(k) for k in range(1, len(names)) for _ in ("iz", "wa", "dir"))
+        float(k) for k in range(1, len(names)) for _ in ("iz", "wa", "dir")
+    )
     assert bpy.ops.hhd.preview_hide() == {'FINISHED'}
     assert not any("hhd_preview_atlas" in o for o in spheres + [floor])

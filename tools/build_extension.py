@@ -8,6 +8,7 @@ the script behind `blender --command extension build/validate`; it ships inside 
 and runs with plain Python, so no Blender install is needed. Pass --blender to use a Blender
 binary's `--command extension` instead. Prints the zip paths, one per line, last.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,8 +44,9 @@ def build(output_dir: Path, blender: str | None = None) -> list[Path]:
     for old in output_dir.glob("hhd_lightmapper-*.zip"):
         old.unlink()
     tool = extension_tool(blender)
-    subprocess.run(tool + ["build", "--split-platforms", "--source-dir", str(ROOT),
-                           "--output-dir", str(output_dir)], check=True)
+    subprocess.run(
+        tool + ["build", "--split-platforms", "--source-dir", str(ROOT), "--output-dir", str(output_dir)], check=True
+    )
     zips = sorted(output_dir.glob("hhd_lightmapper-*.zip"))
     if not zips:
         raise SystemExit("the extension tool produced no zip")

@@ -16,6 +16,7 @@ Stages, in pipeline order:
            preview_eevee.png, saves demo.blend with the preview shown (Hide Preview restores it)
 Exits 0 and prints a summary; writes summary.json.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,9 +41,10 @@ def main() -> int:
     out.mkdir(parents=True, exist_ok=True)
     # Never touch the user's real Blender configuration.
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-demo-blender-"))
-    sys.path.insert(0, str(ROOT))                      # scenekit
+    sys.path.insert(0, str(ROOT))  # scenekit
 
     import bpy
+
     from scenekit import blender, scenes
 
     timings, stages = {}, {}
@@ -62,9 +64,25 @@ def main() -> int:
     #   python -m hhd_lightmapper.cli demo.blend bake --unwrap --out lightmaps --save
     meshes = sorted(o.name for o in bpy.context.scene.objects if o.type == "MESH")
     bpy.ops.wm.save_as_mainfile(filepath=str(out / "demo.blend"))
-    command = [sys.executable, "-m", "hhd_lightmapper.cli", str(out / "demo.blend"), "bake", "--unwrap", "--resolution", "512",
-               "--out", str(out / "lightmaps"), "--samples", str(args.samples), "--bounces", "2",
-               "--objects", *meshes, "--save"]
+    command = [
+        sys.executable,
+        "-m",
+        "hhd_lightmapper.cli",
+        str(out / "demo.blend"),
+        "bake",
+        "--unwrap",
+        "--resolution",
+        "512",
+        "--out",
+        str(out / "lightmaps"),
+        "--samples",
+        str(args.samples),
+        "--bounces",
+        "2",
+        "--objects",
+        *meshes,
+        "--save",
+    ]
     print("$ " + " ".join(command[2:]), flush=True)
     t = time.perf_counter()
     code = subprocess.call(command)
@@ -74,15 +92,19 @@ def main() -> int:
         return code
     sidecar = json.loads((out / "lightmaps" / "Lightmap.json").read_text())
     bake = sidecar["bake"]
-    stages["bake"] = (f"unwrap + {bake['samples_taken']} samples/texel, {bake['rays'] / 1e6:.1f} M rays, "
-                      f"{sidecar['stats']['texels_baked']} texels -> lightmaps/Lightmap_hhd.exr, _sh.exr, .json")
+    stages["bake"] = (
+        f"unwrap + {bake['samples_taken']} samples/texel, {bake['rays'] / 1e6:.1f} M rays, "
+        f"{sidecar['stats']['texels_baked']} texels -> lightmaps/Lightmap_hhd.exr, _sh.exr, .json"
+    )
 
     t = time.perf_counter()
     encoded = plot_results(out / "lightmaps", out / "irradz.png", out / "encoder.png")
     timings["encode"] = time.perf_counter() - t
-    stages["encode"] = (f"{encoded['texels']} texels, hemispherical RMSE {encoded['rmse_percent']:.2f}% of I_z "
-                        f"(optimal-linear + sphere Gram baseline: {encoded['baseline_rmse_percent']:.2f}%) "
-                        "-> irradz.png, encoder.png")
+    stages["encode"] = (
+        f"{encoded['texels']} texels, hemispherical RMSE {encoded['rmse_percent']:.2f}% of I_z "
+        f"(optimal-linear + sphere Gram baseline: {encoded['baseline_rmse_percent']:.2f}%) "
+        "-> irradz.png, encoder.png"
+    )
     t = time.perf_counter()
     stages["preview"] = show_preview(bpy, out)
     timings["preview"] = time.perf_counter() - t
@@ -113,6 +135,7 @@ def show_preview(bpy, out: Path) -> str:
     """Open the baked demo.blend, Show Preview (HHD) on every mesh, render the camera view with
     EEVEE (preview_eevee.png) and save: opening demo.blend shows the baked lighting."""
     import hhd_lightmapper
+
     bpy.ops.wm.open_mainfile(filepath=str(out / "demo.blend"))
     hhd_lightmapper.register()
     scene = bpy.context.scene
@@ -121,6 +144,7 @@ def show_preview(bpy, out: Path) -> str:
     scene.hhd.preview_mode = 'HHD'
     assert bpy.ops.hhd.preview_show() == {'FINISHED'}
     from hhd_lightmapper import blender_compat
+
     scene.render.engine = blender_compat.eevee_engine()
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 320, 200, 100
     scene.render.image_settings.file_format = "PNG"
@@ -134,15 +158,17 @@ def show_preview(bpy, out: Path) -> str:
 def plot_results(folder: Path, irradz_png: Path, encoder_png: Path) -> dict:
     """Read the bake's files back (as a game engine would): I_z image, and the encoder's error
     on a sample of texels (re-encoded from the SH EXR, with the baseline for comparison)."""
-    import numpy as np
     import matplotlib
+    import numpy as np
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     from hhd_lightmapper.core import exr, hhd, lightmap_files
 
     channels, _ = exr.read(folder / "Lightmap_hhd.exr")
     iz = np.stack([channels[f"Iz.{c}"].astype(float) for c in "RGB"], axis=-1)
-    plt.imsave(irradz_png, np.clip(iz / (1.0 + iz), 0, 1))       # EXR rows are top-down already
+    plt.imsave(irradz_png, np.clip(iz / (1.0 + iz), 0, 1))  # EXR rows are top-down already
     data = lightmap_files.read_texel_data(lightmap_files.AtlasFiles(folder, "Lightmap"))
     sh, normal = data.sh[data.baked], data.normal[data.baked]
     p = hhd.encode(sh, normal)
@@ -156,17 +182,19 @@ def plot_results(folder: Path, irradz_png: Path, encoder_png: Path) -> dict:
     rmse = (hhd.hemispherical_rmse(sh[pick], normal[pick], sub) @ lum).mean() / mean_iz
     rmse_base = (hhd.hemispherical_rmse(sh[pick], normal[pick], base) @ lum).mean() / mean_iz
     brightest = pick[np.argmax(p.irradz[pick] @ lum)]
-    plot_hemisphere(sh[brightest:brightest + 1], normal[brightest:brightest + 1], encoder_png)
+    plot_hemisphere(sh[brightest : brightest + 1], normal[brightest : brightest + 1], encoder_png)
     return {"texels": int(len(sh)), "rmse_percent": 100 * rmse, "baseline_rmse_percent": 100 * rmse_base}
 
 
 def plot_hemisphere(s, n_v, png: Path, size: int = 96) -> None:
     """Images over the upper hemisphere (orthographic view from above) of one texel with
     radiance SH s (1, 9, 3) and vertex normal n_v (1, 3)."""
-    import numpy as np
     import matplotlib
+    import numpy as np
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     from hhd_lightmapper.core import hhd, sh
 
     frames = sh.tangent_frames(n_v)[0]
@@ -178,13 +206,19 @@ def plot_hemisphere(s, n_v, png: Path, size: int = 96) -> None:
     k = len(world)
     target = sh.irradiance(np.repeat(s, k, 0), world) @ hhd.LUMINANCE
     images = {}
-    for name, kw in (("HHD searched + hemi G", {}), ("optimal linear + sphere G", dict(direction="optimal_linear", gram="sphere"))):
+    for name, kw in (
+        ("HHD searched + hemi G", {}),
+        ("optimal linear + sphere G", dict(direction="optimal_linear", gram="sphere")),
+    ):
         p = hhd.encode(s, n_v, **kw)
         rep = hhd.HHDParams(np.repeat(p.irradz, k, 0), np.repeat(p.ambient_weight, k, 0), np.repeat(p.direction, k, 0))
         images[name] = hhd.reconstruct(rep, np.repeat(n_v, k, 0), world) @ hhd.LUMINANCE
     fig, axes = plt.subplots(1, 5, figsize=(15, 3.2))
-    panels = [("SH irradiance (reference)", target)] + [(n, v) for n, v in images.items()] + \
-             [(f"|error| {n.split()[0]}", np.abs(v - target)) for n, v in images.items()]
+    panels = (
+        [("SH irradiance (reference)", target)]
+        + [(n, v) for n, v in images.items()]
+        + [(f"|error| {n.split()[0]}", np.abs(v - target)) for n, v in images.items()]
+    )
     vmax = max(target.max(), *(v.max() for v in images.values()))
     for ax, (title, values) in zip(axes, panels):
         img = np.full(x.shape, np.nan)
@@ -192,7 +226,10 @@ def plot_hemisphere(s, n_v, png: Path, size: int = 96) -> None:
         ax.imshow(img, vmin=0, vmax=vmax if "error" not in title else vmax * 0.25, cmap="magma")
         ax.set_title(title, fontsize=8)
         ax.axis("off")
-    fig.suptitle("Baked lighting over the hemisphere of the demo's brightest texel (luminance, view from above the normal)", fontsize=9)
+    fig.suptitle(
+        "Baked lighting over the hemisphere of the demo's brightest texel (luminance, view from above the normal)",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(png, dpi=100)
 

@@ -10,6 +10,7 @@ registry, and checks its SHA-256 against the pins below. Nothing is rebuilt or r
 Plain Python 3.11+, no bpy. One file per (package, CPython version, platform): Blender picks the
 wheels of its own Python at install time (cp311 for Blender 4.2-5.0, cp313 for 5.1+).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -65,7 +66,6 @@ SHA256 = {
 }
 
 
-
 def wheel_platform(filename: str) -> str:
     """Blender platform name ('linux-x64', ...) a wheel file belongs to."""
     tag = filename[: -len(".whl")].split("-")[-1]
@@ -103,9 +103,26 @@ def sha256(path: Path) -> str:
 def download(filename: str, dest: Path) -> None:
     """pip-download exactly `filename` (no dependencies, binary only) into dest."""
     name, version, py, abi, plat = filename[: -len(".whl")].split("-")
-    cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--only-binary=:all:",
-           "--python-version", python_version(filename), "--implementation", "cp", "--abi", abi,
-           "--platform", plat.split(".")[0], "--dest", str(dest), f"{name}=={version}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "pip",
+        "download",
+        "--quiet",
+        "--no-deps",
+        "--only-binary=:all:",
+        "--python-version",
+        python_version(filename),
+        "--implementation",
+        "cp",
+        "--abi",
+        abi,
+        "--platform",
+        plat.split(".")[0],
+        "--dest",
+        str(dest),
+        f"{name}=={version}",
+    ]
     subprocess.run(cmd, check=True)
 
 

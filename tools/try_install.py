@@ -16,6 +16,7 @@ luminance over covered texels) and the bake's thread count. Exit 0 on success.
 only builds and saves the scene (no extension needed), for a headless CLI bake of the same
 scene in any Blender version.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,6 +38,7 @@ def scene():
     """A 4 m floor and a 1 m red cube on it, a sun and a blue-grey sky; returns the receivers.
     Built from raw vertex lists, so every Blender version makes the same meshes."""
     import bpy
+
     compat = _blender_compat()
     for coll in (bpy.data.objects, bpy.data.meshes, bpy.data.lights, bpy.data.materials):
         for block in list(coll):
@@ -57,8 +59,9 @@ def scene():
 
     floor = mesh("Floor", [(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)], [(0, 1, 2, 3)], (0.8, 0.8, 0.8))
     c = [(x, y, z) for z in (0, 1) for y in (-0.5, 0.5) for x in (-0.5, 0.5)]
-    cube = mesh("Cube", c, [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)],
-                (0.8, 0.1, 0.1))
+    cube = mesh(
+        "Cube", c, [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)], (0.8, 0.1, 0.1)
+    )
     sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
     sun.data.energy = 3.0
     sun.rotation_euler = (0.5, 0.2, 0.0)
@@ -81,14 +84,18 @@ def _blender_compat():
 def refuse_preinstalled() -> None:
     found = [name for name in COMPILED if importlib.util.find_spec(name) is not None]
     if found:
-        raise SystemExit(f"this environment already has {', '.join(found)}: use one with only `bpy`, "
-                         "so the zip's own wheels are what gets tested")
+        raise SystemExit(
+            f"this environment already has {', '.join(found)}: use one with only `bpy`, "
+            "so the zip's own wheels are what gets tested"
+        )
 
 
 def install_and_bake(zip_path: Path, out: Path) -> dict:
     import bpy
-    result = bpy.ops.extensions.package_install_files(filepath=str(zip_path), repo="user_default",
-                                                      enable_on_install=True)
+
+    result = bpy.ops.extensions.package_install_files(
+        filepath=str(zip_path), repo="user_default", enable_on_install=True
+    )
     if result != {"FINISHED"} or MODULE not in bpy.context.preferences.addons:
         raise SystemExit(f"installing {zip_path.name} did not enable {MODULE}")
     receivers = scene()
@@ -108,16 +115,22 @@ def summary(out: Path) -> dict:
     extension's own modules (its OpenEXR comes from the zip)."""
     import bpy
     import numpy as np
+
     exr = importlib.import_module(MODULE + ".core.exr")
     hhd_ch, _ = exr.read(out / "Lightmap_hhd.exr")
     tx_ch, _ = exr.read(out / "Lightmap_texels.exr")
     covered = tx_ch["Coverage.V"] > 0
     iz = np.stack([hhd_ch[f"Iz.{c}"] for c in "RGB"], -1).astype(np.float64)
-    lum = iz @ np.array([0.2126, 0.7152, 0.0722])
+    lum = iz @ importlib.import_module(MODULE + ".core.colour").LUMINANCE
     doc = json.loads((out / "Lightmap.json").read_text())
-    return {"blender": bpy.app.version_string, "python": sys.version.split()[0], "numpy": np.__version__,
-            "texels": int(covered.sum()), "mean_iz": float(lum[covered].mean()),
-            "threads": doc["bake"].get("threads")}
+    return {
+        "blender": bpy.app.version_string,
+        "python": sys.version.split()[0],
+        "numpy": np.__version__,
+        "texels": int(covered.sum()),
+        "mean_iz": float(lum[covered].mean()),
+        "threads": doc["bake"].get("threads"),
+    }
 
 
 def main() -> int:
@@ -129,6 +142,7 @@ def main() -> int:
     os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="hhd-try-install-")
     if args.scene_only:
         import bpy
+
         scene()
         bpy.ops.wm.save_as_mainfile(filepath=str(args.scene_only.resolve()))
         report = {"scene": str(args.scene_only)}

@@ -7,6 +7,7 @@ tests/test_encoding_spec.py checks they are current, and
 
 rewrites them (default: the repository's docs/format.md).
 """
+
 from __future__ import annotations
 
 import sys

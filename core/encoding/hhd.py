@@ -4,6 +4,7 @@ Layers: Iz (I_z, RGB), Wa (w_a: one channel V with ambient "luminance", R/G/B wi
 Direction (the highlight direction, world space, octahedral X/Y). The encoding returns the
 direction as a unit vector; it is filled (dilated) as a vector and packed afterwards.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -16,14 +17,27 @@ from ..colour import LUMINANCE
 from .settings import EncoderSettings
 from .spec import DILATE, DILATE_BURIED_BLACK, HALF, HALF_OR_FLOAT, Channel, Encoded, FileSpec
 
-IZ = Channel("Iz", tuple("RGB"), HALF_OR_FLOAT,
-             "I_z: irradiance at the vertex normal n_v, linear RGB, DESIGN.md units (albedo × I = radiance)",
-             fill=DILATE_BURIED_BLACK, preview="iz")
+IZ = Channel(
+    "Iz",
+    tuple("RGB"),
+    HALF_OR_FLOAT,
+    "I_z: irradiance at the vertex normal n_v, linear RGB, DESIGN.md units (albedo × I = radiance)",
+    fill=DILATE_BURIED_BLACK,
+    preview="iz",
+)
 _WA_MEANING = "w_a: ambient weight in [0, 1] (luminance mode: one channel V; RGB mode: per channel)"
 WA = Channel("Wa", ("V",), HALF, _WA_MEANING, fill=DILATE, preview="wa", when=("ambient", "luminance"))
 WA_RGB = Channel("Wa", tuple("RGB"), HALF, _WA_MEANING, fill=DILATE, preview="wa", when=("ambient", "rgb"))
-DIRECTION = Channel("Direction", tuple("XY"), HALF, "highlight direction d, world space, octahedral X/Y in [-1, 1]",
-                    fill=DILATE, preview="dir", width=3, pack=octahedral.encode)
+DIRECTION = Channel(
+    "Direction",
+    tuple("XY"),
+    HALF,
+    "highlight direction d, world space, octahedral X/Y in [-1, 1]",
+    fill=DILATE,
+    preview="dir",
+    width=3,
+    pack=octahedral.encode,
+)
 
 #: Every layer the HHD file may hold (the file of one setting: `FILE.for_settings`).
 FILE = FileSpec("hhd", "_hhd.exr", (IZ, WA, WA_RGB, DIRECTION))
@@ -33,6 +47,7 @@ FILE = FileSpec("hhd", "_hhd.exr", (IZ, WA, WA_RGB, DIRECTION))
 class HHDEncoding:
     """The Encoding of `FILE`: `core.hhd.encode` with the fit options of `options` (model "hhd"
     or "ahd"); `file` has the Wa layer of its ambient mode."""
+
     options: EncoderSettings
     file: FileSpec = field(init=False)
     settings: dict = field(init=False)
@@ -45,21 +60,26 @@ class HHDEncoding:
         """Iz `(N, 3)`, Wa `(N, 1 | 3)`, Direction `(N, 3)` (unit, world space), float64; stats:
         texels_invalid, irradz_max and the sum of I_z's luminance (for the mean)."""
         p = _hhd.encode(sh, n_v, **self.settings)
-        values = {IZ.name: p.irradz, WA.name: p.ambient_weight.reshape(len(p.irradz), -1),
-                  DIRECTION.name: p.direction}
-        stats = {"texels_invalid": p.n_invalid, "irradz_max": float(p.irradz.max(initial=0.0)),
-                 "irradz_luminance_sum": float((p.irradz @ LUMINANCE).sum())}
+        values = {IZ.name: p.irradz, WA.name: p.ambient_weight.reshape(len(p.irradz), -1), DIRECTION.name: p.direction}
+        stats = {
+            "texels_invalid": p.n_invalid,
+            "irradz_max": float(p.irradz.max(initial=0.0)),
+            "irradz_luminance_sum": float((p.irradz @ LUMINANCE).sum()),
+        }
         return Encoded(values, stats)
 
     def summary(self, stats: list[dict], texels: int) -> dict:
         """texels_invalid, irradz_max and irradz_mean_luminance over the calls' `stats`."""
         invalid, iz_max, lum_sum = 0, 0.0, 0.0
-        for s in stats:                  # in call order: the same float sums for the same chunks
+        for s in stats:  # in call order: the same float sums for the same chunks
             invalid += s["texels_invalid"]
             iz_max = max(iz_max, s["irradz_max"])
             lum_sum += s["irradz_luminance_sum"]
-        return {"texels_invalid": invalid, "irradz_max": iz_max,
-                "irradz_mean_luminance": lum_sum / texels if texels else 0.0}
+        return {
+            "texels_invalid": invalid,
+            "irradz_max": iz_max,
+            "irradz_mean_luminance": lum_sum / texels if texels else 0.0,
+        }
 
 
 def encoding(settings: EncoderSettings) -> HHDEncoding:

@@ -4,6 +4,7 @@ Each layer is shown through its preview image (`Channel.preview`, an RGB EXR the
 beside the files) and feeds the node-group input of the same name (`Channel.name`):
 shaders/node_groups.py names its inputs from here, shaders/preview.py links image to input.
 """
+
 from __future__ import annotations
 
 from .hhd import DIRECTION, IZ, WA

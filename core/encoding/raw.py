@@ -2,19 +2,33 @@
 
 With them an atlas can be encoded again (`core.bake.reencode`) or blended without tracing.
 """
+
 from __future__ import annotations
 
 from .spec import DILATE_BURIED_BLACK, FLOAT, NO_FILL, Channel, FileSpec
 
 #: SH0 … SH8: radiance SH coefficient k in DESIGN.md's order, RGB.
-SH_LAYERS = tuple(Channel(f"SH{k}", tuple("RGB"), FLOAT, "radiance SH coefficient k (SHk.R/G/B), world space",
-                          fill=DILATE_BURIED_BLACK, preview=f"sh{k}") for k in range(9))
+SH_LAYERS = tuple(
+    Channel(
+        f"SH{k}",
+        tuple("RGB"),
+        FLOAT,
+        "radiance SH coefficient k (SHk.R/G/B), world space",
+        fill=DILATE_BURIED_BLACK,
+        preview=f"sh{k}",
+    )
+    for k in range(9)
+)
 SH_FILE = FileSpec("sh", "_sh.exr", SH_LAYERS)
 
 NORMAL = Channel("Normal", tuple("XYZ"), FLOAT, "vertex normal n_v, world space, unit", fill=NO_FILL)
-COVERAGE = Channel("Coverage", ("V",), FLOAT,
-                   "fraction of the texel covered by triangles; 0 outside charts (dilated), -1 buried",
-                   fill=NO_FILL)
+COVERAGE = Channel(
+    "Coverage",
+    ("V",),
+    FLOAT,
+    "fraction of the texel covered by triangles; 0 outside charts (dilated), -1 buried",
+    fill=NO_FILL,
+)
 TEXELS_FILE = FileSpec("texels", "_texels.exr", (NORMAL, COVERAGE))
 
 #: The raw files, in the order they are written after the encoding's file.

@@ -5,6 +5,7 @@ An encoding is a module with `FILE` (the FileSpec of every layer it may write) a
 module plus its line in ENCODINGS; the CLI's choices, the sidecar and docs/format.md's tables
 (`doc_tables`) follow from here.
 """
+
 from __future__ import annotations
 
 from . import hhd

@@ -3,6 +3,7 @@
 `model` picks the encoding (`encoding.registry`); the other fields are the options of the HHD/AHD
 encoding's fit (see `core.hhd.encode`). The sidecar records `kwargs()` under `encoder`.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -18,6 +19,7 @@ AMBIENTS = ("luminance", "rgb")
 class EncoderSettings:
     """model: an encoding of `registry.ENCODINGS` ("hhd", "ahd"); direction, ambient, phi_search,
     golden_iterations: keyword arguments of `hhd.encode` (see there)."""
+
     model: str = "hhd"
     direction: str = "searched"
     ambient: str = "luminance"

@@ -10,6 +10,7 @@ spec is the single source of
 An `Encoding` turns radiance SH into the values of its file's channels, texel by texel; the
 encode stage (`encoding.stage`) then fills texels without a bake value and packs the values.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -40,6 +41,7 @@ class Channel:
     pack: `(M, width)` value -> `(M, len(components))` stored components, applied after filling;
     when: (setting, value): written only under that encoder setting (docs show it), or None.
     """
+
     name: str
     components: tuple[str, ...]
     dtype: str
@@ -68,6 +70,7 @@ class Channel:
 class FileSpec:
     """One EXR file of an atlas: `<atlas name><suffix>`, listed under `key` in the sidecar's
     `files` and `channels`. `channels`: every layer it may hold, in file order."""
+
     key: str
     suffix: str
     channels: tuple[Channel, ...]
@@ -89,6 +92,7 @@ class Encoded:
     """What `Encoding.encode` returns for N texels: `values` {layer name: `(N, value_width)`
     array} for every layer of its file, and `stats`: this call's partial statistics, combined
     over the calls of one atlas by `Encoding.summary`."""
+
     values: dict[str, np.ndarray]
     stats: dict
 
@@ -101,6 +105,7 @@ class Encoding(Protocol):
     encode(sh `(N, 9, 3)` float32/64 world-space radiance SH, n_v `(N, 3)`) -> Encoded;
     summary(stats of each encode call, in order; texels encoded) -> the sidecar's statistics.
     """
+
     file: FileSpec
     settings: dict
 

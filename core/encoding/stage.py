@@ -11,6 +11,7 @@ channels (still bottom-up and in the values' dtype; `lightmap_files` lays them o
 The raw files' layers (SH, texels) come straight from the TexelData, filled one EXR channel at a
 time (memory: one channel's copy).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -39,6 +40,7 @@ class TexelData:
     bottom-up): sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried);
     sh_error (9, 3) the standard error of sh, when the caller asked for it (no file holds it yet).
     float32 as in the files, so encoding a fresh bake and re-encoding its files agree exactly."""
+
     sh: np.ndarray
     normal: np.ndarray
     coverage: np.ndarray
@@ -54,8 +56,12 @@ class TexelData:
         """Images of per-point `sh` `(P, 9, 3)` (and optionally its standard error) at `points`."""
         coverage = np.where(points.buried, -1.0, points.coverage)
         error = None if sh_error is None else points.image(sh_error, dtype=np.float32)
-        return cls(sh=points.image(sh, dtype=np.float32), normal=points.image(points.normal, dtype=np.float32),
-                   coverage=points.image(coverage, dtype=np.float32), sh_error=error)
+        return cls(
+            sh=points.image(sh, dtype=np.float32),
+            normal=points.image(points.normal, dtype=np.float32),
+            coverage=points.image(coverage, dtype=np.float32),
+            sh_error=error,
+        )
 
     def fill(self) -> _dilate.Fill:
         """The dilation of this atlas: empty texels from the baked ones, buried texels black."""
@@ -75,6 +81,7 @@ class EncodedAtlas:
     `(H, W)` image, rows bottom-up}), the encoding's file first, then the raw files if encoded;
     encoding_file: the encoding's FileSpec; settings: the sidecar's `encoder`; stats: the sidecar's
     `stats` (texels_baked, texels_buried, then the encoding's summary)."""
+
     width: int
     height: int
     files: dict[str, tuple[FileSpec, dict[str, np.ndarray]]]
@@ -107,7 +114,7 @@ def encode_images(data: TexelData, encoding: Encoding, fill: _dilate.Fill) -> tu
     values = {ch.name: np.zeros((h * w, ch.value_width), np.float32) for ch in channels}
     stats = []
     for s in range(0, len(baked), ENCODE_CHUNK):
-        rows = baked[s:s + ENCODE_CHUNK]
+        rows = baked[s : s + ENCODE_CHUNK]
         out = encoding.encode(sh[rows], normal[rows])
         for name, v in out.values.items():
             values[name][rows] = v

@@ -19,6 +19,7 @@ The package, by job (this module re-exports the public API):
   metrics    `fit_error`, `hemispherical_rmse`, `hemisphere_quadrature`
   linear_sh  `to_linear_sh`, `from_linear_sh` (closed form)
 """
+
 from __future__ import annotations
 
 from .. import sh as _sh  # noqa: F401  (kept for callers that used hhd._sh)
@@ -34,7 +35,26 @@ from .lobes import theta_functions as _theta_functions  # noqa: F401
 from .metrics import fit_error, hemisphere_quadrature, hemispherical_rmse
 from .search import GOLDEN_ITERATIONS, PHI_GOLDEN_ITERATIONS, PHI_SCAN_STEPS, SCAN_STEPS, optimal_linear_angles
 
-__all__ = ["CHUNK", "GOLDEN_ITERATIONS", "IRRADZ_FROM_R10", "LUMINANCE", "MIN_COS", "PHI_GOLDEN_ITERATIONS",
-           "PHI_SCAN_STEPS", "SCAN_STEPS", "HHDParams", "ambient_lobe", "channel_weights", "directional_lobe",
-           "encode", "fit_error", "from_linear_sh", "hemisphere_quadrature", "hemispherical_rmse", "irradz",
-           "optimal_linear_angles", "reconstruct", "to_linear_sh"]
+__all__ = [
+    "CHUNK",
+    "GOLDEN_ITERATIONS",
+    "IRRADZ_FROM_R10",
+    "LUMINANCE",
+    "MIN_COS",
+    "PHI_GOLDEN_ITERATIONS",
+    "PHI_SCAN_STEPS",
+    "SCAN_STEPS",
+    "HHDParams",
+    "ambient_lobe",
+    "channel_weights",
+    "directional_lobe",
+    "encode",
+    "fit_error",
+    "from_linear_sh",
+    "hemisphere_quadrature",
+    "hemispherical_rmse",
+    "irradz",
+    "optimal_linear_angles",
+    "reconstruct",
+    "to_linear_sh",
+]

@@ -4,6 +4,7 @@ Per chunk of CHUNK texels: sanitise (non-finite texels marked invalid and zeroed
 normalised, float64), rotate into the frame z = n_v and set up the fit (`fit.prepare`), start
 from the optimal linear direction, search (`search`), and rotate the direction back to world space.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,8 +36,7 @@ def sanitise(sh: np.ndarray, n_v: np.ndarray):
         sh = sh[..., None]
     with np.errstate(invalid="ignore", over="ignore"):
         length = np.linalg.norm(n_v, axis=1)
-    invalid = (~np.isfinite(sh).reshape(len(sh), -1).all(axis=1) | ~np.isfinite(length)
-               | (length < 1e-12))
+    invalid = ~np.isfinite(sh).reshape(len(sh), -1).all(axis=1) | ~np.isfinite(length) | (length < 1e-12)
     if invalid.any():
         sh = sh.copy()
         sh[invalid] = 0.0
@@ -50,9 +50,19 @@ def gram_matrix(gram: str) -> np.ndarray:
     return _gram.hemisphere() if gram == "hemisphere" else _gram.sphere()
 
 
-def encode(sh, n_v, model: str = "hhd", direction: str = "searched", gram: str = "hemisphere",
-           ambient: str = "luminance", *, hemisphere_sampled: bool = True, phi_search: bool = False,
-           min_cos: float = MIN_COS, golden_iterations: int = GOLDEN_ITERATIONS) -> HHDParams:
+def encode(
+    sh,
+    n_v,
+    model: str = "hhd",
+    direction: str = "searched",
+    gram: str = "hemisphere",
+    ambient: str = "luminance",
+    *,
+    hemisphere_sampled: bool = True,
+    phi_search: bool = False,
+    min_cos: float = MIN_COS,
+    golden_iterations: int = GOLDEN_ITERATIONS,
+) -> HHDParams:
     """Fit HHD or AHD to world-space radiance SH, per texel.
 
     sh   `(N, 9, C)` world-space radiance SH (any float dtype; C = 3 for RGB)
@@ -64,7 +74,7 @@ def encode(sh, n_v, model: str = "hhd", direction: str = "searched", gram: str =
     hemisphere of n_v only: I_z = 2/√(3π) r_1^0 exactly. Pass False for full-sphere SH (a probe):
     I_z = Y(n_v)·i, the SH irradiance, clamped to ≥ 0 (clamps counted in `clamped_irradz`). The
     target of the fit is the SH irradiance i either way.
-    phi_search: add the outer φ search (≈ 20× the cost, a slight error decrease).
+    phi_search: add the outer φ search (many times the cost for a slight error decrease: docs/encoder.md).
     min_cos: floor on d·n_v.
     golden_iterations: golden-section steps of the θ search (each shrinks the bracket by 0.618;
     0 keeps the best of the coarse scan and the optimal-linear θ).
@@ -79,16 +89,22 @@ def encode(sh, n_v, model: str = "hhd", direction: str = "searched", gram: str =
         raise ValueError(f"gram must be 'hemisphere' or 'sphere', not {gram!r}")
     if ambient not in ("luminance", "rgb"):
         raise ValueError(f"ambient must be 'luminance' or 'rgb', not {ambient!r}")
-    options = dict(a=ambient_lobe(model), g=gram_matrix(gram),
-                   searched=direction == "searched", luminance=ambient == "luminance",
-                   hemisphere_sampled=hemisphere_sampled, phi_search=phi_search,
-                   theta_max=float(np.arccos(min_cos)), iterations=max(0, int(golden_iterations)))
+    options = dict(
+        a=ambient_lobe(model),
+        g=gram_matrix(gram),
+        searched=direction == "searched",
+        luminance=ambient == "luminance",
+        hemisphere_sampled=hemisphere_sampled,
+        phi_search=phi_search,
+        theta_max=float(np.arccos(min_cos)),
+        iterations=max(0, int(golden_iterations)),
+    )
     check_shapes(sh, n_v)
-    parts = [encode_chunk(*sanitise(sh[s:s + CHUNK], n_v[s:s + CHUNK]), **options)
-             for s in range(0, len(n_v), CHUNK)] or [encode_chunk(*sanitise(sh, n_v), **options)]
+    parts = [
+        encode_chunk(*sanitise(sh[s : s + CHUNK], n_v[s : s + CHUNK]), **options) for s in range(0, len(n_v), CHUNK)
+    ] or [encode_chunk(*sanitise(sh, n_v), **options)]
     iz, w, d, clamped, invalid = (np.concatenate(x) for x in zip(*parts))
-    return HHDParams(irradz=iz, ambient_weight=w, direction=d, model=model,
-                     invalid=invalid, clamped_irradz=clamped)
+    return HHDParams(irradz=iz, ambient_weight=w, direction=d, model=model, invalid=invalid, clamped_irradz=clamped)
 
 
 def encode_chunk(world_sh, n, invalid, *, searched, phi_search, theta_max, iterations, **prepare_options):

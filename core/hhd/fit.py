@@ -9,6 +9,7 @@ formula with its i/r_0 corrected to i/I_z. The 2018 paper's non-negativity (C_a 
 is exactly 0 ≤ w ≤ 1 here, and for a 1D convex quadratic clamping the minimiser is the
 constrained optimum.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,20 +36,28 @@ class Fit:
     target is precomputed once, and each θ evaluation is a few dozen vector operations.
     """
 
-    def __init__(self, target: np.ndarray, iz: np.ndarray, a: np.ndarray, g: np.ndarray,
-                 weights: np.ndarray, scale: np.ndarray | None = None):
-        self.scale = np.ones(len(iz)) if scale is None else scale   # per-texel normalisation undone by fit_error
+    def __init__(
+        self,
+        target: np.ndarray,
+        iz: np.ndarray,
+        a: np.ndarray,
+        g: np.ndarray,
+        weights: np.ndarray,
+        scale: np.ndarray | None = None,
+    ):
+        self.scale = np.ones(len(iz)) if scale is None else scale  # per-texel normalisation undone by fit_error
         self.g = g
         self.ga = g @ a
         self.aga = float(a @ self.ga)
-        self.iz = iz                                      # (N, K)
-        self.gt = np.einsum("ij,njk->nik", g, target)     # (N, 9, K)
+        self.iz = iz  # (N, K)
+        self.gt = np.einsum("ij,njk->nik", g, target)  # (N, 9, K)
         self.tgt = np.einsum("njk,njk->nk", target, self.gt)
         self.gat = np.einsum("j,njk->nk", self.ga, target)
         self.weights = weights
         self.black = iz <= 0.0
-        self.pairs = [(i, j, g[i, j] * (1.0 if i == j else 2.0))
-                      for i in range(9) for j in range(i, 9) if g[i, j] != 0.0]
+        self.pairs = [
+            (i, j, g[i, j] * (1.0 if i == j else 2.0)) for i in range(9) for j in range(i, 9) if g[i, j] != 0.0
+        ]
 
     def at_phi(self, phi: np.ndarray) -> FitAtPhi:
         return FitAtPhi(self, phi)
@@ -68,11 +77,11 @@ class FitAtPhi:
         g = phi_factors(phi)
         self.fit = fit
         n_fn = 6
-        self.hg = [0.0] * n_fn                                       # Σ g_j (G t)_j by function
-        self.ag = [0.0] * n_fn                                       # Σ g_j (G a)_j by function
+        self.hg = [0.0] * n_fn  # Σ g_j (G t)_j by function
+        self.ag = [0.0] * n_fn  # Σ g_j (G a)_j by function
         for j in range(9):
             f = FUNCTION_OF_COEFF[j]
-            self.hg[f] = self.hg[f] + g[j] * fit.gt[:, j, :].T       # (K, N)
+            self.hg[f] = self.hg[f] + g[j] * fit.gt[:, j, :].T  # (K, N)
             self.ag[f] = self.ag[f] + g[j] * fit.ga[j]
         pairs: dict[tuple, np.ndarray] = {}
         for i, j, coef in fit.pairs:
@@ -83,13 +92,13 @@ class FitAtPhi:
     def evaluate(self, theta: np.ndarray):
         fit = self.fit
         f = theta_functions(theta)
-        dgt = sum(fi * h for fi, h in zip(f, self.hg)).T             # dᵀG t, (N, K)
-        agd = sum(fi * h for fi, h in zip(f, self.ag))               # aᵀG d
-        dgd = sum(coef * (f[i] * f[j]) for (i, j), coef in self.pairs)   # dᵀG d
-        q = (fit.aga - 2.0 * agd + dgd)[:, None]                     # (a-d)ᵀG(a-d)
+        dgt = sum(fi * h for fi, h in zip(f, self.hg)).T  # dᵀG t, (N, K)
+        agd = sum(fi * h for fi, h in zip(f, self.ag))  # aᵀG d
+        dgd = sum(coef * (f[i] * f[j]) for (i, j), coef in self.pairs)  # dᵀG d
+        q = (fit.aga - 2.0 * agd + dgd)[:, None]  # (a-d)ᵀG(a-d)
         iz = fit.iz
-        b = fit.gat - dgt - iz * (agd - dgd)[:, None]                # (a-d)ᵀG (t - I_z d)
-        c = fit.tgt - 2.0 * iz * dgt + iz * iz * dgd[:, None]        # ‖t - I_z d‖²_G
+        b = fit.gat - dgt - iz * (agd - dgd)[:, None]  # (a-d)ᵀG (t - I_z d)
+        c = fit.tgt - 2.0 * iz * dgt + iz * iz * dgd[:, None]  # ‖t - I_z d‖²_G
         with np.errstate(divide="ignore", invalid="ignore"):
             w = b / (iz * np.maximum(q, 1e-300))
         w = np.clip(np.where(fit.black | ~np.isfinite(w), 1.0, w), 0.0, 1.0)
@@ -102,16 +111,16 @@ def prepare(world_sh, n, *, a, g, luminance, hemisphere_sampled):
     """Set-up of a chunk of sanitised texels (`(N, 9, C)` float64 world SH, unit normals `(N, 3)`):
     (fit, frames `(N, 3, 3)`, local SH used by the fit, I_z `(N, C)` ≥ 0, clamped `(N,)` bool,
     channel weights of the fit)."""
-    iz = irradz(world_sh, n, hemisphere_sampled)                         # (N, C)
+    iz = irradz(world_sh, n, hemisphere_sampled)  # (N, C)
     clamped = (iz < 0.0).any(axis=1)
     iz = np.maximum(iz, 0.0)
     lum = channel_weights(world_sh.shape[2])
     frames = _sh.tangent_frames(n)
-    if luminance:   # rotation is linear: rotate only the luminance, fit one channel
-        local = _sh.to_local(world_sh @ lum, frames)[..., None]         # (N, 9, 1)
+    if luminance:  # rotation is linear: rotate only the luminance, fit one channel
+        local = _sh.to_local(world_sh @ lum, frames)[..., None]  # (N, 9, 1)
         iz_fit, weights, lum_fit = (iz @ lum)[:, None], np.ones(1), np.ones(1)
     else:
-        local = _sh.to_local(world_sh, frames)                           # (N, 9, C)
+        local = _sh.to_local(world_sh, frames)  # (N, 9, C)
         iz_fit, weights, lum_fit = iz, lum, lum
     target = _sh.convolve_cosine(local)
     # Normalise each texel so the fit is scale-free (1e-8 and 1e8 behave alike, no overflow).

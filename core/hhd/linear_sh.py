@@ -1,5 +1,6 @@
 """HHD ↔ world-space linear (L1) radiance SH, in closed form: runtime blending of light sets
 (2024 paper, "HHD and linear SH"). No bpy."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,7 +20,7 @@ def to_linear_sh(p: HHDParams, n_v) -> np.ndarray:
     dz = np.einsum("ni,ni->n", p.direction, n_v)[:, None]
     ca = w * p.irradz
     cd = (1.0 - w) * p.irradz / dz
-    b = ca[:, None, :] * n_v[:, :, None] + cd[:, None, :] * p.direction[:, :, None]   # (N,3,C)
+    b = ca[:, None, :] * n_v[:, :, None] + cd[:, None, :] * p.direction[:, :, None]  # (N,3,C)
     k = np.sqrt(np.pi) / 2.0
     r3 = np.sqrt(3.0)
     return np.stack([k * (2.0 * ca + cd), -k * r3 * b[:, 1], k * r3 * b[:, 2], -k * r3 * b[:, 0]], axis=1)
@@ -41,8 +42,8 @@ def from_linear_sh(l1, n_v, min_cos: float = MIN_COS) -> HHDParams:
     n_v = n_v / np.linalg.norm(n_v, axis=1, keepdims=True)
     k = 2.0 / np.sqrt(np.pi)
     r3 = np.sqrt(3.0)
-    bc = k * l1[:, 0]                                                          # (N, C)
-    bxyz = k / r3 * np.stack([-l1[:, 3], -l1[:, 1], l1[:, 2]], axis=1)       # (N, 3, C)
+    bc = k * l1[:, 0]  # (N, C)
+    bxyz = k / r3 * np.stack([-l1[:, 3], -l1[:, 1], l1[:, 2]], axis=1)  # (N, 3, C)
     iz = np.maximum(np.einsum("nic,ni->nc", bxyz, n_v), 0.0)
     lum = channel_weights(l1.shape[2])
     bc_l, b_l, iz_l = bc @ lum, bxyz @ lum, iz @ lum
@@ -51,13 +52,20 @@ def from_linear_sh(l1, n_v, min_cos: float = MIN_COS) -> HHDParams:
     ca = np.clip((p_ - np.sqrt(disc)) / 3.0, 0.0, iz_l)
     dvec = b_l - ca[:, None] * n_v
     length = np.linalg.norm(dvec, axis=1)
-    d = np.where(length[:, None] > 1e-12 * np.maximum(iz_l, 1e-300)[:, None],
-                 dvec / np.maximum(length, 1e-300)[:, None], n_v)
+    d = np.where(
+        length[:, None] > 1e-12 * np.maximum(iz_l, 1e-300)[:, None], dvec / np.maximum(length, 1e-300)[:, None], n_v
+    )
     d = clamp_to_cone(d, n_v, min_cos)
     with np.errstate(divide="ignore", invalid="ignore"):
         w = np.where(iz_l > 0.0, ca / iz_l, 1.0)
-    return HHDParams(irradz=iz, ambient_weight=np.clip(w, 0.0, 1.0), direction=d, model="hhd",
-                     invalid=np.zeros(len(n_v), bool), clamped_irradz=np.zeros(len(n_v), bool))
+    return HHDParams(
+        irradz=iz,
+        ambient_weight=np.clip(w, 0.0, 1.0),
+        direction=d,
+        model="hhd",
+        invalid=np.zeros(len(n_v), bool),
+        clamped_irradz=np.zeros(len(n_v), bool),
+    )
 
 
 def clamp_to_cone(d: np.ndarray, n_v: np.ndarray, min_cos: float) -> np.ndarray:
@@ -66,5 +74,5 @@ def clamp_to_cone(d: np.ndarray, n_v: np.ndarray, min_cos: float) -> np.ndarray:
     tangent = d - cos[:, None] * n_v
     tl = np.linalg.norm(tangent, axis=1, keepdims=True)
     tangent = np.where(tl > 1e-12, tangent / np.maximum(tl, 1e-300), _sh.tangent_frames(n_v)[:, :, 0])
-    clamped = min_cos * n_v + np.sqrt(1.0 - min_cos ** 2) * tangent
+    clamped = min_cos * n_v + np.sqrt(1.0 - min_cos**2) * tangent
     return np.where((cos < min_cos)[:, None], clamped, d)

@@ -8,6 +8,7 @@ Irradiance is in DESIGN.md units: E(n) = (1/π) ∫ L max(n·ω, 0) dω. Lobes a
 local frame z = n_v; the directional lobe also in the factorised form d_j = f_j(θ) g_j(φ) the
 search evaluates (`theta_functions`, `phi_factors`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -35,6 +36,7 @@ class HHDParams:
     clamped_irradz  (N,) bool: I_z came out negative (SH ringing of full-sphere input, noise)
                     and was clamped to 0
     """
+
     irradz: np.ndarray
     ambient_weight: np.ndarray
     direction: np.ndarray
@@ -76,9 +78,17 @@ def phi_factors(phi: np.ndarray) -> list:
     """g_j(φ) of the directional lobe d_j = f_j(θ) g_j(φ), with π and the cosine kernel folded in."""
     c, s = np.cos(phi), np.sin(phi)
     k1, k2 = np.pi * 2.0 / 3.0, np.pi * 0.25
-    return [np.pi * _sh.Y00, -k1 * _sh.C1 * s, k1 * _sh.C1, -k1 * _sh.C1 * c,
-            k2 * _sh.C2 * c * s, -k2 * _sh.C2 * s, k2 * _sh.C20, -k2 * _sh.C2 * c,
-            k2 * _sh.C22 * (c * c - s * s)]
+    return [
+        np.pi * _sh.Y00,
+        -k1 * _sh.C1 * s,
+        k1 * _sh.C1,
+        -k1 * _sh.C1 * c,
+        k2 * _sh.C2 * c * s,
+        -k2 * _sh.C2 * s,
+        k2 * _sh.C20,
+        -k2 * _sh.C2 * c,
+        k2 * _sh.C22 * (c * c - s * s),
+    ]
 
 
 #: The 9 lobe coefficients use 6 distinct θ-functions (see `theta_functions`).
@@ -88,7 +98,7 @@ FUNCTION_OF_COEFF = (0, 1, 2, 1, 3, 4, 5, 4, 3)
 def theta_functions(theta: np.ndarray) -> list:
     """The θ-dependence of Y_j(d) / d_z, d_z = cos θ: [1/c, s/c, 1, s²/c, s, (3c²-1)/c]."""
     ct = np.cos(theta)
-    st = np.sqrt(np.maximum(1.0 - ct * ct, 0.0))      # θ ∈ [0, π/2]; cheaper than sin
+    st = np.sqrt(np.maximum(1.0 - ct * ct, 0.0))  # θ ∈ [0, π/2]; cheaper than sin
     inv = 1.0 / ct
     st_inv = st * inv
     return [inv, st_inv, 1.0, st * st_inv, st, (3.0 * ct * ct - 1.0) * inv]
@@ -105,7 +115,7 @@ def irradz(sh: np.ndarray, n_v: np.ndarray, hemisphere_sampled: bool = True) -> 
     the band-limited radiance; it can be negative from ringing (encode clamps it to 0).
     """
     if hemisphere_sampled:
-        return _sh.hemisphere_irradz(sh, n_v)          # sh.IRRADZ_FROM_R10 · r_1^0
+        return _sh.hemisphere_irradz(sh, n_v)  # sh.IRRADZ_FROM_R10 · r_1^0
     return _sh.irradiance(sh, n_v)
 
 

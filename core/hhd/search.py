@@ -7,13 +7,14 @@ golden-section search (a fixed number of iterations for all texels), keeping the
 search and the optimal linear θ; `phi_search` adds an outer scan + golden-section over φ.
 θ_max = arccos(MIN_COS): the floor on d·n_v. Everything is vectorised over texels.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from .fit import Fit
 
-SCAN_STEPS = 9          # θ samples of the coarse scan, end points included
+SCAN_STEPS = 9  # θ samples of the coarse scan, end points included
 GOLDEN_ITERATIONS = 14  # bracket 2θ_max/8 · 0.618^14 ≈ 5e-4 rad
 PHI_SCAN_STEPS = 8
 PHI_GOLDEN_ITERATIONS = 8
@@ -28,25 +29,30 @@ def golden(f, lo: np.ndarray, hi: np.ndarray, iterations: int):
     x2 = lo + _INV_PHI * (hi - lo)
     f1, f2 = f(x1), f(x2)
     for _ in range(iterations):
-        left = f1 < f2                          # minimum in [lo, x2]
+        left = f1 < f2  # minimum in [lo, x2]
         hi = np.where(left, x2, hi)
         lo = np.where(left, lo, x1)
         x_new = np.where(left, hi - _INV_PHI * (hi - lo), lo + _INV_PHI * (hi - lo))
         f_new = f(x_new)
-        x1, x2, f1, f2 = (np.where(left, x_new, x2), np.where(left, x1, x_new),
-                          np.where(left, f_new, f2), np.where(left, f1, f_new))
+        x1, x2, f1, f2 = (
+            np.where(left, x_new, x2),
+            np.where(left, x1, x_new),
+            np.where(left, f_new, f2),
+            np.where(left, f1, f_new),
+        )
     best_is_1 = f1 < f2
     return np.where(best_is_1, x1, x2), np.where(best_is_1, f1, f2)
 
 
-def search_theta(fit: Fit, phi: np.ndarray, theta_start: np.ndarray, theta_max: float,
-                 iterations: int = GOLDEN_ITERATIONS):
+def search_theta(
+    fit: Fit, phi: np.ndarray, theta_start: np.ndarray, theta_max: float, iterations: int = GOLDEN_ITERATIONS
+):
     """Best θ at fixed φ: coarse scan of [0, θ_max], golden-section in the best bracket, and the
     starting θ (the optimal linear one) as a candidate. Returns (θ, objective), each `(N,)`."""
     n = len(phi)
     at = fit.at_phi(phi)
     grid = np.linspace(0.0, theta_max, SCAN_STEPS)
-    scan = np.stack([at.evaluate(np.full(n, t))[0] for t in grid], axis=1)   # (N, S)
+    scan = np.stack([at.evaluate(np.full(n, t))[0] for t in grid], axis=1)  # (N, S)
     k = np.argmin(scan, axis=1)
     step = grid[1] - grid[0]
     lo = np.clip(grid[k] - step, 0.0, theta_max)
@@ -59,8 +65,7 @@ def search_theta(fit: Fit, phi: np.ndarray, theta_start: np.ndarray, theta_max: 
     return candidates[rows, best], errors[rows, best]
 
 
-def search_phi(fit: Fit, phi0: np.ndarray, theta0: np.ndarray, theta_max: float,
-               iterations: int = GOLDEN_ITERATIONS):
+def search_phi(fit: Fit, phi0: np.ndarray, theta0: np.ndarray, theta_max: float, iterations: int = GOLDEN_ITERATIONS):
     """Outer search over φ (scan of the full circle, then golden-section around the best), with
     the inner θ search at each φ. Returns (θ, φ), each `(N,)`."""
     n = len(phi0)
@@ -70,8 +75,12 @@ def search_phi(fit: Fit, phi0: np.ndarray, theta0: np.ndarray, theta_max: float,
     k = np.argmin(errs, axis=1)
     half = np.pi / PHI_SCAN_STEPS
     phi_best_scan = phi0 + offsets[k]
-    phi, _ = golden(lambda p: search_theta(fit, p, theta0, theta_max, iterations)[1],
-                    phi_best_scan - half, phi_best_scan + half, PHI_GOLDEN_ITERATIONS)
+    phi, _ = golden(
+        lambda p: search_theta(fit, p, theta0, theta_max, iterations)[1],
+        phi_best_scan - half,
+        phi_best_scan + half,
+        PHI_GOLDEN_ITERATIONS,
+    )
     theta, err = search_theta(fit, phi, theta0, theta_max, iterations)
     scan_theta = np.stack([r[0] for r in results], axis=1)[np.arange(n), k]
     better_scan = errs[np.arange(n), k] < err

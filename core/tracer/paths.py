@@ -208,5 +208,5 @@ def seed(rng: np.random.Generator) -> int:
 
 
 def take_rows(a: np.ndarray, i: np.ndarray) -> np.ndarray:
-    """a[i] along the first axis; np.take is ~4× faster than fancy indexing for 2-D rows."""
+    """a[i] along the first axis; np.take is faster than fancy indexing for 2-D rows."""
     return a[i] if a.ndim == 1 else np.take(a, i, axis=0)
