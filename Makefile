@@ -16,7 +16,7 @@ PY         := $(VENV)/bin/python
 PY_OLD     := $(VENV_OLD)/bin/python
 PYTEST_ARGS ?=
 
-.PHONY: setup setup-4.2 setup-check check demo test test-new test-old test-fast package bench clean
+.PHONY: setup setup-4.2 setup-check check demo test test-new test-old test-fast package oidn-weights bench clean
 
 setup: $(VENV)/.installed
 setup-4.2: $(VENV_OLD)/.installed
@@ -80,8 +80,12 @@ test-fast: setup
 package: setup
 	$(PY) tools/build_extension.py --output-dir dist
 
+# OIDN's RTLightmap weights into oidn_weights/ (also done by every package build)
+oidn-weights: setup
+	$(PY) tools/fetch_oidn_weights.py
+
 bench: setup
 	$(PY) bench/encoder.py
 
 clean:
-	rm -rf $(VENV) $(VENV_OLD) dist out build wheels *.egg-info .pytest_cache .ruff_cache .mypy_cache
+	rm -rf $(VENV) $(VENV_OLD) dist out build wheels *.egg-info .pytest_cache .ruff_cache .mypy_cache oidn_weights/*.tza

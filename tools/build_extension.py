@@ -2,7 +2,8 @@
 
     python tools/build_extension.py [--output-dir dist]
 
-Steps: download the manifest's wheels (tools/fetch_wheels.py), then run Blender's
+Steps: download the manifest's wheels (tools/fetch_wheels.py) and extract OIDN's lightmap weights
+into oidn_weights/ (tools/fetch_oidn_weights.py; both hash-checked and cached), then run Blender's
 `blender_ext.py build --split-platforms` and `blender_ext.py validate` on every zip. The tool is
 the script behind `blender --command extension build/validate`; it ships inside the `bpy` wheel
 and runs with plain Python, so no Blender install is needed. Pass --blender to use a Blender
@@ -18,6 +19,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import fetch_oidn_weights  # noqa: E402
 import fetch_wheels  # noqa: E402
 
 ROOT = fetch_wheels.ROOT
@@ -40,6 +42,7 @@ def extension_tool(blender: str | None) -> list[str]:
 def build(output_dir: Path, blender: str | None = None) -> list[Path]:
     """Build one validated zip per declared platform into output_dir; return their paths."""
     fetch_wheels.fetch()
+    fetch_oidn_weights.fetch()  # shipped in every zip: oidn_weights/*.tza
     output_dir.mkdir(parents=True, exist_ok=True)
     for old in output_dir.glob("hhd_lightmapper-*.zip"):
         old.unlink()
