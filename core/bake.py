@@ -1,4 +1,4 @@
-"""The bake pipeline over atlases: bake points → trace → image → encode → write. No bpy.
+"""The bake pipeline over atlases: bake points → trace → image → post stages → encode → write. No bpy.
 
 `run` is what the Bake operator (modal or not) and the command line both call, after the bpy side
 has read the scene into plain data (`AtlasInput`, `BakeScene`). It never touches the scene: its
@@ -47,19 +47,27 @@ class AtlasInput:
 
 @dataclass
 class PipelineSettings:
-    """trace: the tracer's settings; encoder: the encoding and its options (`core.encoding`)."""
+    """trace: the tracer's settings; encoder: the encoding and its options (`core.encoding`);
+    denoise: run the denoise post stage (`core.post`), through the Open Image Denoise library at
+    `denoiser_library` (the bpy side finds Blender's; "" = none: the bake is then undenoised, with
+    a warning)."""
 
     trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
     encoder: EncoderSettings = field(default_factory=EncoderSettings)
+    denoise: bool = False
+    denoiser_library: str = ""
 
 
 @dataclass
 class AtlasResult:
+    """One written atlas: seconds per stage; warnings: what a post stage could not do (e.g. no denoiser)."""
+
     name: str
     files: lightmap_files.AtlasFiles
     texels: int
     rays: int
     seconds: dict
+    warnings: list[str] = field(default_factory=list)
 
 
 class Progress:
@@ -186,9 +194,10 @@ def run(
             traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
             done_texels += len(pts.texel)
             _check_cancel(cancel)
-            traced = post.apply(traced, settings)
             # each atlas is written as soon as it is traced: its SH lives on only as float32 images
-            results.append(_write(staging, atlas, traced, settings, Path(out_dir), t_points, extra_sidecar or {}))
+            results.append(
+                _write(staging, atlas, traced, settings, Path(out_dir), t_points, extra_sidecar or {}, cancel)
+            )
             del traced
             report.report(
                 _STAGES[0] + _STAGES[1] * done_texels / total_texels + _STAGES[2] * (i + 1) / len(atlases),
@@ -216,9 +225,10 @@ def _write(
     out_dir: Path,
     t_points: float,
     extra: dict,
+    cancel=None,
 ) -> AtlasResult:
-    """The last stages of one atlas: image → encode → write (files staged, committed with the
-    other atlases' at the end)."""
+    """The last stages of one atlas: image → post stages → encode → write (files staged,
+    committed with the other atlases' at the end). The raw SH file keeps the SH as traced."""
     t = time.perf_counter()
     files = lightmap_files.AtlasFiles(out_dir, atlas.name)
     seconds = {"bake_points": t_points, "trace": traced.seconds}
@@ -237,18 +247,29 @@ def _write(
             "timings_seconds": seconds,
         }
     )
-    data = encoding.TexelData.from_points(traced.points, traced.sh)  # image
-    encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder))  # encode
-    del data
+    raw = encoding.TexelData.from_points(traced.points, traced.sh, traced.sh_error)  # image
+    data, sidecar["post"] = post.apply(raw, settings, lambda: _check_cancel(cancel))  # post stages
+    seconds["post"] = time.perf_counter() - t
+    encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=raw)  # encode
+    del data, raw
     lightmap_files.write_atlas(staging, files, encoded, sidecar)  # write
-    seconds["encode_and_write"] = time.perf_counter() - t
-    return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds)
+    seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
+    warnings = [f"atlas '{atlas.name}', {w}" for w in post.warnings(sidecar["post"])]
+    return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds, warnings)
 
 
-def reencode(files: lightmap_files.AtlasFiles, encoder: EncoderSettings, threads: int = 0) -> float:
-    """Encode an atlas again from its SH and texel EXRs with other encoder settings (no tracing):
-    read → encode → write, the stages of a bake; replaces the encoded EXR and the sidecar atomically. `threads` (0 = every core) read and compress
-    the EXRs; the sidecar records it as `reencode_threads`. Returns the seconds it took."""
+def reencode(
+    files: lightmap_files.AtlasFiles,
+    encoder: EncoderSettings,
+    threads: int = 0,
+    denoise: bool = False,
+    denoiser_library: str = "",
+) -> tuple[float, list[str]]:
+    """Encode an atlas again from its raw SH and texel EXRs (the SH as traced) with other encoder
+    or post-stage settings (no tracing): read → post stages → encode → write, the stages of a
+    bake; replaces the encoded EXR and the sidecar atomically (the raw files stay). `threads`
+    (0 = every core) read and compress the EXRs and run the denoiser; the sidecar records it as
+    `reencode_threads`. Returns the seconds it took and the post stages' warnings."""
     t = time.perf_counter()
     threads = parallel.resolve_threads(threads)
     exr.set_threads(threads)
@@ -256,9 +277,16 @@ def reencode(files: lightmap_files.AtlasFiles, encoder: EncoderSettings, threads
     data = lightmap_files.read_texel_data(files)
     sidecar["reencoded_from_sh"] = True
     sidecar["reencode_threads"] = threads
+    settings = PipelineSettings(
+        trace=tracer.BakeSettings(threads=threads),
+        encoder=encoder,
+        denoise=denoise,
+        denoiser_library=denoiser_library,
+    )
+    data, sidecar["post"] = post.apply(data, settings)
     encoded = encoding.encode_atlas(data, encoding.for_settings(encoder), raw=False)
     del data
     with exr.Staging() as staging:
         lightmap_files.write_atlas(staging, files, encoded, sidecar)
         staging.commit()
-    return time.perf_counter() - t
+    return time.perf_counter() - t, [f"atlas '{files.name}', {w}" for w in post.warnings(sidecar["post"])]

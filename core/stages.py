@@ -1,17 +1,14 @@
 """The data handed from one bake stage to the next. No bpy.
 
-    bake points ─trace─▶ TracedAtlas ─[post stages]─▶ TracedAtlas ─image─▶ TexelData ─encode─▶ EncodedAtlas ─write─▶ files
+    bake points ─trace─▶ TracedAtlas ─image─▶ TexelData ─[post stages]─▶ TexelData ─encode─▶ EncodedAtlas ─write─▶ files
 
 Every hand-off is plain numpy data (picklable, no live Embree object), so a stage can run in
-another process or on another machine. A post stage (a denoiser, seam stitching) is a function
-`TracedAtlas -> TracedAtlas` (`PostStage`): it reads the SH and its standard error and returns new
-ones for the same texels; `core.bake.run` applies the configured post stages in order between
-tracing and encoding.
+another process or on another machine. The post stages (a denoiser, seam stitching; `core.post`)
+work on the texel images, so a re-encode from the raw SH file can run them too.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -54,9 +51,5 @@ class TracedAtlas:
         return float(self.texel_samples.mean()) if len(self.texel_samples) else 0.0
 
     def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TracedAtlas:
-        """A copy carrying new SH (and standard error) for the same texels: what a post stage returns."""
+        """A copy carrying new SH (and standard error) for the same texels."""
         return replace(self, sh=sh, sh_error=self.sh_error if sh_error is None else sh_error)
-
-
-#: A stage between tracing and encoding (denoising, seam stitching): same texels in and out.
-PostStage = Callable[[TracedAtlas], TracedAtlas]

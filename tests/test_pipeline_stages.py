@@ -1,11 +1,12 @@
 """The pipeline's stages in core/bake.py (no Blender): a post stage plugs in at core/post.py and
-receives the traced atlas; `trace_surface` is stages 1–2 of `run`."""
+receives the atlas's texel images; `trace_surface` is stages 1–2 of `run`."""
+
+from dataclasses import replace
 
 import numpy as np
 
-from hhd_lightmapper.core import bake, bakepoints, exr, lightmap_files, post, unwrap
+from hhd_lightmapper.core import bake, bakepoints, encoding, exr, lightmap_files, post, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
-from hhd_lightmapper.core.stages import TracedAtlas
 from hhd_lightmapper.core.tracer import BakeSettings
 from scenekit import meshes
 
@@ -34,24 +35,30 @@ def written_sh(folder) -> np.ndarray:
     return np.stack([channels[n] for n in lightmap_files.SH_CHANNELS], -1)
 
 
-def test_a_post_stage_receives_the_traced_atlas_and_its_output_is_what_gets_encoded(tmp_path, monkeypatch):
+def test_a_post_stage_receives_the_texel_images_and_its_output_is_what_gets_encoded(tmp_path, monkeypatch):
     surface, scene = plane()
     settings = bake.PipelineSettings(trace=BakeSettings(samples=8, pass_samples=4, bounces=1, seed=3))
     atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
     bake.run([atlas], scene, settings, tmp_path / "plain")
     seen = []
 
-    def double(traced: TracedAtlas) -> TracedAtlas:
-        seen.append(traced)
-        return traced.with_sh(2.0 * traced.sh)
+    def double(data: encoding.TexelData, check) -> tuple[encoding.TexelData, dict]:
+        check()
+        seen.append(data)
+        return replace(data, sh=2.0 * data.sh), {"enabled": True, "factor": 2}
 
-    monkeypatch.setattr(post, "stages_for", lambda s: [double])
+    monkeypatch.setattr(post, "stages_for", lambda s: [("double", double)])
     bake.run([atlas], scene, settings, tmp_path / "doubled")
-    (traced,) = seen
-    assert traced.sh.shape == traced.sh_error.shape == (len(traced.points.texel), 9, 3)
-    assert (traced.texel_samples == 8).all() and traced.passes == 2
-    assert (traced.sh_error > 0).any()  # the spread between passes reaches the post stages
-    np.testing.assert_array_equal(written_sh(tmp_path / "doubled"), 2.0 * written_sh(tmp_path / "plain"))
+    (data,) = seen
+    assert data.sh.shape == data.sh_error.shape == (RES, RES, 9, 3)
+    assert (data.sh_error[data.baked] > 0).any()  # the spread between passes reaches the post stages
+    # the raw SH file keeps the SH as traced; the encoding is of the stage's output
+    np.testing.assert_array_equal(written_sh(tmp_path / "doubled"), written_sh(tmp_path / "plain"))
+    plain, doubled = (lightmap_files.AtlasFiles(tmp_path / k, "Lightmap") for k in ("plain", "doubled"))
+    irradiance = [exr.read(f.hhd)[0]["Iz.R"] for f in (plain, doubled)]
+    np.testing.assert_allclose(irradiance[1], 2.0 * irradiance[0], rtol=1e-5)
+    assert lightmap_files.read_sidecar(doubled.sidecar)["post"]["double"] == {"enabled": True, "factor": 2}
+    assert lightmap_files.read_sidecar(plain.sidecar)["post"] == {"denoise": {"enabled": False}}
 
 
 def test_trace_surface_is_the_first_two_stages_of_a_bake(tmp_path):

@@ -90,15 +90,16 @@ class EncodedAtlas:
     stats: dict
 
 
-def encode_atlas(data: TexelData, encoding: Encoding, raw: bool = True) -> EncodedAtlas:
+def encode_atlas(data: TexelData, encoding: Encoding, raw: bool | TexelData = True) -> EncodedAtlas:
     """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
-    files' images (a re-encode keeps the files it read)."""
+    files' images: of `data` (True), of another TexelData of the same atlas (the SH as traced,
+    when post stages changed `data`), or none (False: a re-encode keeps the files it read)."""
     h, w = data.coverage.shape
     fill = data.fill()
     images, summary = encode_images(data, encoding, fill)
     files = {encoding.file.key: (encoding.file, images)}
-    if raw:
-        layers = data.layers()
+    if raw is not False:
+        layers = (data if raw is True else raw).layers()
         for spec in (SH_FILE, TEXELS_FILE):
             files[spec.key] = (spec, raw_images(spec, layers, fill))
     stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.black)), **summary}

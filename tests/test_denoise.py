@@ -1,0 +1,201 @@
+"""core/denoise.py and the denoise post stage, without Blender's UI: chart labelling and pages
+(pure numpy), then the filter on synthetic atlases and in the bake pipeline through Blender's own
+OIDN library (the fixtures of test_oidn.py: skipped with the reason when it or the weights are absent)."""
+
+from collections import deque
+
+import numpy as np
+import pytest
+
+from hhd_lightmapper.core import bake, denoise, encoding, exr, lightmap_files, oidn, post, sh
+from hhd_lightmapper.core.tracer import BakeSettings
+from test_oidn import bpy_library_dirs, denoiser, library  # noqa: F401  (fixtures)
+from test_pipeline_stages import RES, plane
+
+
+def bfs_labels(mask: np.ndarray) -> tuple[np.ndarray, int]:
+    """8-connected components by breadth-first search: the slow, obvious reference."""
+    h, w = mask.shape
+    labels = np.full((h, w), -1)
+    n = 0
+    for y, x in zip(*np.nonzero(mask)):
+        if labels[y, x] >= 0:
+            continue
+        labels[y, x] = n
+        queue = deque([(y, x)])
+        while queue:
+            cy, cx = queue.popleft()
+            for ny in range(max(cy - 1, 0), min(cy + 2, h)):
+                for nx in range(max(cx - 1, 0), min(cx + 2, w)):
+                    if mask[ny, nx] and labels[ny, nx] < 0:
+                        labels[ny, nx] = n
+                        queue.append((ny, nx))
+        n += 1
+    return labels, n
+
+
+@pytest.mark.parametrize("density", [0.0, 0.15, 0.4, 0.55, 0.7, 1.0])
+def test_chart_labels_are_the_8_connected_components(density):
+    mask = np.random.default_rng(int(density * 100)).random((57, 83)) < density
+    labels, n = denoise.label_charts(mask)
+    expected, m = bfs_labels(mask)
+    assert n == m
+    assert ((labels >= 0) == mask).all()
+    # the same partition: each of our labels maps to exactly one reference label and back
+    pairs = set(zip(labels[mask].tolist(), expected[mask].tolist()))
+    assert len(pairs) == n == len({a for a, _ in pairs}) == len({b for _, b in pairs})
+
+
+def test_diagonal_touch_joins_and_a_one_texel_gap_separates():
+    mask = np.zeros((6, 9), bool)
+    mask[1, 1] = mask[2, 2] = True  # diagonal neighbours: one chart
+    mask[1, 4] = mask[1, 6] = True  # a gap of one texel: two charts
+    labels, n = denoise.label_charts(mask)
+    assert n == 3 and labels[1, 1] == labels[2, 2] and labels[1, 4] != labels[1, 6]
+
+
+def test_pages_hold_every_lit_chart_once_without_overlap_and_within_a_brightness_band():
+    rng = np.random.default_rng(7)
+    mask = np.zeros((300, 300), bool)
+    for _ in range(120):
+        y, x = rng.integers(0, 290, 2)
+        mask[y : y + rng.integers(1, 9), x : x + rng.integers(1, 9)] = True
+    mask[10:200, 250:260] = True  # a tall chart
+    labels, n = denoise.label_charts(mask)
+    brightness = 10.0 ** rng.uniform(-3, 3, n)
+    brightness[:5] = 0.0  # black charts are left alone
+    pages = denoise.layout(labels, n, brightness)
+    placed = [c for p in pages for c in p.charts]
+    assert sorted(placed) == list(range(5, n))
+    for page in pages:
+        b = brightness[page.charts]
+        assert b.max() / b.min() <= denoise.BRIGHTNESS_BAND
+        used = np.zeros(page.shape, int)
+        for (_, _, rh, rw), (py, px) in zip(page.rects, page.corners):
+            used[py : py + rh, px : px + rw] += 1
+        assert used.max() == 1  # rectangles (margins included) never overlap
+
+
+def atlas_data(charts: list[tuple[slice, slice, float]], size=128, noise=0.3, seed=0) -> encoding.TexelData:
+    """A synthetic atlas: per chart (rows, cols, radiance), uniform sky-like radiance with the
+    band-1 vector along +z (normals +z), multiplicative noise on every coefficient."""
+    rng = np.random.default_rng(seed)
+    sh = np.zeros((size, size, 9, 3), np.float32)
+    coverage = np.zeros((size, size), np.float32)
+    for rows, cols, radiance in charts:
+        coverage[rows, cols] = 1.0
+        block = sh[rows, cols]
+        block[..., 0, :] = radiance * np.sqrt(np.pi)  # L0 of uniform radiance over the upper hemisphere
+        block[..., 2, :] = radiance * np.sqrt(3.0 * np.pi) / 2.0  # r_1^0: I_z = radiance
+        block *= (1.0 + noise * rng.standard_normal(block.shape[:2] + (1, 1))).clip(0.05, None)
+        sh[rows, cols] = block
+    normal = np.zeros((size, size, 3), np.float32)
+    normal[..., 2] = 1.0
+    return encoding.TexelData(sh=sh, normal=normal, coverage=coverage)
+
+
+def iz(data: encoding.TexelData) -> np.ndarray:
+    """I_z `(H, W, 3)` of every texel."""
+    h, w = data.coverage.shape
+    return sh.hemisphere_irradz(data.sh.reshape(-1, 9, 3), data.normal.reshape(-1, 3)).reshape(h, w, 3)
+
+
+def test_a_dark_chart_beside_a_bright_one_is_denoised_as_if_alone(denoiser):  # noqa: F811
+    dark, bright = (slice(20, 100), slice(10, 60), 1.0), (slice(20, 100), slice(63, 120), 100.0)
+    both = atlas_data([dark, bright])
+    alone = atlas_data([dark])
+    out_both, report = denoise.denoise_texels(both, denoiser)
+    out_alone, _ = denoise.denoise_texels(alone, denoiser)
+    region = (dark[0], dark[1])
+    assert report.charts == 2 and report.pages == 2  # 100x apart: never in one page
+    np.testing.assert_array_equal(out_both.sh[region], out_alone.sh[region])
+    before, after = iz(both)[region].mean(), iz(out_both)[region].mean()
+    assert abs(after / before - 1.0) < 0.01
+    # and the denoiser did its job on both charts
+    for rows, cols, radiance in (dark, bright):
+        raw = np.sqrt(np.mean((iz(both)[rows, cols] - radiance) ** 2))
+        clean = np.sqrt(np.mean((iz(out_both)[rows, cols] - radiance) ** 2))
+        assert clean < 0.3 * raw, (radiance, clean / raw)
+
+
+def test_charts_sharing_a_page_stay_within_one_percent(denoiser):  # noqa: F811
+    """Two charts 2x apart in brightness share a page (MARGIN texels of their own values each):
+    each one's mean I_z moves by less than 1% against denoising it alone."""
+    a, b = (slice(30, 70), slice(20, 50), 1.0), (slice(30, 70), slice(53, 83), 2.0)
+    _, report = denoise.denoise_texels(atlas_data([a, b]), denoiser)
+    assert report.pages == 1
+    together, _ = denoise.denoise_texels(atlas_data([a, b]), denoiser)
+    for chart in (a, b):
+        alone, _ = denoise.denoise_texels(atlas_data([chart]), denoiser)
+        region = (chart[0], chart[1])
+        assert abs(iz(together)[region].mean() / iz(alone)[region].mean() - 1.0) < 0.01
+
+
+def test_black_huge_and_nan_texels_give_finite_output(denoiser):  # noqa: F811
+    data = atlas_data([(slice(10, 40), slice(10, 40), 0.0), (slice(50, 90), slice(10, 60), 1e6)])
+    data.sh[60, 20] = np.nan
+    data.sh[61, 21, 2] = np.inf
+    out, _ = denoise.denoise_texels(data, denoiser)
+    assert np.isfinite(out.sh).all()
+    assert not out.sh[10:40, 10:40].any()  # black stays black
+    assert abs(iz(out)[50:90, 10:60].mean() / 1e6 - 1.0) < 0.05
+    assert not out.sh[data.coverage == 0].any()  # outside the charts nothing is written
+
+
+def test_buried_and_empty_texels_are_neither_used_nor_changed(denoiser):  # noqa: F811
+    data = atlas_data([(slice(10, 60), slice(10, 60), 1.0)])
+    data.coverage[30:35, 30:35] = -1.0  # buried: black in the files
+    data.sh[30:35, 30:35] = 1e4  # would light its neighbours if the filter saw it
+    out, _ = denoise.denoise_texels(data, denoiser)
+    np.testing.assert_array_equal(out.sh[30:35, 30:35], data.sh[30:35, 30:35])
+    assert abs(iz(out)[25:40, 25:40][data.coverage[25:40, 25:40] > 0].mean() - 1.0) < 0.1
+
+
+def test_no_denoiser_means_an_undenoised_bake_with_a_warning_never_a_failure(tmp_path):
+    surface, scene = plane()
+    atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
+    trace = BakeSettings(samples=8, pass_samples=4, bounces=1, seed=3)
+    off = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "off")
+    missing = bake.run(
+        [atlas], scene, bake.PipelineSettings(trace=trace, denoise=True, denoiser_library=""), tmp_path / "missing"
+    )
+    assert off[0].warnings == []
+    assert "Open Image Denoise library not found" in missing[0].warnings[0]
+    assert read(missing[0].files.hhd) == read(off[0].files.hhd)
+    record = lightmap_files.read_sidecar(missing[0].files.sidecar)["post"]["denoise"]
+    assert record["enabled"] and not record["applied"] and "not found" in record["warning"]
+
+
+def read(path) -> dict:
+    return {k: v.tobytes() for k, v in exr.read(path)[0].items()}
+
+
+def test_denoised_bake_keeps_the_raw_sh_and_reencode_switches_denoising_off_and_on(tmp_path, library, denoiser):  # noqa: F811
+    surface, scene = plane()
+    atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
+    trace = BakeSettings(samples=8, pass_samples=4, bounces=1, seed=3)
+    off = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "off")[0]
+    on = bake.run(
+        [atlas], scene, bake.PipelineSettings(trace=trace, denoise=True, denoiser_library=str(library)), tmp_path / "on"
+    )[0]
+    assert on.warnings == []
+    record = lightmap_files.read_sidecar(on.files.sidecar)["post"]["denoise"]
+    assert record["applied"] and record["oidn_version"] == denoiser.version and record["charts"] >= 1
+    assert read(on.files.sh) == read(off.files.sh)  # the SH as traced
+    denoised = read(on.files.hhd)
+    assert denoised != read(off.files.hhd)
+    _, warnings = bake.reencode(on.files, bake.EncoderSettings(), threads=2, denoise=False)
+    assert warnings == [] and read(on.files.hhd) == read(off.files.hhd)
+    assert lightmap_files.read_sidecar(on.files.sidecar)["post"]["denoise"] == {"enabled": False}
+    bake.reencode(on.files, bake.EncoderSettings(), threads=2, denoise=True, denoiser_library=str(library))
+    assert read(on.files.hhd) == denoised
+
+
+def test_missing_weights_are_reported_not_raised(tmp_path, library, monkeypatch):  # noqa: F811
+    monkeypatch.setattr(oidn, "WEIGHTS_DIR", tmp_path)
+    monkeypatch.setattr(denoise, "_DENOISERS", {})
+    monkeypatch.setattr(oidn.Denoiser.__init__, "__defaults__", (0, tmp_path))
+    data = atlas_data([(slice(10, 40), slice(10, 40), 1.0)])
+    settings = bake.PipelineSettings(denoise=True, denoiser_library=str(library))
+    out, records = post.apply(data, settings)
+    assert out is data and "weights missing" in records["denoise"]["warning"]
