@@ -194,6 +194,7 @@ def run(
             traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
             done_texels += len(pts.texel)
             _check_cancel(cancel)
+            on_trace(1.0, "denoising and encoding" if settings.denoise else "encoding")
             # each atlas is written as soon as it is traced: its SH lives on only as float32 images
             results.append(
                 _write(staging, atlas, traced, settings, Path(out_dir), t_points, extra_sidecar or {}, cancel)

@@ -257,48 +257,48 @@ def _page_texels(page: Page, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray
 def _denoise_page(
     values: np.ndarray, normal: np.ndarray, source: np.ndarray, denoiser: Denoiser, scales: tuple[float, float]
 ) -> np.ndarray:
-    """One page: SH `(h, w, 9, 3)` and unit n_v `(h, w, 3)`, chart texels `source`. The other
-    texels are filled from the nearest chart texel (2·MARGIN rings; the page mean beyond), then
-    L0 and I_z are denoised as HDR colour (`scales`: their inputScale), the rest of band 1 (its
-    part across n_v) and band 2 in directional mode over the denoised L0 (module docstring).
-    Returns `(h, w, 9, 3)` float32."""
-    sh, n = _smooth_fill(values, normal, source)
-    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)[..., :]
-    v = _band1_vector(sh)  # (h, w, 3 axes, 3 colours)
+    """One page: SH `(h, w, 9, 3)` and unit n_v `(h, w, 3)` at its chart texels `source`. L0 and
+    I_z (RGB), band 1 across n_v and band 2 (luminance) are taken at the chart texels, filled
+    smoothly elsewhere (`_smooth_fill`), then L0 and I_z denoised as HDR colour (`scales`: their
+    inputScale) and the rest in directional mode over the denoised L0 (module docstring).
+    Returns `(h, w, 9, 3)` float32, meaningful at the chart texels."""
+    n = normal.astype(np.float64)
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    v = _band1_vector(values.astype(np.float64))  # (h, w, 3 axes, 3 colours)
     along = np.einsum("hwa,hwac->hwc", n, v)
-    across = v - n[..., None] * along[:, :, None, :]
-    l0 = np.maximum(denoiser.denoise(sh[:, :, 0, :].astype(np.float32), input_scale=scales[0]), 0.0)
-    iz = IRRADZ_FROM_R10 * np.maximum(along, 0.0)
-    iz = np.maximum(denoiser.denoise(iz.astype(np.float32), input_scale=scales[1]), 0.0)
+    across = np.einsum("hwac,c->hwa", v - n[..., None] * along[:, :, None, :], LUMINANCE)
+    features = np.concatenate(
+        [values[:, :, 0, :], IRRADZ_FROM_R10 * np.maximum(along, 0.0), across, values[:, :, 4:, :] @ LUMINANCE],
+        axis=-1,
+    )
+    features = _smooth_fill(features, source)
+    l0 = np.maximum(denoiser.denoise(features[..., 0:3].astype(np.float32), input_scale=scales[0]), 0.0)
+    iz = np.maximum(denoiser.denoise(features[..., 3:6].astype(np.float32), input_scale=scales[1]), 0.0)
     # the rest in luminance over luminance L0 (one direction for all colours, as HHD keeps), scaled by each colour's L0
     l0_lum = l0 @ LUMINANCE
-    across = _directional(np.einsum("hwac,c->hwa", across, LUMINANCE), l0_lum, math.sqrt(3.0), denoiser)
+    across = _directional(features[..., 6:9], l0_lum, math.sqrt(3.0), denoiser)
     across -= n * np.einsum("hwa,hwa->hw", n, across)[..., None]
-    band2 = _directional(sh[:, :, 4:, :] @ LUMINANCE, l0_lum, math.sqrt(5.0), denoiser)
+    band2 = _directional(features[..., 9:14], l0_lum, math.sqrt(5.0), denoiser)
     colour = l0 / np.where(l0_lum > 0.0, l0_lum, 1.0)[..., None]  # (h, w, 3): L0 of each colour / luminance L0
     v = across[..., None] * colour[:, :, None, :] + n[..., None] * (iz / IRRADZ_FROM_R10)[:, :, None, :]
-    out = np.empty(sh.shape, np.float32)
+    out = np.empty(values.shape, np.float32)
     out[:, :, 0, :] = l0
     out[:, :, 1, :], out[:, :, 2, :], out[:, :, 3, :] = -v[:, :, 1], v[:, :, 2], -v[:, :, 0]
     out[:, :, 4:, :] = band2[..., None] * colour[:, :, None, :]
     return out
 
 
-def _smooth_fill(values: np.ndarray, normal: np.ndarray, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The page's non-chart texels filled smoothly (float64): within FILL_BLUR texels of a chart
-    texel, the mean of the chart texels in the (2·FILL_BLUR + 1)² box around it (copying the nearest
-    texel would repeat its noise in streaks, which the filter keeps as detail); farther, the
-    nearest such texel (2·MARGIN rings), beyond that the page mean."""
+def _smooth_fill(image: np.ndarray, source: np.ndarray) -> np.ndarray:
+    """`image` `(h, w, c)` with its non-chart texels filled smoothly (float64): within FILL_BLUR
+    texels of a chart texel, the mean of the chart texels in the (2·FILL_BLUR + 1)² box around it
+    (copying the nearest texel would repeat its noise in streaks, which the filter keeps as
+    detail); farther, the nearest such texel (2·MARGIN rings), beyond that the page mean."""
     weight = _box_sum(source.astype(np.float64)[..., None], FILL_BLUR)[..., 0]
     near = weight > 0.0
     inv = np.where(near, 1.0 / np.where(near, weight, 1.0), 0.0)
-    fill = dilate.Fill(near, 2 * MARGIN)
-    out = []
-    for image in (values, normal):
-        flat = image.reshape(image.shape[:2] + (-1,)).astype(np.float64)
-        mean = _box_sum(flat * source[..., None], FILL_BLUR) * inv[..., None]
-        out.append(fill.apply(np.where(source[..., None], flat, mean)).reshape(image.shape))
-    return out[0], out[1]
+    image = np.where(source[..., None], image, 0.0).astype(np.float64)
+    mean = _box_sum(image, FILL_BLUR) * inv[..., None]
+    return dilate.Fill(near, 2 * MARGIN).apply(np.where(source[..., None], image, mean))
 
 
 def _box_sum(image: np.ndarray, r: int) -> np.ndarray:
