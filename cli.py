@@ -78,6 +78,15 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("--ambient", choices=list(encoding.AMBIENTS))
         q.add_argument("--phi-search", action="store_true", default=None)
 
+    def denoise(q, what, default):
+        q.add_argument(
+            "--denoise",
+            action=argparse.BooleanOptionalAction,
+            default=None,
+            help=f"{what} the SH denoised with Open Image Denoise's lightmap filter (Blender's own "
+            f"library), or not (default: {default}); the SH EXR always keeps the SH as traced",
+        )
+
     q = sub.add_parser("unwrap", help="xatlas lightmap UVs for the receivers")
     receivers(q)
     q.add_argument("--resolution", type=int)
@@ -100,6 +109,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     q.add_argument("--time-budget", type=float, metavar="SECONDS", help="stop tracing after SECONDS")
     q.add_argument("--seed", type=int)
+    denoise(q, "encode", "the --preset's, else the scene's Denoise setting")
     q.add_argument("--unwrap", action="store_true", help="unwrap the receivers first")
     q.add_argument("--resolution", type=int, help="atlas size for --unwrap")
     q.add_argument("--texel-density", type=float, help="texels per metre for --unwrap")
@@ -110,6 +120,7 @@ def _parser() -> argparse.ArgumentParser:
     receivers(q)
     encoder(q)
     q.add_argument("--out", metavar="DIR", help="folder of the bake (default: the scene's Output Folder)")
+    denoise(q, "re-encode", "the scene's Denoise setting")
     threads(q)
     return p
 
@@ -127,6 +138,7 @@ def _apply_options(settings, args) -> None:
         "time_budget",
         "seed",
         "phi_search",
+        "denoise",
     ):
         value = getattr(args, key, None)
         if value is not None:
@@ -180,7 +192,10 @@ def _bake(context, args) -> str:
             session.run(progress=progress, cancel=cancel)
     finally:
         progress.close()
-    return session.finish()
+    summary = session.finish()
+    for w in session.result_warnings:  # e.g. no denoiser: the files are written undenoised
+        print(f"warning: {w}")
+    return summary
 
 
 def _encode(context, args) -> str:
@@ -189,7 +204,10 @@ def _encode(context, args) -> str:
 
     objects = bake_session.target_objects(context, args.objects)
     threads = bake_session.scene_threads(context.scene) if args.threads is None else args.threads
-    return encode.reencode_objects(objects, context.scene.hhd, args.out, threads=threads)
+    summary, warnings = encode.reencode_objects(objects, context.scene.hhd, args.out, threads=threads)
+    for w in warnings:
+        print(f"warning: {w}")
+    return summary
 
 
 def main(argv: list[str]) -> int:

@@ -9,8 +9,9 @@ from .core import hhd, presets
 _BLEND_RELATIVE = {'PATH_SUPPORTS_BLEND_RELATIVE'} if bpy.app.version >= (4, 5, 0) else set()
 
 
-def _knobs(settings) -> tuple[int, int, float]:
-    return settings.samples, settings.bounces, round(settings.noise_target / 100.0, 6)
+def _knobs(settings) -> tuple[int, int, float, bool]:
+    """The settings a preset sets, as `presets.Preset.knobs()` gives them."""
+    return settings.samples, settings.bounces, round(settings.noise_target / 100.0, 6), settings.denoise
 
 
 _applying_preset = False  # the knobs' update callbacks fire while a preset sets them
@@ -20,10 +21,11 @@ def _apply_preset(self, _context):
     global _applying_preset
     if self.preset == 'CUSTOM':
         return
-    samples, bounces, noise = presets.get(self.preset).knobs()
+    samples, bounces, noise, denoise = presets.get(self.preset).knobs()
     _applying_preset = True
     try:
         self.samples, self.bounces, self.noise_target = samples, bounces, 100.0 * noise
+        self.denoise = denoise
     finally:
         _applying_preset = False
 
@@ -89,9 +91,9 @@ class HHDSettings(bpy.types.PropertyGroup):
         default='PRODUCTION',
         update=_apply_preset,
         items=[(k, k.title(), p.description) for k, p in presets.PRESETS.items()]
-        + [('CUSTOM', "Custom", "Samples, bounces and noise target as set below")],
-        description="Samples, bounces and noise target from the measured speed/accuracy presets "
-        "(README: Speed vs accuracy)",
+        + [('CUSTOM', "Custom", "Samples, bounces, noise target and denoising as set below")],
+        description="Samples, bounces, noise target and denoising from the measured speed/accuracy "
+        "presets (README: Speed vs accuracy)",
     )
     samples: IntProperty(
         name="Samples",
@@ -120,6 +122,14 @@ class HHDSettings(bpy.types.PropertyGroup):
         description="Stop a texel early once the standard error of its irradiance is below this "
         "percentage of it (Samples is then the most a texel takes); 0 = every texel "
         "takes every sample",
+    )
+    denoise: BoolProperty(
+        name="Denoise",
+        default=presets.PRESETS['PRODUCTION'].denoise,  # the default preset's (on)
+        update=_mark_custom,
+        description="Filter the baked lighting with Open Image Denoise's lightmap filter (Blender's "
+        "own library) before encoding: less noise for the same samples. The SH EXR keeps the "
+        "lighting as traced, so Re-encode can switch it off or on without baking again",
     )
     time_budget: FloatProperty(
         name="Time Budget",

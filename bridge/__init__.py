@@ -3,8 +3,8 @@
 `scene_data` turns the evaluated depsgraph into a `core.scene.BakeScene` (occluders, lights,
 world); `mesh_data` reads meshes with foreach_get (the receivers' `SurfaceTriangles`, the
 meshes to unwrap) and writes the lightmap UV layer; `bake_session` is the bpy half of a bake
-(read the scene and settings, run `core.bake`, load the written images). Nothing here is an
-operator or registers anything.
+(read the scene and settings, run `core.bake`, load the written images); `denoiser` finds the
+Open Image Denoise library Blender ships. Nothing here is an operator or registers anything.
 
 Besides `operators/`, `panels/`, `shaders/` and `cli.py`, this is the only package that imports
 bpy; `core/` never does.

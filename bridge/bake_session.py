@@ -16,7 +16,7 @@ from ..core import bake as core_bake
 from ..core import parallel, tracer
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles
-from . import mesh_data, scene_data
+from . import denoiser, mesh_data, scene_data
 
 DEFAULT_ATLAS = "Lightmap"
 
@@ -97,7 +97,8 @@ def scene_threads(scene) -> int:
 
 
 def pipeline_settings(settings, threads: int = 0) -> core_bake.PipelineSettings:
-    """The core settings from the scene's HHD settings; `threads`: worker threads, 0 = every core."""
+    """The core settings from the scene's HHD settings; `threads`: worker threads, 0 = every core.
+    Denoising goes through the OIDN library of the running Blender (`denoiser.oidn_library`)."""
     samples, bounces = max(4, settings.samples), settings.bounces
     trace = tracer.BakeSettings(
         samples=samples,
@@ -108,7 +109,12 @@ def pipeline_settings(settings, threads: int = 0) -> core_bake.PipelineSettings:
         time_budget=settings.time_budget,
         threads=threads,
     )
-    return core_bake.PipelineSettings(trace=trace, encoder=encoder_settings(settings))
+    return core_bake.PipelineSettings(
+        trace=trace,
+        encoder=encoder_settings(settings),
+        denoise=settings.denoise,
+        denoiser_library=denoiser.oidn_library() if settings.denoise else "",
+    )
 
 
 def encoder_settings(settings) -> core_bake.EncoderSettings:
@@ -165,7 +171,7 @@ class BakeSession:
         return (
             f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es); {n_occ} occluder triangles; "
             f"{_samples_text(self.settings.trace)}, {self.settings.trace.bounces} bounces, "
-            f"{self.settings.trace.threads} threads"
+            f"{'denoise' if self.settings.denoise else 'no denoise'}, {self.settings.trace.threads} threads"
         )
 
     def run(self, progress=None, cancel=None) -> list[core_bake.AtlasResult]:
@@ -182,15 +188,23 @@ class BakeSession:
         return self.results
 
     def finish(self) -> str:
-        """Load the written images into the .blend; returns a one-line summary."""
+        """Load the written images into the .blend; returns a one-line summary (the bake's
+        warnings are `result_warnings`)."""
         for result in self.results:
             load_atlas_images(result.files, self.pack)
         texels = sum(r.texels for r in self.results)
         seconds = sum(sum(v for v in r.seconds.values()) for r in self.results)
+        denoised = denoiser.outcome(self.settings.denoise, [r.warnings for r in self.results])
         return (
-            f"Baked {texels} texels in {len(self.results)} atlas(es) to {self.out_dir} "
+            f"Baked {texels} texels in {len(self.results)} atlas(es) to {self.out_dir}, {denoised} "
             f"({seconds:.1f} s: {', '.join(r.name for r in self.results)})"
         )
+
+    @property
+    def result_warnings(self) -> list[str]:
+        """What the finished bake's post stages could not do, per atlas (e.g. no denoiser): the
+        files are written all the same; the operator and the command line show these."""
+        return [w for r in self.results for w in r.warnings]
 
 
 def load_atlas_images(files: AtlasFiles, pack: bool = False) -> list:

@@ -67,6 +67,8 @@ class HHD_OT_bake(modal_work.ModalWork, bpy.types.Operator):
             raise error
         summary = self.session.finish()
         context.scene.hhd.bake_summary = summary
+        for warning in self.session.result_warnings:  # e.g. no denoiser: written undenoised
+            self.report({'WARNING'}, warning)
         self.report({'INFO'}, summary)
         return {'FINISHED'}
 

@@ -1,7 +1,8 @@
 """Operator: re-encode baked lightmaps with the current encoder settings (`bpy.ops.hhd.encode()`).
 
 Reads each receiver atlas's SH and texel EXRs from the output folder and writes a new HHD EXR and
-sidecar (atomically); no tracing. The loaded images are reloaded.
+sidecar (atomically); no tracing. The SH EXR holds the SH as traced, so the current Denoise
+setting decides whether the new encoding is of the denoised SH. The loaded images are reloaded.
 """
 
 import os
@@ -9,7 +10,7 @@ from pathlib import Path
 
 import bpy
 
-from ..bridge import bake_session
+from ..bridge import bake_session, denoiser
 from ..core import bake as core_bake
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles
@@ -31,29 +32,40 @@ class HHD_OT_encode(bpy.types.Operator):
         settings = context.scene.hhd
         try:
             objects = bake_session.target_objects(context)
-            summary = reencode_objects(objects, settings, threads=bake_session.scene_threads(context.scene))
+            summary, warnings = reencode_objects(objects, settings, threads=bake_session.scene_threads(context.scene))
         except (BakeError, OSError) as exc:
             self.report({'ERROR'}, f"Re-encode failed: {exc}")
             return {'CANCELLED'}
+        for warning in warnings:  # e.g. no denoiser: encoded undenoised
+            self.report({'WARNING'}, warning)
         self.report({'INFO'}, summary)
         return {'FINISHED'}
 
 
-def reencode_objects(objects, settings, out_dir: str | None = None, threads: int = 0) -> str:
+def reencode_objects(objects, settings, out_dir: str | None = None, threads: int = 0) -> tuple[str, list[str]]:
     """Re-encode the atlases of `objects` found in the output folder with `threads` workers
-    (0 = every core); returns a summary line."""
+    (0 = every core), denoised if `settings.denoise` (through Blender's OIDN library); returns a
+    summary line and the warnings (what a post stage could not do, e.g. no denoiser)."""
     if not objects:
         raise BakeError("no mesh objects to re-encode: select baked objects")
     folder = bake_session.output_folder(settings, out_dir)
     groups, _ = bake_session.atlas_groups(objects, settings)
     encoder = bake_session.encoder_settings(settings)
-    done = []
+    library = denoiser.oidn_library() if settings.denoise else ""
+    done, warnings = [], []
     for name, *_ in groups:
         files = AtlasFiles(Path(folder), name)
-        seconds = core_bake.reencode(files, encoder, threads)
+        seconds, atlas_warnings = core_bake.reencode(
+            files, encoder, threads, denoise=settings.denoise, denoiser_library=library
+        )
         bake_session.load_atlas_images(files, settings.pack_images)
         done.append(f"'{name}' {seconds:.1f} s")
-    return f"Re-encoded ({encoder.model}, {encoder.direction}, {encoder.ambient} ambient): {', '.join(done)}"
+        warnings.append(atlas_warnings)
+    denoised = denoiser.outcome(settings.denoise, warnings)
+    summary = (
+        f"Re-encoded ({encoder.model}, {encoder.direction}, {encoder.ambient} ambient, {denoised}): {', '.join(done)}"
+    )
+    return summary, [w for ws in warnings for w in ws]
 
 
 class HHD_OT_open_output(bpy.types.Operator):

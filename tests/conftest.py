@@ -18,7 +18,7 @@ USER_RESOURCES = Path(tempfile.mkdtemp(prefix="hhd-blender-user-"))
 os.environ["BLENDER_USER_RESOURCES"] = str(USER_RESOURCES)
 assert "bpy" not in sys.modules, "bpy was imported before the user config could be isolated"
 
-sys.path.insert(0, str(ROOT / "tools"))  # build_extension
+sys.path.insert(0, str(ROOT / "tools"))  # build_extension, fetch_oidn_weights
 sys.path.insert(0, str(ROOT))  # scenekit, the shared test/bench scenes
 
 EXTENSION_MODULE = "bl_ext.user_default.hhd_lightmapper"
@@ -54,3 +54,40 @@ def extension(built_zips):
     assert result == {"FINISHED"}
     assert EXTENSION_MODULE in bpy.context.preferences.addons
     return EXTENSION_MODULE
+
+
+@pytest.fixture(scope="session")
+def oidn_weights() -> list[Path]:
+    """OIDN's lightmap weights in oidn_weights/ (tools/fetch_oidn_weights.py: hash-checked, the
+    wheel they come from cached under build/), for every test that bakes with denoising, which
+    the scene's Denoise setting (on by default) asks for. Skips with the reason if unavailable.
+    The extension's zip ships them too (the build fetches them): this covers the bakes of the
+    package itself (`python -m hhd_lightmapper.cli`, `hhd_lightmapper.bridge`)."""
+    import subprocess
+
+    import fetch_oidn_weights
+
+    try:
+        return fetch_oidn_weights.fetch()
+    except (SystemExit, subprocess.CalledProcessError, OSError) as e:
+        pytest.skip(f"OIDN lightmap weights unavailable (tools/fetch_oidn_weights.py: {e})")
+
+
+@pytest.fixture
+def restore_hhd_settings(extension):
+    """Puts the scene's HHD settings back after the test: the bpy scene outlives a test, and a
+    later test may rely on the defaults (e.g. the Output Folder `//lightmaps`)."""
+    import bpy
+
+    settings = bpy.context.scene.hhd
+    keys = [
+        p.identifier
+        for p in settings.bl_rna.properties
+        if p.identifier != "rna_type" and not p.is_readonly and p.type in {'BOOLEAN', 'INT', 'FLOAT', 'STRING', 'ENUM'}
+    ]
+    keys.sort(key=lambda k: k == "preset")  # the preset last: it may set the knobs again, the same
+    before = {k: getattr(settings, k) for k in keys}
+    yield
+    settings = bpy.context.scene.hhd
+    for key in keys:
+        setattr(settings, key, before[key])

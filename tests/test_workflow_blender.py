@@ -22,8 +22,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture
-def baked_scene(extension, tmp_path):
-    """Floor + cube, sun + sky, unwrapped at 256², saved as tmp_path/scene.blend."""
+def baked_scene(extension, oidn_weights, tmp_path):
+    """Floor + cube, sun + sky, unwrapped at 256², saved as tmp_path/scene.blend. Denoise is on
+    (the default), so the bakes below run the denoiser: the weights must be there."""
     import bpy
 
     scene = kit.clear_scene()
@@ -86,10 +87,11 @@ def test_bake_and_reencode_operators_end_to_end(baked_scene):
     doc = json.loads((out / "Lightmap.json").read_text())
     assert [o["name"] for o in doc["objects"]] == ["Cube", "Floor"] and all(o["texels"] > 0 for o in doc["objects"])
     assert doc["bake"]["samples"] == 8 and doc["encoder"]["model"] == "hhd"
+    assert doc["post"]["denoise"]["applied"]  # Denoise is on by default
     loaded = {Path(bpy.path.abspath(im.filepath)).name: im for im in bpy.data.images}
     assert {"Lightmap_hhd.exr", "Lightmap_sh.exr"} <= set(loaded)
     assert all(im.packed_file is None for im in loaded.values())  # external, not packed
-    assert "Baked" in scene.hhd.bake_summary
+    assert "Baked" in scene.hhd.bake_summary and ", denoised (" in scene.hhd.bake_summary
     sh_bytes, hhd_bytes = (out / "Lightmap_sh.exr").read_bytes(), (out / "Lightmap_hhd.exr").read_bytes()
     scene.hhd.model = 'AHD'
     assert bpy.ops.hhd.encode() == {'FINISHED'}
@@ -299,7 +301,7 @@ def test_command_line_threads_follow_the_scene_or_the_flag_and_files_are_identic
 
 
 @pytest.mark.slow
-def test_a_full_atlas_spills_into_numbered_atlases_that_bake_and_preview(extension, tmp_path):
+def test_a_full_atlas_spills_into_numbered_atlases_that_bake_and_preview(extension, restore_hhd_settings, tmp_path):
     """40 spheres at 256² with padding 8: their padding alone exceeds one atlas, so the unwrap
     makes Lightmap, Lightmap_1, … of the same size, each object whole in one; the bake writes
     each atlas's files and sidecar, and the preview finds every object's atlas."""

@@ -6,10 +6,11 @@ Stages, in pipeline order:
   scene    build the room (window, sun, sky, red wall, normal-mapped panel), save demo.blend
   render   Cycles reference render of the camera view (reference_cycles.png)
   bake     headless, as a build machine runs it (a subprocess):
-               python -m hhd_lightmapper.cli demo.blend bake --unwrap --out lightmaps --save
+               python -m hhd_lightmapper.cli demo.blend bake --unwrap --denoise --out lightmaps --save
            = xatlas UVs (512² atlas), bake points, Embree path-traced L2 SH (sun + sky, 2 bounces),
-           HHD encoding, lightmaps/Lightmap_hhd.exr + _sh.exr + _texels.exr + .json; the images are
-           loaded into demo.blend, which is saved
+           Open Image Denoise's lightmap filter (Blender's own library; the weights are fetched
+           first, tools/fetch_oidn_weights.py), HHD encoding, lightmaps/Lightmap_hhd.exr + _sh.exr
+           (as traced) + _texels.exr + .json; the images are loaded into demo.blend, which is saved
   encode   reads the files back: irradz.png (I_z), encoder.png (HHD vs baseline over one texel's
            hemisphere) and the encoder's hemispherical error on 4000 texels
   preview  reopens demo.blend, Show Preview (HHD node group on every material), EEVEE render
@@ -61,7 +62,8 @@ def main() -> int:
     stages["render"] = "Cycles reference -> reference_cycles.png"
 
     # Unwrap + bake headless, exactly as a build machine would:
-    #   python -m hhd_lightmapper.cli demo.blend bake --unwrap --out lightmaps --save
+    #   python -m hhd_lightmapper.cli demo.blend bake --unwrap --denoise --out lightmaps --save
+    weights_note = fetch_weights()
     meshes = sorted(o.name for o in bpy.context.scene.objects if o.type == "MESH")
     bpy.ops.wm.save_as_mainfile(filepath=str(out / "demo.blend"))
     command = [
@@ -79,6 +81,7 @@ def main() -> int:
         str(args.samples),
         "--bounces",
         "2",
+        "--denoise",
         "--objects",
         *meshes,
         "--save",
@@ -94,7 +97,8 @@ def main() -> int:
     bake = sidecar["bake"]
     stages["bake"] = (
         f"unwrap + {bake['samples_taken']} samples/texel, {bake['rays'] / 1e6:.1f} M rays, "
-        f"{sidecar['stats']['texels_baked']} texels -> lightmaps/Lightmap_hhd.exr, _sh.exr, .json"
+        f"{sidecar['stats']['texels_baked']} texels, {denoised_text(sidecar, weights_note)} "
+        "-> lightmaps/Lightmap_hhd.exr, _sh.exr, .json"
     )
 
     t = time.perf_counter()
@@ -117,6 +121,28 @@ def main() -> int:
         print(f"  {name:8s} {secs}  {text}")
     print(f"  output folder: {out}")
     return 0
+
+
+def fetch_weights() -> str:
+    """OIDN's lightmap weights into oidn_weights/ (hash-checked; a no-op when present). Returns ""
+    or, if they cannot be had, why (the bake then runs undenoised and says so)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import fetch_oidn_weights
+
+    try:
+        fetch_oidn_weights.fetch()
+    except (SystemExit, subprocess.CalledProcessError, OSError) as e:
+        print(f"demo: OIDN lightmap weights unavailable ({e}): the bake will not be denoised", flush=True)
+        return f"weights unavailable: {e}"
+    return ""
+
+
+def denoised_text(sidecar: dict, weights_note: str) -> str:
+    """'denoised (OIDN x.y.z, s)' or 'not denoised: why' from the sidecar's post section."""
+    record = sidecar.get("post", {}).get("denoise", {})
+    if record.get("applied"):
+        return f"denoised (OIDN {record['oidn_version']}, {record['seconds']:.1f} s)"
+    return f"not denoised: {record.get('warning') or weights_note or 'denoise off'}"
 
 
 def render_reference(bpy, path: Path, samples: int) -> None:
