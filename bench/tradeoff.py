@@ -1,37 +1,56 @@
 """The speed/accuracy trade end to end: every knob's wall time, peak memory and error.
 
-    python bench/tradeoff.py                 # all three scenes (≈ 45 min on 2 cores)
+    python bench/tradeoff.py                 # all three scenes, every knob (the longest run)
     python bench/tradeoff.py --quick         # fewer points, small references (a smoke run)
     python bench/tradeoff.py --replot        # presets and plots again from the saved results
     python bench/tradeoff.py --scenes emissive
+    python bench/tradeoff.py --knobs samples denoise   # these knobs again, merged into the saved results
 
 Scenes (scenekit/scenes.py `build`): outdoor sun + sky, an interior lit through a window, a room lit by
 emissive surfaces only. Per scene, at a base texel density:
 
-- reference: our bake at `--reference-samples` spp, 8 bounces, as two half bakes with different
-  seeds (their mean is the reference; half their RMS difference is its own noise, reported as
-  the floor under every I_z error).
-- knobs, one axis at a time around the base (256 spp, 4 bounces, default encoder): samples per
-  texel, bounces, a few (samples, bounces) pairs, noise target (adaptive stopping), time budget,
-  texel density, encoder settings (optimal-linear vs searched direction, φ search, golden-section
-  iterations, luminance vs RGB ambient weight, AHD vs HHD; re-encoding the base bake and the
-  reference). There is no denoiser or filter in the pipeline to switch (dilation is always on).
-- per point: wall time of the bake as the Bake button runs it (bake points, trace, encode, files),
-  peak memory (numpy allocations, tracemalloc, measured once per texel density by a separate
-  bake: it depends on the texel count only), and three
+- reference: our bake at `--reference-samples` spp, 8 bounces, undenoised, as two half bakes with
+  different seeds (their mean is the reference; half their RMS difference is its own noise,
+  reported as the floor under every I_z error).
+- knobs, one axis at a time around the base (256 spp, 4 bounces, default encoder, no denoiser):
+  samples per texel, bounces, a few (samples, bounces) pairs, noise target (adaptive stopping),
+  time budget, texel density, encoder settings (optimal-linear vs searched direction, φ search,
+  golden-section iterations, luminance vs RGB ambient weight, AHD vs HHD; re-encoding the base
+  bake and the reference), and the denoiser (`core.denoise`, OIDN's lightmap filter): samples
+  per texel with it on, and a few (samples, bounces) pairs with it on (fewer bounces, and 8).
+  Every point sets the scene's Denoise explicitly (off unless the point says on; the scene's
+  default is on); OIDN is loaded (one denoise) before the timed bakes, as the tracer is warm.
+- per point: wall time of the bake as the Bake button runs it (bake points, trace, denoise,
+  encode, files; the denoise stage's own seconds from the sidecar as `denoise_seconds`),
+  peak memory (numpy allocations, tracemalloc, measured once per texel density, and once with the
+  denoiser at the base density, by separate bakes: it depends on the texel count only), and three
   relative errors, each the RMS over texels (pixels) of error / max(reference, FLOOR × the
   reference's mean), FLOOR = 0.1 (the noise target's rule): I_z (luminance) against the
   reference; the hemispherical RMSE of the encoded texels (the HHD reconstruction at every normal
   of the hemisphere against the reference's SH irradiance); the EEVEE preview image against a
   Cycles render of the camera view (diffuse only, normal maps on, 8 bounces; emitters' own pixels
   left out), with the Cycles reference's own noise as its floor.
+  The errors are of the SH that was encoded: the raw `_sh.exr` keeps the SH as traced, so a
+  denoised point's SH read back from it is denoised again here with the bake's thread count
+  (`core.denoise.denoise_texels`, deterministic); every point checks that the I_z it encodes from
+  that SH equals the Iz channels of the written `_hhd.exr` (`encoded_iz_mismatch`: the largest
+  relative difference, half-float rounding).
   Points at another texel density have no texel-wise I_z error (other texels); their image error
   is the comparable figure.
 
+`--knobs` measures only the listed knobs (all scenes, or `--scenes`) and merges the new rows into
+the saved bench/results/tradeoff.json: a row with the same knob and label is replaced, the other
+rows (and the scenes not measured) are kept; a measured scene's reference, Cycles render and
+memory are this run's. The references use fixed seeds, so the errors of kept rows stay
+comparable as long as the tracer and the scenes have not changed (the merge prints the saved and
+new reference noise to check); their timings come from the runs that measured them (each row's
+`run` says when; `runs` lists the runs), on the same machine but under other load.
+
 Writes bench/results/tradeoff.json, tradeoff_iz.png and tradeoff_image.png (per scene: error vs
-wall time, log-log, a line per knob, the Pareto front over all knobs dashed) and presets.json: for each error level the
-cheapest measured setting whose worst-scene I_z RMSE is within it (core/presets.py holds these;
-tests/test_presets.py checks they agree).
+wall time, log-log, a line per knob, the Pareto front over all knobs, denoised points included,
+dashed), tradeoff.md (the README's tables) and presets.json: for each error level the cheapest
+measured setting (samples, bounces, noise target, denoise) whose worst-scene I_z RMSE is within
+it (core/presets.py holds these; tests/test_presets.py checks they agree).
 """
 
 from __future__ import annotations
@@ -51,7 +70,7 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 #: pixels of the camera view rendered by Cycles and EEVEE (Cycles is most of the scene's set-up time)
 VIEW = (192, 120)
-BASE = dict(samples=256, bounces=4, noise_target=0.0, time_budget=0.0)
+BASE = dict(samples=256, bounces=4, noise_target=0.0, time_budget=0.0, denoise=False)
 ALL_SCENES = ("outdoor", "interior", "emissive")
 #: texels per metre giving 12-20k texels in each scene (a 256-512² atlas)
 DENSITY = {"outdoor": 5.0, "interior": 7.0, "emissive": 7.0}
@@ -62,9 +81,13 @@ QUADRATURE = None
 #: relative error as the eye sees it, without near-black texels dominating (the noise target's rule)
 FLOOR = 0.1
 #: preset name -> worst-scene relative I_z RMSE (%) it must reach
-#: (chosen from the data: the gaps between what 16, 64, 256 samples and the reference reach in the
-#: hardest scene, the interior, where the error of fewer than 8 bounces is most of it)
-PRESET_LEVELS = {"DRAFT": 55.0, "PREVIEW": 30.0, "PRODUCTION": 16.0, "REFERENCE": 6.0}
+#: (chosen from the data, in its gaps: the rooms (interior, emissive) are the hardest scenes;
+#: Production's level lies below the floor that 4 bounces leave there however many samples,
+#: denoised or not, so it takes 8 bounces, and above what the denoised 8-bounce points reach)
+PRESET_LEVELS = {"DRAFT": 55.0, "PREVIEW": 30.0, "PRODUCTION": 10.0, "REFERENCE": 6.0}
+#: presets that may not be denoised: a reference is what the denoiser's result is judged against
+#: (its bias is not measurable against a reference that has it)
+UNDENOISED_PRESETS = ("REFERENCE",)
 ENCODERS = {
     "searched (default)": {},
     "optimal linear": dict(direction="OPTIMAL_LINEAR"),
@@ -76,8 +99,22 @@ ENCODERS = {
 }
 
 
-def knob_points(quick: bool) -> list[dict]:
-    """The bake settings measured, each {"knob", "label", settings...}."""
+#: the knobs in the order they are measured and listed (the encoder re-encodes the base bake)
+KNOBS = (
+    "samples",
+    "bounces",
+    "samples × bounces",
+    "noise target",
+    "time budget",
+    "texel density",
+    "denoise",
+    "encoder",
+)
+
+
+def knob_points(quick: bool, knobs=KNOBS) -> list[dict]:
+    """The bake settings measured, each {"knob", "label", settings...} (every knob but the
+    encoder's, which re-encodes the base bake: `encoder_rows`), of the knobs in `knobs`."""
     pts = []
     add = lambda knob, label, **kw: pts.append({"knob": knob, "label": label, **BASE, **kw})
     for s in [4, 16, 64, 256] if quick else [4, 16, 64, 256, 1024]:
@@ -92,7 +129,17 @@ def knob_points(quick: bool) -> list[dict]:
         add("time budget", f"budget {sec:g} s", samples=2048, time_budget=sec)
     for f in [2.0] if quick else [0.5, 2.0]:
         add("texel density", f"density × {f:g}", density_factor=f)
-    return pts
+    for s in [4, 16, 64, 256] if quick else [4, 16, 64, 256, 1024]:
+        add("denoise", f"{s} spp denoised", samples=s, denoise=True)
+    for s, b in [] if quick else [(16, 1), (64, 2), (64, 8), (256, 8)]:
+        add("denoise", f"{s} spp, {b} bounces denoised", samples=s, bounces=b, denoise=True)
+    return [p for p in pts if p["knob"] in knobs]
+
+
+def row_order(quick: bool = False) -> list[tuple[str, str]]:
+    """(knob, label) of every row a full run measures, in its order (merged rows are sorted by it)."""
+    keys = [(p["knob"], p["label"]) for p in knob_points(quick)]
+    return keys + [("encoder", label) for label in ENCODERS]
 
 
 def main() -> int:
@@ -108,7 +155,15 @@ def main() -> int:
         help="render the Cycles references again and recompute the image errors of the saved "
         "EEVEE renders in --out (a run's folder)",
     )
-    ap.add_argument("--quick", action="store_true", help="fewer points and a 1024-spp reference")
+    ap.add_argument("--quick", action="store_true", help="fewer points and a 512-spp reference")
+    ap.add_argument(
+        "--knobs",
+        nargs="+",
+        choices=KNOBS,
+        metavar="KNOB",
+        help="measure only these knobs (" + ", ".join(f'"{k}"' for k in KNOBS) + ") and merge the new "
+        "rows into the saved results (rows of the same knob and label replaced, the rest kept)",
+    )
     ap.add_argument("--out", type=Path, default=Path(tempfile.mkdtemp(prefix="hhd-bench-tradeoff-")))
     args = ap.parse_args()
     if args.replot:
@@ -131,22 +186,55 @@ def main() -> int:
         return memory_only(args)
     if args.images_only:
         return images_only(args)
-    results = {
-        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
-        "base": BASE,
-        "scenes": {},
+    run = {
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+        **{k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
     }
+    args.run_date = run["date"]  # each measured row's `run`
+    results = {"settings": run, "runs": [run], "base": BASE, "scenes": {}}
     saved = RESULTS / "tradeoff.json"
-    if saved.is_file() and set(args.scenes) < set(ALL_SCENES):  # measuring some scenes again: keep the others
-        previous = json.loads(saved.read_text())
-        results["scenes"] = {k: v for k, v in previous["scenes"].items() if k not in args.scenes}
+    previous = json.loads(saved.read_text()) if saved.is_file() else None
+    if args.knobs and previous is None:
+        ap.error("--knobs merges into bench/results/tradeoff.json, which does not exist: run every knob first")
+    if args.knobs and previous["settings"]["reference_samples"] != args.reference_samples:
+        ap.error(
+            f"the saved results' reference has {previous['settings']['reference_samples']} spp, this run's "
+            f"{args.reference_samples}: their errors would not compare (run every knob, or match it)"
+        )
+    if previous is not None and (args.knobs or set(args.scenes) < set(ALL_SCENES)):
+        # measuring some knobs or scenes again: keep the others
+        results["runs"] = previous.get("runs", [previous["settings"]]) + [run]
+        results["scenes"] = dict(previous["scenes"])
     for name in args.scenes:
-        results["scenes"][name] = measure_scene(name, args)
+        new = measure_scene(name, args)
+        results["scenes"][name] = merge_scene(results["scenes"].get(name), new) if args.knobs else new
         results["scenes"] = {k: results["scenes"][k] for k in ALL_SCENES if k in results["scenes"]}
         print_table(name, results["scenes"][name])
         RESULTS.mkdir(exist_ok=True)
         (RESULTS / "tradeoff.json").write_text(json.dumps(results, indent=2))
     return finish(results)
+
+
+def merge_scene(old: dict | None, new: dict) -> dict:
+    """The scene's result of a `--knobs` run (`new`) merged into the saved one (`old`): new rows
+    replace old rows of the same knob and label, the other old rows are kept; the scene's
+    reference, Cycles render and memory are the new run's (every row's memory attached again)."""
+    if old is None:
+        return new
+    if old["texels"] != new["texels"]:
+        print(
+            f"WARNING: {new['texels']} texels now, {old['texels']} in the saved results: the kept rows' "
+            "I_z and hemispherical errors are of other texels",
+            flush=True,
+        )
+    for key in ("iz_noise_floor", "cycles_noise_floor", "mean_iz"):
+        print(f"  {key}: saved {old[key]:.4g}, now {new[key]:.4g}", flush=True)
+    rows = {(r["knob"], r["label"]): r for r in old["rows"]}
+    rows.update({(r["knob"], r["label"]): r for r in new["rows"]})
+    order = {key: i for i, key in enumerate(row_order())}
+    merged = {**old, **new, "rows": sorted(rows.values(), key=lambda r: order.get((r["knob"], r["label"]), len(order)))}
+    attach_memory(merged, merged["memory"])
+    return merged
 
 
 def finish(results: dict) -> int:
@@ -163,22 +251,23 @@ def finish(results: dict) -> int:
 
 
 def markdown(results: dict, presets: dict) -> str:
-    """The README's tables: knobs per scene, encoders, adaptive stopping, presets."""
+    """The README's tables: knobs per scene, denoised against raw, encoders, adaptive stopping, presets."""
     scenes = list(results["scenes"])
-    cell = lambda row, k, f="{:.1f}": "—" if row.get(k) is None else f.format(row[k])
+    cell = lambda row, k, f="{:.1f}": "—" if row is None or row.get(k) is None else f.format(row[k])
+    by_key = {s: {(r["knob"], r["label"]): r for r in results["scenes"][s]["rows"]} for s in scenes}
+    keys = list(dict.fromkeys(k for s in scenes for k in by_key[s]))  # every scene's rows, in order
     out = [
         "| knob | setting | " + " | ".join(f"{s}: time s / I_z % / image %" for s in scenes) + " |",
         "| --- | --- | " + " | ".join("---" for _ in scenes) + " |",
     ]
-    first = results["scenes"][scenes[0]]
-    for i, row in enumerate(first["rows"]):
-        if row["knob"] == "encoder":
+    for knob, label in keys:
+        if knob == "encoder":
             continue
         cells = []
         for s in scenes:
-            r = results["scenes"][s]["rows"][i]
+            r = by_key[s].get((knob, label))
             cells.append(f"{cell(r, 'seconds')} / {cell(r, 'iz_rmse')} / {cell(r, 'image_rmse')}")
-        out.append(f"| {row['knob']} | {row['label']} | " + " | ".join(cells) + " |")
+        out.append(f"| {knob} | {label} | " + " | ".join(cells) + " |")
     refs = [results["scenes"][s]["reference"] for s in scenes]
     out.append(
         "| reference | "
@@ -189,15 +278,30 @@ def markdown(results: dict, presets: dict) -> str:
     )
     out += [
         "",
+        "| scene | setting | time s: raw / denoised (of which denoise) | I_z %: raw / denoised | "
+        "hemispherical %: raw / denoised | image %: raw / denoised |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for s in scenes:
+        for d in (r for r in results["scenes"][s]["rows"] if r["knob"] == "denoise"):
+            raw = undenoised_twin(results["scenes"][s]["rows"], d)
+            setting = d["label"].removesuffix(" denoised")
+            out.append(
+                f"| {s} | {setting} | {cell(raw, 'seconds')} / {cell(d, 'seconds')} ({cell(d, 'denoise_seconds', '{:.2f}')}) | "
+                + " | ".join(f"{cell(raw, k)} / {cell(d, k)}" for k in ("iz_rmse", "hemispherical_rmse", "image_rmse"))
+                + " |"
+            )
+    out += [
+        "",
         "| encoder | " + " | ".join(f"{s}: hemispherical % (reference SH) / encode s" for s in scenes) + " |",
         "| --- | " + " | ".join("---" for _ in scenes) + " |",
     ]
-    for i, row in enumerate(first["rows"]):
-        if row["knob"] != "encoder":
+    for knob, label in keys:
+        if knob != "encoder":
             continue
-        rs = [results["scenes"][s]["rows"][i] for s in scenes]
+        rs = [by_key[s].get((knob, label)) for s in scenes]
         out.append(
-            f"| {row['label']} | "
+            f"| {label} | "
             + " | ".join(
                 f"{cell(r, 'hemispherical_rmse_of_reference', '{:.2f}')} / {cell(r, 'reencode_seconds', '{:.2f}')}"
                 for r in rs
@@ -222,15 +326,15 @@ def markdown(results: dict, presets: dict) -> str:
             )
     out += [
         "",
-        "| preset | worst-scene I_z ≤ | samples | bounces | noise target | "
+        "| preset | worst-scene I_z ≤ | samples | bounces | noise target | denoise | "
         + " | ".join(f"{s}: time s / I_z % / image % / memory MB" for s in scenes)
         + " |",
-        "| --- | --- | --- | --- | --- | " + " | ".join("---" for _ in scenes) + " |",
+        "| --- | --- | --- | --- | --- | --- | " + " | ".join("---" for _ in scenes) + " |",
     ]
     for name, p in presets.items():
         if not p["found"]:
             out.append(
-                f"| {name.title()} | {p['level']:g}% | not reached | | | " + " | ".join("" for _ in scenes) + " |"
+                f"| {name.title()} | {p['level']:g}% | not reached | | | | " + " | ".join("" for _ in scenes) + " |"
             )
             continue
         cells = [
@@ -239,9 +343,19 @@ def markdown(results: dict, presets: dict) -> str:
         ]
         out.append(
             f"| {name.title()} | {p['level']:g}% | {p['samples']} | {p['bounces']} | "
-            f"{100 * p['noise_target']:g}% | " + " | ".join(cells) + " |"
+            f"{100 * p['noise_target']:g}% | {'on' if p['denoise'] else 'off'} | " + " | ".join(cells) + " |"
         )
     return "\n".join(out) + "\n"
+
+
+def undenoised_twin(rows: list[dict], row: dict) -> dict | None:
+    """The undenoised row of the same samples, bounces and noise target as `row` (base density,
+    default encoder), if one was measured."""
+    for r in rows:
+        if r["knob"] in ("samples", "bounces", "samples × bounces") and not r.get("denoise"):
+            if (r["samples"], r["bounces"], r["noise_target"]) == (row["samples"], row["bounces"], row["noise_target"]):
+                return r
+    return None
 
 
 # ---- one scene ------------------------------------------------------------------------------
@@ -280,18 +394,20 @@ class Scene:
         self.density = density
 
     def bake(self, folder: Path, point: dict, trace_memory: bool = False) -> dict:
-        """Bake with the point's settings into folder; returns timings, the texel data and, with
-        trace_memory, the peak of numpy's allocations during the bake (tracemalloc; kept off
-        for timed bakes)."""
+        """Bake with the point's settings into folder; returns timings, the texel data that was
+        encoded (for a denoised point: the raw SH file's, denoised again as the bake did), the
+        atlas's files and, with trace_memory, the peak of numpy's allocations during the bake
+        (tracemalloc; kept off for timed bakes)."""
         import bpy
 
-        from hhd_lightmapper.bridge import bake_session
-        from hhd_lightmapper.core import lightmap_files
+        from hhd_lightmapper.bridge import bake_session, denoiser
+        from hhd_lightmapper.core import denoise, lightmap_files
 
         s = self.scene.hhd
         s.preset = 'CUSTOM'
         s.samples, s.bounces, s.seed = point["samples"], point["bounces"], point.get("seed", 0)
         s.noise_target, s.time_budget = 100.0 * point["noise_target"], point["time_budget"]
+        s.denoise = point.get("denoise", False)  # always set: the scene's default is on
         s.output_dir = str(folder)
         set_encoder(s, {})
         session = bake_session.BakeSession(bpy.context)
@@ -305,6 +421,14 @@ class Scene:
         session.finish()
         files = results[0].files
         sidecar = json.loads(files.sidecar.read_text())
+        record = sidecar["post"]["denoise"]
+        data = lightmap_files.read_texel_data(files)  # the SH as traced
+        if s.denoise:
+            if not record.get("applied"):
+                raise RuntimeError(f"the bake in {folder} was not denoised: {record.get('warning')}")
+            # what the bake encoded: the same denoiser (library, threads) on the same SH
+            threads = session.settings.trace.threads
+            data, _ = denoise.denoise_texels(data, denoise.denoiser_for(denoiser.oidn_library(), threads))
         return {
             "seconds": seconds,
             "peak_memory_mb": peak / 2**20 if trace_memory else None,
@@ -312,7 +436,9 @@ class Scene:
             "rays": results[0].rays,
             "mean_samples": sidecar["bake"]["mean_samples_per_texel"],
             "stopped_by": sidecar["bake"]["stopped_by"],
-            "data": lightmap_files.read_texel_data(files),
+            "denoise_seconds": record.get("seconds"),
+            "data": data,
+            "files": files,
         }
 
     def eevee(self, mode: str, folder: Path, tag: str) -> np.ndarray:
@@ -364,7 +490,10 @@ def measure_scene(name: str, args) -> dict:
         flush=True,
     )
 
-    def errors(data, encoder=None, mode="HHD", folder=None, tag=""):
+    def errors(data, encoder=None, mode="HHD", folder=None, tag="", files=None):
+        """I_z and hemispherical errors of `data` (the SH encoded), the image error of the EEVEE
+        preview of the files in `folder`; with `files` (the atlas's), the check that the I_z
+        encoded from `data` is what its `_hhd.exr` holds."""
         row = {}
         if data is not None:
             sh = data.sh[baked]
@@ -374,6 +503,8 @@ def measure_scene(name: str, args) -> dict:
             row["encode_seconds"] = time.perf_counter() - t
             hemi = hhd.hemispherical_rmse(ref_sh, n_v, params, quadrature=QUADRATURE) @ hhd.LUMINANCE
             row["hemispherical_rmse"] = 100 * rms(hemi / scale)
+            if files is not None:
+                row["encoded_iz_mismatch"] = encoded_iz_mismatch(files, params.irradz, baked)
         if folder is not None:
             t = time.perf_counter()
             image = sc.eevee(mode, folder, tag)
@@ -382,21 +513,37 @@ def measure_scene(name: str, args) -> dict:
         return row
 
     rows = []
-    for point in knob_points(args.quick):
+    knobs = args.knobs or KNOBS
+    base_bake = None
+    if "denoise" in knobs:  # OIDN loaded before timing, as the tracer is warm from the reference
+        warm_denoiser(sc.scene, ref_a["data"])
+    for point in knob_points(args.quick, knobs):
         folder = sc.folder / slug(point["label"])
         sc.unwrap(density * point.get("density_factor", 1.0))
         b = sc.bake(folder, point)
         same_texels = point.get("density_factor", 1.0) == 1.0
-        row = {**point, **{k: v for k, v in b.items() if k != "data"}}
-        row.update(errors(b["data"] if same_texels else None, folder=folder, tag=slug(point["label"])))
+        row = {**point, "run": args.run_date, **{k: v for k, v in b.items() if k not in ("data", "files")}}
+        row.update(
+            errors(
+                b["data"] if same_texels else None,
+                folder=folder,
+                tag=slug(point["label"]),
+                files=b["files"] if same_texels else None,
+            )
+        )
         rows.append(row)
-        print(f"[{name}] {point['knob']:18s} {point['label']:22s} {fmt_row(row)}", flush=True)
-        if point["label"] == f"{BASE['samples']} spp":
+        print(f"[{name}] {point['knob']:18s} {point['label']:28s} {fmt_row(row)}", flush=True)
+        if point["knob"] == "samples" and point["samples"] == BASE["samples"]:
             base_bake = (b, folder)
     sc.unwrap(density)
-    rows += encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors)
+    if "encoder" in knobs:
+        if base_bake is None:  # the samples knob was not measured: bake the base for the encoders
+            folder = sc.folder / "base"
+            base_bake = (sc.bake(folder, BASE), folder)
+        rows += [{**r, "run": args.run_date} for r in encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors)]
     reference_row = {
         "knob": "reference",
+        "run": args.run_date,
         "label": f"{args.reference_samples} spp, 8 bounces",
         "seconds": ref_a["seconds"] + ref_b["seconds"],
         "peak_memory_mb": ref_a["peak_memory_mb"],
@@ -418,8 +565,8 @@ def measure_scene(name: str, args) -> dict:
 
 
 def encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors) -> list[dict]:
-    """Encoder settings: re-encode the base bake (files + EEVEE) and the reference SH (the pure
-    encoding error, `hemispherical_rmse_of_reference`)."""
+    """Encoder settings: re-encode the base bake (files + EEVEE; undenoised, as it was baked) and
+    the reference SH (the pure encoding error, `hemispherical_rmse_of_reference`)."""
     import bpy
 
     from hhd_lightmapper.core import hhd
@@ -428,7 +575,7 @@ def encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors) -> list[dict]:
     rows = []
     for label, enc in ENCODERS.items():
         s = sc.scene.hhd
-        s.output_dir = str(folder)
+        s.output_dir, s.denoise = str(folder), False  # Re-encode runs the scene's post stages
         set_encoder(s, enc)
         t = time.perf_counter()
         assert bpy.ops.hhd.encode() == {'FINISHED'}
@@ -451,9 +598,37 @@ def encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors) -> list[dict]:
             hhd.hemispherical_rmse(ref_sh, n_v, params, quadrature=QUADRATURE) @ hhd.LUMINANCE / scale
         )
         rows.append(row)
-        print(f"[{sc.name}] {'encoder':18s} {label:22s} {fmt_row(row)}", flush=True)
+        print(f"[{sc.name}] {'encoder':18s} {label:28s} {fmt_row(row)}", flush=True)
     set_encoder(sc.scene.hhd, {})
     return rows
+
+
+def warm_denoiser(scene, data) -> None:
+    """Load OIDN (library, device, weights) for the bakes' thread count and run it once on `data`."""
+    from hhd_lightmapper.bridge import bake_session, denoiser
+    from hhd_lightmapper.core import denoise, parallel
+
+    threads = parallel.resolve_threads(bake_session.scene_threads(scene))
+    denoise.denoise_texels(data, denoise.denoiser_for(denoiser.oidn_library(), threads))
+
+
+def encoded_iz_mismatch(files, irradz: np.ndarray, baked: np.ndarray) -> float:
+    """Largest relative difference (relative to max(|I_z|, FLOOR × the mean) per channel) between
+    `irradz` (N, 3) of the baked texels and the Iz channels of the atlas's written `_hhd.exr`:
+    half-float rounding (< 1e-3) when the errors are of the SH the bake encoded. Raises if not."""
+    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.encoding.hhd import IZ
+
+    channels, _ = exr.read(files.hhd)
+    written = np.stack([exr.from_exr_rows(channels[n]) for n in IZ.exr_names], -1)[baked]
+    written = written.astype(np.float64)
+    floor = np.maximum(np.abs(written), FLOOR * np.abs(written).mean(axis=0))
+    mismatch = float(np.max(np.abs(irradz - written) / floor))
+    if not mismatch < 1e-2:
+        raise RuntimeError(
+            f"{files.hhd}: the SH measured is not what was encoded (I_z differs by {100 * mismatch:.2f}%)"
+        )
+    return mismatch
 
 
 def set_encoder(settings, enc: dict) -> None:
@@ -523,24 +698,28 @@ def image_rmse(image, reference, mask) -> float:
 
 
 def memory_by_density(sc: Scene, density: float, factors=(0.5, 1.0, 2.0)) -> dict:
-    """Peak memory (MB, numpy allocations; Embree's BVH of these scenes is a few MB more) of a
-    32-spp bake at each texel density factor. The tracer works in fixed chunks, so the peak does
-    not depend on samples (≥ 16 per pass), bounces, noise target, time budget or encoder: only on
-    the texel count."""
+    """Peak memory (MB, numpy allocations; Embree's BVH of these scenes is a few MB more, OIDN's
+    own buffers are not counted) of a 32-spp bake at each texel density factor, and of one with
+    the denoiser at the base density (key "denoise"). The tracer works in fixed chunks, so the
+    peak does not depend on samples (≥ 16 per pass), bounces, noise target, time budget or
+    encoder: only on the texel count (and on whether the denoiser runs)."""
     out = {}
     for f in factors:
         sc.unwrap(density * f)
         b = sc.bake(sc.folder / f"memory_{f:g}", dict(BASE, samples=32), trace_memory=True)
         out[f] = {"texels": b["texels"], "peak_memory_mb": b["peak_memory_mb"]}
     sc.unwrap(density)
+    b = sc.bake(sc.folder / "memory_denoise", dict(BASE, samples=32, denoise=True), trace_memory=True)
+    out["denoise"] = {"texels": b["texels"], "peak_memory_mb": b["peak_memory_mb"]}
     return out
 
 
 def attach_memory(res: dict, memory: dict) -> None:
-    """Every row's peak memory from its density's measurement."""
-    res["memory"] = {str(k): v for k, v in memory.items()}
+    """Every row's peak memory from its density's measurement (or the denoised bake's)."""
+    res["memory"] = memory = {str(k): v for k, v in memory.items()}
     for row in res["rows"] + [res["reference"]]:
-        row["peak_memory_mb"] = memory[row.get("density_factor", 1.0)]["peak_memory_mb"]
+        key = "denoise" if row.get("denoise") else str(float(row.get("density_factor", 1.0)))
+        row["peak_memory_mb"] = memory[key]["peak_memory_mb"] if key in memory else None
 
 
 def images_only(args) -> int:
@@ -573,7 +752,9 @@ def memory_only(args) -> int:
         print(
             f"[{name}] peak memory: "
             + ", ".join(
-                f"density × {f:g}: {m['texels']} texels, {m['peak_memory_mb']:.0f} MB" for f, m in memory.items()
+                f"{'denoised' if f == 'denoise' else f'density × {f:g}'}: {m['texels']} texels, "
+                f"{m['peak_memory_mb']:.0f} MB"
+                for f, m in memory.items()
             ),
             flush=True,
         )
@@ -586,9 +767,10 @@ def slug(label: str) -> str:
 
 def fmt_row(row: dict) -> str:
     f = lambda k: f"{row[k]:7.2f}" if row.get(k) is not None else "      —"
+    denoise = f" (denoise {row['denoise_seconds']:.2f} s)" if row.get("denoise_seconds") is not None else ""
     return (
         f"{row['seconds']:8.1f} s {f('peak_memory_mb')} MB  I_z {f('iz_rmse')}%  "
-        f"hemi {f('hemispherical_rmse')}%  image {f('image_rmse')}%"
+        f"hemi {f('hemispherical_rmse')}%  image {f('image_rmse')}%{denoise}"
     )
 
 
@@ -597,9 +779,9 @@ def print_table(name: str, res: dict) -> None:
         f"\n{name}: {res['texels']} texels at {res['density']:g} texels/m; relative RMSE in %; "
         f"floors: reference I_z noise {res['iz_noise_floor']:.2f}%, Cycles image noise {res['cycles_noise_floor']:.2f}%"
     )
-    print(f"{'knob':18s} {'setting':22s} {'time':>10s} {'memory':>10s} {'I_z':>12s} {'hemi':>13s} {'image':>14s}")
+    print(f"{'knob':18s} {'setting':28s} {'time':>10s} {'memory':>10s} {'I_z':>12s} {'hemi':>13s} {'image':>14s}")
     for row in res["rows"] + [res["reference"]]:
-        print(f"{row['knob']:18s} {row['label']:22s} {fmt_row(row)}")
+        print(f"{row['knob']:18s} {row['label']:28s} {fmt_row(row)}")
 
 
 # ---- adaptive stopping against fixed counts ---------------------------------------------------
@@ -657,18 +839,19 @@ def print_adaptive(adaptive: dict) -> None:
 
 # ---- presets and plots ----------------------------------------------------------------------
 def derive_presets(results: dict) -> dict:
-    """For each level of PRESET_LEVELS: among the tracer settings measured on every scene at the
-    base density and default encoder, the one with the least total time whose worst-scene I_z RMSE
-    is within the level."""
+    """For each level of PRESET_LEVELS: among the settings (samples, bounces, noise target,
+    denoise) measured on every scene at the base density and default encoder, denoised points
+    included (except for UNDENOISED_PRESETS), the one with the least total time whose worst-scene
+    I_z RMSE is within the level."""
     by_setting = {}
     for scene, res in results["scenes"].items():
         for row in res["rows"]:
             if row["knob"] in ("encoder", "texel density", "time budget") or row.get("iz_rmse") is None:
                 continue
-            key = (row["samples"], row["bounces"], row["noise_target"])
+            key = (row["samples"], row["bounces"], row["noise_target"], bool(row.get("denoise", False)))
             by_setting.setdefault(key, {})[scene] = row
         # the reference setting itself (its error: its own noise; its bias is not measurable here)
-        by_setting.setdefault((results["settings"]["reference_samples"], 8, 0.0), {})[scene] = res["reference"]
+        by_setting.setdefault((results["settings"]["reference_samples"], 8, 0.0, False), {})[scene] = res["reference"]
     n_scenes = len(results["scenes"])
     complete = {k: v for k, v in by_setting.items() if len(v) == n_scenes}
     presets = {}
@@ -676,18 +859,19 @@ def derive_presets(results: dict) -> dict:
         ok = [
             (sum(r["seconds"] for r in v.values()), k, v)
             for k, v in complete.items()
-            if max(r["iz_rmse"] for r in v.values()) <= level
+            if max(r["iz_rmse"] for r in v.values()) <= level and not (k[3] and name in UNDENOISED_PRESETS)
         ]
         if not ok:
             presets[name] = {"level": level, "found": False}
             continue
-        _, (samples, bounces, noise), rows = min(ok, key=lambda x: x[0])
+        _, (samples, bounces, noise, denoise), rows = min(ok, key=lambda x: x[0])
         presets[name] = {
             "level": level,
             "found": True,
             "samples": samples,
             "bounces": bounces,
             "noise_target": noise,
+            "denoise": denoise,
             "per_scene": {
                 s: {
                     k: r.get(k)
@@ -698,6 +882,7 @@ def derive_presets(results: dict) -> dict:
                         "hemispherical_rmse",
                         "image_rmse",
                         "mean_samples",
+                        "denoise_seconds",
                     )
                 }
                 for s, r in rows.items()
@@ -718,7 +903,7 @@ def print_presets(presets: dict) -> None:
         )
         print(
             f"  {name:10s} ≤ {p['level']:g}%: {p['samples']} spp, {p['bounces']} bounces, "
-            f"noise target {100 * p['noise_target']:g}%  ({scenes})"
+            f"noise target {100 * p['noise_target']:g}%, {'denoised' if p['denoise'] else 'not denoised'}  ({scenes})"
         )
 
 
@@ -740,8 +925,22 @@ def plot(results: dict, presets: dict) -> None:
             for knob in knobs:
                 rows = [r for r in res["rows"] if r["knob"] == knob and r.get(metric) is not None]
                 rows.sort(key=lambda r: r["seconds"])
+                if knob == "denoise":  # a line along the samples at the base bounces, the pairs apart
+                    others = [r for r in rows if r["bounces"] != BASE["bounces"]]
+                    rows = [r for r in rows if r["bounces"] == BASE["bounces"]]
                 if rows:
-                    ax.plot([r["seconds"] for r in rows], [r[metric] for r in rows], "o-", ms=4, label=knob)
+                    style = "s-" if knob == "denoise" else "o-"
+                    (line,) = ax.plot([r["seconds"] for r in rows], [r[metric] for r in rows], style, ms=4, label=knob)
+                if knob == "denoise" and others:
+                    ax.plot(
+                        [r["seconds"] for r in others],
+                        [r[metric] for r in others],
+                        "s",
+                        mfc="none",
+                        color=line.get_color() if rows else None,
+                        ms=6,
+                        label="denoise, other bounces",
+                    )
             ref = res["reference"]
             if ref.get(metric) is not None:
                 ax.plot([ref["seconds"]], [ref[metric]], "k*", ms=9, label="reference")

@@ -17,7 +17,7 @@ def test_presets_are_the_measured_ones():
     assert list(measured) == list(presets.PRESETS)
     for name, m in measured.items():
         assert m["found"], f"{name}: the bench found no setting within {m['level']}%"
-        assert presets.PRESETS[name].knobs() == (m["samples"], m["bounces"], m["noise_target"]), name
+        assert presets.PRESETS[name].knobs() == (m["samples"], m["bounces"], m["noise_target"], m["denoise"]), name
 
 
 def test_presets_get_more_accurate_in_order():
