@@ -21,6 +21,10 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
    radiance ≥ 0) times DIRECTIONAL_RANGE, then scaled back by each colour's denoised L0 (one
    direction for all colours, as HHD's highlight direction is). Dividing by the denoised L0 (a
    smooth image) keeps the ratio linear in the noisy coefficient. Five OIDN calls per page.
+4. **Energy**: at a few samples per texel the noise is heavy-tailed and the filter takes rare
+   bright samples for outliers, darkening (by several percent in rooms lit by small emitters).
+   L0 and I_z are scaled per page so their sums over its chart texels are the traced sums (an
+   unbiased estimate with little noise of its own): the denoised bake keeps the raw bake's mean.
 
 Charts darker than BLACK (mean L0 luminance) are left as they are: nothing to denoise.
 """
@@ -57,6 +61,8 @@ BLACK = 1e-12
 DIRECTIONAL_RANGE = 0.5
 #: |c_k / c_0| bound per SH coefficient k for any radiance ≥ 0 (max |Y_k| / Y_00): √3 in band 1, √5 in band 2.
 BAND_BOUND = np.array([1.0, *[math.sqrt(3.0)] * 3, *[math.sqrt(5.0)] * 5])
+#: Bound of the per-page energy correction of the HDR channels (`_hdr`).
+ENERGY_CLAMP = 1.5
 #: OIDN's auto-exposure key value (its `autoexposure` op): inputScale = KEY / geometric-mean luminance.
 KEY = 0.18
 
@@ -272,8 +278,8 @@ def _denoise_page(
         axis=-1,
     )
     features = _smooth_fill(features, source)
-    l0 = np.maximum(denoiser.denoise(features[..., 0:3].astype(np.float32), input_scale=scales[0]), 0.0)
-    iz = np.maximum(denoiser.denoise(features[..., 3:6].astype(np.float32), input_scale=scales[1]), 0.0)
+    l0 = _hdr(features[..., 0:3], source, scales[0], denoiser)
+    iz = _hdr(features[..., 3:6], source, scales[1], denoiser)
     # the rest in luminance over luminance L0 (one direction for all colours, as HHD keeps), scaled by each colour's L0
     l0_lum = l0 @ LUMINANCE
     across = _directional(features[..., 6:9], l0_lum, math.sqrt(3.0), denoiser)
@@ -286,6 +292,19 @@ def _denoise_page(
     out[:, :, 1, :], out[:, :, 2, :], out[:, :, 3, :] = -v[:, :, 1], v[:, :, 2], -v[:, :, 0]
     out[:, :, 4:, :] = band2[..., None] * colour[:, :, None, :]
     return out
+
+
+def _hdr(colour: np.ndarray, source: np.ndarray, scale: float, denoiser: Denoiser) -> np.ndarray:
+    """An HDR colour image `(h, w, 3)` denoised (inputScale `scale`), ≥ 0, then scaled per channel
+    so its sum over the chart texels `source` is the input's (clamped to ×[1/ENERGY_CLAMP,
+    ENERGY_CLAMP]): at a few samples per texel the noise is heavy-tailed and the filter takes the
+    rare bright samples for outliers, darkening the page; the sum over a page of texels is an
+    unbiased estimate with little noise of its own."""
+    out = np.maximum(denoiser.denoise(colour.astype(np.float32), input_scale=scale), 0.0)
+    before = colour[source].sum(axis=0, dtype=np.float64)
+    after = out[source].sum(axis=0, dtype=np.float64)
+    ratio = np.where(after > 0.0, before / np.where(after > 0.0, after, 1.0), 1.0)
+    return out * np.clip(ratio, 1.0 / ENERGY_CLAMP, ENERGY_CLAMP).astype(np.float32)
 
 
 def _smooth_fill(image: np.ndarray, source: np.ndarray) -> np.ndarray:
