@@ -248,7 +248,8 @@ def _write(
             "timings_seconds": seconds,
         }
     )
-    raw = encoding.TexelData.from_points(traced.points, traced.sh, traced.sh_error)  # image
+    # image (the standard error is not imaged: as large as the SH, and no post stage reads it yet)
+    raw = encoding.TexelData.from_points(traced.points, traced.sh)
     data, sidecar["post"] = post.apply(raw, settings, lambda: _check_cancel(cancel))  # post stages
     seconds["post"] = time.perf_counter() - t
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=raw)  # encode

@@ -1,6 +1,6 @@
 """Post stages: what runs on an atlas's texel images between tracing and encoding. No bpy.
 
-A post stage (`PostStage`) takes the atlas's `encoding.TexelData` (SH, standard error, normals,
+A post stage (`PostStage`) takes the atlas's `encoding.TexelData` (SH, normals,
 coverage as images) and a `check()` (raises to cancel) and returns new TexelData for the same
 texels plus a record for the sidecar's `post` section. It works on images, not on the traced
 texels, so the same stage runs on a fresh bake and on a re-encode from the raw SH file (which

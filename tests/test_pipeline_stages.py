@@ -50,8 +50,7 @@ def test_a_post_stage_receives_the_texel_images_and_its_output_is_what_gets_enco
     monkeypatch.setattr(post, "stages_for", lambda s: [("double", double)])
     bake.run([atlas], scene, settings, tmp_path / "doubled")
     (data,) = seen
-    assert data.sh.shape == data.sh_error.shape == (RES, RES, 9, 3)
-    assert (data.sh_error[data.baked] > 0).any()  # the spread between passes reaches the post stages
+    assert data.sh.shape == (RES, RES, 9, 3) and data.baked.sum() > 0.9 * RES * RES
     # the raw SH file keeps the SH as traced; the encoding is of the stage's output
     np.testing.assert_array_equal(written_sh(tmp_path / "doubled"), written_sh(tmp_path / "plain"))
     plain, doubled = (lightmap_files.AtlasFiles(tmp_path / k, "Lightmap") for k in ("plain", "doubled"))
