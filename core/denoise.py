@@ -59,8 +59,8 @@ BLACK = 1e-12
 #: The directional coefficients are scaled into ±DIRECTIONAL_RANGE (of OIDN's [-1, 1]) for
 #: radiance ≥ 0; the rest of the range is headroom for the noise (Unreal uses 0.5).
 DIRECTIONAL_RANGE = 0.5
-#: |c_k / c_0| bound per SH coefficient k for any radiance ≥ 0 (max |Y_k| / Y_00): √3 in band 1, √5 in band 2.
-BAND_BOUND = np.array([1.0, *[math.sqrt(3.0)] * 3, *[math.sqrt(5.0)] * 5])
+#: |c / c_0| bound of an SH coefficient for any radiance ≥ 0 (max |Y| / Y_00), per band.
+BAND1_BOUND, BAND2_BOUND = math.sqrt(3.0), math.sqrt(5.0)
 #: Bound of the per-page energy correction of the HDR channels (`_hdr`).
 ENERGY_CLAMP = 1.5
 #: OIDN's auto-exposure key value (its `autoexposure` op): inputScale = KEY / geometric-mean luminance.
@@ -282,9 +282,9 @@ def _denoise_page(
     iz = _hdr(features[..., 3:6], source, scales[1], denoiser)
     # the rest in luminance over luminance L0 (one direction for all colours, as HHD keeps), scaled by each colour's L0
     l0_lum = l0 @ LUMINANCE
-    across = _directional(features[..., 6:9], l0_lum, math.sqrt(3.0), denoiser)
+    across = _directional(features[..., 6:9], l0_lum, BAND1_BOUND, denoiser)
     across -= n * np.einsum("hwa,hwa->hw", n, across)[..., None]
-    band2 = _directional(features[..., 9:14], l0_lum, math.sqrt(5.0), denoiser)
+    band2 = _directional(features[..., 9:14], l0_lum, BAND2_BOUND, denoiser)
     colour = l0 / np.where(l0_lum > 0.0, l0_lum, 1.0)[..., None]  # (h, w, 3): L0 of each colour / luminance L0
     v = across[..., None] * colour[:, :, None, :] + n[..., None] * (iz / IRRADZ_FROM_R10)[:, :, None, :]
     out = np.empty(values.shape, np.float32)
