@@ -8,7 +8,7 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
    rectangle are masked out and refilled smoothly from its own (`_smooth_fill`: a local mean
    of its texels; copying the nearest texel repeats its noise in streaks the filter keeps).
 2. **Pages**: each chart's rectangle plus MARGIN texels goes into a page image (shelf packing,
-   `layout`). every OIDN call has a fixed cost whatever the size, and real atlases hold thousands of
+   `layout`). Every OIDN call has a fixed cost whatever the size, and real atlases hold thousands of
    charts a few texels wide, so charts share pages; a chart then sees its neighbours in the page
    2·MARGIN texels away at the closest. To keep that from bleeding light, a page only holds charts
    whose mean luminance lies within one BRIGHTNESS_BAND factor of each other, and each page has
