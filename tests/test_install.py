@@ -99,7 +99,7 @@ def test_zip_installs_enables_and_bakes_in_a_bpy_only_environment(built_zips, tm
     assert np.array_equal(iz_image(tmp_path / "bake", sys.executable), iz_image(tmp_path / "cli", sys.executable))
 
 
-def cli_bake(python: str, scene: Path, out: Path) -> None:
+def cli_bake(python: str, scene: Path, out: Path, *options: str) -> None:
     cmd = [
         python,
         "-m",
@@ -120,6 +120,7 @@ def cli_bake(python: str, scene: Path, out: Path) -> None:
         "Cube",
         "--out",
         str(out),
+        *options,
     ]
     done = subprocess.run(
         cmd,
@@ -147,7 +148,9 @@ def test_cli_bake_gives_the_same_iz_on_blender_4_2_and_5_3(tmp_path):
     for name, python in pythons.items():
         scene = tmp_path / f"scene-{name}.blend"  # each version builds it itself
         run_json([str(python), str(TRY), "--scene-only", str(scene)])
-        cli_bake(str(python), scene, tmp_path / name)
+        # undenoised: the two Blenders ship different OIDN builds (2.3 and 2.5), whose outputs differ
+        # in the last bits; what must agree here is the trace and the encoding
+        cli_bake(str(python), scene, tmp_path / name, "--no-denoise")
         images[name] = iz_image(tmp_path / name, str(python))
         versions[name] = json.loads((tmp_path / name / "Lightmap.json").read_text())
     new, old = images["5.3"], images["4.2"]
