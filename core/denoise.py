@@ -24,7 +24,8 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
 4. **Energy**: at a few samples per texel the noise is heavy-tailed and the filter takes rare
    bright samples for outliers, darkening (by several percent in rooms lit by small emitters).
    L0 and I_z are scaled per page so their sums over its chart texels are the traced sums (an
-   unbiased estimate with little noise of its own): the denoised bake keeps the raw bake's mean.
+   unbiased estimate with little noise of its own): each page keeps the traced mean, though
+   light can still move between the charts of one page.
 
 Charts darker than BLACK (mean L0 luminance) are left as they are: nothing to denoise.
 """
