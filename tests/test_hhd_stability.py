@@ -6,6 +6,7 @@ import pytest
 import quadrature as quad
 from hhd_cases import delta_light_sh
 from hhd_lightmapper.core import hhd, octahedral, sh, synthetic
+from hhd_lightmapper.core.hhd import search
 
 VARIANTS = [
     dict(),
@@ -90,6 +91,50 @@ def test_float32_input_matches_float64():
     # float32 rounding of the input moves the optimum by ~1e-6; the search's own tolerance is ~1e-4 rad
     assert np.abs(p32.ambient_weight - p64.ambient_weight).max() < 1e-3
     assert np.arccos(np.clip(np.einsum("ni,ni->n", p32.direction, p64.direction), -1, 1)).max() < 2e-3
+
+
+def _arctan2_placed(behind: bool):
+    """np.arctan2 as the heap may lay out a new result: right behind a strided input's buffer
+    (`behind`), or apart from both inputs. numpy 1.x on AVX-512 takes libm's scalar route in the
+    first case and SVML's vector route in the second (they differ in the last bit); numpy 2, or
+    a CPU without AVX-512, takes one route either way. A given `out` is passed through."""
+    real = np.arctan2
+
+    def arctan2(y, x, out=None, **kw):
+        if out is not None:
+            return real(y, x, out=out, **kw)
+        n = len(y)
+        block = np.zeros(4 * n + 3)
+        column = block[2 : 3 * n + 2 : 3]  # x as the last column of an (N, 3) array, as `v[:, 2]`
+        column[:] = x
+        result = block[3 * n + 2 : 4 * n + 2] if behind else block[3 * n + 3 : 4 * n + 3]
+        if not behind:
+            column = column.copy()  # contiguous and elsewhere: nothing lies behind it
+        return real(np.array(y, dtype=np.float64), column, out=result, **kw)
+
+    return arctan2
+
+
+@pytest.mark.parametrize("kw", [dict(), dict(phi_search=True)])
+def test_encoding_does_not_depend_on_where_numpy_puts_an_arctan2_result(kw, monkeypatch):
+    """A bake and its re-encode gave different highlight directions in one process out of a
+    few (bpy 4.2, numpy 1.26): the optimal linear direction's arctan2 took libm's or SVML's
+    route depending on where the heap put its result, and the θ search amplified the last bit.
+    The encoder's own arctan2 (`core.hhd.search.arctan2`) fixes the layout, so the route."""
+    rng = np.random.default_rng(11)
+    n = synthetic.random_normals(rng, 400)
+    s = synthetic.hemisphere_sh(synthetic.interior(), n).astype(np.float32)
+    encoded = []
+    for behind in (False, True):
+        monkeypatch.setattr(np, "arctan2", _arctan2_placed(behind))
+        encoded.append(hhd.encode(s, n, **kw))
+    for name in ("irradz", "ambient_weight", "direction"):
+        assert getattr(encoded[0], name).tobytes() == getattr(encoded[1], name).tobytes(), name
+    monkeypatch.undo()
+    y, x = rng.normal(size=(2, 1000))
+    strided = np.zeros((1000, 3))
+    strided[:, 2] = x
+    assert search.arctan2(y, strided[:, 2]).tobytes() == search.arctan2(y.copy(), x.copy()).tobytes()
 
 
 def test_nan_and_inf_are_sanitised_counted_and_isolated():

@@ -9,6 +9,7 @@ from .. import sh as _sh
 from .encoder import gram_matrix, sanitise
 from .fit import prepare
 from .lobes import MIN_COS, HHDParams, ambient_lobe
+from .search import arctan2
 
 
 def fit_error(
@@ -36,7 +37,7 @@ def fit_error(
     )
     d_local = np.einsum("nji,nj->ni", frames, np.asarray(direction, dtype=np.float64))
     theta = np.arccos(np.clip(d_local[:, 2], -1.0, 1.0))
-    phi = np.arctan2(d_local[:, 1], d_local[:, 0])
+    phi = arctan2(d_local[:, 1], d_local[:, 0])
     err, w = fit.evaluate(theta, phi)
     return err * fit.scale**2, (w[:, 0] if ambient == "luminance" else w)
 

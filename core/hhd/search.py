@@ -87,10 +87,29 @@ def search_phi(fit: Fit, phi0: np.ndarray, theta0: np.ndarray, theta_max: float,
     return np.where(better_scan, scan_theta, theta), np.where(better_scan, phi_best_scan, phi)
 
 
+def arctan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """`np.arctan2(y, x)` of `(N,)` arrays, float64, bit for bit the same wherever the arrays lie.
+
+    numpy 1.x on AVX-512 CPUs (bpy 4.2's) computes arctan2 with SVML's vector routine only where
+    it can tell the output from the inputs, else with libm's scalar one; the two differ in the last
+    bit for about a third of the values. Its test is conservative: a strided input (a column of an
+    `(N, 3)` array) counts as reaching past its buffer's end, so a new output the heap happens to
+    put right behind it takes the scalar route, in one process out of a few. The encoder's
+    direction search (an almost flat objective on near-ambient texels) turns that last bit into
+    another highlight direction, so a bake and its re-encode differed. Here the output is an
+    input's own memory (which numpy accepts) and the other input lies apart in the same buffer:
+    the route never depends on the heap (numpy 2 takes the vector one either way)."""
+    n = len(y)
+    rows = np.zeros((2, n + 1))  # the padding element keeps the two rows apart
+    out, other = rows[0, :n], rows[1, :n]
+    out[:], other[:] = y, x
+    return np.arctan2(out, other, out=out)
+
+
 def optimal_linear_angles(local_sh: np.ndarray, channel_weights: np.ndarray, theta_max: float):
     """(θ, φ) `(N,)` of the SH linear band's direction (-r_1^1, -r_1^-1, r_1^0), luminance-weighted,
     with θ clamped to θ_max; +z where the band is zero. local_sh `(N, 9, K)`, channel_weights `(K,)`."""
     v = np.stack([-local_sh[:, 3], -local_sh[:, 1], local_sh[:, 2]], axis=1) @ channel_weights
-    theta = np.arctan2(np.hypot(v[:, 0], v[:, 1]), v[:, 2])
-    phi = np.arctan2(v[:, 1], v[:, 0])
+    theta = arctan2(np.hypot(v[:, 0], v[:, 1]), v[:, 2])
+    phi = arctan2(v[:, 1], v[:, 0])
     return np.minimum(theta, theta_max), phi
