@@ -38,6 +38,21 @@ JITTER_TRIES = 10
 FOOTPRINT = 1.0
 #: Probe directions per texel for the buried test (fixed, rotated per texel).
 BURIED_PROBES = 12
+#: Move bake points out from under back faces and keep every texel's samples on the side of
+#: any geometry crossing its footprint where its bake point lies (`settle`; the tracer drops
+#: samples hidden from the bake point). Off: the texel averages its whole footprint, as
+#: Cycles does, both sides of a wall standing on it included.
+SETTLE = True
+#: How far past a back face a bake point is moved, in ray offsets (measured square to the face).
+SETTLE_CLEARANCE = 4.0
+#: Reach of the spoke opposite a back-face hit, in texels: a bake point is inside a solid (and
+#: moved out of it) when back faces lie on both sides within this reach, or when a coplanar face
+#: covers it (core.covers). A lone back face is not enough: a room whose walls face outwards
+#: shows its inside nothing but back faces, and its floor must not be moved through them.
+SETTLE_THICKNESS = 8.0
+#: Footprint points, in texel units from the texel's corner, that `settle` casts its spokes to
+#: from the bake point: the footprint's corners and the middles of its sides.
+_SPOKES = np.array([[0, 0], [1, 0], [0, 1], [1, 1], [0.5, 0], [0.5, 1], [0, 0.5], [1, 0.5]], float)
 
 
 @dataclass
@@ -117,10 +132,12 @@ def weld(positions: np.ndarray) -> np.ndarray:
 @dataclass
 class BakePoints:
     """position, normal (n_v), face_normal, albedo: (P, 3) float64; coverage (P,) in (0, 1];
-    texel, triangle, object_index (P,) int; buried (P,) bool (hemisphere closed by geometry);
+    texel, triangle, object_index (P,) int; buried (P,) bool (invalid: the hemisphere is closed
+    by geometry, or the bake point stays under a coplanar face);
     near_cover (P,) bool (part of the texel may lie under a coplanar face: core.covers);
-    offset: ray origin offset, scene units; texel_size (P,) world size of a texel, metres;
-    mesh: the receiving triangles `triangle` indexes (`SurfaceMesh`)."""
+    crossed (P,) bool (geometry crosses the texel's footprint: `settle`; the tracer keeps only
+    the samples the bake point sees; None when not settled); offset: ray origin offset, scene units; texel_size (P,)
+    world size of a texel, metres; mesh: the receiving triangles `triangle` indexes (`SurfaceMesh`)."""
 
     width: int
     height: int
@@ -137,6 +154,7 @@ class BakePoints:
     buried: np.ndarray
     mesh: SurfaceMesh
     near_cover: np.ndarray
+    crossed: np.ndarray | None = None
 
     def origins(self, rows=slice(None)) -> np.ndarray:
         """Ray origins `(P, 3)` (of the texels `rows`, if given): positions pushed off the
@@ -232,9 +250,14 @@ def build(
             check()
         _fill_points(points, surface, slice(s, s + chunk), centroid[s : s + chunk])
     if occluders is not None:
-        points.buried = find_buried(points, occluders, check=check, threads=threads)
         probe = covers.shared_probe(occluders, points.offset, mesh.positions)
+        if SETTLE:  # else `crossed` stays None: the tracer averages whole footprints
+            points.crossed = settle(points, occluders, probe, check=check, threads=threads)
+        points.buried = find_buried(points, occluders, check=check, threads=threads)
         points.near_cover = find_near_cover(points, probe, check=check, threads=threads)
+        if SETTLE:  # a bake point still under a coplanar face: the whole texel is hidden
+            rows = np.flatnonzero(points.near_cover & ~points.buried)
+            points.buried[rows] = probe.covered(points.origins(rows), points.face_normal[rows])
     return points
 
 
@@ -355,8 +378,8 @@ def find_buried(
 ) -> np.ndarray:
     """Texels whose hemisphere is closed by nearby geometry seen from behind (the inside of a
     box pushed into the floor): at least BURIED_FRACTION of short probe rays (length 4 texels)
-    hit back faces. The bake stores such texels black and never uses them as dilation sources,
-    so light cannot leak into them. (Deeper inside a closed volume texels are dark anyway: all
+    hit back faces. Such texels are invalid: the traced SH is 0 there, never a dilation source,
+    and the files fill them from the nearest valid texel of their chart (`TexelData.fill`). (Deeper inside a closed volume texels are dark anyway: all
     their rays end on the volume's inner faces.) Returns (P,) bool. Works in chunks of texels
     (bounded memory) on `threads` workers (0 = every core), calling `check()` between chunks. Every texel gets
     the first probes − need + 1 probes, only those with a back-face hit among them the rest:
@@ -386,3 +409,93 @@ def find_buried(
 
     _for_chunks(probe_chunk, len(buried), chunk, check, threads)
     return buried
+
+
+def settle(
+    points: BakePoints, scene: RayScene, probe: CoverProbe, check=None, chunk: int = 1 << 15, threads: int = 0
+) -> np.ndarray:
+    """Bake points moved out from under back faces, as Godot's lightmapper does: from each bake
+    point (its ray origin, `offset` off the surface) a short ray (a spoke) to each of the
+    footprint's corners and side middles (`_SPOKES`, clamped into the texel's triangle), on to
+    one texel away; where spokes hit the back of a triangle and the bake point is inside a solid
+    (a coplanar face covers it, `probe`: under a box resting on the surface; or back faces lie
+    on both sides within SETTLE_THICKNESS texels: inside a wall standing in the surface), the
+    bake point moves along the nearest such spoke to SETTLE_CLEARANCE offsets past that face,
+    onto the part of the texel one can see. Updates `points.position` in place; returns (P,)
+    bool: texels whose footprint some geometry crosses (a spoke hits it before the footprint's
+    edge), whose samples the tracer checks against the bake point. Chunks of `chunk` texels on
+    `threads` workers (0 = every core), `check()` between chunks."""
+    crossed = np.zeros(len(points.texel), bool)
+    k = len(_SPOKES)
+
+    def settle_chunk(sl: slice):
+        idx = np.arange(sl.start, sl.stop)
+        anchor = points.origins(idx)
+        target = points.texel_points(idx, _SPOKES * FOOTPRINT + 0.5 * (1.0 - FOOTPRINT))
+        ray = target - anchor[:, None, :]
+        length = np.linalg.norm(ray, axis=2)
+        direction = ray / np.maximum(length, 1e-300)[..., None]
+        reach = np.maximum(length, points.texel_size[idx][:, None])
+        origin = np.repeat(anchor, k, axis=0)
+        near = scene.occluded(origin, direction.reshape(-1, 3), reach.reshape(-1)).reshape(-1, k)
+        rows = np.flatnonzero((near & (length > 0.0)).any(axis=1))  # the few texels near geometry
+        if len(rows) == 0:
+            return
+        spokes = _Spokes(scene, anchor[rows], direction[rows], reach[rows])
+        moved = _push_out(points, idx[rows], spokes, probe)
+        crossed[idx[rows]] = (spokes.t < length[rows]).any(axis=1) | moved
+
+    _for_chunks(settle_chunk, len(crossed), chunk, check, threads)
+    return crossed
+
+
+class _Spokes:
+    """Closest hits of k spokes per bake point: anchor (n, 3), direction (n, k, 3) unit, reach
+    (n, k). t (n, k) hit distance (inf: none), back (n, k) bool: the hit is a triangle's back,
+    cos (n, k): the cosine between the spoke and that face's normal."""
+
+    def __init__(self, scene: RayScene, anchor, direction, reach):
+        n, k = reach.shape
+        self.scene, self.anchor, self.direction = scene, anchor, direction
+        t, prim, ng = scene.intersect(np.repeat(anchor, k, axis=0), direction.reshape(-1, 3), reach.reshape(-1))
+        ng = ng.astype(np.float64)
+        ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+        cos = np.einsum("ri,ri->r", ng, direction.reshape(-1, 3)).reshape(n, k)
+        self.t = np.where(prim >= 0, t, np.inf).reshape(n, k).astype(np.float64)
+        self.back = (prim.reshape(n, k) >= 0) & (cos > 0.0)
+        self.cos = cos
+
+
+def _between_back_faces(points: BakePoints, idx, anchor, scene: RayScene, k: int = 8) -> np.ndarray:
+    """(n,) bool: along some line in the surface's plane through `anchor` (n, 3), back faces lie
+    on both sides within SETTLE_THICKNESS texels (k directions, opposite pairs)."""
+    from .sh import tangent_frames
+
+    angle = np.arange(k) * (2.0 * np.pi / k)
+    local = np.stack([np.cos(angle), np.sin(angle), np.zeros(k)], axis=1)
+    direction = np.einsum("pij,kj->pki", tangent_frames(points.face_normal[idx]), local)
+    reach = np.repeat(SETTLE_THICKNESS * points.texel_size[idx][:, None], k, axis=1)
+    back = _Spokes(scene, anchor, direction, reach).back
+    return (back[:, : k // 2] & back[:, k // 2 :]).any(axis=1)
+
+
+def _push_out(points: BakePoints, idx, spokes: _Spokes, probe: CoverProbe) -> np.ndarray:
+    """Moves the bake points `idx` past the nearest back face their spokes hit, where they are
+    inside a solid (`settle`); position updated in place. Returns (len(idx),) bool: moved."""
+    n, k = spokes.t.shape
+    moved = np.zeros(n, bool)
+    back_t = np.where(spokes.back, spokes.t, np.inf)
+    best = np.argmin(back_t, axis=1)
+    rows = np.flatnonzero(np.isfinite(back_t[np.arange(n), best]))
+    if len(rows) == 0:
+        return moved
+    inside = probe.covered(spokes.anchor[rows], points.face_normal[idx[rows]])
+    if not inside.all():  # not covered: back faces on two opposite sides within SETTLE_THICKNESS texels?
+        inside[~inside] = _between_back_faces(points, idx[rows[~inside]], spokes.anchor[rows[~inside]], spokes.scene)
+    rows = rows[inside]
+    b = best[rows]
+    past = spokes.t[rows, b] + SETTLE_CLEARANCE * points.offset / np.maximum(spokes.cos[rows, b], 0.1)
+    to = spokes.anchor[rows] + spokes.direction[rows, b] * past[:, None]
+    points.position[idx[rows]] = to - points.face_normal[idx[rows]] * points.offset
+    moved[rows] = True
+    return moved

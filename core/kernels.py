@@ -163,6 +163,34 @@ def texel_origins(corner, tri_uv, tri_pos, centroid, face_normal, offset, k, foo
     return out
 
 
+def replace_hidden(hidden, k, seed):
+    """For k samples per texel (hidden (n·k,) bool, True where a sample's origin is hidden from
+    its texel's anchor): the sample each one takes its origin from (n·k,) int, itself when
+    visible, else a visible sample of the same texel drawn uniformly (the hidden part of the
+    footprint is dropped and the visible part keeps uniform density), -1 when none is visible
+    (the caller then uses the anchor)."""
+    state = np.uint64(seed)
+    n = hidden.shape[0] // k
+    out = np.empty(n * k, np.int64)
+    visible = np.empty(k, np.int64)
+    for t in range(n):
+        m = 0
+        for j in range(k):
+            if not hidden[t * k + j]:
+                visible[m] = t * k + j
+                m += 1
+        for j in range(k):
+            s = t * k + j
+            if not hidden[s]:
+                out[s] = s
+            elif m == 0:
+                out[s] = -1
+            else:
+                state, u = uniform(state)
+                out[s] = visible[min(int(u * m), m - 1)]
+    return out
+
+
 def advance_paths(
     live,
     acc,
@@ -180,6 +208,7 @@ def advance_paths(
     roulette,
     max_survival,
     seed,
+    back_faces_black=False,
 ):
     """One wavefront step after a closest-hit query of the rays o + t·d (R, 3), (R,), one row per
     live path: `live` (R,) its sample index, `acc` (R, 3) radiance gathered so far, `throughput`
@@ -190,6 +219,9 @@ def advance_paths(
     Embree's, not unit) and the next origin x = hit + offset·n; then, if `roulette`, the path
     survives with probability p = min(max(throughput), max_survival). A survivor gets a
     cosine-distributed direction around n (pdf cosθ/π) and the weight 1/p for what follows.
+    With `back_faces_black`, a hit on the back of a triangle (ng · d > 0: the ray started inside
+    a closed mesh or behind a wall's modelled side) ends the path like a miss without sky: the
+    light gathered before it stays, nothing more is added there.
 
     Returns the hits compacted, survivors first: (live, acc, throughput, x, n, directions, pdf,
     weight, s) with s survivors; directions and pdf are set for survivors only, weight (s,).
@@ -208,6 +240,10 @@ def advance_paths(
             s = i if per_row_sky else 0
             for c in range(3):
                 radiance[live[i], c] = acc[i, c] + throughput[i, c] * sky[s, c]
+            continue
+        if back_faces_black and ng[i, 0] * d[i, 0] + ng[i, 1] * d[i, 1] + ng[i, 2] * d[i, 2] > 0.0:
+            for c in range(3):  # the back of a surface: the path ends, carrying no more light
+                radiance[live[i], c] = acc[i, c]
             continue
         for c in range(3):
             albedo = row_albedo[i, c] if per_row_albedo else tri_albedo[prim[i], c]
@@ -362,7 +398,15 @@ def add_pass(idx, estimate, normals, luminance, total, m2, iz, iz_sq, passes):
 
 
 _HELPERS = ("uniform", "radical_inverse", "sh_basis", "zonal_band1", "local_to_world")
-_KERNELS = ("hemisphere_rays", "texel_origins", "advance_paths", "project_hemisphere", "accumulate_grouped", "add_pass")
+_KERNELS = (
+    "hemisphere_rays",
+    "texel_origins",
+    "replace_hidden",
+    "advance_paths",
+    "project_hemisphere",
+    "accumulate_grouped",
+    "add_pass",
+)
 _compiled: SimpleNamespace | None = None
 _lock = threading.Lock()
 

@@ -11,6 +11,10 @@ Which module for what:
                      bumps_normal_map, box (cube primitive), box_between (corner to corner),
                      plane, world, sky_pixels + hdri_world, light, sun, camera, select, unwrap,
                      externalise_images. For bpy tests and custom scenes.
+- `scenekit.leak_fixtures`  numpy, no bpy: the leak audit's fixtures (a wall through a floor, a
+                     box on a floor, a thin wall between a lit and a dark room, a thin table top)
+                     with each texel's exact answer; tests/test_leaks.py bakes them with the
+                     core, bench/leaks.py also in Blender against Cycles.
 - `scenekit.scenes`  named whole scenes: demo_room (the README's demo), outdoor / emissive (with
                      the demo room bench/tradeoff.py's three, `build(name)`), classroom and
                      field (bench/time_to_error.py's, against Cycles).

@@ -77,6 +77,25 @@ def compare(receivers, samples=64, bounces=1, cycles_samples=64):
     )
 
 
+def restricted(r, subset):
+    """`compare`'s result over a `subset` (bool over its compared texels) of them."""
+    o, c, noise = r["ours"][subset], r["cycles"][subset], r["texel_noise"][subset]
+    keep = r["keep"].copy()
+    keep[keep] = subset
+    return dict(
+        r,
+        keep=keep,
+        ours=o,
+        cycles=c,
+        texel_noise=noise,
+        mean=float(np.mean(c)),
+        bias=float(np.mean(o - c)),
+        rms=float(np.sqrt(np.mean((o - c) ** 2))),
+        noise_rms=float(np.sqrt(np.mean(noise))),
+        se_mean=float(np.sqrt(np.mean(noise) / o.size)),
+    )
+
+
 def assert_agree(r, allowance=0.01):
     """Unbiased within 4 standard errors of the mean (plus `allowance` × mean I_z for what is
     not noise: e.g. Cycles' shading-normal smoothing), and per-texel residual consistent with

@@ -197,8 +197,11 @@ def test_floor_under_a_coplanar_face_stays_dark_as_in_cycles(extension):
     facing down. Cycles' rays start on the floor and hit that face at distance 0, so the floor
     under it is dark; ours start an offset above the floor, inside the box, and without the
     cover probe (core.covers) see the sky through the open top (measured without it: I_z up to
-    1.38 under the box, where Cycles is dark). The whole floor, the part under the box included,
-    must agree with Cycles within the noise rule."""
+    1.38 under the box, where Cycles is dark). The texels under the box are invalid (no one
+    sees them: the files fill them from the visible floor) and bake black; the rest of the floor
+    must agree with Cycles within the noise rule, except along the box's edge, where ours
+    averages the visible part of a texel and Cycles the whole texel, its covered part dark
+    (README, "Leaks"): there ours is never darker than Cycles beyond the noise."""
     import bmesh
 
     kit.clear_scene()
@@ -213,12 +216,18 @@ def test_floor_under_a_coplanar_face_stays_dark_as_in_cycles(extension):
     kit.world((0.3, 0.4, 0.6))
     kit.unwrap([floor])
     r = cc.compare([floor], samples=32, bounces=1)
-    x, y = np.abs(r["points"].position[r["keep"], 0]), np.abs(r["points"].position[r["keep"], 1])
-    under = np.maximum(x, y) < 0.5 - r["points"].texel_size[r["keep"]]
-    assert under.sum() > 1000
-    assert r["cycles"][under].mean() < 0.05 * r["cycles"][~under].mean()
-    assert r["ours"][under].max() == 0.0
-    cc.assert_agree(r)
+    points = r["points"]
+    centre = points.texel_points(np.arange(len(points.texel)), np.array([[0.5, 0.5]]))[:, 0]
+    inner = np.maximum(np.abs(centre[:, 0]), np.abs(centre[:, 1]))
+    under = inner < 0.5 - points.texel_size
+    assert under.sum() > 1000 and points.buried[under].all()
+    _, iz, _ = cc.ours([floor], 16, 1, seed=3)
+    assert iz[under].max() == 0.0
+    edge = (np.abs(inner - 0.5) < points.texel_size)[r["keep"]]
+    assert edge.sum() > 200
+    on_edge = cc.restricted(r, edge)
+    assert on_edge["bias"] > -4 * on_edge["se_mean"], on_edge["bias"]
+    cc.assert_agree(cc.restricted(r, ~edge))
 
 
 def test_texture_albedo_reaches_bake_points_and_bounce_light(extension):

@@ -24,7 +24,8 @@ import numpy as np
 HALF, FLOAT, HALF_OR_FLOAT = "half", "float", "half_or_float"
 
 #: How the encode stage fills texels without a bake value of their own (outside charts, buried):
-#: not at all; from the nearest chart texel (`dilate.Fill`); the same but buried texels set to 0.
+#: not at all; from the nearest chart texel (`dilate.Fill`); the same but buried texels no valid
+#: texel of their own chart reaches set to 0 (the others take that texel's value: `TexelData.fill`).
 NO_FILL, DILATE, DILATE_BURIED_BLACK = "none", "dilate", "dilate_buried_black"
 
 

@@ -11,7 +11,10 @@ unbiased, exact for constant radiance, every sample used by every coefficient.
 
 Every sample's origin is jittered over the texel's footprint (`BakePoints.sample_origins`: the
 texel's FOOTPRINT square within its triangle), so a texel is an area average as Cycles bakes it;
-samples starting on a part of the texel a coplanar face covers receive nothing (core.covers).
+where geometry crosses the footprint (a wall standing on the surface: `BakePoints.crossed`), only
+the part the bake point sees is averaged (samples hidden from it are replaced by visible ones),
+so light from the far side of the wall does not leak in; samples starting on a part of the
+texel a coplanar face covers receive nothing (core.covers).
 Lights are added by next-event estimation at the bake point too: one shadow ray per light per
 sample, projected to SH along the light's direction (`kernels.accumulate_grouped`; a delta
 light has an exact direction: an unshadowed sun adds exactly s·Y(l), no noise), MIS-weighted
@@ -77,10 +80,38 @@ class TexelEstimator(shipping.Shipped):
         texel = np.repeat(np.arange(len(idx)), k)
         origins = self.points.sample_origins(rng, idx, k, self.footprint)
         uncovered = self._uncovered(paths, idx, texel, origins)
+        crossed = self.points.crossed
+        if crossed is not None:  # settled bake points: hidden samples are replaced
+            origins = self._visible(paths, rng, idx, origins, k, crossed[idx], uncovered)
+            uncovered = None
         radiance = paths.radiance(rng, origins, dirs, pdf, uncovered)  # (n·k, 3)
         estimate = paths.kernels.project_hemisphere(dirs, radiance, pdf, normals, k)
         estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered)
         return UnitResult(estimate, paths.traced)
+
+    def _visible(self, paths: Paths, rng, idx, origins, k, crossed, uncovered=None) -> np.ndarray:
+        """`origins` (n·k, 3) with those hidden from their texel's bake point (a wall or a box
+        side between them, in the texels `crossed` (n,) bool: `BakePoints.crossed`) or under a
+        coplanar face (not `uncovered`)
+        replaced by visible origins of the same texel (`kernels.replace_hidden`), or by the bake
+        point when none is: the texel averages the part of its footprint one can see on the
+        bake point's side."""
+        hidden = np.zeros(len(origins), bool) if uncovered is None else ~uncovered
+        rows = np.flatnonzero(np.repeat(crossed, k))
+        if len(rows):
+            anchor = self.points.origins(idx[rows // k])
+            ray = origins[rows] - anchor
+            length = np.linalg.norm(ray, axis=1)
+            direction = ray / np.maximum(length, 1e-300)[:, None]
+            paths.count(len(rows))
+            hidden[rows] |= self.scene.rays.occluded(anchor, direction, length) & (length > 0.0)
+        if not hidden.any():
+            return origins
+        source = paths.kernels.replace_hidden(hidden, k, seed(rng))
+        out = origins[np.maximum(source, 0)]
+        none = np.flatnonzero(source < 0)
+        out[none] = self.points.origins(idx[none // k])
+        return out
 
     def _uncovered(self, paths: Paths, idx, texel, origins) -> np.ndarray | None:
         """(n·k,) bool, False for samples starting on a part of the texel a coplanar face covers

@@ -7,7 +7,8 @@ over bounces on compacted live arrays: rays that escape take the world's radianc
 world, or the HDRI weighted by MIS), hits take the emission of the triangle they reach (MIS
 against emitter sampling), and every hit adds next-event estimation to every light
 (`irradiance_at`: one shadow ray per light and vertex), then continues diffusely (two-sided,
-cosine-distributed) with Russian roulette from RR_START bounces on, at most `bounces`
+cosine-distributed; with BACK_FACES_BLACK a path that reaches the back of a triangle ends
+there, carrying no more light) with Russian roulette from RR_START bounces on, at most `bounces`
 reflections. The per-sample work between two Embree queries runs in `kernels.advance_paths`.
 
 `TraceScene` is what paths see of one bake (picklable: the Embree scene is rebuilt in a process
@@ -27,6 +28,13 @@ from . import shipping
 
 RR_START = 2  # bounces before Russian roulette may end a path
 RR_MAX_SURVIVAL = 0.95
+#: A path that hits the back of a triangle carries no light from there on (as Godot's and
+#: Unity's bakers do): it started inside a closed mesh or behind a wall's modelled side, where
+#: any light it finds has leaked through. Off by default: surfaces are two-sided, as in Cycles,
+#: because real scenes show their back faces to the room (single-sided planes, rooms whose
+#: normals face outwards: README, "Leaks"); the bake points keep samples out of solids instead
+#: (`bakepoints.settle`).
+BACK_FACES_BLACK = False
 _BLACK = np.zeros((1, 3))  # the sky of a scene without a world (kernels.advance_paths)
 _NO_ROWS = np.zeros((0, 3))  # no per-row albedo: the kernel takes the triangles' own
 
@@ -44,6 +52,7 @@ class TraceScene:
             raise BakeError("the bake scene has no geometry")
         self.scene = scene
         self.bounces = bounces
+        self.back_faces_black = BACK_FACES_BLACK
         self.shared_rays = ray_scene is not None
         self._rays: RayScene | None = ray_scene if ray_scene is not None else RayScene(scene.triangles)
         self.offset = max(min_offset, ray_offset(scene.triangles))
@@ -142,6 +151,7 @@ class Paths:
                 bounce + 1 >= RR_START,
                 RR_MAX_SURVIVAL,
                 seed(rng),
+                ts.back_faces_black,
             )
             if len(live) == 0:
                 return radiance
