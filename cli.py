@@ -87,6 +87,16 @@ def _parser() -> argparse.ArgumentParser:
             f"library), or not (default: {default}); the SH EXR always keeps the SH as traced",
         )
 
+    def stitch(q, what):
+        q.add_argument(
+            "--stitch",
+            dest="stitch_seams",
+            action=argparse.BooleanOptionalAction,
+            default=None,
+            help=f"{what} the SH stitched along the UV seams of smooth surfaces, so no line shows where a "
+            "surface is split between charts, or not (default: the scene's Stitch Seams setting)",
+        )
+
     q = sub.add_parser("unwrap", help="xatlas lightmap UVs for the receivers")
     receivers(q)
     q.add_argument("--resolution", type=int)
@@ -110,6 +120,7 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--time-budget", type=float, metavar="SECONDS", help="stop tracing after SECONDS")
     q.add_argument("--seed", type=int)
     denoise(q, "encode", "the --preset's, else the scene's Denoise setting")
+    stitch(q, "encode")
     q.add_argument("--unwrap", action="store_true", help="unwrap the receivers first")
     q.add_argument("--resolution", type=int, help="atlas size for --unwrap")
     q.add_argument("--texel-density", type=float, help="texels per metre for --unwrap")
@@ -121,6 +132,7 @@ def _parser() -> argparse.ArgumentParser:
     encoder(q)
     q.add_argument("--out", metavar="DIR", help="folder of the bake (default: the scene's Output Folder)")
     denoise(q, "re-encode", "the scene's Denoise setting")
+    stitch(q, "re-encode")
     threads(q)
     return p
 
@@ -139,6 +151,7 @@ def _apply_options(settings, args) -> None:
         "seed",
         "phi_search",
         "denoise",
+        "stitch_seams",
     ):
         value = getattr(args, key, None)
         if value is not None:

@@ -131,6 +131,14 @@ class HHDSettings(bpy.types.PropertyGroup):
         "own library) before encoding: less noise for the same samples. The SH EXR keeps the "
         "lighting as traced, so Re-encode can switch it off or on without baking again",
     )
+    stitch_seams: BoolProperty(
+        name="Stitch Seams",
+        default=True,
+        description="Make the lighting agree on both sides of each UV seam of a smooth surface (least "
+        "squares on the baked SH, before encoding), so no line shows where a surface is split "
+        "between charts. Hard edges are left alone. Re-encode can switch it off or on without "
+        "baking again",
+    )
     time_budget: FloatProperty(
         name="Time Budget",
         default=0.0,

@@ -21,7 +21,8 @@ Per scene:
   texels our bake points flag `near_cover`, and without those differing by more than 50%). The
   denoiser is also run on our reference itself: what it changes on converged input (untimed; it
   warms OIDN up).
-- rows: ours raw and denoised (`core.denoise.denoise_texels`, chart by chart) at PLAN's sample
+- rows: ours raw and denoised (`core.denoise.denoise_texels`, chart by chart, with the noise the
+  tracer measured for its clamp, as a bake runs it) at PLAN's sample
   counts; Cycles raw and "denoised as The Lightmapper's users get it" (the baked atlas, its empty
   texels dilated by `core.dilate`, the whole atlas through RTLightmap in HDR mode in one call) at
   `--cycles` sample counts; and, for comparison of the two ways of filtering, our raw I_z through
@@ -109,7 +110,7 @@ def main() -> int:
     ap.add_argument("--resolution", type=int, default=512)
     ap.add_argument("--padding", type=int, default=2, help="texels between charts (as bench/time_to_error.py)")
     ap.add_argument("--cycles", type=int, nargs="+", default=[4, 16, 64, 256])
-    ap.add_argument("--levels", type=float, nargs="+", default=[0.10, 0.05])
+    ap.add_argument("--levels", type=float, nargs="+", default=[0.20, 0.10, 0.05])
     ap.add_argument("--edge-samples", type=int, nargs="+", default=[16, 64])
     ap.add_argument("--edge-reference", type=int, default=2048)
     ap.add_argument("--no-edge", action="store_true", help="skip the shadow-edge fixture")
@@ -285,10 +286,17 @@ def denoise_ours(traced, denoiser):
     from hhd_lightmapper.core import denoise, encoding
 
     t = time.perf_counter()
-    data = encoding.TexelData.from_points(traced.points, traced.sh)
+    data = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise())
     clean, report = denoise.denoise_texels(data, denoiser)
     seconds = time.perf_counter() - t
     return clean.sh.reshape(-1, 9, 3)[traced.points.texel].astype(np.float64), report, seconds
+
+
+def mean_error(halves) -> np.ndarray:
+    """The standard error (P, 9, 3) of the mean of two independent halves' SH."""
+    return (0.5 * np.sqrt(np.square(halves[0].sh_error, dtype=np.float64) + np.square(halves[1].sh_error))).astype(
+        np.float32
+    )
 
 
 def denoise_cycles(image: np.ndarray, written: np.ndarray, denoiser):
@@ -398,7 +406,7 @@ def measure_scene(name: str, args, denoiser) -> dict:
         flush=True,
     )
     # the denoiser on the converged reference (untimed; loads OIDN's weights)
-    ref_traced = halves[0].with_sh(ref_sh)
+    ref_traced = halves[0].with_sh(ref_sh, mean_error(halves))
     clean_ref, ref_report, ref_denoise_seconds = denoise_ours(ref_traced, denoiser)
     filter_on_reference = ours_ref.errors(iz(clean_ref))
     filter_on_reference.update(report=ref_report.sidecar(), seconds=ref_denoise_seconds)
@@ -704,7 +712,7 @@ def edge_fixture(args, denoiser) -> dict:
     a, b = iz(halves[0].sh), iz(halves[1].sh)
     ref = Reference(a, b, seconds, args.edge_reference)
     ref_sh = 0.5 * (halves[0].sh + halves[1].sh)
-    clean_ref, _, _ = denoise_ours(halves[0].with_sh(ref_sh), denoiser)
+    clean_ref, _, _ = denoise_ours(halves[0].with_sh(ref_sh, mean_error(halves)), denoiser)
     bins = np.arange(-6.0, 6.001, 0.25)
     levels = profile_levels(ref.value, edge_d, profile_set)
     out = {

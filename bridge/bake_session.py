@@ -114,6 +114,7 @@ def pipeline_settings(settings, threads: int = 0) -> core_bake.PipelineSettings:
         encoder=encoder_settings(settings),
         denoise=settings.denoise,
         denoiser_library=denoiser.oidn_library() if settings.denoise else "",
+        stitch_seams=settings.stitch_seams,
     )
 
 
@@ -125,6 +126,19 @@ def encoder_settings(settings) -> core_bake.EncoderSettings:
         phi_search=settings.phi_search,
         golden_iterations=settings.golden_iterations,
     )
+
+
+def stitch_outcome(enabled: bool, atlas_warnings: list[list[str]]) -> str:
+    """Summary word for a bake or re-encode: stitch setting `enabled`, each atlas's post-stage
+    warnings (an atlas without a seams file is not stitched)."""
+    if not enabled:
+        return "not stitched"
+    undone = sum(any("stitch: " in w for w in warnings) for warnings in atlas_warnings)
+    if undone == 0:
+        return "stitched"
+    if undone == len(atlas_warnings):
+        return "not stitched (see the warnings)"
+    return f"stitched {len(atlas_warnings) - undone} of {len(atlas_warnings)} atlases (see the warnings)"
 
 
 def _samples_text(trace) -> str:
@@ -171,7 +185,8 @@ class BakeSession:
         return (
             f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es); {n_occ} occluder triangles; "
             f"{_samples_text(self.settings.trace)}, {self.settings.trace.bounces} bounces, "
-            f"{'denoise' if self.settings.denoise else 'no denoise'}, {self.settings.trace.threads} threads"
+            f"{'denoise' if self.settings.denoise else 'no denoise'}, "
+            f"{'stitch' if self.settings.stitch_seams else 'no stitch'}, {self.settings.trace.threads} threads"
         )
 
     def run(self, progress=None, cancel=None) -> list[core_bake.AtlasResult]:
@@ -194,9 +209,11 @@ class BakeSession:
             load_atlas_images(result.files, self.pack)
         texels = sum(r.texels for r in self.results)
         seconds = sum(sum(v for v in r.seconds.values()) for r in self.results)
-        denoised = denoiser.outcome(self.settings.denoise, [r.warnings for r in self.results])
+        warnings = [r.warnings for r in self.results]
+        denoised = denoiser.outcome(self.settings.denoise, warnings)
+        stitched = stitch_outcome(self.settings.stitch_seams, warnings)
         return (
-            f"Baked {texels} texels in {len(self.results)} atlas(es) to {self.out_dir}, {denoised} "
+            f"Baked {texels} texels in {len(self.results)} atlas(es) to {self.out_dir}, {stitched}, {denoised} "
             f"({seconds:.1f} s: {', '.join(r.name for r in self.results)})"
         )
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import bakepoints, encoding, exr, lightmap_files, parallel, post, tracer
+from . import bakepoints, encoding, exr, lightmap_files, parallel, post, seams, tracer
 from .bakepoints import BakePoints, SurfaceTriangles
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError
@@ -50,12 +50,15 @@ class PipelineSettings:
     """trace: the tracer's settings; encoder: the encoding and its options (`core.encoding`);
     denoise: run the denoise post stage (`core.post`), through the Open Image Denoise library at
     `denoiser_library` (the bpy side finds Blender's; "" = none: the bake is then undenoised, with
-    a warning)."""
+    a warning); stitch_seams: run the stitch post stage (`core.seams`) after it, so a smooth
+    surface split between charts reads the same on both sides of the split. A bake writes the
+    atlas's seams file either way, so a re-encode can switch stitching on or off."""
 
     trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
     encoder: EncoderSettings = field(default_factory=EncoderSettings)
     denoise: bool = False
     denoiser_library: str = ""
+    stitch_seams: bool = True
 
 
 @dataclass
@@ -194,7 +197,7 @@ def run(
             traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
             done_texels += len(pts.texel)
             _check_cancel(cancel)
-            on_trace(1.0, "denoising and encoding" if settings.denoise else "encoding")
+            on_trace(1.0, _post_message(settings))
             # each atlas is written as soon as it is traced: its SH lives on only as float32 images
             results.append(
                 _write(staging, atlas, traced, settings, Path(out_dir), t_points, extra_sidecar or {}, cancel)
@@ -207,6 +210,12 @@ def run(
         _check_cancel(cancel)
         staging.commit()
     return results
+
+
+def _post_message(settings: PipelineSettings) -> str:
+    """The status line while an atlas's post stages and encoding run."""
+    steps = [word for word, on in (("denoising", settings.denoise), ("stitching", settings.stitch_seams)) if on]
+    return f"{', '.join(steps)} and encoding" if steps else "encoding"
 
 
 def _atlas_settings(trace: tracer.BakeSettings, spent: float, texels: int, texels_left: int) -> tracer.BakeSettings:
@@ -228,11 +237,14 @@ def _write(
     extra: dict,
     cancel=None,
 ) -> AtlasResult:
-    """The last stages of one atlas: image → post stages → encode → write (files staged,
-    committed with the other atlases' at the end). The raw SH file keeps the SH as traced."""
+    """The last stages of one atlas: seams → image → post stages → encode → write (files
+    staged, committed with the other atlases' at the end). The raw SH file keeps the SH as
+    traced; the seams file is written whether or not this bake stitches (a re-encode may)."""
     t = time.perf_counter()
     files = lightmap_files.AtlasFiles(out_dir, atlas.name)
-    seconds = {"bake_points": t_points, "trace": traced.seconds}
+    atlas_seams = seams.find_seams(traced.points.mesh, atlas.width, atlas.height)
+    seconds = {"bake_points": t_points, "trace": traced.seconds, "seams": time.perf_counter() - t}
+    t = time.perf_counter()
     sidecar = dict(extra)
     sidecar.update(
         {
@@ -248,13 +260,19 @@ def _write(
             "timings_seconds": seconds,
         }
     )
-    # image (the standard error is not imaged: as large as the SH, and no post stage reads it yet)
-    raw = encoding.TexelData.from_points(traced.points, traced.sh)
-    data, sidecar["post"] = post.apply(raw, settings, lambda: _check_cancel(cancel))  # post stages
+    # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH)
+    raw = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise())
+
+    def check() -> None:
+        _check_cancel(cancel)
+
+    data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams)  # post stages
     seconds["post"] = time.perf_counter() - t
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=raw)  # encode
+    encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"], check)
     del data, raw
     lightmap_files.write_atlas(staging, files, encoded, sidecar)  # write
+    lightmap_files.stage_seams(staging, files, atlas_seams)
     seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
     warnings = [f"atlas '{atlas.name}', {w}" for w in post.warnings(sidecar["post"])]
     return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds, warnings)
@@ -266,12 +284,15 @@ def reencode(
     threads: int = 0,
     denoise: bool = False,
     denoiser_library: str = "",
+    stitch_seams: bool = True,
 ) -> tuple[float, list[str]]:
     """Encode an atlas again from its raw SH and texel EXRs (the SH as traced) with other encoder
     or post-stage settings (no tracing): read → post stages → encode → write, the stages of a
-    bake; replaces the encoded EXR and the sidecar atomically (the raw files stay). `threads`
-    (0 = every core) read and compress the EXRs and run the denoiser; the sidecar records it as
-    `reencode_threads`. Returns the seconds it took and the post stages' warnings."""
+    bake; replaces the encoded EXR and the sidecar atomically (the raw files and the seams file
+    stay). Stitching reads the atlas's seams file; a bake without one (made before seams files)
+    is encoded unstitched, with a warning. `threads` (0 = every core) read and compress the EXRs
+    and run the denoiser; the sidecar records it as `reencode_threads`. Returns the seconds it
+    took and the post stages' warnings."""
     t = time.perf_counter()
     threads = parallel.resolve_threads(threads)
     exr.set_threads(threads)
@@ -284,9 +305,12 @@ def reencode(
         encoder=encoder,
         denoise=denoise,
         denoiser_library=denoiser_library,
+        stitch_seams=stitch_seams,
     )
-    data, sidecar["post"] = post.apply(data, settings)
+    atlas_seams = lightmap_files.read_seams(files, data.coverage.shape) if stitch_seams else None
+    data, sidecar["post"] = post.apply(data, settings, seams=atlas_seams)
     encoded = encoding.encode_atlas(data, encoding.for_settings(encoder), raw=False)
+    encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"])
     del data
     with exr.Staging() as staging:
         lightmap_files.write_atlas(staging, files, encoded, sidecar)

@@ -27,6 +27,14 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
    unbiased estimate with little noise of its own): each page keeps the traced mean, though
    light can still move between the charts of one page.
 
+5. **Noise clamp**: where the tracer measured each texel's noise (`TexelData.noise`, the
+   standard error of its luminance L0 from the spread between passes; unknown after one pass),
+   no coefficient moves further from the traced value than NOISE_CLAMP standard errors (scaled
+   to its colour). A filter also changes what is not noise: it bleeds light into contact
+   shadows and blurs edges, and at high sample counts that is all it changes. The clamp lets it
+   remove noise where there is noise and keeps converged texels (a black corner every pass
+   agreed on) as traced, so a denoised bake converges to the same image as a raw one.
+
 Charts darker than BLACK (mean L0 luminance) are left as they are: nothing to denoise.
 """
 
@@ -47,9 +55,11 @@ from .oidn import Denoiser, DenoiserError
 from .sh import IRRADZ_FROM_R10, hemisphere_irradz
 
 #: Texels of each chart's own (dilated) values around it in its page.
-MARGIN = 4
+MARGIN = 2
 #: Reach in texels of the smooth fill around a chart (`_smooth_fill`).
-FILL_BLUR = 4
+FILL_BLUR = 2
+#: Farther than FILL_BLUR, a masked texel copies the nearest filled one within this many rings.
+FILL_RINGS = 16
 #: Page width in texels (at most the atlas's; a wider chart gets a page as wide as it) and the
 #: height a page is closed at (its last shelf may pass it).
 PAGE_SIZE = 512
@@ -64,6 +74,8 @@ DIRECTIONAL_RANGE = 0.5
 BAND1_BOUND, BAND2_BOUND = math.sqrt(3.0), math.sqrt(5.0)
 #: Bound of the per-page energy correction of the HDR channels (`_hdr`).
 ENERGY_CLAMP = 1.5
+#: Most standard errors (of the traced value, `TexelData.noise`) the denoiser may move a coefficient.
+NOISE_CLAMP = 2.5
 #: OIDN's auto-exposure key value (its `autoexposure` op): inputScale = KEY / geometric-mean luminance.
 KEY = 0.18
 
@@ -156,8 +168,8 @@ def layout(labels: np.ndarray, n: int, brightness: np.ndarray) -> list[Page]:
 
 
 def _shelves(charts: np.ndarray, rh, rw, ry, rx, width: int) -> list[Page]:
-    """Shelf packing of `charts` (sorted by decreasing height) into pages `width` wide (or as
-    wide as the widest chart), closed at PAGE_SIZE high."""
+    """Shelf packing of `charts` (sorted by decreasing height) into pages at most `width` wide
+    (or as wide as the widest chart) and no wider than their charts, closed at PAGE_SIZE high."""
     width = max(width, int(rw[charts].max()))
     pages: list[Page] = []
     page, x, y, shelf = None, 0, 0, 0
@@ -166,13 +178,13 @@ def _shelves(charts: np.ndarray, rh, rw, ry, rx, width: int) -> list[Page]:
             y, x = y + shelf, 0
             shelf = int(rh[c])
             if page is None or y >= PAGE_SIZE:
-                page, y = Page((0, width)), 0
+                page, y = Page((0, 0)), 0
                 pages.append(page)
         page.charts.append(c)
         page.rects.append((int(ry[c]), int(rx[c]), int(rh[c]), int(rw[c])))
         page.corners.append((y, x))
-        page.shape = (max(page.shape[0], y + shelf), width)
         x += int(rw[c])
+        page.shape = (max(page.shape[0], y + shelf), max(page.shape[1], x))
     return pages
 
 
@@ -208,8 +220,8 @@ class DenoiseReport:
 def denoise_texels(
     data: TexelData, denoiser: Denoiser, check: Callable[[], None] | None = None
 ) -> tuple[TexelData, DenoiseReport]:
-    """`data` with the SH of its baked texels denoised (the module's steps); everything else,
-    including the standard error, as it was. A baked texel with a non-finite coefficient is not
+    """`data` with the SH of its baked texels denoised (the module's steps, the noise clamp
+    where `data.noise` is known); everything else as it was. A baked texel with a non-finite coefficient is not
     used and gets the denoised value of its surroundings. `check()`, if given, runs between pages
     (it raises to cancel). Raises DenoiserError if OIDN fails."""
     t0 = time.perf_counter()
@@ -243,8 +255,27 @@ def denoise_texels(
         report.charts += len(page.charts)
         report.pages += 1
         report.page_texels += page.shape[0] * page.shape[1]
+    clean = out.reshape(data.sh.shape)
+    if data.noise is not None:
+        clean = clamp_to_noise(clean, data.sh, data.noise)
     report.seconds = time.perf_counter() - t0
-    return replace(data, sh=out.reshape(data.sh.shape)), report
+    return replace(data, sh=clean), report
+
+
+def clamp_to_noise(denoised: np.ndarray, traced: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """`denoised` SH `(H, W, 9, 3)` moved back to within NOISE_CLAMP standard errors of the
+    `traced` SH, per coefficient and colour: the bound is NOISE_CLAMP × `noise` `(H, W)` (the
+    standard error of the traced luminance L0) × each colour's share of that luminance (|L0_c| /
+    L0 luminance; 1 where it is not positive). Texels whose noise is unknown (NaN) are not
+    clamped; non-finite traced values are not either (the filter replaced them)."""
+    l0 = traced[..., 0, :].astype(np.float64)
+    l0_lum = l0 @ LUMINANCE
+    lit = l0_lum > 0.0
+    colour = np.where(lit[..., None], np.abs(l0) / np.where(lit, l0_lum, 1.0)[..., None], 1.0)
+    known = np.isfinite(noise) & np.isfinite(traced).all(axis=(2, 3))
+    bound = NOISE_CLAMP * np.where(known, noise, 0.0)[..., None] * colour  # (H, W, 3)
+    step = np.clip(denoised - traced, -bound[:, :, None, :], bound[:, :, None, :])
+    return np.where(known[..., None, None], traced + step, denoised).astype(np.float32)
 
 
 def _page_texels(page: Page, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -312,13 +343,13 @@ def _smooth_fill(image: np.ndarray, source: np.ndarray) -> np.ndarray:
     """`image` `(h, w, c)` with its non-chart texels filled smoothly (float64): within FILL_BLUR
     texels of a chart texel, the mean of the chart texels in the (2·FILL_BLUR + 1)² box around it
     (copying the nearest texel would repeat its noise in streaks, which the filter keeps as
-    detail); farther, the nearest such texel (2·MARGIN rings), beyond that the page mean."""
+    detail); farther, the nearest such texel (FILL_RINGS rings), beyond that the page mean."""
     weight = _box_sum(source.astype(np.float64)[..., None], FILL_BLUR)[..., 0]
     near = weight > 0.0
     inv = np.where(near, 1.0 / np.where(near, weight, 1.0), 0.0)
     image = np.where(source[..., None], image, 0.0).astype(np.float64)
     mean = _box_sum(image, FILL_BLUR) * inv[..., None]
-    return dilate.Fill(near, 2 * MARGIN).apply(np.where(source[..., None], image, mean))
+    return dilate.Fill(near, FILL_RINGS).apply(np.where(source[..., None], image, mean))
 
 
 def _box_sum(image: np.ndarray, r: int) -> np.ndarray:
@@ -373,6 +404,7 @@ def denoiser_for(library: str | Path | None, threads: int) -> Denoiser:
 
 __all__ = [
     "DenoiseReport",
+    "clamp_to_noise",
     "DenoiserError",
     "denoise_texels",
     "denoiser_for",

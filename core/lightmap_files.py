@@ -7,6 +7,8 @@ says which channels each file holds):
   <name>_texels.exr  n_v and coverage (`encoding.raw.TEXELS_FILE`): what re-encoding needs besides the SH
   <name>.json        the sidecar: format version, channel meanings, conventions, settings,
                      per-object texel rectangles, timings, statistics
+  <name>_seams.npz   the atlas's seam sample pairs (`seams.Seams`): what stitching needs on a
+                     re-encode besides the SH (internal to re-encoding, not for engines)
   <name>_preview/    plain RGB EXRs the EEVEE preview samples (one per layer with a preview key)
 Writing (`write_atlas`) takes the encode stage's `EncodedAtlas`: it turns rows to EXR order
 (top-down), stores each layer as its Channel's dtype says (HALF_OR_FLOAT: half when every value
@@ -18,6 +20,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,6 +41,9 @@ from .encoding import (
 )
 from .errors import BakeError
 
+if TYPE_CHECKING:
+    from .seams import Seams
+
 __all__ = [
     "CONVENTIONS",
     "FORMAT",
@@ -48,9 +54,11 @@ __all__ = [
     "channel_table",
     "exr_channels",
     "object_rects",
+    "read_seams",
     "read_sidecar",
     "read_texel_data",
     "stage_preview",
+    "stage_seams",
     "write_atlas",
 ]
 
@@ -85,6 +93,11 @@ class AtlasFiles:
     @property
     def sidecar(self) -> Path:
         return self.folder / f"{self.name}.json"
+
+    @property
+    def seams(self) -> Path:
+        """The atlas's seam sample pairs (`seams.Seams.save`), for stitching on a re-encode."""
+        return self.folder / f"{self.name}_seams.npz"
 
     @property
     def preview(self) -> Path:
@@ -177,6 +190,32 @@ def stage_preview(staging: exr.Staging, files: AtlasFiles, spec: FileSpec, chann
             exr.write_file(staging.stage(files.preview_image(ch.preview)), _rgb([channels[n] for n in ch.exr_names]))
 
 
+def stage_seams(staging: exr.Staging, files: AtlasFiles, seams: Seams) -> None:
+    """Stage the atlas's seams file (replaced with its other files at `staging.commit()`)."""
+    with open(staging.stage(files.seams), "wb") as f:
+        seams.save(f)
+
+
+def read_seams(files: AtlasFiles, shape: tuple[int, int]) -> Seams | None:
+    """The seams of a finished bake of an atlas of `shape` (height, width) texels; None when the
+    bake has no seams file (it was made before they were written). Raises BakeError for a file
+    that cannot be read or is of another atlas size."""
+    if not files.seams.is_file():
+        return None
+    from .seams import Seams
+
+    try:
+        seams = Seams.load(files.seams)
+    except (OSError, ValueError, KeyError) as exc:
+        raise BakeError(f"cannot read the seams file {files.seams}: {exc} (bake again)") from exc
+    if (seams.height, seams.width) != tuple(shape):
+        raise BakeError(
+            f"the seams file {files.seams} is of a {seams.width}×{seams.height} atlas, the bake's files of "
+            f"{shape[1]}×{shape[0]}: bake again"
+        )
+    return seams
+
+
 def read_sidecar(path) -> dict:
     path = Path(path)
     try:
@@ -199,12 +238,14 @@ def read_texel_data(files: AtlasFiles) -> TexelData:
         raise BakeError(f"{files.sh} lacks SH channels {missing[:3]}…")
     sh = np.stack([exr.from_exr_rows(sh_ch[n]) for n in SH_CHANNELS], axis=-1).astype(np.float32, copy=False)
     h, w = sh.shape[:2]
-    normal_layer, coverage_layer = TEXELS_FILE.channels
+    normal_layer, coverage_layer, noise_layer = TEXELS_FILE.channels
     normal = np.stack([exr.from_exr_rows(tx_ch[n]) for n in normal_layer.exr_names], axis=-1).astype(
         np.float32, copy=False
     )
     coverage = exr.from_exr_rows(tx_ch[coverage_layer.exr_names[0]]).astype(np.float32, copy=False)
-    return TexelData(sh=sh.reshape(h, w, 9, 3), normal=normal, coverage=coverage)
+    noise_name = noise_layer.exr_names[0]  # absent from bakes made before it was kept
+    noise = exr.from_exr_rows(tx_ch[noise_name]).astype(np.float32, copy=False) if noise_name in tx_ch else None
+    return TexelData(sh=sh.reshape(h, w, 9, 3), normal=normal, coverage=coverage, noise=noise)
 
 
 def object_rects(points: BakePoints, names: list[str]) -> list[dict]:

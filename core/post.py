@@ -6,16 +6,31 @@ texels plus a record for the sidecar's `post` section. It works on images, not o
 texels, so the same stage runs on a fresh bake and on a re-encode from the raw SH file (which
 keeps the SH as traced: a stage can be switched off later without tracing).
 
-`stages_for(settings)` is the one place that decides which run, in order, from the pipeline
-settings; `apply` runs them. A new post stage is a function here (or a module's) and a line in
-`stages_for` (and the setting that switches it on in `bake.PipelineSettings`).
+`stages_for(settings, seams)` is the one place that decides which run, in order, from the
+pipeline settings; `apply` runs them. A new post stage is a function here (or a module's) and a
+line in `stages_for` (and the setting that switches it on in `bake.PipelineSettings`).
+
+Order: denoise, then stitch. The denoiser filters chart by chart, so it leaves (and can widen) a
+step where a smooth surface crosses from one chart to another; stitching (`core.seams`) runs on
+the filtered SH so the seams the encoder sees are closed, and once more on the encoded layers
+(`stitch_encoded`, after the encode stage) for the step the non-linear encoding leaves. The seams are geometry, not images: a
+bake finds them on its receivers' mesh, a re-encode reads them from the atlas's seams file
+(`lightmap_files.AtlasFiles.seams`); `None` (a bake older than the file) skips stitching with a
+warning.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
-from .encoding import TexelData
+import numpy as np
+
+from .encoding import EncodedAtlas, TexelData
+
+if TYPE_CHECKING:
+    from .seams import Seams
 
 #: (texel images, check) -> (new texel images, sidecar record). A record with "warning" is reported to the user.
 PostStage = Callable[[TexelData, Callable[[], None]], tuple[TexelData, dict]]
@@ -39,19 +54,81 @@ def denoise_stage(library: str, threads: int) -> PostStage:
     return denoise
 
 
-def stages_for(settings) -> list[tuple[str, PostStage]]:
-    """The post stages `settings` (a `bake.PipelineSettings`) switch on, as (name, stage) in the order they run."""
+#: Why an atlas is not stitched when its seams are unknown (a bake made before seams files existed).
+NO_SEAMS = "not stitched: this bake has no seams file (bake again to stitch its seams)"
+
+
+def stitch_stage(seams: Seams | None, threads: int) -> PostStage:
+    """Least-squares seam stitching of the SH (`core.seams.stitch`, on `threads` workers) along
+    `seams`, the atlas's seam sample pairs. `None` (no seams file: an older bake) passes the SH
+    through unstitched, with a warning in the record. Its second half runs after encoding
+    (`stitch_encoded`)."""
+
+    def stitch(data: TexelData, check: Callable[[], None]) -> tuple[TexelData, dict]:
+        if seams is None:
+            return data, {"enabled": True, "applied": False, "warning": NO_SEAMS}
+        from . import seams as _seams
+
+        out, record = _seams.stitch(data, seams, check, threads)
+        return out, _finite({"enabled": True, "applied": True, **record})
+
+    return stitch
+
+
+def stitch_encoded(
+    encoded: EncodedAtlas,
+    coverage: np.ndarray,
+    settings,
+    seams: Seams | None,
+    records: dict,
+    check: Callable[[], None] | None = None,
+) -> EncodedAtlas:
+    """The stitch stage's second half, on the encoding's layers after `encoding.encode_atlas`:
+    the encoding is not linear in the SH, so it leaves a small step along seams the SH stitch
+    closed; `core.seams.stitch_encoded` closes it in the encoded layers. Runs only where the SH
+    stitch ran (`records`, `apply`'s, says so) and adds its record as `records["stitch"]["encoded"]`.
+    `coverage` `(H, W)`: the atlas's (`TexelData.coverage`)."""
+    if not settings.stitch_seams or seams is None or not records.get("stitch", {}).get("applied"):
+        return encoded
+    from . import seams as _seams
+
+    out, record = _seams.stitch_encoded(encoded, seams, coverage, check, settings.trace.threads)
+    records["stitch"]["encoded"] = _finite(record)
+    return out
+
+
+def _finite(record):
+    """`record` with every non-finite float (a seam ratio over a zero interior step) as None: the
+    sidecar stays strict JSON."""
+    if isinstance(record, dict):
+        return {k: _finite(v) for k, v in record.items()}
+    if isinstance(record, list):
+        return [_finite(v) for v in record]
+    if isinstance(record, float) and not math.isfinite(record):
+        return None
+    return record
+
+
+def stages_for(settings, seams: Seams | None = None) -> list[tuple[str, PostStage]]:
+    """The post stages `settings` (a `bake.PipelineSettings`) switch on, as (name, stage) in the
+    order they run; `seams`: the atlas's seams for the stitch stage (None: unknown)."""
     stages = []
     if settings.denoise:
         stages.append(("denoise", denoise_stage(settings.denoiser_library, settings.trace.threads)))
+    if settings.stitch_seams:
+        stages.append(("stitch", stitch_stage(seams, settings.trace.threads)))
     return stages
 
 
-def apply(data: TexelData, settings, check: Callable[[], None] | None = None) -> tuple[TexelData, dict]:
+def apply(
+    data: TexelData, settings, check: Callable[[], None] | None = None, seams: Seams | None = None
+) -> tuple[TexelData, dict]:
     """`data` after every post stage of `settings`, in order, and the sidecar's `post` section:
-    per stage its record ({"enabled": False} for the known stages that are off)."""
-    records = {"denoise": {"enabled": False}}
-    for name, stage in stages_for(settings):
+    per stage its record ({"enabled": False} for the known stages that are off). `seams`: the
+    atlas's seam sample pairs (`core.seams.Seams`; None: unknown, stitching is then skipped with
+    a warning)."""
+    records = {"denoise": {"enabled": False}, "stitch": {"enabled": False}}
+    for name, stage in stages_for(settings, seams):
         data, records[name] = stage(data, check or (lambda: None))
     return data, records
 

@@ -14,8 +14,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .colour import LUMINANCE
+
 if TYPE_CHECKING:  # bakepoints imports the compiled kernels; the data types need no import at run time
     from .bakepoints import BakePoints
+
+
+#: Passes before a texel's spread counts as its noise (`TracedAtlas.noise`): the spread of fewer
+#: is too often a small fraction of the true error (tracer.settings.MIN_ADAPTIVE_PASSES has the figures).
+NOISE_PASSES = 4
 
 
 @dataclass
@@ -49,6 +56,14 @@ class TracedAtlas:
     @property
     def mean_samples(self) -> float:
         return float(self.texel_samples.mean()) if len(self.texel_samples) else 0.0
+
+    def noise(self) -> np.ndarray:
+        """(P,) float32: the standard error of each texel's luminance L0 (radiance), the colours'
+        standard errors summed with the luminance weights (as if fully correlated: they share
+        their paths); NaN for texels of fewer than NOISE_PASSES passes."""
+        per_pass = self.samples // self.passes if self.passes else 1
+        error = self.sh_error[:, 0, :].astype(np.float64) @ LUMINANCE
+        return np.where(self.texel_samples >= NOISE_PASSES * per_pass, error, np.nan).astype(np.float32)
 
     def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TracedAtlas:
         """A copy carrying new SH (and standard error) for the same texels."""

@@ -1,8 +1,10 @@
 """Operator: re-encode baked lightmaps with the current encoder settings (`bpy.ops.hhd.encode()`).
 
 Reads each receiver atlas's SH and texel EXRs from the output folder and writes a new HHD EXR and
-sidecar (atomically); no tracing. The SH EXR holds the SH as traced, so the current Denoise
-setting decides whether the new encoding is of the denoised SH. The loaded images are reloaded.
+sidecar (atomically); no tracing. The SH EXR holds the SH as traced, so the current Denoise and
+Stitch Seams settings decide whether the new encoding is of the denoised and stitched SH (stitching
+reads the atlas's seams file; a bake made before those files is encoded unstitched, with a
+warning). The loaded images are reloaded.
 """
 
 import os
@@ -44,8 +46,9 @@ class HHD_OT_encode(bpy.types.Operator):
 
 def reencode_objects(objects, settings, out_dir: str | None = None, threads: int = 0) -> tuple[str, list[str]]:
     """Re-encode the atlases of `objects` found in the output folder with `threads` workers
-    (0 = every core), denoised if `settings.denoise` (through Blender's OIDN library); returns a
-    summary line and the warnings (what a post stage could not do, e.g. no denoiser)."""
+    (0 = every core), denoised if `settings.denoise` (through Blender's OIDN library), stitched if
+    `settings.stitch_seams`; returns a summary line and the warnings (what a post stage could not
+    do, e.g. no denoiser, no seams file)."""
     if not objects:
         raise BakeError("no mesh objects to re-encode: select baked objects")
     folder = bake_session.output_folder(settings, out_dir)
@@ -56,14 +59,21 @@ def reencode_objects(objects, settings, out_dir: str | None = None, threads: int
     for name, *_ in groups:
         files = AtlasFiles(Path(folder), name)
         seconds, atlas_warnings = core_bake.reencode(
-            files, encoder, threads, denoise=settings.denoise, denoiser_library=library
+            files,
+            encoder,
+            threads,
+            denoise=settings.denoise,
+            denoiser_library=library,
+            stitch_seams=settings.stitch_seams,
         )
         bake_session.load_atlas_images(files, settings.pack_images)
         done.append(f"'{name}' {seconds:.1f} s")
         warnings.append(atlas_warnings)
     denoised = denoiser.outcome(settings.denoise, warnings)
+    stitched = bake_session.stitch_outcome(settings.stitch_seams, warnings)
     summary = (
-        f"Re-encoded ({encoder.model}, {encoder.direction}, {encoder.ambient} ambient, {denoised}): {', '.join(done)}"
+        f"Re-encoded ({encoder.model}, {encoder.direction}, {encoder.ambient} ambient, {stitched}, {denoised}): "
+        f"{', '.join(done)}"
     )
     return summary, [w for ws in warnings for w in ws]
 

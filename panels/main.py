@@ -60,6 +60,7 @@ class HHD_PT_main(bpy.types.Panel):
         col.prop(settings, "bounces")
         col.prop(settings, "noise_target")
         col.prop(settings, "denoise")
+        col.prop(settings, "stitch_seams")
         col.prop(settings, "time_budget")
         col.prop(settings, "seed")
         col = box.column(heading="Encoder")

@@ -24,6 +24,14 @@ sys.path.insert(0, str(ROOT))  # scenekit, the shared test/bench scenes
 EXTENSION_MODULE = "bl_ext.user_default.hhd_lightmapper"
 
 
+def pytest_unconfigure(config):
+    """The isolated user configuration goes with the session (the installed extension in it is
+    hundreds of megabytes; a machine running the suite often would fill its disk)."""
+    import shutil
+
+    shutil.rmtree(USER_RESOURCES, ignore_errors=True)
+
+
 def this_platform() -> str:
     """Blender's platform name for the running machine, e.g. 'linux-x64'."""
     import platform

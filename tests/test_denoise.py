@@ -3,11 +3,14 @@
 OIDN library (the fixtures of test_oidn.py: skipped with the reason when it or the weights are absent)."""
 
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from hhd_lightmapper.core import bake, denoise, encoding, exr, lightmap_files, oidn, post, sh
+from hhd_lightmapper.core.colour import LUMINANCE
+from hhd_lightmapper.core.stages import NOISE_PASSES
 from hhd_lightmapper.core.tracer import BakeSettings
 from test_oidn import bpy_library_dirs, denoiser, library  # noqa: F401  (fixtures)
 from test_pipeline_stages import RES, plane
@@ -212,3 +215,65 @@ def test_heavy_tailed_noise_keeps_its_mean(denoiser):  # noqa: F811
     region = (slice(10, 110), slice(10, 110))
     assert abs(iz(out)[region].mean() / iz(data)[region].mean() - 1.0) < 1e-3
     assert iz(out)[region].std() < 0.25 * iz(data)[region].std()
+
+
+def test_texels_every_pass_agreed_on_keep_their_traced_value(denoiser):  # noqa: F811
+    """A black strip across a lit chart (a contact shadow every pass saw black: noise 0): the
+    filter alone bleeds light into it; with the tracer's noise the strip stays exactly black,
+    while the lit texels (noise known, as large as the atlas's) are denoised as before."""
+    lit = (slice(10, 90), slice(10, 90), 1.0)
+    data = atlas_data([lit], noise=0.3)
+    data.sh[40:43, 10:90] = 0.0
+    sigma = 0.3 * np.sqrt(np.pi)  # standard error of L0's luminance: 30% of uniform radiance 1
+    noise = np.where(data.coverage > 0, sigma, np.nan).astype(np.float32)
+    noise[40:43, 10:90] = 0.0
+    free, _ = denoise.denoise_texels(data, denoiser)
+    clamped, _ = denoise.denoise_texels(replace(data, noise=noise), denoiser)
+    assert iz(free)[40:43, 10:90].max() > 0.02  # the filter alone lights the shadow
+    assert not clamped.sh[40:43, 10:90].any()
+    rest = np.ones((128, 128), bool)
+    rest[40:43] = False
+    rest &= data.coverage > 0
+    raw_error = np.sqrt(np.mean((iz(data)[rest] - 1.0) ** 2))
+    assert np.sqrt(np.mean((iz(clamped)[rest] - 1.0) ** 2)) < 0.3 * raw_error
+
+
+def test_the_noise_clamp_bounds_every_coefficient_by_its_colours_share():
+    rng = np.random.default_rng(4)
+    traced = rng.uniform(0.0, 2.0, (6, 7, 9, 3)).astype(np.float32)
+    denoised = traced + rng.normal(0.0, 1.0, traced.shape).astype(np.float32)
+    noise = rng.uniform(0.0, 0.3, (6, 7)).astype(np.float32)
+    noise[0, :3] = np.nan  # unknown: not clamped
+    noise[1, :3] = 0.0  # every pass agreed: the traced value
+    out = denoise.clamp_to_noise(denoised, traced, noise)
+    np.testing.assert_array_equal(out[0, :3], denoised[0, :3])
+    np.testing.assert_array_equal(out[1, :3], traced[1, :3])
+    colour = traced[..., 0, :] / (traced[..., 0, :] @ LUMINANCE)[..., None]
+    bound = denoise.NOISE_CLAMP * np.nan_to_num(noise, nan=np.inf)[..., None] * colour
+    assert (np.abs(out - traced) <= bound[:, :, None, :] * (1 + 1e-6) + 1e-7).all()
+    inside = np.abs(denoised - traced) < bound[:, :, None, :]
+    np.testing.assert_array_equal(out[inside], denoised[inside])
+
+
+def test_the_texels_file_keeps_the_noise_of_texels_with_enough_passes(tmp_path):
+    surface, scene = plane()
+    atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
+    for passes in (NOISE_PASSES - 1, NOISE_PASSES):
+        trace = BakeSettings(samples=4 * passes, pass_samples=4, bounces=1, seed=3)
+        result = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / str(passes))[0]
+        noise = lightmap_files.read_texel_data(result.files).noise
+        charts = lightmap_files.read_texel_data(result.files).coverage > 0
+        assert noise is not None and np.isnan(noise[~charts]).all()
+        if passes < NOISE_PASSES:
+            assert np.isnan(noise[charts]).all()  # too few passes to trust their spread
+        else:
+            assert np.isfinite(noise[charts]).all() and (noise[charts] >= 0).all() and (noise[charts] > 0).any()
+
+
+def test_a_bake_without_noise_is_denoised_without_the_clamp(tmp_path, library):  # noqa: F811
+    """Texels files written before they kept the noise: read as noise None, denoised unclamped."""
+    data = atlas_data([(slice(10, 60), slice(10, 60), 1.0)])
+    assert data.noise is None
+    settings = bake.PipelineSettings(denoise=True, denoiser_library=str(library))
+    out, records = post.apply(data, settings)
+    assert records["denoise"]["applied"] and np.isfinite(out.sh).all()

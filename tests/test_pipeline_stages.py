@@ -5,7 +5,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, exr, lightmap_files, post, unwrap
+from hhd_lightmapper.core import bake, bakepoints, encoding, exr, lightmap_files, post, seams, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
 from scenekit import meshes
@@ -47,7 +47,7 @@ def test_a_post_stage_receives_the_texel_images_and_its_output_is_what_gets_enco
         seen.append(data)
         return replace(data, sh=2.0 * data.sh), {"enabled": True, "factor": 2}
 
-    monkeypatch.setattr(post, "stages_for", lambda s: [("double", double)])
+    monkeypatch.setattr(post, "stages_for", lambda s, seams=None: [("double", double)])
     bake.run([atlas], scene, settings, tmp_path / "doubled")
     (data,) = seen
     assert data.sh.shape == (RES, RES, 9, 3) and data.baked.sum() > 0.9 * RES * RES
@@ -57,7 +57,45 @@ def test_a_post_stage_receives_the_texel_images_and_its_output_is_what_gets_enco
     irradiance = [exr.read(f.hhd)[0]["Iz.R"] for f in (plain, doubled)]
     np.testing.assert_allclose(irradiance[1], 2.0 * irradiance[0], rtol=1e-5)
     assert lightmap_files.read_sidecar(doubled.sidecar)["post"]["double"] == {"enabled": True, "factor": 2}
-    assert lightmap_files.read_sidecar(plain.sidecar)["post"] == {"denoise": {"enabled": False}}
+    records = lightmap_files.read_sidecar(plain.sidecar)["post"]
+    assert records["denoise"] == {"enabled": False} and records["stitch"]["applied"]  # the defaults
+
+
+def test_stitching_runs_after_denoising_on_the_seams_of_the_atlas_and_is_off_when_switched_off(tmp_path, monkeypatch):
+    """The stitch stage follows the denoise stage and receives the seams found on the bake
+    points' mesh (the seams file keeps the same); switched off, it does not run, and the sidecar
+    says so."""
+    settings = bake.PipelineSettings(denoise=True)
+    assert [name for name, _ in post.stages_for(settings)] == ["denoise", "stitch"]
+    assert [name for name, _ in post.stages_for(replace(settings, stitch_seams=False))] == ["denoise"]
+
+    surface, scene = plane()
+    trace = BakeSettings(samples=4, pass_samples=4, bounces=0, seed=3)
+    atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
+    seen = []
+
+    def stitch(data, pairs, check=None, threads=0):
+        seen.append(pairs)
+        return data, {"seams": len(pairs)}
+
+    monkeypatch.setattr(seams, "stitch", stitch)
+    (on,) = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "on")
+    (pairs,) = seen
+    traced = bake.trace_surface(surface, RES, RES, scene, trace)
+    expected = seams.find_seams(traced.points.mesh, RES, RES)
+    assert len(pairs) == len(expected) and np.array_equal(pairs.a, expected.a) and np.array_equal(pairs.b, expected.b)
+    stored = seams.Seams.load(on.files.seams)
+    assert np.array_equal(stored.a, expected.a) and np.array_equal(stored.weight, expected.weight)
+    record = lightmap_files.read_sidecar(on.files.sidecar)["post"]["stitch"]
+    assert record["encoded"]["enabled"]  # the second half, on the encoded layers
+    assert {k: v for k, v in record.items() if k != "encoded"} == {
+        "enabled": True,
+        "applied": True,
+        "seams": len(expected),
+    }
+    (off,) = bake.run([atlas], scene, bake.PipelineSettings(trace=trace, stitch_seams=False), tmp_path / "off")
+    assert len(seen) == 1 and off.files.seams.is_file()
+    assert lightmap_files.read_sidecar(off.files.sidecar)["post"]["stitch"] == {"enabled": False}
 
 
 def test_trace_surface_is_the_first_two_stages_of_a_bake(tmp_path):
@@ -71,3 +109,49 @@ def test_trace_surface_is_the_first_two_stages_of_a_bake(tmp_path):
     written = exr.from_exr_rows(written_sh(tmp_path))
     mask = traced.points.image(np.ones(len(traced.points.texel)), dtype=bool)
     np.testing.assert_array_equal(written[mask], image[mask])
+
+
+def sphere():
+    """A smooth UV sphere (vertex normals) cut into charts by xatlas, above a floor, under a sun
+    and a sky: an atlas with smooth seams."""
+    v, f = meshes.uv_sphere(rings=8, segments=16, radius=0.8)
+    v = v + [0.0, 0.0, 1.0]
+    res = unwrap.unwrap([unwrap.UnwrapMesh("sphere", v, f)], unwrap.UnwrapSettings(resolution=RES))
+    normals = meshes.vertex_normals(v, f)[f]
+    surface = bakepoints.SurfaceTriangles(
+        v[f], normals, res.objects[0].uv.astype(float), np.zeros(len(f), int), np.full((len(f), 3), 0.6)
+    )
+    fv, ff = meshes.plane(6.0)
+    tris = np.concatenate([v[f], fv[ff]])
+    scene = BakeScene(
+        tris,
+        np.full((len(tris), 3), 0.5),
+        lights=[SunLight(np.array([0.5, 0.3, 0.8]), np.full(3, 3.0))],
+        world=np.array([0.2, 0.3, 0.5]),
+    )
+    return surface, scene
+
+
+def test_a_stitched_bake_keeps_the_traced_files_and_reencodes_to_the_same_bytes(tmp_path):
+    """Stitching changes only the encoding: the raw SH and texel files are those of the
+    unstitched bake, and a re-encode of either bake with stitching on gives the stitched bake's
+    encoding bit for bit (from the seams file, without the mesh); with it off, the unstitched one."""
+    surface, scene = sphere()
+    atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["sphere"])
+    trace = BakeSettings(samples=4, pass_samples=4, bounces=1, seed=1)
+    (on,) = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "on")
+    (off,) = bake.run([atlas], scene, bake.PipelineSettings(trace=trace, stitch_seams=False), tmp_path / "off")
+    record = lightmap_files.read_sidecar(on.files.sidecar)["post"]["stitch"]
+    assert record["applied"] and record["seams"] > 0 and record["texels"] > 0
+    assert record["after"]["mean"] < 0.5 * record["before"]["mean"], record
+    for f in ("sh", "texels"):
+        assert getattr(on.files, f).read_bytes() == getattr(off.files, f).read_bytes(), f
+    stitched, unstitched = on.files.hhd.read_bytes(), off.files.hhd.read_bytes()
+    assert stitched != unstitched
+    bake.reencode(off.files, bake.EncoderSettings(), threads=1)
+    assert off.files.hhd.read_bytes() == stitched
+    bake.reencode(on.files, bake.EncoderSettings(), threads=1, stitch_seams=False)
+    assert on.files.hhd.read_bytes() == unstitched
+    on.files.seams.unlink()  # a bake from before seams files: encoded unstitched, with a warning
+    _, warnings = bake.reencode(on.files, bake.EncoderSettings(), threads=1)
+    assert warnings == [f"atlas 'Lightmap', stitch: {post.NO_SEAMS}"] and on.files.hhd.read_bytes() == unstitched

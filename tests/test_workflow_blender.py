@@ -78,6 +78,7 @@ def test_bake_and_reencode_operators_end_to_end(baked_scene):
         "Lightmap.json",
         "Lightmap_hhd.exr",
         "Lightmap_preview",
+        "Lightmap_seams.npz",
         "Lightmap_sh.exr",
         "Lightmap_texels.exr",
     ]
@@ -87,7 +88,7 @@ def test_bake_and_reencode_operators_end_to_end(baked_scene):
     doc = json.loads((out / "Lightmap.json").read_text())
     assert [o["name"] for o in doc["objects"]] == ["Cube", "Floor"] and all(o["texels"] > 0 for o in doc["objects"])
     assert doc["bake"]["samples"] == 8 and doc["encoder"]["model"] == "hhd"
-    assert doc["post"]["denoise"]["applied"]  # Denoise is on by default
+    assert doc["post"]["denoise"]["applied"] and doc["post"]["stitch"]["applied"]  # both on by default
     loaded = {Path(bpy.path.abspath(im.filepath)).name: im for im in bpy.data.images}
     assert {"Lightmap_hhd.exr", "Lightmap_sh.exr"} <= set(loaded)
     assert all(im.packed_file is None for im in loaded.values())  # external, not packed

@@ -29,7 +29,15 @@ COVERAGE = Channel(
     "fraction of the texel covered by triangles; 0 outside charts (dilated), -1 buried",
     fill=NO_FILL,
 )
-TEXELS_FILE = FileSpec("texels", "_texels.exr", (NORMAL, COVERAGE))
+NOISE = Channel(
+    "Noise",
+    ("V",),
+    FLOAT,
+    "standard error of the texel's luminance SH0 (radiance) from the spread between the tracer's "
+    "passes; NaN where unknown (fewer than 4 passes) and outside charts",
+    fill=NO_FILL,
+)
+TEXELS_FILE = FileSpec("texels", "_texels.exr", (NORMAL, COVERAGE, NOISE))
 
 #: The raw files, in the order they are written after the encoding's file.
 FILES = (SH_FILE, TEXELS_FILE)

@@ -38,22 +38,34 @@ ENCODE_CHUNK = 1 << 17
 class TexelData:
     """An atlas's per-texel inputs to the encoder, as float32 images `(H, W, ...)` (rows
     bottom-up): sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried);
-    sh_error (9, 3) the standard error of sh, when the caller asked for it (no file holds it yet).
-    float32 as in the files, so encoding a fresh bake and re-encoding its files agree exactly."""
+    sh_error (9, 3) the standard error of sh, when the caller asked for it (no file holds it yet);
+    extra_sources `(H, W)` bool, optional: texels outside the charts a post stage gave a value
+    of their own (seam stitching's gutter texels, `core.seams`): encoded and dilated from like
+    baked texels instead of being filled; noise `(H, W)`, optional: the standard error of each
+    texel's luminance L0 (radiance) as traced, NaN where unknown (`TracedAtlas.noise`), as
+    the texels file keeps it (the denoiser's noise clamp reads it). float32 as in the files, so
+    encoding a fresh bake and re-encoding its files agree exactly."""
 
     sh: np.ndarray
     normal: np.ndarray
     coverage: np.ndarray
     sh_error: np.ndarray | None = None
+    extra_sources: np.ndarray | None = None
+    noise: np.ndarray | None = None
 
     @property
     def baked(self) -> np.ndarray:
-        """Texels with a bake value of their own (covered, not buried): the dilation sources."""
-        return self.coverage > 0.0
+        """Texels with a bake value of their own (covered, not buried, or `extra_sources`): the
+        dilation sources."""
+        baked = self.coverage > 0.0
+        return baked if self.extra_sources is None else baked | self.extra_sources
 
     @classmethod
-    def from_points(cls, points: BakePoints, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TexelData:
-        """Images of per-point `sh` `(P, 9, 3)` (and optionally its standard error) at `points`."""
+    def from_points(
+        cls, points: BakePoints, sh: np.ndarray, sh_error: np.ndarray | None = None, noise: np.ndarray | None = None
+    ) -> TexelData:
+        """Images of per-point `sh` `(P, 9, 3)` (and optionally its standard error and the
+        `noise` (P,) of `TracedAtlas.noise`) at `points`; noise is NaN outside the charts."""
         coverage = np.where(points.buried, -1.0, points.coverage)
         error = None if sh_error is None else points.image(sh_error, dtype=np.float32)
         return cls(
@@ -61,17 +73,23 @@ class TexelData:
             normal=points.image(points.normal, dtype=np.float32),
             coverage=points.image(coverage, dtype=np.float32),
             sh_error=error,
+            noise=None if noise is None else points.image(noise, fill=np.nan, dtype=np.float32),
         )
 
     def fill(self) -> _dilate.Fill:
-        """The dilation of this atlas: empty texels from the baked ones, buried texels black."""
-        return _dilate.Fill(self.baked, DILATE_RINGS, black=self.coverage < 0.0)
+        """The dilation of this atlas: buried texels (invalid: their hemisphere is closed by
+        back faces) from the nearest baked texel of their own chart (black only where the chart
+        has none within `dilate.CHART_RINGS`), then the empty texels outside charts."""
+        return _dilate.Fill(self.baked, DILATE_RINGS, black=self.coverage < 0.0, chart=self.coverage != 0.0)
 
     def layers(self) -> dict[str, np.ndarray]:
-        """The raw files' layers as `(H, W, components)` views: SH0 … SH8, Normal, Coverage."""
+        """The raw files' layers as `(H, W, components)` views: SH0 … SH8, Normal, Coverage,
+        Noise (NaN everywhere when unknown)."""
         out = {ch.name: self.sh[:, :, k] for k, ch in enumerate(SH_FILE.channels)}
-        normal, coverage = TEXELS_FILE.channels
+        normal, coverage, noise = TEXELS_FILE.channels
         out.update({normal.name: self.normal, coverage.name: self.coverage[..., None]})
+        noise_image = np.full(self.coverage.shape, np.nan, np.float32) if self.noise is None else self.noise
+        out[noise.name] = noise_image[..., None]
         return out
 
 
@@ -99,10 +117,14 @@ def encode_atlas(data: TexelData, encoding: Encoding, raw: bool | TexelData = Tr
     images, summary = encode_images(data, encoding, fill)
     files = {encoding.file.key: (encoding.file, images)}
     if raw is not False:
-        layers = (data if raw is True else raw).layers()
+        source = data if raw is True else raw
+        # the raw files are filled as the traced atlas's own texels say, not as a post stage's
+        # extra sources (seam stitching's gutter texels): a re-encode starts from what was traced
+        raw_fill = fill if source.extra_sources is data.extra_sources else source.fill()
+        layers = source.layers()
         for spec in (SH_FILE, TEXELS_FILE):
-            files[spec.key] = (spec, raw_images(spec, layers, fill))
-    stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.black)), **summary}
+            files[spec.key] = (spec, raw_images(spec, layers, raw_fill))
+    stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.invalid)), **summary}
     return EncodedAtlas(w, h, files, encoding.file, dict(encoding.settings), stats)
 
 
