@@ -51,6 +51,9 @@ within 2 texels of the shadow edge, the 10–90% width of the edge profile (texe
 distance to the edge, normalised by the reference's shadow and lit levels), and the same errors
 for the texels within 2 texels of the resting box's contact line.
 
+A scene's `note` in the JSON (set by hand when its entry is kept from an earlier run, e.g. after
+`--scenes` re-measured the others) is printed under its heading.
+
 Writes bench/results/denoise.json, denoise.md (the tables), denoise_error.png (error vs time per
 scene, log-log), denoise_side_by_side.png (raw | denoised | reference I_z of `--figure-scene` at
 the PREVIEW preset's sample count, cropped) and denoise_edge.png (the edge profiles); the
@@ -934,6 +937,7 @@ def markdown(results: dict) -> str:
         out += [
             f"## {name}",
             "",
+            *([f"*{r['note']}*", ""] if r.get("note") else []),
             f"{r['triangles']} triangles; receivers {', '.join(r['receivers'])}; {r['resolution']}² atlas, "
             f"{r['texels']} texels ({r['buried_texels']} buried), {r['measured_texels']} measured. "
             f"Our reference {ref['samples']} spp ({ref['seconds']:.0f} s), its noise {ref['floor']:.2f}%; "
