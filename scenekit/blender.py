@@ -134,18 +134,9 @@ def box_between(name, lo, hi, material):
     vertices in world space (identity transform), linked to the scene collection."""
     import bpy
 
-    (x0, y0, z0), (x1, y1, z1) = lo, hi
-    verts = [
-        (x0, y0, z0),
-        (x1, y0, z0),
-        (x1, y1, z0),
-        (x0, y1, z0),
-        (x0, y0, z1),
-        (x1, y0, z1),
-        (x1, y1, z1),
-        (x0, y1, z1),
-    ]
-    faces = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
+    from .meshes import BOX_QUADS, box_corners
+
+    verts, faces = box_corners(lo, hi), BOX_QUADS
     mesh = bpy.data.meshes.new(name)
     mesh.from_pydata(verts, [], faces)
     mesh.materials.append(material)

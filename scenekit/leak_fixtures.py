@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .meshes import BOX_QUADS, box_corners
+
 #: a texel this close to a shadow edge cast by the fixture's own geometry (in texel sizes)
 #: has no exact value: its footprint is partly lit, legitimately
 EDGE_MARGIN = 1.5
@@ -37,21 +39,9 @@ class Part:
 
     def mesh(self) -> tuple[np.ndarray, np.ndarray]:
         """(vertices (V, 3), quads (F, 4)) with counter-clockwise (outward) winding."""
-        (x0, y0, z0), (x1, y1, z1) = self.lo, self.hi
-        if self.quad:
-            return np.array([(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0)], float), np.array([[0, 1, 2, 3]])
-        v = [
-            (x0, y0, z0),
-            (x1, y0, z0),
-            (x1, y1, z0),
-            (x0, y1, z0),
-            (x0, y0, z1),
-            (x1, y0, z1),
-            (x1, y1, z1),
-            (x0, y1, z1),
-        ]
-        f = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
-        return self._to_world(np.array(v, float)), np.array(f)
+        if self.quad:  # the box's bottom face alone
+            return np.array(box_corners(self.lo, self.hi)[:4], float), np.array([[0, 1, 2, 3]])
+        return self._to_world(np.array(box_corners(self.lo, self.hi), float)), np.array(BOX_QUADS)
 
     def _to_world(self, v: np.ndarray, inverse: bool = False) -> np.ndarray:
         """Box-frame points to world space (the yaw about the box's centre), or back."""

@@ -13,6 +13,17 @@ def plane(size=1.0):
     return v, np.array([[0, 1, 2], [0, 2, 3]])
 
 
+#: The six outward (counter-clockwise) quads of `box_corners`' eight corners.
+BOX_QUADS = ((0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7))
+
+
+def box_corners(lo, hi) -> list[tuple[float, float, float]]:
+    """The eight corners of the axis-aligned box from `lo` to `hi`, bottom (z = lo) face first,
+    counter-clockwise seen from above; `BOX_QUADS` index them."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    return [(x, y, z) for z in (z0, z1) for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))]
+
+
 def cube(size=1.0, centre=(0, 0, 0)):
     v = (
         np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)], float) - 0.5
