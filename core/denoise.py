@@ -28,7 +28,8 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
    light can still move between the charts of one page.
 
 5. **Noise clamp**: where the tracer measured each texel's noise (`TexelData.noise`, the
-   standard error of its luminance L0 from the spread between passes; unknown after one pass),
+   standard error of its luminance L0 from the spread between passes; unknown before
+   `stages.NOISE_PASSES` passes),
    no coefficient moves further from the traced value than NOISE_CLAMP standard errors (scaled
    to its colour). A filter also changes what is not noise: it bleeds light into contact
    shadows and blurs edges, and at high sample counts that is all it changes. The clamp lets it
