@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import bakepoints, encoding, exr, lightmap_files, parallel, post, seams, tracer
+from . import bakepoints, encoding, exr, light_sets, lightmap_files, parallel, post, seams, tracer
 from .bakepoints import BakePoints, SurfaceTriangles
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError
@@ -239,7 +239,9 @@ def _write(
 ) -> AtlasResult:
     """The last stages of one atlas: seams → image → post stages → encode → write (files
     staged, committed with the other atlases' at the end). The raw SH file keeps the SH as
-    traced; the seams file is written whether or not this bake stitches (a re-encode may)."""
+    traced; the seams file is written whether or not this bake stitches (a re-encode may).
+    With light sets, the same stages then run for each set's SH into its own atlas files
+    (`light_sets.set_atlas_name`), listed in the atlas's sidecar."""
     t = time.perf_counter()
     files = lightmap_files.AtlasFiles(out_dir, atlas.name)
     atlas_seams = seams.find_seams(traced.points.mesh, atlas.width, atlas.height)
@@ -260,22 +262,43 @@ def _write(
             "timings_seconds": seconds,
         }
     )
-    # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH)
-    raw = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise())
+    set_files = [
+        lightmap_files.AtlasFiles(out_dir, light_sets.set_atlas_name(atlas.name, s), atlas.name) for s in traced.sets
+    ]
+    if traced.sets:
+        sidecar["light_sets"] = [{"name": s, "atlas": f.name} for s, f in zip(traced.sets, set_files)]
 
     def check() -> None:
         _check_cancel(cancel)
 
+    warnings = _write_files(staging, files, traced, settings, sidecar, atlas_seams, seconds, check)
+    lightmap_files.stage_seams(staging, files, atlas_seams)
+    for k, (name, set_atlas) in enumerate(zip(traced.sets, set_files)):
+        set_sidecar = {key: v for key, v in sidecar.items() if key not in ("light_sets", "timings_seconds")}
+        set_sidecar["light_set"] = {"name": name, "of": atlas.name}
+        warnings += _write_files(
+            staging, set_atlas, traced.light_set(k), settings, set_sidecar, atlas_seams, seconds, check
+        )
+    seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
+    warnings = [f"atlas '{atlas.name}', {w}" for w in dict.fromkeys(warnings)]
+    return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds, warnings)
+
+
+def _write_files(
+    staging, files, traced: TracedAtlas, settings: PipelineSettings, sidecar: dict, atlas_seams, seconds: dict, check
+) -> list[str]:
+    """Image → post stages → encode → write of one atlas's SH (the atlas's own, or one light
+    set's) into `files`; adds the post stages' seconds to seconds["post"]; returns their warnings."""
+    t = time.perf_counter()
+    # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH)
+    raw = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise())
     data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams)  # post stages
-    seconds["post"] = time.perf_counter() - t
+    seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=raw)  # encode
     encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"], check)
     del data, raw
     lightmap_files.write_atlas(staging, files, encoded, sidecar)  # write
-    lightmap_files.stage_seams(staging, files, atlas_seams)
-    seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
-    warnings = [f"atlas '{atlas.name}', {w}" for w in post.warnings(sidecar["post"])]
-    return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds, warnings)
+    return post.warnings(sidecar["post"])
 
 
 def reencode(
@@ -289,17 +312,14 @@ def reencode(
     """Encode an atlas again from its raw SH and texel EXRs (the SH as traced) with other encoder
     or post-stage settings (no tracing): read → post stages → encode → write, the stages of a
     bake; replaces the encoded EXR and the sidecar atomically (the raw files and the seams file
-    stay). Stitching reads the atlas's seams file; a bake without one (made before seams files)
+    stay), for the atlas and each of its light sets. A blend of the light sets (`light_sets.blend_atlas`)
+    is undone: the atlas's file holds their sum again. Stitching reads the atlas's seams file; a bake without one (made before seams files)
     is encoded unstitched, with a warning. `threads` (0 = every core) read and compress the EXRs
     and run the denoiser; the sidecar records it as `reencode_threads`. Returns the seconds it
     took and the post stages' warnings."""
     t = time.perf_counter()
     threads = parallel.resolve_threads(threads)
     exr.set_threads(threads)
-    sidecar = lightmap_files.read_sidecar(files.sidecar)
-    data = lightmap_files.read_texel_data(files)
-    sidecar["reencoded_from_sh"] = True
-    sidecar["reencode_threads"] = threads
     settings = PipelineSettings(
         trace=tracer.BakeSettings(threads=threads),
         encoder=encoder,
@@ -307,12 +327,26 @@ def reencode(
         denoiser_library=denoiser_library,
         stitch_seams=stitch_seams,
     )
-    atlas_seams = lightmap_files.read_seams(files, data.coverage.shape) if stitch_seams else None
+    sidecar = lightmap_files.read_sidecar(files.sidecar)
+    warnings: list[str] = []
+    with exr.Staging() as staging:
+        for atlas in [files, *files.light_sets(sidecar)]:
+            warnings += _reencode_files(staging, atlas, settings, threads)
+        staging.commit()
+    return time.perf_counter() - t, [f"atlas '{files.name}', {w}" for w in dict.fromkeys(warnings)]
+
+
+def _reencode_files(staging, files: lightmap_files.AtlasFiles, settings: PipelineSettings, threads: int) -> list[str]:
+    """Read → post stages → encode → stage the encoded file and sidecar of one atlas (or light set)."""
+    sidecar = lightmap_files.read_sidecar(files.sidecar)
+    sidecar.pop("blend", None)
+    data = lightmap_files.read_texel_data(files)
+    sidecar["reencoded_from_sh"] = True
+    sidecar["reencode_threads"] = threads
+    atlas_seams = lightmap_files.read_seams(files, data.coverage.shape) if settings.stitch_seams else None
     data, sidecar["post"] = post.apply(data, settings, seams=atlas_seams)
-    encoded = encoding.encode_atlas(data, encoding.for_settings(encoder), raw=False)
+    encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=False)
     encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"])
     del data
-    with exr.Staging() as staging:
-        lightmap_files.write_atlas(staging, files, encoded, sidecar)
-        staging.commit()
-    return time.perf_counter() - t, [f"atlas '{files.name}', {w}" for w in post.warnings(sidecar["post"])]
+    lightmap_files.write_atlas(staging, files, encoded, sidecar)
+    return post.warnings(sidecar["post"])

@@ -211,10 +211,10 @@ def advance_paths(
     back_faces_black=False,
 ):
     """One wavefront step after a closest-hit query of the rays o + t·d (R, 3), (R,), one row per
-    live path: `live` (R,) its sample index, `acc` (R, 3) radiance gathered so far, `throughput`
-    (R, 3). A ray that missed (prim < 0) adds throughput × `sky` (its row of sky (R, 3), or
-    sky[0] for all if sky has one row), its path ends and writes acc into `radiance[live]` (in
-    place). At a hit: throughput × albedo (`row_albedo` (R, 3) if it has rows, else
+    live path: `live` (R,) its sample index, `acc` (R, C) radiance gathered so far (C = 3 per
+    light set: RGB of set 0, RGB of set 1, ...), `throughput` (R, 3). A ray that missed (prim < 0)
+    adds throughput × `sky` (its row of sky (R, C), or sky[0] for all if sky has one row), its
+    path ends and writes acc into `radiance[live]` (R', C) (in place). At a hit: throughput × albedo (`row_albedo` (R, 3) if it has rows, else
     tri_albedo[prim]), the unit normal n facing the ray (surfaces are two-sided; ng (R, 3) is
     Embree's, not unit) and the next origin x = hit + offset·n; then, if `roulette`, the path
     survives with probability p = min(max(throughput), max_survival). A survivor gets a
@@ -229,6 +229,7 @@ def advance_paths(
     decided before but applied after the vertex's light: its victims keep that light too)."""
     state = np.uint64(seed)
     r = o.shape[0]
+    cols = acc.shape[1]
     per_row_sky = sky.shape[0] == r and r > 1
     per_row_albedo = row_albedo.shape[0] > 0
     tp = np.empty((r, 3))
@@ -238,11 +239,11 @@ def advance_paths(
     for i in range(r):
         if prim[i] < 0:
             s = i if per_row_sky else 0
-            for c in range(3):
-                radiance[live[i], c] = acc[i, c] + throughput[i, c] * sky[s, c]
+            for c in range(cols):
+                radiance[live[i], c] = acc[i, c] + throughput[i, c % 3] * sky[s, c]
             continue
         if back_faces_black and ng[i, 0] * d[i, 0] + ng[i, 1] * d[i, 1] + ng[i, 2] * d[i, 2] > 0.0:
-            for c in range(3):  # the back of a surface: the path ends, carrying no more light
+            for c in range(cols):  # the back of a surface: the path ends, carrying no more light
                 radiance[live[i], c] = acc[i, c]
             continue
         for c in range(3):
@@ -261,7 +262,7 @@ def advance_paths(
             victims += 1
     m = survivors + victims
     out_live = np.empty(m, live.dtype)
-    out_acc = np.empty((m, 3))
+    out_acc = np.empty((m, cols))
     out_tp = np.empty((m, 3))
     x = np.empty((m, 3))
     n = np.empty((m, 3))
@@ -279,8 +280,9 @@ def advance_paths(
             j = jv
             jv += 1
         out_live[j] = live[i]
-        for c in range(3):
+        for c in range(cols):
             out_acc[j, c] = acc[i, c]
+        for c in range(3):
             out_tp[j, c] = tp[i, c]
         gx, gy, gz = float(ng[i, 0]), float(ng[i, 1]), float(ng[i, 2])
         length = math.sqrt(gx * gx + gy * gy + gz * gz)
@@ -309,8 +311,9 @@ def advance_paths(
 
 
 def project_hemisphere(dirs, radiance, pdf, normals, k):
-    """Radiance SH (n, 9, 3) of each texel's k samples (directions (n·k, 3), radiance (n·k, 3),
-    pdf (n·k,) in the group order of `hemisphere_rays`), with a constant as control variate.
+    """Radiance SH (n, 9, C) of each texel's k samples (directions (n·k, 3), radiance (n·k, C):
+    C = 3 per light set, pdf (n·k,) in the group order of `hemisphere_rays`), with a constant
+    (per column) as control variate.
 
     Plain estimate: Σ L Y / (k p) over all k samples (balance heuristic over the two
     strategies: every coefficient, I_z's included, uses every sample). Each half subtracts a
@@ -323,11 +326,12 @@ def project_hemisphere(dirs, radiance, pdf, normals, k):
     taking I_z from the cosine half alone: README, "Speed vs accuracy")."""
     n = normals.shape[0]
     q = k // 4
-    out = np.zeros((n, 9, 3))
-    beta = np.empty((2, 3))
+    cols = radiance.shape[1]
+    out = np.zeros((n, 9, cols))
+    beta = np.empty((2, cols))
     for t in range(n):
         base = t * k
-        for c in range(3):
+        for c in range(cols):
             sa = 0.0
             sb = 0.0
             for i in range(q):
@@ -340,14 +344,14 @@ def project_hemisphere(dirs, radiance, pdf, normals, k):
             h = 0 if j < 2 * q else 1
             w = 1.0 / (pdf[s] * k)
             y = sh_basis(dirs[s, 0], dirs[s, 1], dirs[s, 2])
-            for c in range(3):
+            for c in range(cols):
                 v = (radiance[s, c] - beta[h, c]) * w
                 for m in range(9):
                     out[t, m, c] += y[m] * v
         nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
         band0 = _TWO_PI * _Y00
         band1 = _C1 * math.pi
-        for c in range(3):
+        for c in range(cols):
             b = 0.5 * (beta[0, c] + beta[1, c])
             out[t, 0, c] += band0 * b
             out[t, 1, c] += -band1 * ny * b
@@ -374,24 +378,26 @@ def accumulate_grouped(dirs, values, weights, k, out):
 
 
 def add_pass(idx, estimate, normals, luminance, total, m2, iz, iz_sq, passes):
-    """One pass's SH estimate (len(idx), 9, 3) into the running statistics of the texels idx
+    """One pass's SH estimate (len(idx), 9, C) into the running statistics of the texels idx
     (unique), in place: total += estimate; m2 (float32) += (x - mean before)·(x - mean after)
     (Welford, per coefficient; the first pass adds 0); iz / iz_sq += the estimate's I_z (`sh`:
-    IRRADZ_FROM_R10 · zonal_band1) weighted by `luminance` (3,) and its square; passes += 1."""
+    IRRADZ_FROM_R10 · zonal_band1) weighted by `luminance` (3,) and its square; passes += 1.
+    C = 3 per light set: I_z is that of the sets' sum."""
+    cols = estimate.shape[2]
     for j in range(idx.shape[0]):
         t = idx[j]
         k = passes[t]
         for m in range(9):
-            for c in range(3):
+            for c in range(cols):
                 x = estimate[j, m, c]
                 before = total[t, m, c] / k if k > 0 else x
                 total[t, m, c] += x
                 m2[t, m, c] += (x - before) * (x - total[t, m, c] / (k + 1))
         nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
         lum = 0.0
-        for c in range(3):
+        for c in range(cols):
             r10 = zonal_band1(estimate[j, 1, c], estimate[j, 2, c], estimate[j, 3, c], nx, ny, nz)
-            lum += luminance[c] * _IRRADZ_FROM_R10 * r10
+            lum += luminance[c % 3] * _IRRADZ_FROM_R10 * r10
         iz[t] += lum
         iz_sq[t] += lum * lum
         passes[t] = k + 1

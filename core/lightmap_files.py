@@ -7,6 +7,8 @@ says which channels each file holds):
   <name>_texels.exr  n_v and coverage (`encoding.raw.TEXELS_FILE`): what re-encoding needs besides the SH
   <name>.json        the sidecar: format version, channel meanings, conventions, settings,
                      per-object texel rectangles, timings, statistics
+  <name>.<set>…      with light sets (`core.light_sets`): each set's own files as above (its
+                     sidecar says which set it is; it shares the atlas's seams file)
   <name>_seams.npz   the atlas's seam sample pairs (`seams.Seams`): what stitching needs on a
                      re-encode besides the SH (internal to re-encoding, not for engines)
   <name>_preview/    plain RGB EXRs the EEVEE preview samples (one per layer with a preview key)
@@ -69,10 +71,12 @@ SH_CHANNELS = SH_FILE.exr_names
 
 @dataclass
 class AtlasFiles:
-    """Paths of one atlas's files (they share `folder` and `name`)."""
+    """Paths of one atlas's files (they share `folder` and `name`). parent: for one light set's
+    files (`core.light_sets`), the name of the atlas whose seams file it shares ("" otherwise)."""
 
     folder: Path
     name: str
+    parent: str = ""
 
     def path(self, spec: FileSpec) -> Path:
         """The EXR of `spec`: `<folder>/<name><suffix>`."""
@@ -96,8 +100,13 @@ class AtlasFiles:
 
     @property
     def seams(self) -> Path:
-        """The atlas's seam sample pairs (`seams.Seams.save`), for stitching on a re-encode."""
-        return self.folder / f"{self.name}_seams.npz"
+        """The atlas's seam sample pairs (`seams.Seams.save`), for stitching on a re-encode
+        (a light set's atlas shares its parent's)."""
+        return self.folder / f"{self.parent or self.name}_seams.npz"
+
+    def light_sets(self, sidecar: dict) -> list[AtlasFiles]:
+        """The files of each light set listed in this atlas's `sidecar` (none without sets)."""
+        return [AtlasFiles(self.folder, entry["atlas"], self.name) for entry in sidecar.get("light_sets", [])]
 
     @property
     def preview(self) -> Path:

@@ -96,7 +96,8 @@ class BakeScene:
     albedo: texture_index (T,) int (-1: none), texture_uv (T, 3, 2), textures [textures.Texture];
     emission (T, 3) radiance, emitted on both sides; emission_group (T,) str, optional: the light
     group of each triangle's emission (None: all ""); lights: SunLight / PointLight / SpotLight / AreaLight; world:
-    background radiance (3,) or None (black); environment: an HDRI world
+    background radiance (3,) or None (black); world_group: the light group of the constant
+    world (an environment carries its own `group`); environment: an HDRI world
     (`environment.EnvironmentMap`, importance-sampled with MIS) in place of `world`; notes: what
     the extraction approximated."""
 
@@ -111,6 +112,7 @@ class BakeScene:
     notes: list = field(default_factory=list)
     environment: EnvironmentMap | None = None
     emission_group: np.ndarray | None = None
+    world_group: str = ""
 
     def albedo_at(self, prim: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Albedo (R, 3) at hit points given by triangle and barycentrics (u, v)."""

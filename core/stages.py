@@ -34,6 +34,9 @@ class TracedAtlas:
     0 for buried texels; sh_error (P, 9, 3) float32: standard error of `sh` from the spread
     between passes (0 where every pass agrees, or after a single pass); texel_samples (P,) int:
     hemisphere samples each texel took (they differ under a noise target or a time budget).
+    Light sets (`core.light_sets`): sets, the set names (() without light groups); set_sh
+    (K, P, 9, 3) float64 and set_sh_error (K, P, 9, 3) float32, each set's SH and its standard
+    error (None without sets); `sh` is then their sum, `sh_error` the sum of their errors.
     Run statistics: samples (the most a texel took), passes, rays traced, seconds of wall time,
     stopped_by ("samples", "noise_target": every texel converged, "time_budget"), threads."""
 
@@ -47,6 +50,9 @@ class TracedAtlas:
     seconds: float = 0.0
     stopped_by: str = "samples"
     threads: int = 1
+    sets: tuple[str, ...] = ()
+    set_sh: np.ndarray | None = None
+    set_sh_error: np.ndarray | None = None
 
     @property
     def valid(self) -> np.ndarray:
@@ -66,5 +72,11 @@ class TracedAtlas:
         return np.where(self.texel_samples >= NOISE_PASSES * per_pass, error, np.nan).astype(np.float32)
 
     def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TracedAtlas:
-        """A copy carrying new SH (and standard error) for the same texels."""
-        return replace(self, sh=sh, sh_error=self.sh_error if sh_error is None else sh_error)
+        """A copy carrying new SH (and standard error) for the same texels, without light sets."""
+        error = self.sh_error if sh_error is None else sh_error
+        return replace(self, sh=sh, sh_error=error, sets=(), set_sh=None, set_sh_error=None)
+
+    def light_set(self, k: int) -> TracedAtlas:
+        """The atlas as traced for light set k alone (`sets[k]`): its SH and standard error."""
+        assert self.set_sh is not None and self.set_sh_error is not None, "an atlas traced without light sets"
+        return self.with_sh(self.set_sh[k], self.set_sh_error[k])

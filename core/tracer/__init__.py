@@ -82,15 +82,24 @@ def bake(
     start = time.perf_counter()
     settings = replace(settings, threads=_parallel.resolve_threads(settings.threads))
     estimator = texel_estimator(points, scene, settings, ray_scene)
-    stats = Statistics(len(points.texel), points.normal)
+    stats = Statistics(len(points.texel), points.normal, estimator.scene.channels)
     outcome = scheduler.run(estimator, stats, settings, start, progress, cancel, executor)
     sh, sh_error = stats.result()
     sh[points.buried] = 0.0
+    sets = estimator.scene.sets
+    set_sh = set_sh_error = None
+    if sets:
+        set_sh, set_sh_error = _per_set(sh), _per_set(sh_error)
+        # the sum's error as if the sets' errors were fully correlated (they share their paths)
+        sh, sh_error = set_sh.sum(axis=0), set_sh_error.sum(axis=0)
     passes = int(np.max(stats.passes, initial=0))
     return TracedAtlas(
         points=points,
         sh=sh,
         sh_error=sh_error,
+        sets=sets,
+        set_sh=set_sh,
+        set_sh_error=set_sh_error,
         texel_samples=stats.passes * settings.pass_samples,
         samples=passes * settings.pass_samples,
         passes=passes,
@@ -101,9 +110,15 @@ def bake(
     )
 
 
+def _per_set(a: np.ndarray) -> np.ndarray:
+    """`(N, 9, 3K)` statistics → `(K, N, 9, 3)`, one block per light set."""
+    n, m, c = a.shape
+    return np.ascontiguousarray(a.reshape(n, m, c // 3, 3).transpose(2, 0, 1, 3))
+
+
 def texel_estimator(
     points: BakePoints, scene: BakeScene, settings: BakeSettings, ray_scene: RayScene | None = None
 ) -> TexelEstimator:
     """The estimator `bake` runs its work units on (`estimator.trace(WorkUnit(...))`)."""
-    trace_scene = TraceScene(scene, settings.bounces, points.offset, ray_scene)
+    trace_scene = TraceScene(scene, settings.bounces, points.offset, ray_scene, settings.light_sets)
     return TexelEstimator(points, trace_scene, settings.pass_samples)

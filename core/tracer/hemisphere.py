@@ -69,8 +69,9 @@ class TexelEstimator(shipping.Shipped):
         return CoverProbe(self.scene.scene.triangles, points.offset, points.mesh.positions)
 
     def trace(self, unit: WorkUnit) -> UnitResult:
-        """Radiance SH estimate `(len(unit.texels), 9, 3)` from one pass's samples of the unit's
-        texels, with its own generator seeded by (seed, pass, chunk)."""
+        """Radiance SH estimate `(len(unit.texels), 9, C)` from one pass's samples of the unit's
+        texels (C: 3 per light set, `TraceScene.channels`), with its own generator seeded by
+        (seed, pass, chunk)."""
         rng = np.random.default_rng([unit.seed, unit.pass_index, unit.chunk])
         paths = Paths(self.scene)
         k = self.pass_samples
@@ -84,7 +85,7 @@ class TexelEstimator(shipping.Shipped):
         if crossed is not None:  # settled bake points: hidden samples are replaced
             origins = self._visible(paths, rng, idx, origins, k, crossed[idx], uncovered)
             uncovered = None
-        radiance = paths.radiance(rng, origins, dirs, pdf, uncovered)  # (n·k, 3)
+        radiance = paths.radiance(rng, origins, dirs, pdf, uncovered)  # (n·k, C)
         estimate = paths.kernels.project_hemisphere(dirs, radiance, pdf, normals, k)
         estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered)
         return UnitResult(estimate, paths.traced)
@@ -130,15 +131,17 @@ class TexelEstimator(shipping.Shipped):
 
     def _direct_sh(self, paths: Paths, rng, idx, origins, k, uncovered=None) -> np.ndarray:
         """Next-event estimation at the bake point: one shadow ray per light from each of the
-        pass's k origins (those `uncovered`, if given), projected to SH (len(idx), 9, 3); light
-        arriving from below n_v's horizon is left out. Penumbrae average over the footprint."""
-        out = np.zeros((len(idx), 9, 3))
+        pass's k origins (those `uncovered`, if given), projected to SH (len(idx), 9, C), each
+        light into its set's columns; light arriving from below n_v's horizon is left out.
+        Penumbrae average over the footprint."""
+        out = np.zeros((len(idx), 9, self.scene.channels))
         normal = np.repeat(self.points.normal[idx], k, axis=0)
 
         def mixture_pdf(w):
             return _mixture_pdf(np.einsum("ri,ri->r", w, normal))
 
-        for dirs, value, dist in paths.light_samples(rng, origins, mixture_pdf):
+        samples = paths.light_samples(rng, origins, mixture_pdf)
+        for light, (dirs, value, dist) in zip(self.scene.lights, samples):
             above = np.einsum("ri,ri->r", dirs, normal) > 0.0
             if uncovered is not None:
                 above &= uncovered
@@ -147,7 +150,7 @@ class TexelEstimator(shipping.Shipped):
                 continue
             weight = np.zeros(len(origins))
             weight[rows] = paths.unoccluded(take_rows(origins, rows), take_rows(dirs, rows), dist[rows]) * (1.0 / k)
-            paths.kernels.accumulate_grouped(dirs, value, weight, k, out)
+            paths.kernels.accumulate_grouped(dirs, value, weight, k, out[:, :, light.column : light.column + 3])
         return out
 
 

@@ -43,10 +43,12 @@ RayPdf = Callable[[np.ndarray], np.ndarray]
 
 class Light(ABC):
     """One source of light. group: the light group it belongs to ("": the default set);
+    column: the first of the 3 radiance columns of its light set (`paths.TraceScene` sets it);
     reachable: rays can also reach it (MIS with `pdf` and `evaluate`), else next-event
     estimation only; at_infinity: reached by rays leaving the scene, not by hitting triangles."""
 
     group: str = ""
+    column: int = 0
     reachable: bool = False
     at_infinity: bool = False
 

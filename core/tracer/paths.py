@@ -11,6 +11,12 @@ cosine-distributed; with BACK_FACES_BLACK a path that reaches the back of a tria
 there, carrying no more light) with Russian roulette from RR_START bounces on, at most `bounces`
 reflections. The per-sample work between two Embree queries runs in `kernels.advance_paths`.
 
+Light sets (`core.light_sets`): with `TraceScene.sets` the radiance has 3 columns per set (RGB of
+set 0, RGB of set 1, ...) and every contribution (next-event estimation, emitters and the world
+reached by rays) goes to the columns of its light's set (`Light.column`), inside the same paths:
+the random numbers drawn do not depend on the sets, so the columns of a bake with sets sum to
+the radiance of the same bake without them.
+
 `TraceScene` is what paths see of one bake (picklable: the Embree scene is rebuilt in a process
 that receives it); a `Paths` traces in one thread for one work unit and counts its rays.
 """
@@ -20,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import kernels as _kernels
+from .. import light_sets as _light_sets
 from ..errors import BakeError
 from ..rays import RayScene, ray_offset
 from ..scene import BakeScene
@@ -43,11 +50,20 @@ class TraceScene:
     """The scene paths are traced in: scene (BakeScene), lights (`lights.build`, in sampling
     order), offset (scene units: ray origins leave surfaces by at least `min_offset` and by the
     scene's own `rays.ray_offset`), bounces (diffuse reflections after the first hit).
+    light_sets: keep each light set's radiance apart (`sets`: the set names, () when the scene
+    uses no light groups or light_sets is False; `channels` = 3 per set, at least 3).
     ray_scene: the Embree scene of `scene.triangles` if the caller has built it (then shared:
     `shared_rays`), else built here. It is not pickled; a process receiving this object builds
     its own on first use (`shipping.ray_scene`: once per process and triangle content)."""
 
-    def __init__(self, scene: BakeScene, bounces: int, min_offset: float = 0.0, ray_scene: RayScene | None = None):
+    def __init__(
+        self,
+        scene: BakeScene,
+        bounces: int,
+        min_offset: float = 0.0,
+        ray_scene: RayScene | None = None,
+        light_sets: bool = True,
+    ):
         if len(scene.triangles) == 0:
             raise BakeError("the bake scene has no geometry")
         self.scene = scene
@@ -57,8 +73,22 @@ class TraceScene:
         self._rays: RayScene | None = ray_scene if ray_scene is not None else RayScene(scene.triangles)
         self.offset = max(min_offset, ray_offset(scene.triangles))
         self.lights = _lights.build(scene)
+        groups = [light.group for light in self.lights] + ([scene.world_group] if scene.world is not None else [])
+        self.sets = _light_sets.set_names(groups) if light_sets else ()
+        self.channels = 3 * max(len(self.sets), 1)
+        for light in self.lights:
+            light.column = self.column(light.group)
+        self.world_column = self.column(scene.world_group) if scene.world is not None else 0
         self.surface_lights = [light for light in self.lights if light.reachable and not light.at_infinity]
         self.sky_lights = [light for light in self.lights if light.reachable and light.at_infinity]
+
+    def column(self, group: str) -> int:
+        """The first of the 3 radiance columns of the light set of light group `group`."""
+        return 3 * self.sets.index(_light_sets.set_of(group)) if self.sets else 0
+
+    def per_column(self, rgb: np.ndarray) -> np.ndarray:
+        """RGB rows (R, 3) repeated for every set's columns (R, channels): a path's throughput."""
+        return rgb if self.channels == 3 else np.tile(rgb, (1, self.channels // 3))
 
     @property
     def rays(self) -> RayScene:
@@ -98,33 +128,36 @@ class Paths:
         pdf: np.ndarray,
         start: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Radiance (R, 3) arriving at `origins` from directions `dirs` (R, 3) sampled with density
+        """Radiance (R, C) arriving at `origins` from directions `dirs` (R, 3) sampled with density
         `pdf` (R,) per steradian (what the MIS weights of reachable lights are taken against):
         wavefront over bounces, the arrays compacted to the live paths. `start` (R,) bool, if
-        given: only those paths are traced (the others receive nothing). Each live path gathers
+        given: only those paths are traced (the others receive nothing). C = `TraceScene.channels`
+        (3 per light set). Each live path gathers
         into its own row of `acc` (compacted with it), written out once when the path ends:
         cheaper than scattering into the (R, 3) result every bounce."""
         ts = self.scene
         scene = ts.scene
-        radiance = np.zeros((len(origins), 3))
+        radiance = np.zeros((len(origins), ts.channels))
         if start is None:
             live, o, d = np.arange(len(origins)), origins, dirs
         else:
             live = np.flatnonzero(start)
             o, d, pdf = take_rows(origins, live), take_rows(dirs, live), pdf[live]
-        acc = np.zeros((len(live), 3))
+        acc = np.zeros((len(live), ts.channels))
         throughput = np.ones((len(live), 3))
         for bounce in range(ts.bounces + 1):
             t, prim, ng, bu, bv = self.intersect(o, d, barycentrics=True)
             if ts.surface_lights:
                 hit = np.flatnonzero(prim >= 0)
                 for light in ts.surface_lights:
-                    acc[hit] += throughput[hit] * light.evaluate(d[hit], t[hit], prim[hit], pdf[hit])
+                    c = light.column
+                    acc[hit, c : c + 3] += throughput[hit] * light.evaluate(d[hit], t[hit], prim[hit], pdf[hit])
             sky = self._sky(prim, d, pdf)
             if bounce == ts.bounces:
                 hit, miss = prim >= 0, prim < 0
                 radiance[live[hit]] = acc[hit]
-                radiance[live[miss]] = acc[miss] + throughput[miss] * (sky[miss] if len(sky) > 1 else sky)
+                tp = ts.per_column(throughput[miss])
+                radiance[live[miss]] = acc[miss] + tp * (sky[miss] if len(sky) > 1 else sky)
                 return radiance
             row_albedo = _NO_ROWS
             if scene.textures:
@@ -155,7 +188,7 @@ class Paths:
             )
             if len(live) == 0:
                 return radiance
-            acc += throughput * self.irradiance_at(rng, o, n)
+            acc += ts.per_column(throughput) * self.irradiance_at(rng, o, n)
             radiance[live[s:]] = acc[s:]
             live, acc, o, d, pdf = live[:s], acc[:s], o[:s], d[:s], pdf[:s]
             throughput = throughput[:s] * weight[:, None]
@@ -164,33 +197,34 @@ class Paths:
         return radiance
 
     def _sky(self, prim, d, pdf) -> np.ndarray:
-        """Radiance brought by the rays that missed (prim < 0): (R, 3) with a row per ray (the
-        lights at infinity, weighted by MIS), or (1, 3) for all (the constant world, or black)."""
+        """Radiance brought by the rays that missed (prim < 0): (R, C) with a row per ray (the
+        lights at infinity, weighted by MIS), or (1, C) for all (the constant world, or black)."""
         ts = self.scene
         if not ts.sky_lights:
-            return _BLACK if ts.scene.world is None else ts.scene.world[None, :]
-        sky = np.zeros((len(prim), 3))
+            sky = np.zeros((1, ts.channels))
+            if ts.scene.world is not None:
+                sky[0, ts.world_column : ts.world_column + 3] = ts.scene.world
+            return sky
+        sky = np.zeros((len(prim), ts.channels))
         miss = np.flatnonzero(prim < 0)
-        for i, light in enumerate(ts.sky_lights):
-            brought = light.evaluate(d[miss], None, None, pdf[miss])
-            if i == 0:
-                sky[miss] = brought
-            else:
-                sky[miss] += brought
+        for light in ts.sky_lights:
+            c = light.column
+            sky[miss, c : c + 3] += light.evaluate(d[miss], None, None, pdf[miss])
         return sky
 
     def light_samples(self, rng: np.random.Generator, x: np.ndarray, ray_pdf) -> list:
-        """One sample (`lights.Sample`) per point x (R, 3) of every light, in sampling order;
-        `ray_pdf(dirs)`: the density of the strategy sampling rays at x (MIS)."""
+        """One sample (`lights.Sample`) per point x (R, 3) of every light, in sampling order (that
+        of `TraceScene.lights`); `ray_pdf(dirs)`: the density of the strategy sampling rays at x (MIS)."""
         return [light.sample(rng, x, ray_pdf) for light in self.scene.lights]
 
     def irradiance_at(self, rng: np.random.Generator, x: np.ndarray, n: np.ndarray) -> np.ndarray:
-        """Next-event estimate of the irradiance (R, 3) (DESIGN units, E/π·π = outgoing radiance
-        per unit albedo) at surface points x (R, 3) with unit normals n (R, 3) from every light,
-        one shadow ray per light and point; MIS against cosine sampling at x."""
-        total = np.zeros((len(x), 3))
+        """Next-event estimate of the irradiance (R, C) (DESIGN units, E/π·π = outgoing radiance
+        per unit albedo; C: 3 per light set) at surface points x (R, 3) with unit normals n (R, 3)
+        from every light, one shadow ray per light and point; MIS against cosine sampling at x."""
+        total = np.zeros((len(x), self.scene.channels))
         cosine_pdf = lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi
-        for dirs, value, dist in self.light_samples(rng, x, cosine_pdf):
+        samples = self.light_samples(rng, x, cosine_pdf)
+        for light, (dirs, value, dist) in zip(self.scene.lights, samples):
             cos = np.einsum("ri,ri->r", dirs, n)
             facing = np.flatnonzero(cos > 0.0)
             if len(facing) == len(x):
@@ -202,7 +236,8 @@ class Paths:
                 )
             else:
                 continue
-            total += weight[:, None] * value
+            c = light.column
+            total[:, c : c + 3] += weight[:, None] * value
         return total * (1.0 / np.pi)
 
     def unoccluded(self, o: np.ndarray, d: np.ndarray, dist: np.ndarray) -> np.ndarray:

@@ -49,7 +49,8 @@ class WorkUnit:
 
 @dataclass
 class UnitResult:
-    """A unit's estimate (n, 9, 3) float64 for its texels, in order, and the rays it traced."""
+    """A unit's estimate (n, 9, C) float64 for its texels, in order (C: 3 per light set), and
+    the rays it traced."""
 
     estimate: np.ndarray
     rays: int

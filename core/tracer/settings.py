@@ -21,7 +21,10 @@ class BakeSettings:
     is below noise_target × max(its I_z, NOISE_FLOOR × the atlas mean I_z) gets no more passes.
     The floor keeps near-black texels from asking for relative precision nobody can see.
     time_budget: 0 (off) or seconds of tracing after which no new chunk starts; the first pass
-    always completes, so every texel has an estimate."""
+    always completes, so every texel has an estimate.
+
+    light_sets: when the scene uses light groups, keep each light set's SH apart
+    (`core.light_sets`: one trace, one result per set and their sum); off: the sum only."""
 
     samples: int = 256
     pass_samples: int = 16
@@ -31,6 +34,7 @@ class BakeSettings:
     chunk_texels: int = 8192
     noise_target: float = 0.0
     time_budget: float = 0.0
+    light_sets: bool = True
 
 
 #: Passes a texel takes before its pass-to-pass spread may stop it (the spread of few passes is

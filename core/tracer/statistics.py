@@ -11,22 +11,23 @@ from .settings import NOISE_FLOOR
 
 
 class Statistics:
-    """Per texel (each may have its own pass count): the SH sum (N, 9, 3) float64, the SH's sum
+    """Per texel (each may have its own pass count): the SH sum (N, 9, C) float64, the SH's sum
     of squared deviations from the running mean (Welford; float32 is enough, being a sum of
     squares, not a difference of two), and the sum and square sum of I_z's luminance for the
-    noise target: 336 bytes per texel. normals (N, 3): the texels' n_v (I_z is taken along it)."""
+    noise target: 336 bytes per texel and light set. normals (N, 3): the texels' n_v (I_z is
+    taken along it); channels C: 3 per light set (the noise target takes the sets' sum)."""
 
-    def __init__(self, n: int, normals: np.ndarray):
+    def __init__(self, n: int, normals: np.ndarray, channels: int = 3):
         self.normals = normals
-        self.total = np.zeros((n, 9, 3))
-        self.m2 = np.zeros((n, 9, 3), np.float32)
+        self.total = np.zeros((n, 9, channels))
+        self.m2 = np.zeros((n, 9, channels), np.float32)
         self.iz = np.zeros(n)
         self.iz_sq = np.zeros(n)
         self.passes = np.zeros(n, dtype=np.int64)
         self.texel_passes = 0
 
     def add(self, idx: np.ndarray, estimate: np.ndarray) -> None:
-        """Add one pass's estimate (len(idx), 9, 3) for the texels idx (unique: a work unit's);
+        """Add one pass's estimate (len(idx), 9, C) for the texels idx (unique: a work unit's);
         compiled (`kernels.add_pass`): runs on the scheduling thread beside the tracing workers,
         where numpy was several times slower (the README has the figures)."""
         self.texel_passes += len(idx)
@@ -56,7 +57,7 @@ class Statistics:
         return ok & np.isfinite(var)
 
     def result(self, chunk: int = 1 << 16):
-        """(mean (N, 9, 3) float64, its standard error (N, 9, 3) float32), computed in place over
+        """(mean (N, 9, C) float64, its standard error (N, 9, C) float32), computed in place over
         the running statistics (spent afterwards), a chunk of texels at a time."""
         for s in range(0, len(self.passes), chunk):
             k = np.maximum(self.passes[s : s + chunk], 1).astype(np.float64)[:, None, None]

@@ -1,0 +1,196 @@
+"""Light sets: one bake, one lightmap per set of lights, blended the way the 2024 talk blends them.
+No bpy.
+
+A light set is one of Blender's Light Groups (`Object.lightgroup` of lamps and emissive meshes,
+`World.lightgroup`); the emitters in no group form the set DEFAULT. A bake of a scene that uses
+light groups credits every contribution to its emitter's set inside the same paths (the tracer's
+`TraceScene.sets`), so K sets cost one bake's rays; the atlas's ordinary files hold the sum of the
+sets (the bake without sets, same seed) and each set is written as an ordinary atlas of its own,
+`<atlas>.<set>` (`set_atlas_name`), listed in the atlas's sidecar under `light_sets`.
+
+Blending (2024 paper, "Blending HHD", "HHD and linear SH"): blending HHD *parameters* is wrong
+(I_z adds, but w_a and d do not); instead each set's HHD is turned into world-space linear SH
+(`hhd.to_linear_sh`), the SH are summed with RGB weights ≥ 0, and the sum is solved back to HHD in
+closed form (`hhd.from_linear_sh`). `blend` is that, per texel; a shader does the same per pixel
+(docs/format.md, the EEVEE live blend node group).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from .errors import BakeError
+from .hhd import HHDParams, from_linear_sh, to_linear_sh
+
+#: The set of the emitters in no light group.
+DEFAULT = "Default"
+
+_NAME = re.compile(r"[^A-Za-z0-9_\-]")
+
+
+def set_of(group: str) -> str:
+    """The light set of an emitter of light group `group` ("" = none: DEFAULT)."""
+    return group or DEFAULT
+
+
+def set_names(groups: Sequence[str]) -> tuple[str, ...]:
+    """The light sets of a bake whose emitting lights have these light `groups` (one entry per
+    emitter, "" = no group): () when no emitter is in a group (an ordinary bake, no set files),
+    else the sets in use sorted by name (DEFAULT among them if some emitter has no group)."""
+    if not any(groups):
+        return ()
+    return tuple(sorted({set_of(g) for g in groups}))
+
+
+def set_atlas_name(atlas: str, light_set: str) -> str:
+    """The file stem of one set's lightmap of `atlas`: `<atlas>.<set>`, the set's name reduced to
+    letters, digits, '_' and '-' (Blender already restricts light group names to those)."""
+    return f"{atlas}.{_NAME.sub('_', light_set)}"
+
+
+def weight_array(names: Sequence[str], weights: Mapping[str, object] | None) -> np.ndarray:
+    """`(K, 3)` float64 RGB weights of the sets `names` from {set: weight} (a number or an RGB
+    triple; sets not given weigh 1). Raises BakeError for an unknown set or a negative or
+    non-finite weight."""
+    weights = dict(weights or {})
+    unknown = sorted(set(weights) - set(names))
+    if unknown:
+        raise BakeError(
+            f"unknown light set(s) {', '.join(map(repr, unknown))}: the bake has {', '.join(map(repr, names)) or 'none'}"
+        )
+    out = np.ones((len(names), 3))
+    for k, name in enumerate(names):
+        if name in weights:
+            out[k] = np.broadcast_to(np.asarray(weights[name], dtype=np.float64), (3,))
+    if not np.all(np.isfinite(out)) or (out < 0.0).any():
+        raise BakeError(f"light set weights must be finite and ≥ 0, got {dict(zip(names, out.tolist()))}")
+    return out
+
+
+def blend(params: Sequence[HHDParams], n_v: np.ndarray, weights: np.ndarray) -> HHDParams:
+    """The blended HHD `(N,)` of the sets' HHD `params` (K of them, same texels) at RGB
+    `weights` `(K, 3)` ≥ 0, as the talk does it at runtime: Σ_k w_k · to_linear_sh(params_k),
+    solved back to HHD in closed form (`from_linear_sh`: luminance w_a). n_v `(N, 3)`."""
+    if len(params) != len(weights):
+        raise BakeError(f"{len(params)} light sets but {len(weights)} weights")
+    if any(p.model != "hhd" for p in params):
+        raise BakeError("light sets blend through linear SH only as HHD: encode with model 'hhd', not 'ahd'")
+    total = None
+    for p, w in zip(params, np.asarray(weights, dtype=np.float64)):
+        term = to_linear_sh(p, n_v) * w[None, None, :]
+        total = term if total is None else total + term
+    if total is None:
+        raise BakeError("no light sets to blend")
+    return from_linear_sh(total, n_v)
+
+
+def parameter_blend(params: Sequence[HHDParams], weights: np.ndarray) -> HHDParams:
+    """The wrong way the talk warns against, for comparison (benches, tests): I_z summed with
+    the weights, w_a and d averaged with each set's weighted I_z luminance as weight."""
+    weights = np.asarray(weights, dtype=np.float64)
+    iz = sum(w[None, :] * p.irradz for p, w in zip(params, weights))
+    share = np.stack([(w[None, :] * p.irradz).mean(axis=1) for p, w in zip(params, weights)])  # (K, N)
+    share = share / np.maximum(share.sum(axis=0), 1e-300)
+    wa = sum(
+        s * (p.ambient_weight if p.ambient_weight.ndim == 1 else p.ambient_weight.mean(axis=1))
+        for s, p in zip(share, params)
+    )
+    d = sum(s[:, None] * p.direction for s, p in zip(share, params))
+    d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    return HHDParams(irradz=iz, ambient_weight=np.clip(wa, 0.0, 1.0), direction=d, model="hhd")
+
+
+def blend_atlas(files, weights: Mapping[str, object] | None) -> dict:
+    """Write the blended state of an atlas's light sets into its ordinary lightmap: the atlas's
+    HHD file and preview images become `blend` of its sets' HHD files at `weights` ({set: number
+    or RGB}, sets not given weigh 1), texel by texel over the whole image (the sets' files are
+    filled alike, so the fill blends too), the sidecar records the weights under `blend`. The
+    sets' files and the raw SH are untouched (Re-encode restores the plain sum). files:
+    `lightmap_files.AtlasFiles` of the atlas. Returns the sidecar's `blend` record. Raises
+    BakeError for an atlas baked without light sets, an AHD bake, or bad weights."""
+    from . import exr, lightmap_files
+
+    sidecar = lightmap_files.read_sidecar(files.sidecar)
+    entries = sidecar.get("light_sets", [])
+    if not entries:
+        raise BakeError(
+            f"atlas '{files.name}' was baked without light sets: put lights in Blender Light Groups and bake again"
+        )
+    names = [entry["name"] for entry in entries]
+    w = weight_array(names, weights)
+    layers = [read_hhd(f) for f in files.light_sets(sidecar)]
+    normal = _texel_normals(files)
+    h, wid = normal.shape[:2]
+    blended = blend([p for p, _ in layers], normal.reshape(-1, 3), w)
+    record = {"method": "linear_sh", "weights": {n: w[k].tolist() for k, n in enumerate(names)}}
+    sidecar["blend"] = record
+    with exr.Staging() as staging:
+        write_hhd(staging, files, blended, (h, wid), layers[0][1], sidecar)
+        staging.commit()
+    return record
+
+
+def read_hhd(files) -> tuple[HHDParams, list[str]]:
+    """The HHD parameters of every texel `(H·W,)` of an atlas's HHD file (rows bottom-up) and
+    the file's Wa channel names (["Wa.V"] or ["Wa.R", "Wa.G", "Wa.B"])."""
+    from . import exr, octahedral
+
+    channels, _ = exr.read(files.hhd)
+    try:
+        iz = np.stack([exr.from_exr_rows(channels[f"Iz.{c}"]) for c in "RGB"], axis=-1).astype(np.float64)
+        oct_xy = np.stack([exr.from_exr_rows(channels[f"Direction.{c}"]) for c in "XY"], axis=-1)
+    except KeyError as exc:
+        raise BakeError(f"{files.hhd} is not an HHD lightmap (no channel {exc}): encode with model 'hhd'") from None
+    wa_names: list[str] = [n for n in ("Wa.V", "Wa.R", "Wa.G", "Wa.B") if n in channels]
+    wa = np.stack([exr.from_exr_rows(channels[n]) for n in wa_names], axis=-1).astype(np.float64)
+    n = iz.shape[0] * iz.shape[1]
+    params = HHDParams(
+        irradz=iz.reshape(n, 3),
+        ambient_weight=wa.reshape(n, -1).mean(axis=1),
+        direction=octahedral.decode(oct_xy.reshape(n, 2).astype(np.float64)),
+        model="hhd",
+    )
+    return params, wa_names
+
+
+def _texel_normals(files) -> np.ndarray:
+    """n_v `(H, W, 3)` of the atlas's texels file, unit; texels without one (outside the charts)
+    take their nearest chart texel's, as the encoded layers were filled, else +z."""
+    from . import lightmap_files
+
+    data = lightmap_files.read_texel_data(files)
+    normal = data.fill().apply(data.normal.astype(np.float64))
+    length = np.linalg.norm(normal, axis=-1, keepdims=True)
+    return np.where(length > 1e-6, normal / np.maximum(length, 1e-300), [0.0, 0.0, 1.0])
+
+
+def write_hhd(staging, files, p: HHDParams, shape: tuple[int, int], wa_names: list[str], sidecar: dict) -> None:
+    """Stage an atlas's HHD file (Iz, Wa as `wa_names`, octahedral Direction; the HHD file's
+    storage types), its preview images and `sidecar`."""
+    import json
+
+    from . import exr, lightmap_files, octahedral
+    from .encoding import HHD_FILE
+
+    h, w = shape
+    images = {f"Iz.{c}": p.irradz[:, k].reshape(h, w) for k, c in enumerate("RGB")}
+    images.update({name: p.ambient_weight.reshape(h, w) for name in wa_names})
+    oct_xy = octahedral.encode(p.direction)
+    images.update({f"Direction.{c}": oct_xy[:, k].reshape(h, w) for k, c in enumerate("XY")})
+    spec = HHD_FILE.for_settings(_Ambient("luminance" if wa_names == ["Wa.V"] else "rgb"))
+    channels = lightmap_files.exr_channels(spec, images)
+    attributes = {"hhdFormat": lightmap_files.FORMAT, "hhdFormatVersion": lightmap_files.FORMAT_VERSION}
+    exr.write_file(staging.stage(files.hhd), channels, {**attributes, "hhdAtlas": files.name})
+    lightmap_files.stage_preview(staging, files, spec, channels)
+    sidecar.setdefault("channels", {})["hhd"] = lightmap_files.channel_table(spec, channels)
+    staging.write_text(files.sidecar, json.dumps(sidecar, indent=2, ensure_ascii=False))
+
+
+class _Ambient:
+    """The one encoder setting `Channel.when` asks of the HHD file's layers."""
+
+    def __init__(self, ambient: str):
+        self.ambient = ambient
