@@ -1,4 +1,4 @@
-"""Headless use: `blender -b scene.blend --command hhd_lightmapper <unwrap|bake|encode> [options]`.
+"""Headless use: `blender -b scene.blend --command hhd_lightmapper <unwrap|bake|encode|blend> [options]`.
 
 Registered with `bpy.utils.register_cli_command` when the extension is enabled. The same entry
 point works with the `bpy` module from Python, without a Blender executable:
@@ -134,7 +134,33 @@ def _parser() -> argparse.ArgumentParser:
     denoise(q, "re-encode", "the scene's Denoise setting")
     stitch(q, "re-encode")
     threads(q)
+
+    q = sub.add_parser(
+        "blend", help="write the blended state of the light sets into each atlas's lightmap (no tracing)"
+    )
+    receivers(q)
+    q.add_argument("--out", metavar="DIR", help="folder of the bake (default: the scene's Output Folder)")
+    q.add_argument(
+        "--weights",
+        nargs="+",
+        type=_weight,
+        default=[],
+        metavar="NAME=W",
+        help="a light set's weight, W a number or R,G,B (≥ 0); sets not given keep the scene's weight (else 1)",
+    )
     return p
+
+
+def _weight(text: str) -> tuple[str, tuple[float, ...]]:
+    """'NAME=W' or 'NAME=R,G,B' -> (NAME, weight)."""
+    name, sep, value = text.partition("=")
+    try:
+        parts = tuple(float(v) for v in value.split(","))
+    except ValueError:
+        parts = ()
+    if not sep or not name or len(parts) not in (1, 3):
+        raise argparse.ArgumentTypeError(f"expected NAME=W or NAME=R,G,B, got '{text}'")
+    return name, parts if len(parts) == 3 else parts * 3
 
 
 def _apply_options(settings, args) -> None:
@@ -223,6 +249,13 @@ def _encode(context, args) -> str:
     return summary
 
 
+def _blend(context, args) -> str:
+    from .bridge import bake_session, light_sets
+
+    objects = bake_session.target_objects(context, args.objects)
+    return light_sets.blend_objects(objects, context.scene.hhd, dict(args.weights), args.out)
+
+
 def main(argv: list[str]) -> int:
     """Run one command; returns the exit code (never raises)."""
     try:
@@ -233,7 +266,7 @@ def main(argv: list[str]) -> int:
     start = time.perf_counter()
     try:
         _apply_options(context.scene.hhd, args)
-        summary = {"unwrap": _unwrap, "bake": _bake, "encode": _encode}[args.action](context, args)
+        summary = {"unwrap": _unwrap, "bake": _bake, "encode": _encode, "blend": _blend}[args.action](context, args)
         if getattr(args, "save", False):
             if not bpy.data.is_saved:
                 raise BakeError("--save: the .blend has never been saved, so there is no file to save to")

@@ -150,6 +150,13 @@ def _samples_text(trace) -> str:
     return text
 
 
+def _probes_text(grids) -> str:
+    """', 2 probe volume(s) (1152 probes)' or '' without probe volumes."""
+    if not grids:
+        return ""
+    return f", {len(grids)} probe volume(s) ({sum(g.count for g in grids)} probes)"
+
+
 class BakeSession:
     """Everything one bake needs, read from Blender at construction (see the module doc).
     `threads`: worker threads (0 = every core); None takes the scene's Render > Performance >
@@ -170,6 +177,7 @@ class BakeSession:
         cache = mesh_data.TextureCache()
         notes: list[str] = []
         self.scene = scene_data.read_bake_scene(depsgraph)
+        self.probe_grids = scene_data.read_probe_grids(depsgraph)
         notes += self.scene.notes
         self.atlases = []
         for name, width, height, members in groups:
@@ -178,12 +186,14 @@ class BakeSession:
         self.warnings += list(dict.fromkeys(notes))
         self.pack = settings.pack_images
         self.blend = bpy.data.filepath
+        self.scene_name = context.scene.name  # the bpy scene, for the light sets' weights after the bake
         self.results: list[core_bake.AtlasResult] = []
 
     def describe(self) -> str:
         n_occ = len(self.scene.triangles)
         return (
-            f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es); {n_occ} occluder triangles; "
+            f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es)"
+            f"{_probes_text(self.probe_grids)}; {n_occ} occluder triangles; "
             f"{_samples_text(self.settings.trace)}, {self.settings.trace.bounces} bounces, "
             f"{'denoise' if self.settings.denoise else 'no denoise'}, "
             f"{'stitch' if self.settings.stitch_seams else 'no stitch'}, {self.settings.trace.threads} threads"
@@ -198,23 +208,37 @@ class BakeSession:
             "notes": self.warnings,
         }
         self.results = core_bake.run(
-            self.atlases, self.scene, self.settings, self.out_dir, progress=progress, cancel=cancel, extra_sidecar=extra
+            self.atlases,
+            self.scene,
+            self.settings,
+            self.out_dir,
+            progress=progress,
+            cancel=cancel,
+            extra_sidecar=extra,
+            probe_grids=self.probe_grids,
         )
         return self.results
 
     def finish(self) -> str:
         """Load the written images into the .blend; returns a one-line summary (the bake's
         warnings are `result_warnings`)."""
-        for result in self.results:
+        atlases = [r for r in self.results if r.kind == "atlas"]
+        for result in atlases:
             load_atlas_images(result.files, self.pack)
-        texels = sum(r.texels for r in self.results)
+        texels = sum(r.texels for r in atlases)
         seconds = sum(sum(v for v in r.seconds.values()) for r in self.results)
         warnings = [r.warnings for r in self.results]
         denoised = denoiser.outcome(self.settings.denoise, warnings)
         stitched = stitch_outcome(self.settings.stitch_seams, warnings)
+        sets = list(dict.fromkeys(name for r in self.results for name in r.sets))
+        if sets:
+            from ..properties import sync_light_sets
+
+            sync_light_sets(bpy.data.scenes[self.scene_name], sets)
+        sets_text = f", light sets {', '.join(sets)}" if sets else ""
         return (
-            f"Baked {texels} texels in {len(self.results)} atlas(es) to {self.out_dir}, {stitched}, {denoised} "
-            f"({seconds:.1f} s: {', '.join(r.name for r in self.results)})"
+            f"Baked {texels} texels in {len(atlases)} atlas(es){_probes_text(self.probe_grids)} to {self.out_dir}, "
+            f"{stitched}, {denoised}{sets_text} ({seconds:.1f} s: {', '.join(r.name for r in self.results)})"
         )
 
     @property

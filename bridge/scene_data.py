@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import blender_compat
 from ..core.errors import BakeError
+from ..core.probes import ProbeGrid
 from ..core.scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
 from .mesh_data import TextureCache, read_triangles, surface_node, triangle_albedo
 
@@ -34,7 +35,7 @@ def _material_emission(mat) -> tuple:
 
 def _instance_triangles(instance, cache, notes):
     """(triangles (T, 3, 3) world space, albedo (T, 3), texture index (T,), texture uv (T, 3, 2),
-    emission (T, 3)) of one mesh instance."""
+    emission (T, 3), light group (T,)) of one mesh instance."""
     obj = instance.object
     mesh = obj.to_mesh()
     try:
@@ -44,12 +45,26 @@ def _instance_triangles(instance, cache, notes):
         positions, loops, mat_index = tris
         albedo, tex_index, tex_uv = triangle_albedo(obj, mesh, loops, mat_index, cache, notes)
         emission = np.array([_material_emission(s.material) for s in obj.material_slots] or [(0.0, 0.0, 0.0)])
-        return positions, albedo, tex_index, tex_uv, emission[np.minimum(mat_index, len(emission) - 1)]
+        group = np.full(len(positions), _light_group(obj), dtype=object)
+        return positions, albedo, tex_index, tex_uv, emission[np.minimum(mat_index, len(emission) - 1)], group
     finally:
         obj.to_mesh_clear()
 
 
+def _light_group(id_block) -> str:
+    """The Light Group an object or world belongs to ("" = none), which is its light set
+    (`core.light_sets`)."""
+    return str(getattr(id_block, "lightgroup", "") or "")
+
+
 def _light(instance):
+    """The core light of a light object instance, in its Light Group's set."""
+    data = _light_data(instance)
+    data.group = _light_group(instance.object)
+    return data
+
+
+def _light_data(instance):
     light = instance.object.data
     m = np.array(instance.matrix_world, dtype=np.float64)
     colour = np.array(light.color[:3], dtype=np.float64)
@@ -189,9 +204,12 @@ def read_bake_scene(depsgraph) -> BakeScene:
                 parts.append(part)
     if not parts:
         raise BakeError("nothing to bake: the scene has no mesh visible to render")
-    tris, albedo, tex_index, tex_uv, emission = (np.concatenate(x) for x in zip(*parts))
+    tris, albedo, tex_index, tex_uv, emission, groups = (np.concatenate(x) for x in zip(*parts))
     world = _world(depsgraph.scene)
+    world_group = _light_group(depsgraph.scene.world)
     constant, environment = (None, world) if hasattr(world, "radiance") else (world, None)
+    if environment is not None:
+        environment.group = world_group
     return BakeScene(
         tris,
         albedo,
@@ -203,4 +221,24 @@ def read_bake_scene(depsgraph) -> BakeScene:
         textures=cache.images,
         notes=notes,
         environment=environment,
+        emission_group=groups.astype(str) if groups.any() else None,
+        world_group=world_group,
     )
+
+
+def read_probe_grids(depsgraph) -> list[ProbeGrid]:
+    """Every Irradiance Volume (light probe object of type VOLUME) visible to render, as a probe
+    grid: its world matrix, resolution (`resolution_x/y/z`; `grid_resolution_*` on Blenders that
+    name them so) and Validity Threshold."""
+    grids = []
+    for instance in depsgraph.object_instances:
+        obj = instance.object
+        if obj.type != 'LIGHT_PROBE' or obj.data.type not in ('VOLUME', 'GRID') or obj.hide_render:
+            continue
+        probe = obj.data
+        resolution = tuple(
+            int(getattr(probe, f"resolution_{a}", None) or getattr(probe, f"grid_resolution_{a}")) for a in "xyz"
+        )
+        threshold = float(getattr(probe, "validity_threshold", 0.4))
+        grids.append(ProbeGrid(obj.name, np.array(instance.matrix_world, dtype=np.float64), resolution, threshold))
+    return grids

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import bakepoints, encoding, exr, light_sets, lightmap_files, parallel, post, seams, tracer
+from . import bakepoints, encoding, exr, light_sets, lightmap_files, parallel, post, probes, seams, tracer
 from .bakepoints import BakePoints, SurfaceTriangles
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError
@@ -63,7 +63,9 @@ class PipelineSettings:
 
 @dataclass
 class AtlasResult:
-    """One written atlas: seconds per stage; warnings: what a post stage could not do (e.g. no denoiser)."""
+    """One written atlas (kind "atlas") or probe volume (kind "probes": texels are its probes):
+    seconds per stage; warnings: what a post stage could not do (e.g. no denoiser); sets: its
+    light sets (`core.light_sets`; none without light groups)."""
 
     name: str
     files: lightmap_files.AtlasFiles
@@ -71,6 +73,8 @@ class AtlasResult:
     rays: int
     seconds: dict
     warnings: list[str] = field(default_factory=list)
+    sets: tuple[str, ...] = ()
+    kind: str = "atlas"
 
 
 class Progress:
@@ -159,13 +163,16 @@ def run(
     progress: Callable[[float, str], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     extra_sidecar: dict | None = None,
+    probe_grids: list[probes.ProbeGrid] | None = None,
 ) -> list[AtlasResult]:
     """Bake every atlas and write its files into `out_dir`: bake points of every atlas first
     (so a bad object fails before any tracing), then per atlas trace → post stages → image →
-    encode → write. `progress(fraction, message)` is called often (at least once per tracer
-    chunk); `cancel()` returning True stops within a chunk (raises BakeCancelled) with no file
-    replaced. Every stage uses `parallel.resolve_threads(settings.trace.threads)` worker threads."""
-    if not atlases:
+    encode → write; then every probe volume of `probe_grids` (`core.probes`: files and
+    `probes.json`, committed with the atlases'). `progress(fraction, message)` is called often
+    (at least once per tracer chunk); `cancel()` returning True stops within a chunk (raises
+    BakeCancelled) with no file replaced. Every stage uses
+    `parallel.resolve_threads(settings.trace.threads)` worker threads."""
+    if not atlases and not probe_grids:
         raise BakeError("nothing to bake: no target objects")
     threads = parallel.resolve_threads(settings.trace.threads)
     settings = replace(settings, trace=replace(settings.trace, threads=threads))
@@ -207,9 +214,38 @@ def run(
                 _STAGES[0] + _STAGES[1] * done_texels / total_texels + _STAGES[2] * (i + 1) / len(atlases),
                 f"wrote '{atlas.name}'",
             )
+        if probe_grids:
+            results.extend(_bake_probes(staging, probe_grids, scene, settings, Path(out_dir), report, cancel))
         _check_cancel(cancel)
         staging.commit()
     return results
+
+
+def _bake_probes(staging, grids, scene: BakeScene, settings: PipelineSettings, out_dir: Path, report, cancel):
+    """Trace every probe volume and stage its files and `probes.json`; one AtlasResult per volume
+    (its files: the volume's EXR; texels: its probes)."""
+    baked = []
+    for grid in grids:
+
+        def on_trace(f, msg, name=grid.name):
+            report.report(_STAGES[0] + _STAGES[1] + _STAGES[2] * f, f"probes of '{name}': {msg}")
+
+        baked.append(probes.bake(grid, scene, settings.trace, progress=on_trace, cancel=cancel))
+        _check_cancel(cancel)
+    probes.write(staging, out_dir, baked)
+    return [
+        AtlasResult(
+            b.grid.name,
+            lightmap_files.AtlasFiles(out_dir, probes.file_stem(b.grid.name)),
+            b.grid.count,
+            b.rays,
+            {"probes": b.seconds},
+            b.warnings,
+            b.sets,
+            kind="probes",
+        )
+        for b in baked
+    ]
 
 
 def _post_message(settings: PipelineSettings) -> str:
@@ -281,7 +317,7 @@ def _write(
         )
     seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
     warnings = [f"atlas '{atlas.name}', {w}" for w in dict.fromkeys(warnings)]
-    return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds, warnings)
+    return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds, warnings, traced.sets)
 
 
 def _write_files(

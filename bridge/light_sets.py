@@ -1,0 +1,73 @@
+"""The bpy side of light sets: the weights an artist set, and blending the baked atlases.
+
+`core.light_sets` holds the sets, their files and the blend; here only what reads Blender: the
+atlases of the selected objects and the scene's set weights (`scene.hhd.light_sets`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..core import light_sets as core_sets
+from ..core.errors import BakeError
+from ..core.lightmap_files import AtlasFiles, read_sidecar
+from . import bake_session
+
+
+def scene_weights(settings) -> dict[str, tuple[float, float, float]]:
+    """{set: RGB weight} of the scene's light sets panel (`scene.hhd.light_sets`), if it has one."""
+    return {item.name: tuple(item.weight) for item in getattr(settings, "light_sets", [])}
+
+
+def baked_atlases(objects, settings, out_dir: str | None = None) -> list[AtlasFiles]:
+    """The files of the atlases of `objects` in the output folder that were baked with light sets."""
+    if not objects:
+        raise BakeError("no mesh objects: select baked objects")
+    folder = Path(bake_session.output_folder(settings, out_dir))
+    groups, _ = bake_session.atlas_groups(objects, settings)
+    out = []
+    for name, *_ in groups:
+        files = AtlasFiles(folder, name)
+        if files.sidecar.is_file() and read_sidecar(files.sidecar).get("light_sets"):
+            out.append(files)
+    if not out:
+        raise BakeError(
+            f"no atlas of the selected objects in {folder} was baked with light sets: "
+            "put lights or emissive objects in Light Groups (Object Properties > Shading) and bake"
+        )
+    return out
+
+
+def set_names(objects, settings, out_dir: str | None = None) -> list[str]:
+    """The light sets of the baked atlases of `objects`, in order, each once."""
+    names: dict[str, None] = {}
+    for files in baked_atlases(objects, settings, out_dir):
+        names.update((entry["name"], None) for entry in read_sidecar(files.sidecar)["light_sets"])
+    return list(names)
+
+
+def blend_objects(objects, settings, weights: dict | None = None, out_dir: str | None = None) -> str:
+    """Write the blended state of the light sets into the lightmap of every baked atlas of
+    `objects` (`core.light_sets.blend_atlas`) and reload its images; `weights` {set: number or
+    RGB} override the scene's. Returns a summary line."""
+    atlases = baked_atlases(objects, settings, out_dir)
+    baked = {entry["name"] for files in atlases for entry in read_sidecar(files.sidecar)["light_sets"]}
+    unknown = sorted(set(weights or {}) - baked)
+    if unknown:
+        raise BakeError(
+            f"no light set {', '.join(map(repr, unknown))} in the bake: its sets are {', '.join(map(repr, sorted(baked)))}"
+        )
+    chosen = {**scene_weights(settings), **(weights or {})}
+    done = []
+    for files in atlases:
+        names = [entry["name"] for entry in read_sidecar(files.sidecar)["light_sets"]]
+        record = core_sets.blend_atlas(files, {k: v for k, v in chosen.items() if k in names})
+        bake_session.load_atlas_images(files, settings.pack_images)
+        shown = ", ".join(f"{k}={_format(v)}" for k, v in record["weights"].items())
+        done.append(f"'{files.name}' ({shown})")
+    return f"Blended light sets: {'; '.join(done)}"
+
+
+def _format(rgb) -> str:
+    r, g, b = rgb
+    return f"{r:g}" if r == g == b else f"{r:g},{g:g},{b:g}"
