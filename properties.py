@@ -1,7 +1,16 @@
 """Scene settings of HHD Lightmapper: `bpy.context.scene.hhd`."""
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    FloatVectorProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
 
 from .core import hhd, presets
 
@@ -33,6 +42,44 @@ def _apply_preset(self, _context):
 def _mark_custom(self, _context):
     if not _applying_preset and self.preset != 'CUSTOM' and presets.get(self.preset).knobs() != _knobs(self):
         self.preset = 'CUSTOM'
+
+
+class HHDLightSet(bpy.types.PropertyGroup):
+    """One light set of the last bake (`scene.hhd.light_sets`): `name` is the set's name in the
+    atlas sidecars' "light_sets" (a Light Group, or core.light_sets.DEFAULT), `weight` its RGB
+    blend weight. The EEVEE live blend reads the weight by RNA path (`weight_path`), so keyframes
+    on it play back in the viewport and in renders."""
+
+    weight: FloatVectorProperty(
+        name="Weight",
+        size=3,
+        subtype='COLOR',
+        min=0.0,
+        soft_max=1.0,
+        default=(1.0, 1.0, 1.0),
+        description="RGB weight of this light set in the blend (1 = as baked, 0 = off; animatable)",
+    )
+
+
+def weight_path(name: str) -> str:
+    """RNA path, from the scene, of light set `name`'s weight: what the live blend's View Layer
+    Attribute nodes read (keyed by name, so it survives reordering of the list)."""
+    return f'hhd.light_sets["{bpy.utils.escape_identifier(name)}"].weight'
+
+
+def sync_light_sets(scene, names) -> list[str]:
+    """Make `scene.hhd.light_sets` list every set of `names` (a bake's, from its sidecar): missing
+    sets are appended at weight 1, existing ones keep their weight (and keyframes). Sets no longer
+    baked are kept, never removed or reordered: keyframes address the items by index
+    (`hhd.light_sets[i].weight`), so removing one would move the animation onto another set.
+    Returns the names added."""
+    items = scene.hhd.light_sets
+    added = [name for name in dict.fromkeys(names) if name not in items]
+    for name in added:
+        item = items.add()
+        item.name = name
+        item.weight = (1.0, 1.0, 1.0)
+    return added
 
 
 class HHDSettings(bpy.types.PropertyGroup):
@@ -207,6 +254,12 @@ class HHDSettings(bpy.types.PropertyGroup):
         default=False,
         description="Also search the highlight direction's azimuth (slower, slightly lower error)",
     )
+    light_sets: CollectionProperty(
+        type=HHDLightSet,
+        name="Light Sets",
+        description="The light sets of the last bake (its Light Groups) and their blend weights",
+    )
+    light_sets_index: IntProperty(name="Active Light Set", default=0, min=0)
     golden_iterations: IntProperty(
         name="Search Steps",
         default=hhd.GOLDEN_ITERATIONS,
@@ -241,7 +294,7 @@ class HHDObjectSettings(bpy.types.PropertyGroup):
     atlas_height: IntProperty(name="Atlas Height", default=0, min=0)
 
 
-classes = (HHDSettings, HHDObjectSettings)
+classes = (HHDLightSet, HHDSettings, HHDObjectSettings)
 
 
 def register():

@@ -6,7 +6,10 @@ atlases of the selected objects and the scene's set weights (`scene.hhd.light_se
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+import bpy
 
 from ..core import light_sets as core_sets
 from ..core.errors import BakeError
@@ -38,20 +41,37 @@ def baked_atlases(objects, settings, out_dir: str | None = None) -> list[AtlasFi
     return out
 
 
-def set_names(objects, settings, out_dir: str | None = None) -> list[str]:
-    """The light sets of the baked atlases of `objects`, in order, each once."""
+def scene_atlases(scene) -> list[AtlasFiles]:
+    """The atlases of the scene's mesh objects (`object.hhd.atlas`, else the default atlas) that
+    were baked with light sets into the output folder, sorted by name."""
+    folder = Path(bake_session.output_folder(scene.hhd))
+    names = {obj.hhd.atlas or bake_session.DEFAULT_ATLAS for obj in scene.objects if obj.type == 'MESH'}
+    names.add(bake_session.DEFAULT_ATLAS)
+    found = [AtlasFiles(folder, name) for name in sorted(names)]
+    return [f for f in found if f.sidecar.is_file() and read_sidecar(f.sidecar).get("light_sets")]
+
+
+def atlas_sets(atlases: list[AtlasFiles]) -> list[str]:
+    """The light sets of `atlases`, in order, each once."""
     names: dict[str, None] = {}
-    for files in baked_atlases(objects, settings, out_dir):
-        names.update((entry["name"], None) for entry in read_sidecar(files.sidecar)["light_sets"])
+    for files in atlases:
+        names.update((entry["name"], None) for entry in read_sidecar(files.sidecar).get("light_sets", []))
     return list(names)
 
 
 def blend_objects(objects, settings, weights: dict | None = None, out_dir: str | None = None) -> str:
-    """Write the blended state of the light sets into the lightmap of every baked atlas of
-    `objects` (`core.light_sets.blend_atlas`) and reload its images; `weights` {set: number or
-    RGB} override the scene's. Returns a summary line."""
-    atlases = baked_atlases(objects, settings, out_dir)
-    baked = {entry["name"] for files in atlases for entry in read_sidecar(files.sidecar)["light_sets"]}
+    """Blend the light sets of every baked atlas of `objects` (see `blend_atlases`)."""
+    return blend_atlases(baked_atlases(objects, settings, out_dir), settings, weights)
+
+
+def blend_atlases(atlases: list[AtlasFiles], settings, weights: dict | None = None) -> str:
+    """Write the blended state of the light sets into the lightmap of each of `atlases`
+    (`core.light_sets.blend_atlas`) and reload its images; `weights` {set: number or RGB}
+    override the scene's (`scene.hhd.light_sets`; sets in neither weigh 1). Raises BakeError
+    for a weight of a set no atlas has. Returns a summary line."""
+    if not atlases:
+        raise BakeError("no atlas was baked with light sets: put lights in Light Groups and bake")
+    baked = set(atlas_sets(atlases))
     unknown = sorted(set(weights or {}) - baked)
     if unknown:
         raise BakeError(
@@ -60,12 +80,21 @@ def blend_objects(objects, settings, weights: dict | None = None, out_dir: str |
     chosen = {**scene_weights(settings), **(weights or {})}
     done = []
     for files in atlases:
-        names = [entry["name"] for entry in read_sidecar(files.sidecar)["light_sets"]]
+        names = atlas_sets([files])
         record = core_sets.blend_atlas(files, {k: v for k, v in chosen.items() if k in names})
         bake_session.load_atlas_images(files, settings.pack_images)
+        _reload_images(files.preview)
         shown = ", ".join(f"{k}={_format(v)}" for k, v in record["weights"].items())
         done.append(f"'{files.name}' ({shown})")
     return f"Blended light sets: {'; '.join(done)}"
+
+
+def _reload_images(folder: Path) -> None:
+    """Reload the loaded images whose files lie in `folder` (an atlas's preview images)."""
+    folder_text = os.path.normpath(str(folder))
+    for image in bpy.data.images:
+        if image.filepath and os.path.dirname(os.path.normpath(bpy.path.abspath(image.filepath))) == folder_text:
+            image.reload()
 
 
 def _format(rgb) -> str:

@@ -149,7 +149,7 @@ def read_hhd(files) -> tuple[HHDParams, list[str]]:
     n = iz.shape[0] * iz.shape[1]
     params = HHDParams(
         irradz=iz.reshape(n, 3),
-        ambient_weight=wa.reshape(n, -1).mean(axis=1),
+        ambient_weight=wa.reshape(n) if wa.shape[-1] == 1 else wa.reshape(n, 3),
         direction=octahedral.decode(oct_xy.reshape(n, 2).astype(np.float64)),
         model="hhd",
     )

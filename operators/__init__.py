@@ -5,6 +5,7 @@ import bpy
 from .bake import HHD_OT_bake
 from .check_dependencies import HHD_OT_check_dependencies
 from .encode import HHD_OT_encode, HHD_OT_open_output
+from .light_sets import HHD_OT_blend_light_sets, HHD_OT_refresh_light_sets
 from .preview import HHD_OT_preview_hide, HHD_OT_preview_show
 from .unwrap import HHD_OT_unwrap
 
@@ -16,6 +17,8 @@ classes = (
     HHD_OT_open_output,
     HHD_OT_preview_show,
     HHD_OT_preview_hide,
+    HHD_OT_refresh_light_sets,
+    HHD_OT_blend_light_sets,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -6,8 +6,8 @@ settings here are per scene, not per view, so they sit beside it rather than in 
 
 import bpy
 
-from .main import HHD_PT_main
+from .main import HHD_PT_main, HHD_UL_light_sets
 
-classes = (HHD_PT_main,)
+classes = (HHD_UL_light_sets, HHD_PT_main)
 
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -2,6 +2,21 @@
 
 import bpy
 
+#: The light sets' list (registered with the panel; the panel falls back to Blender's plain list
+#: with the active set's weight below it when this class is not registered).
+LIGHT_SETS_LIST = "HHD_UL_light_sets"
+
+
+class HHD_UL_light_sets(bpy.types.UIList):
+    """The light sets of the last bake: name and RGB weight (animatable) per row."""
+
+    bl_idname = LIGHT_SETS_LIST
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_property, index=0, flt_flag=0):
+        row = layout.row(align=True)
+        row.label(text=item.name, icon='LIGHT')
+        row.prop(item, "weight", text="")
+
 
 class HHD_PT_main(bpy.types.Panel):
     bl_label = "HHD Lightmapper"
@@ -17,6 +32,7 @@ class HHD_PT_main(bpy.types.Panel):
         self.draw_receivers(layout, settings, context)
         self.draw_unwrap(layout, settings, context)
         self.draw_bake(layout, settings, context)
+        self.draw_light_sets(layout, settings)
         self.draw_output(layout, settings)
 
     @staticmethod
@@ -83,6 +99,29 @@ class HHD_PT_main(bpy.types.Panel):
         row = box.row(align=True)
         row.operator("hhd.preview_show", icon='HIDE_OFF')
         row.operator("hhd.preview_hide", icon='HIDE_ON')
+
+    @staticmethod
+    def draw_light_sets(layout, settings):
+        """The light sets of the last bake (Light Groups), their blend weights, Refresh and Blend."""
+        box = layout.box()
+        box.label(text="Light Sets", icon='LIGHT')
+        custom = getattr(bpy.types, LIGHT_SETS_LIST, None) is not None
+        box.template_list(
+            LIGHT_SETS_LIST if custom else "UI_UL_list",
+            "hhd_light_sets",
+            settings,
+            "light_sets",
+            settings,
+            "light_sets_index",
+            rows=3,
+        )
+        if not custom and 0 <= settings.light_sets_index < len(settings.light_sets):
+            box.prop(settings.light_sets[settings.light_sets_index], "weight")
+        if not settings.light_sets:
+            box.label(text="Put lights in Light Groups and bake: one lightmap per group", icon='INFO')
+        row = box.row(align=True)
+        row.operator("hhd.refresh_light_sets", icon='FILE_REFRESH')
+        row.operator("hhd.blend_light_sets", icon='NODE_COMPOSITING')
 
     @staticmethod
     def draw_output(layout, settings):

@@ -11,6 +11,9 @@ DESIGN.md units):
   "L1 SH Lightmap" / "L2 SH Lightmap": inputs SH0 … SH3 (or SH8) radiance SH colours, Normal,
       Albedo; irradiance = Σ_k cosine_kernel_k · SH_k · Y_k(n) with core.sh's basis.
   "Scalar Lightmap": Iz only (no directional response), Albedo.
+  "HHD Light Set Blend ×K": the live blend of K light sets (core.light_sets.blend per pixel):
+      per set k inputs "Iz k", "Wa k", "Direction k", "Weight k" (RGB), then the HHD group's
+      Normal, Vertex Normal, Albedo, Self Bounce; its reconstruction is the HHD group's.
 Each group carries GROUP_VERSION in a custom property and is rebuilt when it differs, so a .blend
 made with an older extension gets the current maths.
 """
@@ -20,6 +23,7 @@ from __future__ import annotations
 import bpy
 
 from ..core import hhd, sh
+from ..core.colour import LUMINANCE
 from ..core.encoding.preview import sampled
 
 GROUP_VERSION = 1
@@ -30,6 +34,10 @@ GROUPS = {
     "L2": "L2 SH Lightmap",
     "SCALAR": "Scalar Lightmap",
 }
+#: The live light-set blend group of K sets (`build_blend`), one per K.
+BLEND_GROUP = "HHD Light Set Blend ×{}"
+#: The blend group's per-set weight input (RGB), `set_input(WEIGHT, k)`.
+WEIGHT = "Weight"
 
 
 class Builder:
@@ -119,6 +127,33 @@ def octahedral_decode(b: Builder, oct_xy):
     return b.vec("NORMALIZE", b.combine(fold(x), fold(y), z))
 
 
+def hhd_irradiance(b: Builder, iz, wa, d, n, nv, albedo, self_bounce, model: str = "HHD"):
+    """I(n) of the HHD (or AHD) model as nodes, docs/format.md and core.hhd.reconstruct:
+    Iz ⊙ [wa·(1 + n·n_v)/2 + (1 − wa)·max(n·d, 0)/max(d·n_v, MIN_COS)] + self_bounce·albedo ⊙ Iz·(1 − n·n_v)/2.
+    iz, wa, albedo: colours (wa equal channels in luminance mode); d, n, nv: unit world vectors;
+    self_bounce: 0/1. Returns the irradiance colour socket (DESIGN.md units)."""
+    n_nv = b.vec("DOT_PRODUCT", n, nv)
+    dnv = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), float(hhd.MIN_COS))
+    directional = b.math("DIVIDE", b.math("MAXIMUM", b.vec("DOT_PRODUCT", n, d), 0.0), dnv)
+    ambient = b.math("MULTIPLY", b.math("ADD", n_nv, 1.0), 0.5) if model == "HHD" else 1.0
+    # Iz · [wa·ambient + (1 − wa)·directional] per channel
+    one_minus_wa = b.vec("SUBTRACT", (1.0, 1.0, 1.0), wa)
+    bracket = b.vec("ADD", b.vec("SCALE", wa, scale=ambient), b.vec("SCALE", one_minus_wa, scale=directional))
+    irradiance = b.vec("MULTIPLY", iz, bracket)
+    bounce = b.math("MULTIPLY", b.math("MULTIPLY", b.math("SUBTRACT", 1.0, n_nv), 0.5), self_bounce)
+    return b.vec("ADD", irradiance, b.vec("SCALE", b.vec("MULTIPLY", albedo, iz), scale=bounce))
+
+
+def _reconstruction_inputs():
+    """The inputs every HHD-reconstructing group ends with (preview.py feeds them by name)."""
+    return [
+        ("Normal", 'NodeSocketVector', None),
+        ("Vertex Normal", 'NodeSocketVector', None),
+        ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1)),
+        ("Self Bounce", 'NodeSocketFloat', 0.0),
+    ]
+
+
 def build_hhd(model: str):
     """HHD or AHD group (model 'HHD' | 'AHD')."""
     tree = _new_tree(GROUPS[model])
@@ -129,10 +164,7 @@ def build_hhd(model: str):
             (iz_layer.name, 'NodeSocketColor', (0, 0, 0, 1)),
             (wa_layer.name, 'NodeSocketColor', (1, 1, 1, 1)),
             (dir_layer.name, 'NodeSocketVector', None),
-            ("Normal", 'NodeSocketVector', None),
-            ("Vertex Normal", 'NodeSocketVector', None),
-            ("Albedo", 'NodeSocketColor', (0.8, 0.8, 0.8, 1)),
-            ("Self Bounce", 'NodeSocketFloat', 0.0),
+            *_reconstruction_inputs(),
         ],
         ["Irradiance", "Radiance"],
     )
@@ -141,21 +173,153 @@ def build_hhd(model: str):
     n = b.vec("NORMALIZE", i["Normal"])
     nv = b.vec("NORMALIZE", i["Vertex Normal"])
     d = octahedral_decode(b, i[dir_layer.name])
-    n_nv = b.vec("DOT_PRODUCT", n, nv)
-    dnv = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), float(hhd.MIN_COS))
-    directional = b.math("DIVIDE", b.math("MAXIMUM", b.vec("DOT_PRODUCT", n, d), 0.0), dnv)
-    ambient = b.math("MULTIPLY", b.math("ADD", n_nv, 1.0), 0.5) if model == "HHD" else 1.0
-    # Iz · [wa·ambient + (1 − wa)·directional] per channel
-    wa = i[wa_layer.name]
-    one_minus_wa = b.vec("SUBTRACT", (1.0, 1.0, 1.0), wa)
-    bracket = b.vec("ADD", b.vec("SCALE", wa, scale=ambient), b.vec("SCALE", one_minus_wa, scale=directional))
-    irradiance = b.vec("MULTIPLY", i[iz_layer.name], bracket)
-    bounce = b.math("MULTIPLY", b.math("MULTIPLY", b.math("SUBTRACT", 1.0, n_nv), 0.5), i["Self Bounce"])
-    irradiance = b.vec(
-        "ADD", irradiance, b.vec("SCALE", b.vec("MULTIPLY", i["Albedo"], i[iz_layer.name]), scale=bounce)
-    )
+    irradiance = hhd_irradiance(b, i[iz_layer.name], i[wa_layer.name], d, n, nv, i["Albedo"], i["Self Bounce"], model)
     _finish(b, irradiance, i["Albedo"])
     return tree
+
+
+def blend_group_name(sets: int) -> str:
+    """The name of the live light-set blend group of `sets` sets."""
+    return BLEND_GROUP.format(sets)
+
+
+def set_input(layer: str, k: int) -> str:
+    """The blend group's input of layer `layer` ('Iz', 'Wa', 'Direction', WEIGHT) of set k (1-based)."""
+    return f"{layer} {k}"
+
+
+def _luminance(b: Builder, colour):
+    """Rec.709 luminance (core.colour.LUMINANCE) of a colour socket, as a float socket."""
+    return b.vec("DOT_PRODUCT", colour, tuple(float(c) for c in LUMINANCE))
+
+
+def _set_terms(b: Builder, iz, wa, oct_xy, weight, nv):
+    """One set's share of the blend, in the b-space of core.hhd.to_linear_sh (b_c = 2C_a + C_d,
+    b = C_a n_v + C_d d per channel, the linear SH up to constants that from_linear_sh undoes):
+    returns (W⊙C_a, W⊙C_d, d, d·n_v) with C_a = wa⊙Iz, C_d = (1 − wa)⊙Iz / (d·n_v), W the set's
+    RGB weight. d·n_v is floored at MIN_COS (to_linear_sh trusts the encoder's d·n_v ≥ MIN_COS;
+    the floor only guards the bilinear filter's mixes of directions against a division by ~0)."""
+    d = octahedral_decode(b, oct_xy)
+    dz = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), float(hhd.MIN_COS))
+    weighted = b.vec("MULTIPLY", weight, iz)
+    ca = b.vec("MULTIPLY", weighted, wa)
+    cd = b.vec(
+        "SCALE", b.vec("MULTIPLY", weighted, b.vec("SUBTRACT", (1.0, 1.0, 1.0), wa)), scale=b.math("DIVIDE", 1.0, dz)
+    )
+    return ca, cd, d, dz
+
+
+def _sum(b: Builder, terms):
+    """Σ of vector/colour sockets."""
+    total = terms[0]
+    for term in terms[1:]:
+        total = b.vec("ADD", total, term)
+    return total
+
+
+def _where(b: Builder, condition, a, other):
+    """condition (0/1 float socket) ? vector a : vector other."""
+    return b.vec(
+        "ADD", b.vec("SCALE", a, scale=condition), b.vec("SCALE", other, scale=b.math("SUBTRACT", 1.0, condition))
+    )
+
+
+def _fallback_tangent(b: Builder, nv):
+    """t of core.sh.tangent_frames(n_v) (Duff et al. 2017): the tangent clamp_to_cone takes when
+    d is ±n_v. sign = [n_z ≥ 0]·2 − 1, a = −1/(sign + n_z), t = (1 + sign·n_x²·a, sign·n_x·n_y·a, −sign·n_x)."""
+    x, y, z = b.xyz(nv)
+    sign = b.math("SUBTRACT", b.math("MULTIPLY", b.math("GREATER_THAN", z, -1e-30), 2.0), 1.0)
+    a = b.math("DIVIDE", -1.0, b.math("ADD", sign, z))
+    tx = b.math("ADD", 1.0, b.math("MULTIPLY", b.math("MULTIPLY", sign, b.math("MULTIPLY", x, x)), a))
+    ty = b.math("MULTIPLY", sign, b.math("MULTIPLY", b.math("MULTIPLY", x, y), a))
+    tz = b.math("MULTIPLY", b.math("MULTIPLY", sign, x), -1.0)
+    return b.combine(tx, ty, tz)
+
+
+def _clamp_to_cone(b: Builder, d, nv):
+    """core.hhd.linear_sh.clamp_to_cone: d with d·n_v < MIN_COS tilted up to d·n_v = MIN_COS,
+    keeping its azimuth."""
+    cos = b.vec("DOT_PRODUCT", d, nv)
+    tangent = b.vec("SUBTRACT", d, b.vec("SCALE", nv, scale=cos))
+    has_tangent = b.math("GREATER_THAN", b.vec("LENGTH", tangent), 1e-12)
+    tangent = _where(b, has_tangent, b.vec("NORMALIZE", tangent), _fallback_tangent(b, nv))
+    min_cos = float(hhd.MIN_COS)
+    clamped = b.vec("ADD", b.vec("SCALE", nv, scale=min_cos), b.vec("SCALE", tangent, scale=(1.0 - min_cos**2) ** 0.5))
+    return _where(b, b.math("LESS_THAN", cos, min_cos), clamped, d)
+
+
+def _solve(b: Builder, ca, cd, cdz, directional, nv):
+    """core.hhd.from_linear_sh in b-space: the blended (I_z colour, w_a float, d unit) from
+    ca = Σ W⊙C_a, cd = Σ W⊙C_d, cdz = Σ W⊙C_d·(d·n_v) (colours) and directional = Σ lum(W⊙C_d)·d.
+    Per channel I_z = max(b·n_v, 0); on the luminance: p = 2b_c − I_z,
+    C_a = clamp((p − √max(p² − 3(b_c² − |b|²), 0)) / 3, 0, I_z), d = (b − C_a n_v)/|…| (n_v when
+    that is ~0), clamped to d·n_v ≥ MIN_COS; w_a = C_a / I_z (1 when I_z = 0), in [0, 1]."""
+    iz = b.vec("MAXIMUM", b.vec("ADD", ca, cdz), (0.0, 0.0, 0.0))
+    bc_l = _luminance(b, b.vec("ADD", b.vec("SCALE", ca, scale=2.0), cd))
+    iz_l = _luminance(b, iz)
+    b_l = b.vec("ADD", b.vec("SCALE", nv, scale=_luminance(b, ca)), directional)
+    p = b.math("SUBTRACT", b.math("MULTIPLY", bc_l, 2.0), iz_l)
+    b_sq = b.vec("DOT_PRODUCT", b_l, b_l)
+    disc = b.math(
+        "SUBTRACT",
+        b.math("MULTIPLY", p, p),
+        b.math("MULTIPLY", b.math("SUBTRACT", b.math("MULTIPLY", bc_l, bc_l), b_sq), 3.0),
+    )
+    root = b.math("SQRT", b.math("MAXIMUM", disc, 0.0))
+    c_a = b.math("MINIMUM", b.math("MAXIMUM", b.math("DIVIDE", b.math("SUBTRACT", p, root), 3.0), 0.0), iz_l)
+    dvec = b.vec("SUBTRACT", b_l, b.vec("SCALE", nv, scale=c_a))
+    has_d = b.math("GREATER_THAN", b.vec("LENGTH", dvec), b.math("MULTIPLY", iz_l, 1e-12))
+    d = _clamp_to_cone(b, _where(b, has_d, b.vec("NORMALIZE", dvec), nv), nv)
+    lit = b.math("GREATER_THAN", iz_l, 0.0)
+    ratio = b.math("DIVIDE", c_a, iz_l)  # Blender's DIVIDE gives 0 for a zero divisor
+    wa = b.math("ADD", b.math("MULTIPLY", ratio, lit), b.math("SUBTRACT", 1.0, lit))
+    wa = b.math("MINIMUM", b.math("MAXIMUM", wa, 0.0), 1.0)
+    return iz, wa, d
+
+
+def build_blend(sets: int):
+    """The live light-set blend of `sets` sets (core.light_sets.blend per pixel, then the HHD
+    reconstruction): inputs per set k = 1 … sets 'Iz k', 'Wa k' (colours as the preview images hold
+    them), 'Direction k' (octahedral), 'Weight k' (RGB), then Normal, Vertex Normal, Albedo, Self
+    Bounce as the HHD group. Each set's HHD → b-space linear SH (to_linear_sh), weighted sum, the
+    closed-form solve back to HHD (from_linear_sh, `_solve`), reconstruction at the shading normal
+    (`hhd_irradiance`, shared with the HHD group). Wa is used per channel as to_linear_sh does:
+    exact for the luminance mode (equal channels) and the rgb mode alike."""
+    tree = _new_tree(blend_group_name(sets))
+    iz_layer, wa_layer, dir_layer = sampled("HHD")
+    per_set = [
+        (iz_layer.name, 'NodeSocketColor', (0, 0, 0, 1)),
+        (wa_layer.name, 'NodeSocketColor', (1, 1, 1, 1)),
+        (dir_layer.name, 'NodeSocketVector', None),
+        (WEIGHT, 'NodeSocketColor', (1, 1, 1, 1)),
+    ]
+    inputs = [(set_input(name, k), kind, default) for k in range(1, sets + 1) for name, kind, default in per_set]
+    _interface(tree, inputs + _reconstruction_inputs(), ["Irradiance", "Radiance"])
+    b = Builder(tree)
+    i = b.node("NodeGroupInput").outputs
+    n = b.vec("NORMALIZE", i["Normal"])
+    nv = b.vec("NORMALIZE", i["Vertex Normal"])
+    terms = [
+        _set_terms(b, *(i[set_input(name, k)] for name, _, _ in per_set[:3]), i[set_input(WEIGHT, k)], nv)
+        for k in range(1, sets + 1)
+    ]
+    ca = _sum(b, [t[0] for t in terms])
+    cd = _sum(b, [t[1] for t in terms])
+    cdz = _sum(b, [b.vec("SCALE", t[1], scale=t[3]) for t in terms])
+    directional = _sum(b, [b.vec("SCALE", t[2], scale=_luminance(b, t[1])) for t in terms])
+    iz, wa, d = _solve(b, ca, cd, cdz, directional, nv)
+    wa_colour = b.combine(wa, wa, wa)
+    irradiance = hhd_irradiance(b, iz, wa_colour, d, n, nv, i["Albedo"], i["Self Bounce"], "HHD")
+    _finish(b, irradiance, i["Albedo"])
+    return tree
+
+
+def ensure_blend(sets: int):
+    """The live blend group of `sets` light sets, built or rebuilt if stale."""
+    tree = bpy.data.node_groups.get(blend_group_name(sets))
+    if tree is not None and tree.get("hhd_version") == GROUP_VERSION:
+        return tree
+    return build_blend(sets)
 
 
 def _basis(b: Builder, n):

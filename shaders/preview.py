@@ -11,6 +11,13 @@ with objects that were not baked keeps its own look on them. A material shared b
 several atlases samples every atlas's images and picks the object's own by a second object
 attribute, `hhd_preview_atlas`.
 
+Light sets (core.light_sets): in HHD mode, when an atlas's sidecar lists "light_sets", the group
+is the live blend of them (`node_groups.build_blend`) instead of the HHD group: every set's preview
+images (`<atlas>.<set>_preview/`) feed its inputs, and each set's RGB weight comes from a View Layer
+Attribute node reading `scene.hhd.light_sets[<set>].weight` by RNA path (`properties.weight_path`),
+so editing or animating a weight updates the viewport and renders without rebuilding anything.
+Show adds the sets to `scene.hhd.light_sets` (weight 1) if they are missing there.
+
 The material's original Surface link is recorded in the material (`hhd_preview` property); Hide
 removes every preview node, restores that link and deletes the record and the object attributes,
 so the node tree is exactly as before. Edits the artist makes to the material meanwhile are kept.
@@ -24,6 +31,9 @@ import bpy
 
 from .. import blender_compat
 from ..core.encoding.preview import sampled
+from ..core.errors import BakeError
+from ..core.lightmap_files import read_sidecar
+from ..properties import sync_light_sets, weight_path
 from . import node_groups
 
 PREFIX = "HHD Preview"
@@ -83,7 +93,8 @@ def _atlas_image(tree, key, atlases, uv, x, y, frame):
     use this material: the one atlas's image, or each further atlas's image mixed in where the
     object's ATLAS attribute equals that atlas's index."""
     (_, first), rest = atlases[0], atlases[1:]
-    colour = _image(tree, first.preview_image(key), key if not rest else f"{key} {first.name}", uv, x, y, frame)
+    name = key if not rest and not first.parent else f"{key} {first.name}"  # a set's: "iz Lightmap.Lamp"
+    colour = _image(tree, first.preview_image(key), name, uv, x, y, frame)
     if not rest:
         return colour
     attribute = _new(tree, "ShaderNodeAttribute", f"Atlas {key}", (x - 200, y - 120), frame)
@@ -103,10 +114,54 @@ def _atlas_image(tree, key, atlases, uv, x, y, frame):
     return colour
 
 
-def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) -> str | None:
+def light_sets_of(files) -> list[tuple[str, object]]:
+    """[(set name, the set's AtlasFiles)] listed in the atlas's sidecar ("light_sets"); [] for an
+    atlas baked without light sets (or without a sidecar). Raises BakeError when a listed set's
+    preview images are missing."""
+    if not files.sidecar.is_file():
+        return []
+    doc = read_sidecar(files.sidecar)
+    sets = [(entry["name"], set_files) for entry, set_files in zip(doc.get("light_sets", []), files.light_sets(doc))]
+    for name, set_files in sets:
+        if not set_files.preview_image("iz").is_file():
+            raise BakeError(
+                f"atlas '{files.name}' lists light set '{name}' but {set_files.preview} is missing: bake again"
+            )
+    return sets
+
+
+def _material_light_sets(atlases) -> tuple[list, str | None]:
+    """The light sets a material shows: [(set name, [(index, the set's AtlasFiles)])] in the
+    layout of `_atlas_image`'s atlases, [] without sets; and a note when its atlases were baked
+    with different sets (it then shows their sums, the atlases' own files)."""
+    per_atlas = [(index, light_sets_of(files)) for index, files in atlases]
+    names = {tuple(name for name, _ in sets) for _, sets in per_atlas}
+    if len(names) > 1:
+        return [], "the atlases sharing a material were baked with different light sets: it shows their sum"
+    return [(name, [(index, sets[k][1]) for index, sets in per_atlas]) for k, name in enumerate(names.pop())], None
+
+
+def _link_light_sets(tree, gi, light_sets, uv, x, y, frame) -> float:
+    """Each set's preview images into the blend group's 'Iz k', 'Wa k', 'Direction k' and a View
+    Layer Attribute of the set's weight (`properties.weight_path`) into 'Weight k'; returns the
+    next free y."""
+    for k, (name, atlases) in enumerate(light_sets, 1):
+        for layer in sampled("HHD"):
+            colour = _atlas_image(tree, layer.preview, atlases, uv, x, y, frame)
+            tree.links.new(colour, gi[node_groups.set_input(layer.name, k)])
+            y -= 280
+        weight = _new(tree, "ShaderNodeAttribute", f"Weight {name}", (x, y), frame)
+        weight.attribute_type, weight.attribute_name = 'VIEW_LAYER', weight_path(name)
+        tree.links.new(weight.outputs["Color"], gi[node_groups.set_input(node_groups.WEIGHT, k)])
+        y -= 200
+    return y
+
+
+def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool, light_sets=()) -> str | None:
     """Insert the preview into one material; returns a note when a fallback was used. `files`:
     the AtlasFiles of the objects' atlas, or [(index, AtlasFiles)] when objects of several
-    atlases share the material (index: the value of their ATLAS attribute)."""
+    atlases share the material (index: the value of their ATLAS attribute). light_sets (HHD mode):
+    [(set name, [(index, the set's AtlasFiles)])] to show the live blend of, () for none."""
     atlases = files if isinstance(files, list) else [(0, files)]
     tree = mat.node_tree if mat.node_tree is not None else blender_compat.ensure_node_tree(mat)
     if RECORD in mat:
@@ -128,7 +183,7 @@ def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) ->
     uv = _new(tree, "ShaderNodeUVMap", "UV", (x0, y0), frame)
     uv.uv_map = uv_layer
     group = _new(tree, "ShaderNodeGroup", "Group", (x0 + 600, y0), frame)
-    group.node_tree = node_groups.ensure(kind)
+    group.node_tree = node_groups.ensure_blend(len(light_sets)) if light_sets else node_groups.ensure(kind)
     geometry = _new(tree, "ShaderNodeNewGeometry", "Geometry", (x0 + 300, y0 - 500), frame)
     principled = _principled(tree)
     gi = group.inputs
@@ -148,7 +203,9 @@ def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool) ->
         tree.links.new(geometry.outputs["Normal"], gi["Vertex Normal"])
         gi["Self Bounce"].default_value = 1.0 if self_bounce else 0.0
     y = y0
-    for layer in sampled(kind):  # each layer's preview image into the input of its name
+    if light_sets:
+        y = _link_light_sets(tree, gi, light_sets, uv.outputs["UV"], x0 + 250, y, frame)
+    for layer in () if light_sets else sampled(kind):  # each layer's preview image into the input of its name
         tree.links.new(_atlas_image(tree, layer.preview, atlases, uv.outputs["UV"], x0 + 250, y, frame), gi[layer.name])
         y -= 280
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 850, y0), frame)
@@ -182,10 +239,13 @@ def hide_on_material(mat) -> bool:
     return True
 
 
-def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool = False) -> list[str]:
+def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool = False, scene=None) -> list[str]:
     """Preview on `objects` (each with `atlas_files[obj.name]`); returns notes for the report.
-    A material shared by objects of several atlases samples each object's own atlas."""
-    notes = []
+    A material shared by objects of several atlases samples each object's own atlas. In HHD
+    mode, atlases baked with light sets show their live blend, weighted by `scene.hhd.light_sets`
+    (`scene`: the context's by default), to which missing sets are added."""
+    scene = scene if scene is not None else bpy.context.scene
+    notes, set_names = [], []
     index = {name: i for i, name in enumerate(sorted({f.name for f in atlas_files.values()}))}
     materials: dict[str, tuple] = {}  # material name → (material, {atlas name: files})
     for obj in objects:
@@ -198,9 +258,13 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
             notes.append(f"'{obj.name}' has no material: nothing to preview on it")
     for mat, by_atlas in materials.values():
         atlases = [(index[name], by_atlas[name]) for name in sorted(by_atlas)]
-        note = show_on_material(mat, atlases if len(atlases) > 1 else atlases[0][1], kind, uv_layer, self_bounce)
-        if note:
-            notes.append(note)
+        light_sets, sets_note = _material_light_sets(atlases) if kind == 'HHD' else ([], None)
+        set_names += [name for name, _ in light_sets]
+        note = show_on_material(
+            mat, atlases if len(atlases) > 1 else atlases[0][1], kind, uv_layer, self_bounce, light_sets
+        )
+        notes += [n for n in (sets_note, note) if n]
+    sync_light_sets(scene, set_names)
     return notes
 
 
