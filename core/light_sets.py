@@ -73,7 +73,9 @@ def weight_array(names: Sequence[str], weights: Mapping[str, object] | None) -> 
 def blend(params: Sequence[HHDParams], n_v: np.ndarray, weights: np.ndarray) -> HHDParams:
     """The blended HHD `(N,)` of the sets' HHD `params` (K of them, same texels) at RGB
     `weights` `(K, 3)` ≥ 0, as the talk does it at runtime: Σ_k w_k · to_linear_sh(params_k),
-    solved back to HHD in closed form (`from_linear_sh`: luminance w_a). n_v `(N, 3)`."""
+    solved back to HHD in closed form (`from_linear_sh`: luminance w_a). n_v `(N, 3)`. A texel
+    with a non-finite value in any set (a damaged file) is blended black and `invalid`, as the
+    encoder treats such input (I_z 0, w_a 1, d = n_v)."""
     if len(params) != len(weights):
         raise BakeError(f"{len(params)} light sets but {len(weights)} weights")
     if any(p.model != "hhd" for p in params):
@@ -84,7 +86,15 @@ def blend(params: Sequence[HHDParams], n_v: np.ndarray, weights: np.ndarray) -> 
         total = term if total is None else total + term
     if total is None:
         raise BakeError("no light sets to blend")
-    return from_linear_sh(total, n_v)
+    bad = ~np.isfinite(total).all(axis=(1, 2))
+    total[bad] = 0.0
+    out = from_linear_sh(total, n_v)
+    if bad.any():
+        unit = np.asarray(n_v, dtype=np.float64)[bad]
+        out.direction[bad] = unit / np.linalg.norm(unit, axis=1, keepdims=True)
+        out.ambient_weight[bad] = 1.0
+    out.invalid = bad
+    return out
 
 
 def parameter_blend(params: Sequence[HHDParams], weights: np.ndarray) -> HHDParams:

@@ -26,7 +26,7 @@ from ..core import hhd, sh
 from ..core.colour import LUMINANCE
 from ..core.encoding.preview import sampled
 
-GROUP_VERSION = 1
+GROUP_VERSION = 2
 GROUPS = {
     "HHD": "HHD Lightmap",
     "AHD": "AHD Lightmap",
@@ -129,11 +129,11 @@ def octahedral_decode(b: Builder, oct_xy):
 
 def hhd_irradiance(b: Builder, iz, wa, d, n, nv, albedo, self_bounce, model: str = "HHD"):
     """I(n) of the HHD (or AHD) model as nodes, docs/format.md and core.hhd.reconstruct:
-    Iz ⊙ [wa·(1 + n·n_v)/2 + (1 − wa)·max(n·d, 0)/max(d·n_v, MIN_COS)] + self_bounce·albedo ⊙ Iz·(1 − n·n_v)/2.
+    Iz ⊙ [wa·(1 + n·n_v)/2 + (1 − wa)·max(n·d, 0)/max(d·n_v, MIN_COS/2)] + self_bounce·albedo ⊙ Iz·(1 − n·n_v)/2.
     iz, wa, albedo: colours (wa equal channels in luminance mode); d, n, nv: unit world vectors;
     self_bounce: 0/1. Returns the irradiance colour socket (DESIGN.md units)."""
     n_nv = b.vec("DOT_PRODUCT", n, nv)
-    dnv = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), float(hhd.MIN_COS))
+    dnv = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), 0.5 * float(hhd.MIN_COS))
     directional = b.math("DIVIDE", b.math("MAXIMUM", b.vec("DOT_PRODUCT", n, d), 0.0), dnv)
     ambient = b.math("MULTIPLY", b.math("ADD", n_nv, 1.0), 0.5) if model == "HHD" else 1.0
     # Iz · [wa·ambient + (1 − wa)·directional] per channel
@@ -197,10 +197,10 @@ def _set_terms(b: Builder, iz, wa, oct_xy, weight, nv):
     """One set's share of the blend, in the b-space of core.hhd.to_linear_sh (b_c = 2C_a + C_d,
     b = C_a n_v + C_d d per channel, the linear SH up to constants that from_linear_sh undoes):
     returns (W⊙C_a, W⊙C_d, d, d·n_v) with C_a = wa⊙Iz, C_d = (1 − wa)⊙Iz / (d·n_v), W the set's
-    RGB weight. d·n_v is floored at MIN_COS (to_linear_sh trusts the encoder's d·n_v ≥ MIN_COS;
-    the floor only guards the bilinear filter's mixes of directions against a division by ~0)."""
+    RGB weight. d·n_v is floored at MIN_COS/2, as in to_linear_sh and reconstruct (the encoder
+    keeps d·n_v ≥ MIN_COS; the floor guards the bilinear filter's mixes of directions)."""
     d = octahedral_decode(b, oct_xy)
-    dz = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), float(hhd.MIN_COS))
+    dz = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), 0.5 * float(hhd.MIN_COS))
     weighted = b.vec("MULTIPLY", weight, iz)
     ca = b.vec("MULTIPLY", weighted, wa)
     cd = b.vec(

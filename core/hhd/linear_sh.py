@@ -12,12 +12,14 @@ from .lobes import MIN_COS, HHDParams
 
 def to_linear_sh(p: HHDParams, n_v) -> np.ndarray:
     """World-space linear radiance SH `(N, 4, C)` of the HHD lighting (hemisphere light of
-    radiance C_a around n_v + directional light of irradiance C_d along d):
+    radiance C_a around n_v + directional light of irradiance C_d = (1 − w_a) I_z / max(d·n_v,
+    MIN_COS/2) along d, the floor as in `reconstruct`):
         √π/2 [2C_a + C_d, -√3 b_y, √3 b_z, -√3 b_x],  b = C_a n_v + C_d d."""
     n_v = np.asarray(n_v, dtype=np.float64)
     n_v = n_v / np.linalg.norm(n_v, axis=1, keepdims=True)
     w = p.ambient_weight if p.ambient_weight.ndim == 2 else p.ambient_weight[:, None]
-    dz = np.einsum("ni,ni->n", p.direction, n_v)[:, None]
+    # floored as `reconstruct` floors it: a filtered or quantised d may reach the horizon
+    dz = np.maximum(np.einsum("ni,ni->n", p.direction, n_v), MIN_COS * 0.5)[:, None]
     ca = w * p.irradz
     cd = (1.0 - w) * p.irradz / dz
     b = ca[:, None, :] * n_v[:, :, None] + cd[:, None, :] * p.direction[:, :, None]  # (N,3,C)
