@@ -125,6 +125,12 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--resolution", type=int, help="atlas size for --unwrap")
     q.add_argument("--texel-density", type=float, help="texels per metre for --unwrap")
     q.add_argument("--save", action="store_true", help="save the .blend afterwards (keeps the loaded images)")
+    q.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="trace on the Dask cluster of this scheduler (docs/farm.md): the same files as a local bake; "
+        "finished tasks are kept in the output folder's .hhd_farm, so the same command resumes",
+    )
     threads(q)
 
     q = sub.add_parser("encode", help="re-encode a finished bake from its SH EXR (no tracing)")
@@ -225,16 +231,33 @@ def _bake(context, args) -> str:
     for w in session.warnings:
         print(f"warning: {w}")
     print(f"bake: {session.describe()}", flush=True)
+    address = args.scheduler or session.scheduler  # the option, else the scene's Dask Scheduler
+    farm = _farm(address, session.settings.trace) if address else None
     progress = ConsoleProgress()
     try:
         with interrupt_as_cancel() as cancel:
-            session.run(progress=progress, cancel=cancel)
+            session.run(progress=progress, cancel=cancel, farm=farm)
     finally:
         progress.close()
+        if farm is not None:
+            farm.close()
     summary = session.finish()
     for w in session.result_warnings:  # e.g. no denoiser: the files are written undenoised
         print(f"warning: {w}")
     return summary
+
+
+def _farm(address: str, trace):
+    """The connected farm of --scheduler (core.farm: Dask imported only now), after refusing
+    settings it cannot bake (a time budget)."""
+    from .core import farm
+
+    farm.Farm.check(trace)
+    connected = farm.connect(address)
+    print(f"farm: {connected.workers()} worker(s) at {address}", flush=True)
+    for w in connected.warnings:
+        print(f"warning: {w}")
+    return connected
 
 
 def _encode(context, args) -> str:

@@ -44,6 +44,14 @@ def _mark_custom(self, _context):
         self.preset = 'CUSTOM'
 
 
+def _probe_mode_changed(self, context):
+    """The probe preview's node groups read the mode as a number from a scene custom property
+    (a View Layer Attribute node): mirror the enum there, so every material relights live."""
+    from .shaders import probe_nodes, probe_preview
+
+    context.scene[probe_preview.MODE] = probe_nodes.MODES[self.probe_mode]
+
+
 class HHDLightSet(bpy.types.PropertyGroup):
     """One light set of the last bake (`scene.hhd.light_sets`): `name` is the set's name in the
     atlas sidecars' "light_sets" (a Light Group, or core.light_sets.DEFAULT), `weight` its RGB
@@ -217,6 +225,23 @@ class HHDSettings(bpy.types.PropertyGroup):
             ('SCALAR', "Scalar", "I_z only: no response to normal maps"),
         ],
         description="Which reconstruction the EEVEE preview shows (A/B the encodings on the same object)",
+    )
+    scheduler: StringProperty(
+        name="Dask Scheduler",
+        default="",
+        description="tcp://HOST:PORT of a Dask scheduler: the bake points and the tracing run on its workers, "
+        "with the same files as a bake here (docs/farm.md); empty: bake on this machine",
+    )
+    probe_mode: EnumProperty(
+        name="Probe Lighting",
+        default='HLSH_CONE',
+        items=[
+            ('SH', "Plain SH", "Irradiance of the probes' L2 SH at the shading normal (leaks light from behind)"),
+            ('HLSH', "HLSH", "The talk's hemisphere multiply around the geometric normal"),
+            ('HLSH_CONE', "HLSH + Cone", "The hemisphere narrowed to the visibility cone of EEVEE's ambient occlusion"),
+        ],
+        update=_probe_mode_changed,
+        description="How objects previewed with the probes are lit (compare the talk's occlusion modes)",
     )
     preview_self_bounce: BoolProperty(
         name="Self Bounce",

@@ -163,9 +163,17 @@ class BakeSession:
     Threads (`scene_threads`)."""
 
     def __init__(
-        self, context, objects: list[str] | None = None, out_dir: str | None = None, threads: int | None = None
+        self,
+        context,
+        objects: list[str] | None = None,
+        out_dir: str | None = None,
+        threads: int | None = None,
+        scheduler: str | None = None,
     ):
         settings = context.scene.hhd
+        #: a Dask scheduler's address to bake on (core.farm), "" for this machine
+        self.scheduler = (settings.scheduler if scheduler is None else scheduler).strip()
+        self.farm_warnings: list[str] = []
         if threads is None:
             threads = scene_threads(context.scene)
         self.settings = pipeline_settings(settings, parallel.resolve_threads(threads))
@@ -199,8 +207,20 @@ class BakeSession:
             f"{'stitch' if self.settings.stitch_seams else 'no stitch'}, {self.settings.trace.threads} threads"
         )
 
-    def run(self, progress=None, cancel=None) -> list[core_bake.AtlasResult]:
-        """The core bake and file output; touches no bpy data (worker-thread safe)."""
+    def run(self, progress=None, cancel=None, farm=None) -> list[core_bake.AtlasResult]:
+        """The core bake and file output; touches no bpy data (worker-thread safe). `farm`: a
+        connected `core.farm.Farm` to trace on (`core.bake.run`); without one, the session's
+        `scheduler` (if any) is connected to here, for this bake."""
+        if farm is None and self.scheduler:
+            from ..core import farm as core_farm
+
+            core_farm.Farm.check(self.settings.trace)  # a time budget is refused before connecting
+            with core_farm.connect(self.scheduler) as connected:
+                self.farm_warnings = list(connected.warnings)
+                return self._run(progress, cancel, connected)
+        return self._run(progress, cancel, farm)
+
+    def _run(self, progress, cancel, farm) -> list[core_bake.AtlasResult]:
         extra = {
             "blend_file": self.blend,
             "receivers": [o for a in self.atlases for o in a.objects],
@@ -216,6 +236,7 @@ class BakeSession:
             cancel=cancel,
             extra_sidecar=extra,
             probe_grids=self.probe_grids,
+            farm=farm,
         )
         return self.results
 
@@ -245,7 +266,7 @@ class BakeSession:
     def result_warnings(self) -> list[str]:
         """What the finished bake's post stages could not do, per atlas (e.g. no denoiser): the
         files are written all the same; the operator and the command line show these."""
-        return [w for r in self.results for w in r.warnings]
+        return self.farm_warnings + [w for r in self.results for w in r.warnings]
 
 
 def load_atlas_images(files: AtlasFiles, pack: bool = False) -> list:

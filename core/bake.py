@@ -114,6 +114,11 @@ def points_of(atlas: AtlasInput, ray_scene: RayScene | None, threads: int = 0, c
         check=lambda: _check_cancel(cancel),
         threads=threads,
     )
+    return check_points(atlas, points)
+
+
+def check_points(atlas: AtlasInput, points: BakePoints) -> BakePoints:
+    """`points`, or BakeError naming an object of `atlas` whose UVs cover no texel."""
     counts = np.bincount(points.object_index, minlength=len(atlas.objects))
     empty = [atlas.objects[k] for k in np.unique(atlas.surface.object_index) if counts[k] == 0]
     if empty:
@@ -164,6 +169,7 @@ def run(
     cancel: Callable[[], bool] | None = None,
     extra_sidecar: dict | None = None,
     probe_grids: list[probes.ProbeGrid] | None = None,
+    farm=None,
 ) -> list[AtlasResult]:
     """Bake every atlas and write its files into `out_dir`: bake points of every atlas first
     (so a bad object fails before any tracing), then per atlas trace → post stages → image →
@@ -171,9 +177,13 @@ def run(
     `probes.json`, committed with the atlases'). `progress(fraction, message)` is called often
     (at least once per tracer chunk); `cancel()` returning True stops within a chunk (raises
     BakeCancelled) with no file replaced. Every stage uses
-    `parallel.resolve_threads(settings.trace.threads)` worker threads."""
+    `parallel.resolve_threads(settings.trace.threads)` worker threads. `farm`: a
+    `core.farm.Farm` building the bake points and tracing the atlases on a Dask cluster (same
+    files; its checkpoints go when the files are committed)."""
     if not atlases and not probe_grids:
         raise BakeError("nothing to bake: no target objects")
+    if farm is not None:
+        farm.check(settings.trace)
     threads = parallel.resolve_threads(settings.trace.threads)
     settings = replace(settings, trace=replace(settings.trace, threads=threads))
     exr.set_threads(threads)
@@ -181,13 +191,19 @@ def run(
     t0 = time.perf_counter()
     ray_scene = ray_scene_of(scene)
     points = []
+    remote = farm.bake_points(atlases, scene, cancel) if farm is not None else None  # on the farm's workers
     for i, atlas in enumerate(atlases):
         _check_cancel(cancel)
-        points.append(points_of(atlas, ray_scene, threads, cancel))
+        points.append(check_points(atlas, remote[i]()) if remote else points_of(atlas, ray_scene, threads, cancel))
         report.report(
             _STAGES[0] * (i + 1) / len(atlases), f"bake points of '{atlas.name}': {len(points[-1].texel)} texels"
         )
     t_points = time.perf_counter() - t0
+    if farm is not None:  # every atlas's tracing starts now; the loop below collects them in turn
+        for atlas, pts in zip(atlases, points):
+            farm.submit(
+                atlas.name, out_dir, tracer.texel_estimator(pts, scene, settings.trace, ray_scene), settings.trace
+            )
     total_texels = sum(len(p.texel) for p in points)
     results, done_texels = [], 0
     t_trace = time.perf_counter()
@@ -201,7 +217,10 @@ def run(
             trace = _atlas_settings(
                 settings.trace, time.perf_counter() - t_trace, len(pts.texel), total_texels - done_texels
             )
-            traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
+            runner = farm.runner(atlas.name, out_dir) if farm is not None else None
+            traced = tracer.bake(
+                pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene, runner=runner
+            )
             done_texels += len(pts.texel)
             _check_cancel(cancel)
             on_trace(1.0, _post_message(settings))
@@ -218,6 +237,8 @@ def run(
             results.extend(_bake_probes(staging, probe_grids, scene, settings, Path(out_dir), report, cancel))
         _check_cancel(cancel)
         staging.commit()
+    if farm is not None:
+        farm.finished()
     return results
 
 

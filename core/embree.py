@@ -24,6 +24,7 @@ from __future__ import annotations
 import ctypes
 import importlib
 import importlib.metadata
+import os
 import re
 import threading
 from pathlib import Path
@@ -128,7 +129,8 @@ def _load() -> SimpleNamespace:
         function = getattr(lib, name)
         function.restype, function.argtypes = restype, argtypes
         setattr(c, name, function)
-    device = c.rtcNewDevice(None)
+    # HHD_EMBREE_CONFIG: Embree's device configuration, e.g. "isa=avx2" pins the ISA (docs/farm.md)
+    device = c.rtcNewDevice(os.environ.get("HHD_EMBREE_CONFIG", "").encode() or None)
     if not device:
         _check(c, 0, "start")
         raise BakeError("Embree could not start.")

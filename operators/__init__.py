@@ -2,11 +2,13 @@
 
 import bpy
 
+from ..shaders import probe_preview
 from .bake import HHD_OT_bake
 from .check_dependencies import HHD_OT_check_dependencies
 from .encode import HHD_OT_encode, HHD_OT_open_output
 from .light_sets import HHD_OT_blend_light_sets, HHD_OT_refresh_light_sets
 from .preview import HHD_OT_preview_hide, HHD_OT_preview_show
+from .probes import HHD_OT_probe_preview_hide, HHD_OT_probe_preview_show
 from .unwrap import HHD_OT_unwrap
 
 classes = (
@@ -19,6 +21,18 @@ classes = (
     HHD_OT_preview_hide,
     HHD_OT_refresh_light_sets,
     HHD_OT_blend_light_sets,
+    HHD_OT_probe_preview_show,
+    HHD_OT_probe_preview_hide,
 )
 
-register, unregister = bpy.utils.register_classes_factory(classes)
+_register, _unregister = bpy.utils.register_classes_factory(classes)
+
+
+def register():
+    _register()
+    probe_preview.register_handlers()
+
+
+def unregister():
+    probe_preview.unregister_handlers()
+    _unregister()

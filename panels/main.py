@@ -88,6 +88,7 @@ class HHD_PT_main(bpy.types.Panel):
         wm = context.window_manager
         if wm.hhd_status:
             box.progress(factor=wm.hhd_progress, type='BAR', text=wm.hhd_status)
+        box.prop(settings, "scheduler", icon='NETWORK_DRIVE')
         row = box.row(align=True)
         row.operator("hhd.bake", icon='RENDER_STILL')
         row.operator("hhd.encode", icon='FILE_REFRESH')
@@ -99,6 +100,11 @@ class HHD_PT_main(bpy.types.Panel):
         row = box.row(align=True)
         row.operator("hhd.preview_show", icon='HIDE_OFF')
         row.operator("hhd.preview_hide", icon='HIDE_ON')
+        col = box.column()
+        col.prop(settings, "probe_mode")
+        row = box.row(align=True)
+        row.operator("hhd.probe_preview_show", icon='OUTLINER_OB_LIGHTPROBE')
+        row.operator("hhd.probe_preview_hide", icon='HIDE_ON')
 
     @staticmethod
     def draw_light_sets(layout, settings):

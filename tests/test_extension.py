@@ -20,7 +20,7 @@ def test_manifest_declares_licence_permissions_and_platform_wheels():
     m = manifest()
     assert m["schema_version"] == "1.0.0" and m["id"] == "hhd_lightmapper"
     assert m["license"] == ["SPDX:GPL-3.0-or-later"]
-    assert list(m["permissions"]) == ["files"]  # no network, no clipboard, ...
+    assert list(m["permissions"]) == ["files", "network"]  # network: --scheduler only (docs/farm.md); no clipboard, ...
     assert m["blender_version_min"] >= "4.2.0"
     import fetch_wheels
 

@@ -66,6 +66,7 @@ def bake(
     cancel: Callable[[], bool] | None = None,
     ray_scene: RayScene | None = None,
     executor: Executor | None = None,
+    runner: Callable[..., scheduler.Outcome] | None = None,
 ) -> TracedAtlas:
     """Trace every bake point; progressive passes of `pass_samples` each, each pass over the
     texels still converging (all of them unless `settings.noise_target` is set).
@@ -74,7 +75,8 @@ def bake(
     `scene.triangles`, if the caller has built it already (it then shares the bake points'
     cover probe). `executor`: runs the work units (any concurrent.futures.Executor, e.g. a
     ProcessPoolExecutor; `settings.threads` should be its worker count); default a thread pool
-    of `settings.threads` workers. The result does not depend on either."""
+    of `settings.threads` workers. The result does not depend on either. `runner`: runs the
+    passes in place of `scheduler.run` (same arguments; `core.farm.Farm.runner`)."""
     if settings.pass_samples < 4 or settings.pass_samples % 4:
         raise BakeError(f"samples per pass must be a multiple of 4, got {settings.pass_samples}")
     if settings.noise_target < 0 or settings.time_budget < 0 or not np.isfinite(settings.noise_target):
@@ -83,7 +85,7 @@ def bake(
     settings = replace(settings, threads=_parallel.resolve_threads(settings.threads))
     estimator = texel_estimator(points, scene, settings, ray_scene)
     stats = Statistics(len(points.texel), points.normal, estimator.scene.channels)
-    outcome = scheduler.run(estimator, stats, settings, start, progress, cancel, executor)
+    outcome = (runner or scheduler.run)(estimator, stats, settings, start, progress, cancel, executor)
     sh, sh_error = stats.result()
     sh[points.buried] = 0.0
     sets = estimator.scene.sets

@@ -1,8 +1,8 @@
 """Progressive passes split into deterministic work units, run on any executor. No bpy.
 
-Each pass runs over the texels still active (all of them unless a noise target stopped some),
-cut into chunks of `chunk_texels`: one `WorkUnit` (seed, pass, chunk index, texel indices) per
-chunk. A unit draws every random number from a generator seeded by (seed, pass, chunk), so its
+The texels are cut into fixed chunks of `chunk_texels` (`chunks`); each pass runs one
+`WorkUnit` (seed, pass, chunk index, texel indices) per chunk over its texels still active (all
+of them unless a noise target stopped some). A unit draws every random number from a generator seeded by (seed, pass, chunk), so its
 result depends on nothing else: not on the executor, its workers or the order they finish in.
 Results are added to the statistics strictly in unit order (`Statistics.add`), so the bake is
 bit-identical whatever runs it.
@@ -16,7 +16,10 @@ At most 2 × settings.threads units are queued ahead of the one being added, so 
 estimates never pile up: memory stays bounded whatever the atlas size.
 
 Between units: progress, cancel (raises BakeCancelled within a unit), the time budget (no unit
-starts after it, the first pass always completes) and, after each pass, the noise target.
+starts after it, the first pass always completes) and, after each pass, the noise target. Its
+rule is fixed so that `core/farm.py` (every pass of a group of chunks in one task) gives the same
+result: a texel's test depends only on its own statistics and a floor fixed once from the first
+MIN_ADAPTIVE_PASSES passes over the atlas.
 """
 
 from __future__ import annotations
@@ -65,12 +68,17 @@ def run_unit(estimator: Estimator, unit: WorkUnit) -> UnitResult:
     return estimator.trace(unit)
 
 
-def units(settings: BakeSettings, pass_index: int, active: np.ndarray) -> list[WorkUnit]:
-    """The units of one pass over the texels `active` (n,) int64, in the order they are added."""
+def chunks(settings: BakeSettings, n: int) -> list[np.ndarray]:
+    """The fixed chunks of `settings.chunk_texels` texels of an atlas of n bake points: chunk c
+    is texels [c·size, (c + 1)·size); a pass's unit c traces the chunk's texels still active."""
     size = settings.chunk_texels
-    return [
-        WorkUnit(settings.seed, pass_index, c, active[s : s + size]) for c, s in enumerate(range(0, len(active), size))
-    ]
+    return [np.arange(s, min(s + size, n)) for s in range(0, n, size)]
+
+
+def units(settings: BakeSettings, pass_index: int, active: list[np.ndarray]) -> list[WorkUnit]:
+    """The units of one pass: one per fixed chunk with texels still active (`active[c]`, int64
+    indices of chunk c), in the order they are added."""
+    return [WorkUnit(settings.seed, pass_index, c, texels) for c, texels in enumerate(active) if len(texels)]
 
 
 @dataclass
@@ -100,10 +108,11 @@ class _Run:
         settings, stats = self.settings, self.stats
         n = len(stats.passes)
         max_passes = max(1, -(-settings.samples // settings.pass_samples))
-        active = np.arange(n)
+        active = chunks(settings, n)
+        floor = None
         for p in range(max_passes):
 
-            def on_unit(done, of, p=p, converging=len(active)):
+            def on_unit(done, of, p=p, converging=sum(len(a) for a in active)):
                 elapsed = time.perf_counter() - self.start
                 if self.progress:
                     self.progress(
@@ -117,8 +126,10 @@ class _Run:
             if not self.one_pass(pool, units(settings, p, active), on_unit):
                 return "time_budget"
             if settings.noise_target and p + 1 >= MIN_ADAPTIVE_PASSES:
-                active = active[~stats.converged(active, settings.noise_target)]
-                if len(active) == 0:
+                if floor is None:  # fixed from the first MIN_ADAPTIVE_PASSES passes (core/farm.py)
+                    floor = stats.floor()
+                active = [a[~stats.converged(a, settings.noise_target, floor)] for a in active]
+                if not any(len(a) for a in active):
                     return "noise_target"
         return "samples"
 

@@ -18,7 +18,8 @@ class BakeSettings:
 
     noise_target: 0 (off) or the relative standard error of I_z (luminance) at which a texel
     stops: after at least MIN_ADAPTIVE_PASSES passes a texel whose pass-to-pass standard error
-    is below noise_target × max(its I_z, NOISE_FLOOR × the atlas mean I_z) gets no more passes.
+    is below noise_target × max(its I_z, NOISE_FLOOR × the atlas mean I_z after MIN_ADAPTIVE_PASSES
+    passes, fixed from then on) gets no more passes.
     The floor keeps near-black texels from asking for relative precision nobody can see.
     time_budget: 0 (off) or seconds of tracing after which no new chunk starts; the first pass
     always completes, so every texel has an estimate.

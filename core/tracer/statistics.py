@@ -43,18 +43,24 @@ class Statistics:
             self.passes,
         )
 
-    def converged(self, idx: np.ndarray, target: float) -> np.ndarray:
+    def converged(self, idx: np.ndarray, target: float, floor: float | None = None) -> np.ndarray:
         """(len(idx),) bool: the texels idx whose standard error of I_z is below the target
-        (see BakeSettings.noise_target)."""
+        (see BakeSettings.noise_target); `floor`: the I_z below which the target is absolute
+        (default `self.floor()`)."""
         k = self.passes[idx].astype(np.float64)
         mean = self.iz[idx] / k
         var = np.maximum(self.iz_sq[idx] / k - mean * mean, 0.0) / np.maximum(k - 1.0, 1.0)
-        sampled = self.passes > 0
-        floor = (
-            NOISE_FLOOR * max(float((self.iz[sampled] / self.passes[sampled]).mean()), 0.0) if sampled.any() else 0.0
-        )
+        if floor is None:
+            floor = self.floor()
         ok = np.sqrt(var) <= target * np.maximum(mean, floor)
         return ok & np.isfinite(var)
+
+    def floor(self) -> float:
+        """NOISE_FLOOR × the mean I_z of the texels sampled so far (0 before any pass)."""
+        sampled = self.passes > 0
+        if not sampled.any():
+            return 0.0
+        return NOISE_FLOOR * max(float((self.iz[sampled] / self.passes[sampled]).mean()), 0.0)
 
     def result(self, chunk: int = 1 << 16):
         """(mean (N, 9, C) float64, its standard error (N, 9, C) float32), computed in place over

@@ -1,0 +1,232 @@
+"""The bake on a Dask cluster (core/farm.py), on this machine only (127.0.0.1): the same bytes as
+the local bake with 1 and 2 worker processes, with light sets and with a noise target; a worker
+killed mid-bake costs a retry; a cancelled client cancels the farm's tasks and the same command
+resumes from its checkpoints; what a farm refuses, and the messages it gives."""
+
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hhd_lightmapper.core import bake, bakepoints, farm, tracer
+from hhd_lightmapper.core.errors import BakeCancelled, BakeError, DependencyMissing
+from hhd_lightmapper.core.scene import BakeScene, PointLight, SunLight
+from scenekit import meshes
+
+distributed = pytest.importorskip("distributed")
+
+SIZE = 128
+TRACE = tracer.BakeSettings(samples=8, pass_samples=4, bounces=1, seed=5, chunk_texels=2048, threads=2)
+
+
+def floor_and_box():
+    """A 2 m floor (the receiver) under a box: shadows, bounces, buried texels; a sun and a lamp
+    in two light groups and a sky in none, so the bake has three light sets."""
+    v, f = meshes.plane(2.0)
+    box_v, box_f = meshes.cube(0.6, centre=(1.0, 1.0, 0.3))
+    floor = v[f]
+    tris = np.concatenate([floor, box_v[box_f]])
+    surface = bakepoints.SurfaceTriangles(
+        floor, np.tile([0, 0, 1.0], (2, 3, 1)), floor[..., :2] / 2.0, np.zeros(2, int), np.full((2, 3), 0.5)
+    )
+    scene = BakeScene(
+        tris,
+        np.full((len(tris), 3), 0.6),
+        lights=[
+            SunLight(np.array([0.6, 0.2, 0.77]), np.array([3.0, 2.5, 2.0]), group="Sun"),
+            PointLight(np.array([0.3, 1.6, 0.8]), np.array([40.0, 30.0, 20.0]), radius=0.1, group="Lamp"),
+        ],
+        world=np.array([0.1, 0.2, 0.3]),
+    )
+    return bake.AtlasInput("Lightmap", SIZE, SIZE, surface, ["floor"]), scene
+
+
+def two_atlases():
+    """The floor in a 128² atlas and again in a 64² one ("Small"): 8 + 2 chunks of 2048 texels."""
+    atlas, scene = floor_and_box()
+    small = bake.AtlasInput("Small", SIZE // 2, SIZE // 2, atlas.surface, ["floor"])
+    return [atlas, small], scene
+
+
+def cluster(workers: int):
+    """A LocalCluster of `workers` worker processes of one thread each, on 127.0.0.1."""
+    return distributed.LocalCluster(
+        n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=":0"
+    )
+
+
+def exr_bytes(folder: Path) -> dict:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*.exr"))}
+
+
+@pytest.fixture(scope="module")
+def local_files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("local")
+    atlases, scene = two_atlases()
+    bake.run(atlases, scene, bake.PipelineSettings(trace=TRACE), folder)
+    files = exr_bytes(folder)
+    assert any(name.startswith("Lightmap.Lamp_") for name in files)  # the light sets' files too
+    assert any(name.startswith("Small_") for name in files)
+    return files
+
+
+@pytest.fixture(scope="module")
+def two_workers():
+    with cluster(2) as c:
+        yield c
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_farm_bake_writes_the_bytes_of_the_local_bake(workers, local_files, two_workers, tmp_path):
+    atlases, scene = two_atlases()
+    context = cluster(1) if workers == 1 else None
+    address = context.scheduler_address if context else two_workers.scheduler_address
+    try:
+        with farm.connect(address, chunks_per_task=2) as f:
+            assert f.workers() == workers and f.warnings == []
+            bake.run(atlases, scene, bake.PipelineSettings(trace=TRACE), tmp_path, farm=f)
+            assert len(f.tasks) == 4 + 1  # 8 + 2 fixed chunks of 2048 texels, 2 per task
+            assert f._submitted == {}  # the tasks bake.run submitted up front were the ones collected
+            assert len(f._points) == 2  # the bake points came from the workers too
+            assert len({t["worker"] for t in f.tasks}) <= workers
+    finally:
+        if context:
+            context.close()
+    assert exr_bytes(tmp_path) == local_files
+    assert not (tmp_path / farm.CHECKPOINTS).exists()  # gone once the files are committed
+
+
+def test_with_a_noise_target_the_farm_traces_what_the_local_bake_traces(two_workers, tmp_path):
+    atlas, scene = floor_and_box()
+    settings = tracer.BakeSettings(
+        samples=32, pass_samples=4, bounces=1, seed=2, chunk_texels=4096, noise_target=0.05, threads=2
+    )
+    ray_scene = bake.ray_scene_of(scene)
+    points = bake.points_of(atlas, ray_scene)
+    local = tracer.bake(points, scene, settings, ray_scene=ray_scene)
+    assert local.texel_samples.min() < local.texel_samples.max()  # texels did stop early
+    with farm.connect(two_workers.scheduler_address, chunks_per_task=1) as f:
+        remote = tracer.bake(points, scene, settings, ray_scene=ray_scene, runner=f.runner("a", tmp_path))
+        assert len(f.tasks) == 2 * 4  # first MIN_ADAPTIVE_PASSES passes, then the rest
+    np.testing.assert_array_equal(remote.texel_samples, local.texel_samples)
+    np.testing.assert_array_equal(remote.sh, local.sh)
+    np.testing.assert_array_equal(remote.sh_error, local.sh_error)
+    np.testing.assert_array_equal(remote.set_sh, local.set_sh)
+    assert (remote.rays, remote.stopped_by, remote.sets) == (local.rays, local.stopped_by, local.sets)
+
+
+def test_a_worker_killed_mid_bake_costs_only_a_retry(local_files, tmp_path):
+    atlases, scene = two_atlases()
+    killed = []
+    with cluster(2) as c, farm.connect(c.scheduler_address, chunks_per_task=1) as f:
+        pids = f.client.run(os.getpid)
+
+        def progress(fraction, message):
+            if killed or "farm:" not in message:  # once, while tracing
+                return
+            busy = [w for w, tasks in f.client.processing().items() if tasks]
+            if busy:  # SIGKILL: no goodbye to the scheduler, its running task is lost
+                os.kill(pids[busy[0]], signal.SIGKILL)
+                killed.append(busy[0])
+
+        bake.run(atlases, scene, bake.PipelineSettings(trace=TRACE), tmp_path, progress=progress, farm=f)
+    assert killed
+    assert exr_bytes(tmp_path) == local_files
+
+
+def test_cancel_stops_the_farm_and_the_same_bake_resumes_from_its_checkpoints(local_files, two_workers, tmp_path):
+    atlases, scene = two_atlases()
+    settings = bake.PipelineSettings(trace=TRACE)
+    with farm.connect(two_workers.scheduler_address, chunks_per_task=1) as f:
+        tasks_done = []
+
+        def progress(fraction, message):
+            if "farm:" in message:
+                tasks_done.append(fraction)
+
+        with pytest.raises(BakeCancelled):
+            bake.run(atlases, scene, settings, tmp_path, progress=progress, cancel=lambda: len(tasks_done) >= 2, farm=f)
+        saved = sorted((tmp_path / farm.CHECKPOINTS).rglob("task-*.npz"))
+        assert 2 <= len(saved) < 10
+        assert not exr_bytes(tmp_path)  # nothing written
+        # no task of the cancelled bake is left on the farm
+        deadline = time.monotonic() + 10
+        while f.client.run_on_scheduler(_task_count) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert f.client.run_on_scheduler(_task_count) == 0
+    with farm.connect(two_workers.scheduler_address, chunks_per_task=1) as f:  # a restarted client
+        bake.run(atlases, scene, settings, tmp_path, farm=f)
+        assert len(f.tasks) == 10 - len(saved)  # only what was not checkpointed ran
+    assert exr_bytes(tmp_path) == local_files
+    assert not (tmp_path / farm.CHECKPOINTS).exists()
+
+
+def _task_count(dask_scheduler):
+    return len(dask_scheduler.tasks)
+
+
+def test_other_settings_or_inputs_do_not_reuse_checkpoints(two_workers, tmp_path):
+    atlas, scene = floor_and_box()
+    with farm.connect(two_workers.scheduler_address, chunks_per_task=4) as f:
+        ray_scene = bake.ray_scene_of(scene)
+        points = bake.points_of(atlas, ray_scene)
+        for seed in (1, 2):
+            run = f.runner("a", tmp_path)
+            settings = tracer.BakeSettings(samples=4, pass_samples=4, bounces=0, seed=seed, chunk_texels=8192)
+            tracer.bake(points, scene, settings, ray_scene=ray_scene, runner=run)
+        assert len(list((tmp_path / farm.CHECKPOINTS).iterdir())) == 2  # one folder per key
+        assert len(f.tasks) == 2  # 16384 texels: 2 chunks, one task
+        f.finished()
+    assert not (tmp_path / farm.CHECKPOINTS).exists()
+
+
+def test_a_time_budget_is_refused_on_a_farm():
+    with pytest.raises(BakeError, match="time budget cannot be used with --scheduler"):
+        farm.Farm.check(tracer.BakeSettings(time_budget=60.0))
+    farm.Farm.check(tracer.BakeSettings(noise_target=0.05))  # a noise target is fine
+
+
+def test_workers_of_other_code_or_packages_are_refused_with_what_differs():
+    mine = farm.environment()
+    assert set(mine) >= {"code", "python", "numpy", "numba", "embreex", "cpu"}
+    assert farm.check_workers({"tcp://a": mine, "tcp://b": dict(mine)}) == []
+    with pytest.raises(BakeError, match=r"tcp://b: code 0+ \(here "):
+        farm.check_workers({"tcp://a": mine, "tcp://b": {**mine, "code": "000"}})
+    with pytest.raises(BakeError, match=r"numba 0\.1 \(here"):
+        farm.check_workers({"tcp://a": {**mine, "numba": "0.1"}})
+    with pytest.raises(BakeError, match=r"pip install \"hhd_lightmapper\[farm\]\""):
+        farm.check_workers({"tcp://a": ModuleNotFoundError("No module named 'hhd_lightmapper'")})
+    [warning] = farm.check_workers({"tcp://a": mine, "tcp://b": {**mine, "cpu": "other"}})
+    assert "2 CPU kinds" in warning and "NUMBA_CPU_NAME" in warning and "HHD_EMBREE_CONFIG" in warning
+
+
+def test_a_worker_refuses_a_task_of_other_code():
+    with pytest.raises(BakeError, match="other tracer code"):
+        farm.trace_group(b"", "", {}, "not this code", [(0, 0, 1)])
+
+
+def test_without_dask_the_message_says_how_to_install_it(monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(DependencyMissing, match=r"pip install \"dask\[distributed\]\""):
+        farm.connect("tcp://127.0.0.1:1")
+
+
+def test_an_unreachable_scheduler_is_named():
+    with pytest.raises(BakeError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
+        farm.connect("tcp://127.0.0.1:9", timeout=2)
+
+
+def test_a_local_bake_never_imports_dask():
+    import subprocess
+
+    script = (
+        "import sys\n"
+        "from hhd_lightmapper.core import bake, tracer\n"
+        "assert 'distributed' not in sys.modules and 'dask' not in sys.modules\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
