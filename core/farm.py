@@ -75,8 +75,8 @@ WORKER_PACKAGE = "hhd_lightmapper"
 PACKAGE = __name__[: -len(".core.farm")]
 #: The hidden folder of the output folder holding finished tasks' checkpoints.
 CHECKPOINTS = ".hhd_farm"
-#: Fixed chunks per task (`BakeSettings.chunk_texels` texels each): 4 × 8192 texels × 256
-#: samples is ~10 s of one core here, enough to hide a task's ~10 ms of overhead.
+#: Fixed chunks per task (`BakeSettings.chunk_texels` texels each): long enough to hide a task's
+#: overhead at usual sample counts (bench/results/farm.md has the per-task costs).
 CHUNKS_PER_TASK = 4
 #: Times the client submits a task again after it failed on the farm (beyond Dask's own
 #: rescheduling of a task whose worker died), before the bake fails.

@@ -40,6 +40,7 @@ from .. import blender_compat
 from ..core import probes
 from ..core.errors import BakeError
 from . import probe_nodes
+from .preview import _output, _principled  # the material lookups the lightmap preview uses
 
 PREFIX = "HHD Probe"
 #: material record of the original Surface link; object property marking the previewed objects
@@ -141,8 +142,10 @@ def write_sh(obj, coeffs: np.ndarray) -> bool:
 def update_objects(scene, depsgraph=None) -> int:
     """Rewrite the SH properties of the scene's previewed objects whose origin SH changed;
     returns how many changed. `depsgraph`: where the objects' evaluated positions are read."""
+    if FOLDER not in scene:  # no probe preview shown in this scene: every update stays cheap
+        return 0
     objects = [o for o in scene.objects if RECORD in o]
-    if not objects or FOLDER not in scene:
+    if not objects:
         return 0
     volumes = load_volumes(scene[FOLDER])
     if not volumes:
@@ -205,18 +208,6 @@ def _new(tree, kind, name, location, parent):
     node.location = location
     node.parent = parent
     return node
-
-
-def _output(tree):
-    return next((n for n in tree.nodes if n.type == 'OUTPUT_MATERIAL' and n.is_active_output), None)
-
-
-def _principled(tree, output):
-    if output is not None and output.inputs["Surface"].is_linked:
-        node = output.inputs["Surface"].links[0].from_node
-        if node.type == 'BSDF_PRINCIPLED':
-            return node
-    return next((n for n in tree.nodes if n.type == 'BSDF_PRINCIPLED'), None)
 
 
 def _attribute(tree, kind, name, location, frame, label):
@@ -288,7 +279,7 @@ def show_on_material(mat) -> str | None:
     tree.links.new(ao.outputs["AO"], group.inputs["AO"])
     mode = _attribute(tree, 'VIEW_LAYER', MODE, (x0 + 200, y0 - 2000), frame, "Mode")
     tree.links.new(mode.outputs["Fac"], group.inputs["Mode"])
-    note = _feed_group(tree, mat, group, geometry, _principled(tree, output))
+    note = _feed_group(tree, mat, group, geometry, _principled(tree))
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 650, y0), frame)
     tree.links.new(group.outputs["Radiance"], emission.inputs["Color"])
     mix = _new(tree, "ShaderNodeMixShader", "Mix", (x0 + 850, y0), frame)
