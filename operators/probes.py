@@ -60,6 +60,3 @@ class HHD_OT_probe_preview_hide(bpy.types.Operator):
         restored = probe_preview.hide()
         self.report({'INFO'}, f"Probe lighting removed from {restored} material(s)")
         return {'FINISHED'}
-
-
-classes = (HHD_OT_probe_preview_show, HHD_OT_probe_preview_hide)
