@@ -14,8 +14,12 @@ one xatlas atlas, a sun and a sky. Measured, best of `--repeats` after one cold 
     task; and the round trip of an empty Dask task;
   * the bake points of the atlas on one farm worker (`Farm.bake_points`), checked equal to the
     local ones;
-  * the client's own work per atlas: post stages + encoding + writing (from `bake.run`'s
-    timings), per texel;
+  * a local `bake.run`'s post stages + encoding + writing per texel (what the client did per
+    atlas before the finishing tasks), denoised when the bpy module's OIDN is found;
+  * the same atlas through `bake.run` on the farm (1 worker, `--finish-samples` samples: the
+    finishing does not depend on them), warm (the second run): the finishing task's own seconds
+    on the worker (seams, post stages, encoding), the bytes it returns and the client's
+    writing; the files are checked byte-identical to the local `bake.run`'s;
   * bytes: the estimator shipped once per atlas (per texel), a task's result (per texel).
 Then projects 30 atlases of 1024² (this atlas's coverage) on 320 single-threaded workers.
 Prints the tables and writes bench/results/farm.md and farm.json.
@@ -104,12 +108,58 @@ def farm_trace(points, scene, ray_scene, settings, workers, repeats, chunks_per_
     return runs[0], best(runs[1:]), empty, len(payload), min(remote_points, default=None)
 
 
-def client_costs(scene, surface, resolution, settings):
-    """bake.run's per-stage seconds for one atlas (no farm: the client's own work is the same)."""
+def pipeline(settings, library: str):
+    """The bench's PipelineSettings: denoised with `library` (Blender's OIDN) when found."""
+    return bake.PipelineSettings(trace=settings, denoise=bool(library), denoiser_library=library)
+
+
+def exr_bytes(folder) -> dict:
+    return {p.name: p.read_bytes() for p in sorted(Path(folder).glob("*.exr"))}
+
+
+def client_costs(scene, surface, resolution, settings, library):
+    """A local bake.run's per-stage seconds for one atlas, and its EXR files' bytes."""
     atlas = bake.AtlasInput("bench", resolution, resolution, surface, ["field"])
     with tempfile.TemporaryDirectory() as folder:
-        [result] = bake.run([atlas], scene, bake.PipelineSettings(trace=settings), folder)
-    return result.seconds, result.texels
+        [result] = bake.run([atlas], scene, pipeline(settings, library), folder)
+        files = exr_bytes(folder)
+    return result.seconds, result.texels, files
+
+
+def farm_finish(scene, surface, resolution, settings, library, local_files):
+    """The same atlas through bake.run on a 1-worker farm, twice (the second warm): the
+    finishing task's record (seconds on the worker, bytes returned, where it ran), the client's
+    seconds writing the files, and whether the files are the local bake's."""
+    import distributed
+
+    atlas = bake.AtlasInput("bench", resolution, resolution, surface, ["field"])
+    with (
+        distributed.LocalCluster(
+            n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=":0"
+        ) as cluster,
+        farm.connect(cluster.scheduler_address) as f,
+    ):
+        for _ in range(2):
+            f.finishing = []
+            with tempfile.TemporaryDirectory() as folder:
+                t0 = time.perf_counter()
+                [result] = bake.run([atlas], scene, pipeline(settings, library), folder, farm=f)
+                seconds = time.perf_counter() - t0
+                same = exr_bytes(folder) == local_files
+    [record] = f.finishing
+    return {**record, "write_seconds": result.seconds["write"], "bake_seconds": seconds, "identical": same}
+
+
+def oidn_library() -> str:
+    """The bpy module's OIDN library (as tests/test_oidn.py finds it), "" if none."""
+    import importlib.util
+
+    from hhd_lightmapper.core import oidn
+
+    spec = importlib.util.find_spec("bpy")
+    dirs = [Path(d) / "lib" for d in (spec.submodule_search_locations or [])] if spec else []
+    found = oidn.find_library(dirs)
+    return "" if found is None else str(found)
 
 
 def main() -> None:
@@ -124,6 +174,7 @@ def main() -> None:
     ap.add_argument("--farm-resolution", type=int, default=1024)
     ap.add_argument("--farm-cores", type=int, default=320)
     ap.add_argument("--farm-samples", type=int, default=256)
+    ap.add_argument("--finish-samples", type=int, default=4)
     args = ap.parse_args()
     load_before = os.getloadavg()[0]
     scene, surface, ray_scene = scene_and_surface(args.triangles, args.resolution)
@@ -177,8 +228,16 @@ def main() -> None:
     one = record["farm_1"]
     overhead = max(one["warm"] - one["task_seconds"], 0.0) / one["tasks"]
     cpu_per_texel_sample = one["task_seconds"] / (n * args.samples)
-    seconds, texels = client_costs(scene, surface, args.resolution, settings_with(settings, 2))
-    client_per_texel = {k: v / texels for k, v in seconds.items() if k != "trace"}
+    library = oidn_library()
+    quick = settings_with(settings, 2)
+    from dataclasses import replace
+
+    quick = replace(quick, samples=args.finish_samples)
+    seconds, texels, local_files = client_costs(scene, surface, args.resolution, quick, library)
+    client_per_texel = {k: v / texels for k, v in seconds.items() if k not in ("trace", "bake_points")}
+    finish = farm_finish(scene, surface, args.resolution, quick, library, local_files)
+    record["denoised"] = bool(library)
+    record["finish"] = finish
     channels = 3
     result_bytes = n * (9 * channels * (8 + 4) + 3 * 8)
 
@@ -193,16 +252,28 @@ def main() -> None:
     tracing = waves * task_seconds
     # the bake points: one task per atlas on the workers, all at once (one thread each)
     client_points = record["remote_points_seconds"] / n * farm_texels
-    client_write = sum(v for k, v in client_per_texel.items() if k != "bake_points") * farm_texels
-    client_atlas = client_points + client_write
-    # then every atlas's tracing tasks start at once while the client collects (1 GB/s + a
-    # checkpoint write per task) and writes atlas after atlas
+    # before: the client ran seams, post stages, encoding and writing of every atlas in turn
+    client_write_before = sum(client_per_texel.values()) * farm_texels
+    # now: a finishing task per atlas on one worker thread, the client only writes (serially)
+    finish_seconds = finish["seconds"] / n * farm_texels
+    client_write = finish["write_seconds"] / n * farm_texels
+    # every atlas's tracing tasks start together; each atlas's finishing task takes a worker once
+    # its tracing is done (ahead of queued tracing tasks), so the farm's work is the tracing plus
+    # the finishing, and the last atlas's finishing runs after the last wave
+    work = tasks * task_seconds + args.farm_atlases * finish_seconds
+    farm_waves = math.ceil(work / task_seconds / args.farm_cores)
+    farm_seconds = farm_waves * task_seconds + finish_seconds
+    # the client collects (1 GB/s + a checkpoint write per task), receives the finished images
+    # (1 GB/s) and writes the atlases in turn
     client_collect = tasks * (result_bytes / n * per_task / 1e9 + 0.01)
+    client_receive = finish["bytes"] / n * farm_texels / 1e9
     points_waves = math.ceil(args.farm_atlases / args.farm_cores)
-    total = (
+    client_serial = client_collect + args.farm_atlases * (client_receive + client_write)
+    total = points_waves * client_points + max(farm_seconds, client_serial) + client_receive + client_write
+    total_before = (
         points_waves * client_points
-        + max(tracing, (args.farm_atlases - 1) * client_write + client_collect)
-        + client_write
+        + max(tracing, (args.farm_atlases - 1) * client_write_before + client_collect)
+        + client_write_before
     )
     record["projection"] = {
         "atlases": args.farm_atlases,
@@ -214,11 +285,16 @@ def main() -> None:
         "task_seconds": task_seconds,
         "waves": waves,
         "tracing_seconds": tracing,
-        "client_seconds_per_atlas": client_atlas,
-        "client_points_seconds_per_atlas": client_points,
+        "points_seconds_per_atlas": client_points,
+        "finish_seconds_per_atlas": finish_seconds,
+        "farm_seconds": farm_seconds,
         "client_write_seconds_per_atlas": client_write,
+        "client_receive_seconds_per_atlas": client_receive,
         "client_collect_seconds": client_collect,
+        "client_serial_seconds": client_serial,
         "total_seconds": total,
+        "client_finishing_seconds_per_atlas": client_write_before,
+        "total_seconds_client_finishing": total_before,
         "one_core_seconds": args.farm_atlases * farm_texels * args.farm_samples * cpu_per_texel_sample,
     }
     record.update(
@@ -238,7 +314,7 @@ def main() -> None:
 
 
 def report(r, rows, args, n, triangles) -> str:
-    p = r["projection"]
+    p, f = r["projection"], r["finish"]
     lines = [
         "# The bake on a Dask cluster: 1 against 2 workers, task costs, a projection",
         "",
@@ -248,7 +324,8 @@ def report(r, rows, args, n, triangles) -> str:
         f"{args.chunks_per_task} chunk(s) per task; a LocalCluster on 127.0.0.1 of single-threaded worker processes.",
         "",
         f"Machine: {r['machine']}; load average before the run {r['load_before']:.2f}, after {r['load_after']:.2f} "
-        "(other work shared the 2 cores: read differences under ~1.3× as noise).",
+        "(the 2 cores are shared with other engineers' jobs, which ran meanwhile: read differences under ~1.3× "
+        "as noise, and every second as an upper bound).",
         "",
         "| run | on | cold s | warm s (best) | tasks' own s | tasks | SH bit-identical to local |",
         "| --- | --- | ---: | ---: | ---: | ---: | --- |",
@@ -271,28 +348,38 @@ def report(r, rows, args, n, triangles) -> str:
         "the kernels loaded from numba's cache).",
         f"- A task's result: {r['result_bytes_per_texel']:.0f} B per texel (one light set).",
         f"- Tracing cost: {1e9 * r['cpu_per_texel_sample']:.0f} ns of one worker per texel-sample.",
-        "- A local `bake.run`'s other stages per texel (bake points, seams, post stages, encoding + writing; with a farm all but the bake points stay on the client): "
+        "- A local `bake.run`'s stages after tracing per texel (seams, post stages, encoding + writing; "
+        f"{'denoised' if r['denoised'] else 'not denoised: no OIDN found'}): "
         + ", ".join(f"{k} {1e6 * v:.2f} µs" for k, v in r["client_per_texel"].items())
         + ".",
+        f"- On the farm (1 worker, warm, {args.finish_samples} samples): the finishing task took "
+        f"{f['seconds']:.2f} s on the worker ({1e6 * f['seconds'] / n:.2f} µs per texel; finished on the "
+        f"{f['finished_on']}) and returned {f['bytes'] / 1e6:.1f} MB ({f['bytes'] / n:.0f} B per texel); the "
+        f"client wrote the files in {f['write_seconds']:.2f} s ({1e6 * f['write_seconds'] / n:.2f} µs per texel); "
+        f"files byte-identical to the local bake's: {'yes' if f['identical'] else 'NO'}.",
         "",
         f"## Projection: {p['atlases']} atlases of {p['resolution']}² on {p['cores']} cores",
         "",
         f"{p['texels_per_atlas']} texels per atlas (this atlas's coverage), {p['samples']} samples, "
         f"{args.bounces} bounces, from the costs above:",
         "",
-        f"- {p['tasks']} tasks of {p['task_seconds']:.1f} s each, in {p['waves']} wave(s) on {p['cores']} "
+        f"- {p['tasks']} tracing tasks of {p['task_seconds']:.1f} s each, in {p['waves']} wave(s) on {p['cores']} "
         f"single-threaded workers: tracing {p['tracing_seconds']:.0f} s (one core alone: "
         f"{p['one_core_seconds'] / 3600:.1f} h).",
-        f"- The bake points: {p['client_points_seconds_per_atlas']:.1f} s per atlas on one worker thread "
+        f"- The bake points: {p['points_seconds_per_atlas']:.1f} s per atlas on one worker thread "
         f"(measured {r['remote_points_seconds']:.2f} s for this atlas on the farm), every atlas at once.",
-        f"- The client: {p['client_write_seconds_per_atlas']:.1f} s per atlas of seams, post stages, encoding and "
-        f"writing (serial, {p['atlases'] * p['client_write_seconds_per_atlas']:.0f} s for all), and "
-        f"{p['client_collect_seconds']:.0f} s collecting and checkpointing results.",
-        f"- In all about {p['total_seconds']:.0f} s ({p['total_seconds'] / 60:.1f} min): the bake points of every "
-        "atlas first (in parallel on the workers), then every atlas's tracing tasks start together while the "
-        "client collects and writes the atlases in turn, so the longer of tracing and the client's serial work "
-        "bounds it. The client's serial encoding is what to move next (docs/farm.md, \"What is not on the farm "
-        "yet\").",
+        f"- Finishing (seams, post stages, encoding): {p['finish_seconds_per_atlas']:.1f} s per atlas on one "
+        f"worker thread, each atlas's once its tracing is done; tracing and finishing together "
+        f"{p['farm_seconds']:.0f} s on the farm.",
+        f"- The client: {p['client_collect_seconds']:.0f} s collecting and checkpointing tracing results, and per "
+        f"atlas {p['client_receive_seconds_per_atlas']:.1f} s receiving the finished images (1 GB/s) and "
+        f"{p['client_write_seconds_per_atlas']:.1f} s writing them: {p['client_serial_seconds']:.0f} s in all, "
+        "in turn.",
+        f"- In all about **{p['total_seconds']:.0f} s ({p['total_seconds'] / 60:.1f} min)**: the bake points first, "
+        "then the longer of the farm's tracing + finishing and the client's serial collecting and writing, then "
+        f"the last atlas's writing. With the finishing on the client (before): "
+        f"{p['client_finishing_seconds_per_atlas']:.1f} s per atlas in turn, about "
+        f"{p['total_seconds_client_finishing']:.0f} s ({p['total_seconds_client_finishing'] / 60:.1f} min).",
         "",
     ]
     return "\n".join(lines)

@@ -178,7 +178,8 @@ def run(
     (at least once per tracer chunk); `cancel()` returning True stops within a chunk (raises
     BakeCancelled) with no file replaced. Every stage uses
     `parallel.resolve_threads(settings.trace.threads)` worker threads. `farm`: a
-    `core.farm.Farm` building the bake points and tracing the atlases on a Dask cluster (same
+    `core.farm.Farm` building the bake points, tracing the atlases and running their post stages
+    and encoding on a Dask cluster, this process writing the files (`_farm_atlases`; the same
     files; its checkpoints go when the files are committed)."""
     if not atlases and not probe_grids:
         raise BakeError("nothing to bake: no target objects")
@@ -204,41 +205,122 @@ def run(
             farm.submit(
                 atlas.name, out_dir, tracer.texel_estimator(pts, scene, settings.trace, ray_scene), settings.trace
             )
-    total_texels = sum(len(p.texel) for p in points)
-    results, done_texels = [], 0
-    t_trace = time.perf_counter()
     with exr.Staging() as staging:
-        for i, (atlas, pts) in enumerate(zip(atlases, points)):
-
-            def on_trace(f, msg, base=done_texels, n=len(pts.texel), written=i / len(atlases), name=atlas.name):
-                frac = (base + f * n) / total_texels
-                report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{name}': {msg}")
-
-            trace = _atlas_settings(
-                settings.trace, time.perf_counter() - t_trace, len(pts.texel), total_texels - done_texels
-            )
-            runner = farm.runner(atlas.name, out_dir) if farm is not None else None
-            traced = tracer.bake(
-                pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene, runner=runner
-            )
-            done_texels += len(pts.texel)
-            _check_cancel(cancel)
-            on_trace(1.0, _post_message(settings))
-            # each atlas is written as soon as it is traced: its SH lives on only as float32 images
-            results.append(
-                _write(staging, atlas, traced, settings, Path(out_dir), t_points, extra_sidecar or {}, cancel)
-            )
-            del traced
-            report.report(
-                _STAGES[0] + _STAGES[1] * done_texels / total_texels + _STAGES[2] * (i + 1) / len(atlases),
-                f"wrote '{atlas.name}'",
-            )
+        args = (atlases, points, scene, ray_scene, settings, t_points, extra_sidecar or {}, report, cancel)
+        if farm is not None:  # post stages and encoding on the workers too; this process writes
+            results = _farm_atlases(farm, Staged(staging, Path(out_dir)), *args)
+        else:
+            results = _local_atlases(Staged(staging, Path(out_dir)), *args)
         if probe_grids:
             results.extend(_bake_probes(staging, probe_grids, scene, settings, Path(out_dir), report, cancel))
         _check_cancel(cancel)
         staging.commit()
     if farm is not None:
         farm.finished()
+    return results
+
+
+def _local_atlases(
+    out: Staged,
+    atlases,
+    points,
+    scene: BakeScene,
+    ray_scene,
+    settings: PipelineSettings,
+    t_points,
+    extra,
+    report,
+    cancel,
+) -> list[AtlasResult]:
+    """Every atlas here, one after the other: trace, then `finish_atlas`, its files staged into
+    `out` as soon as it is traced (its SH lives on only as float32 images)."""
+    total_texels = sum(len(p.texel) for p in points)
+    results, done_texels = [], 0
+    t_trace = time.perf_counter()
+    for i, (atlas, pts) in enumerate(zip(atlases, points)):
+
+        def on_trace(f, msg, base=done_texels, n=len(pts.texel), written=i / len(atlases), name=atlas.name):
+            frac = (base + f * n) / total_texels
+            report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{name}': {msg}")
+
+        trace = _atlas_settings(
+            settings.trace, time.perf_counter() - t_trace, len(pts.texel), total_texels - done_texels
+        )
+        traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
+        done_texels += len(pts.texel)
+        _check_cancel(cancel)
+        on_trace(1.0, _post_message(settings))
+        info = finish_atlas(atlas, traced, settings, t_points, extra, out, lambda: _check_cancel(cancel), release=True)
+        results.append(atlas_result(atlas, out.out_dir, info))
+        del traced
+        report.report(
+            _STAGES[0] + _STAGES[1] * done_texels / total_texels + _STAGES[2] * (i + 1) / len(atlases),
+            f"wrote '{atlas.name}'",
+        )
+    return results
+
+
+def _farm_atlases(
+    farm,
+    out: Staged,
+    atlases,
+    points,
+    scene: BakeScene,
+    ray_scene,
+    settings: PipelineSettings,
+    t_points,
+    extra,
+    report,
+    cancel,
+) -> list[AtlasResult]:
+    """Every atlas on `farm` (`core.farm.Farm`, its tracing started by `run`): the client
+    collects the atlases' tracing in turn and starts each one's finishing task (post stages and
+    encoding on a worker, `farm.finish`), staging the files of every finished one into `out` as
+    it comes back. An atlas the workers cannot denoise as this process would comes back traced
+    and is finished here (`finish_atlas`)."""
+    total = sum(len(p.texel) for p in points)
+    results: list = [None] * len(atlases)
+    pending: dict = {}
+    done_texels = 0
+
+    def fraction() -> float:
+        written = sum(r is not None for r in results) / len(atlases)
+        return _STAGES[0] + _STAGES[1] * done_texels / total + _STAGES[2] * written
+
+    def stage(i: int) -> None:
+        atlas = atlases[i]
+        report.report(fraction(), f"'{atlas.name}': {_post_message(settings)} on the farm")
+        kind, answer = farm.result(pending.pop(i), cancel)
+        t = time.perf_counter()
+        if kind == "traced":  # no worker denoises as this process does: finish it here
+            report.report(fraction(), f"'{atlas.name}': {_post_message(settings)} here (no farm worker has this OIDN)")
+            traced = replace(answer, points=points[i])
+            info = finish_atlas(
+                atlas, traced, settings, t_points, extra, out, lambda: _check_cancel(cancel), release=True
+            )
+        else:
+            for method, args in answer["out"]:
+                getattr(out, method)(*args)
+            info = answer["summary"]
+            info["seconds"]["write"] = time.perf_counter() - t
+        results[i] = atlas_result(atlas, out.out_dir, info)
+        report.report(fraction(), f"wrote '{atlas.name}'")
+
+    for i, (atlas, pts) in enumerate(zip(atlases, points)):
+
+        def on_trace(f, msg, base=done_texels, n=len(pts.texel), name=atlas.name):
+            written = sum(r is not None for r in results) / len(atlases)
+            frac = (base + f * n) / total
+            report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{name}': {msg}")
+
+        estimator = tracer.texel_estimator(pts, scene, settings.trace, ray_scene)  # as `run` submitted it
+        pending[i] = farm.finish(atlas, settings, out.out_dir, estimator, t_points, extra, on_trace, cancel)
+        del estimator
+        done_texels += len(pts.texel)
+        for j in [j for j, handle in pending.items() if handle.done()]:
+            stage(j)
+    for j in sorted(pending):
+        stage(j)
     return results
 
 
@@ -284,6 +366,24 @@ def _atlas_settings(trace: tracer.BakeSettings, spent: float, texels: int, texel
     return replace(trace, time_budget=max(share, 1e-3))
 
 
+class Staged:
+    """Where finished atlases' files go on this machine: staged in `staging` (committed with
+    every other atlas's at the end) under `out_dir`."""
+
+    def __init__(self, staging: exr.Staging, out_dir: Path):
+        self.staging, self.out_dir = staging, Path(out_dir)
+
+    def atlas(self, name: str, parent: str, encoded: encoding.EncodedAtlas, sidecar: dict) -> None:
+        """Stage the files of one atlas or light set (`parent`: the atlas of a light set, else "")."""
+        lightmap_files.write_atlas(
+            self.staging, lightmap_files.AtlasFiles(self.out_dir, name, parent), encoded, sidecar
+        )
+
+    def seams(self, name: str, atlas_seams: seams.Seams) -> None:
+        """Stage the seams file of atlas `name`."""
+        lightmap_files.stage_seams(self.staging, lightmap_files.AtlasFiles(self.out_dir, name), atlas_seams)
+
+
 def _write(
     staging,
     atlas: AtlasInput,
@@ -294,13 +394,42 @@ def _write(
     extra: dict,
     cancel=None,
 ) -> AtlasResult:
-    """The last stages of one atlas: seams → image → post stages → encode → write (files
-    staged, committed with the other atlases' at the end). The raw SH file keeps the SH as
-    traced; the seams file is written whether or not this bake stitches (a re-encode may).
-    With light sets, the same stages then run for each set's SH into its own atlas files
-    (`light_sets.set_atlas_name`), listed in the atlas's sidecar."""
+    """The last stages of one atlas here (`finish_atlas`, releasing `traced`'s SH as a bake does),
+    its files staged in `staging`."""
+    check = lambda: _check_cancel(cancel)  # noqa: E731
+    info = finish_atlas(atlas, traced, settings, t_points, extra, Staged(staging, out_dir), check, release=True)
+    return atlas_result(atlas, out_dir, info)
+
+
+def atlas_result(atlas: AtlasInput, out_dir, info: dict) -> AtlasResult:
+    """The AtlasResult of one atlas written into `out_dir` from `finish_atlas`'s summary."""
+    files = lightmap_files.AtlasFiles(Path(out_dir), atlas.name)
+    return AtlasResult(atlas.name, files, info["texels"], info["rays"], info["seconds"], info["warnings"], info["sets"])
+
+
+def finish_atlas(
+    atlas: AtlasInput,
+    traced: TracedAtlas,
+    settings: PipelineSettings,
+    t_points: float,
+    extra: dict,
+    out,
+    check: Callable[[], None] = lambda: None,
+    recorded: tracer.BakeSettings | None = None,
+    release: bool = False,
+) -> dict:
+    """The last stages of one atlas: seams → image → post stages → encode, its files handed to
+    `out` (`Staged` here; a farm worker keeps them to return, `core.farm`): `out.atlas(name,
+    parent, encoded, sidecar)` per file set as soon as it is encoded, `out.seams(name, seams)`.
+    The raw SH file keeps the SH as traced; the seams file is written whether or not this bake
+    stitches (a re-encode may). With light sets, the same stages then run for each set's SH
+    into its own atlas files (`light_sets.set_atlas_name`), listed in the atlas's sidecar.
+    `check()` raises to cancel; `recorded`: the tracer settings the sidecar records (default
+    `settings.trace`; a farm worker computes with its own thread count). `release`: drop
+    `traced`'s SH and standard error once they are imaged (`TracedAtlas.release_sh`; the caller
+    no longer needs them, and they are the largest arrays of a bake). Returns the atlas's
+    summary: texels, rays, seconds per stage, warnings, light sets."""
     t = time.perf_counter()
-    files = lightmap_files.AtlasFiles(out_dir, atlas.name)
     atlas_seams = seams.find_seams(traced.points.mesh, atlas.width, atlas.height)
     seconds = {"bake_points": t_points, "trace": traced.seconds, "seams": time.perf_counter() - t}
     t = time.perf_counter()
@@ -308,7 +437,7 @@ def _write(
     sidecar.update(
         {
             "bake": {
-                **asdict(settings.trace),
+                **asdict(recorded or settings.trace),
                 "samples_taken": traced.samples,
                 "passes": traced.passes,
                 "mean_samples_per_texel": traced.mean_samples,
@@ -319,42 +448,49 @@ def _write(
             "timings_seconds": seconds,
         }
     )
-    set_files = [
-        lightmap_files.AtlasFiles(out_dir, light_sets.set_atlas_name(atlas.name, s), atlas.name) for s in traced.sets
-    ]
+    set_names = [light_sets.set_atlas_name(atlas.name, s) for s in traced.sets]
     if traced.sets:
-        sidecar["light_sets"] = [{"name": s, "atlas": f.name} for s, f in zip(traced.sets, set_files)]
-
-    def check() -> None:
-        _check_cancel(cancel)
-
-    warnings = _write_files(staging, files, traced, settings, sidecar, atlas_seams, seconds, check)
-    lightmap_files.stage_seams(staging, files, atlas_seams)
-    for k, (name, set_atlas) in enumerate(zip(traced.sets, set_files)):
+        sidecar["light_sets"] = [{"name": s, "atlas": n} for s, n in zip(traced.sets, set_names)]
+    warnings = _finish_files(out, atlas.name, "", traced, settings, sidecar, atlas_seams, seconds, check, release)
+    out.seams(atlas.name, atlas_seams)
+    for k, (name, set_name) in enumerate(zip(traced.sets, set_names)):
         set_sidecar = {key: v for key, v in sidecar.items() if key not in ("light_sets", "timings_seconds")}
         set_sidecar["light_set"] = {"name": name, "of": atlas.name}
-        warnings += _write_files(
-            staging, set_atlas, traced.light_set(k), settings, set_sidecar, atlas_seams, seconds, check
+        warnings += _finish_files(
+            out, set_name, atlas.name, traced.light_set(k), settings, set_sidecar, atlas_seams, seconds, check
         )
     seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
     warnings = [f"atlas '{atlas.name}', {w}" for w in dict.fromkeys(warnings)]
-    return AtlasResult(atlas.name, files, len(traced.points.texel), traced.rays, seconds, warnings, traced.sets)
+    texels, rays = len(traced.points.texel), traced.rays
+    return {"texels": texels, "rays": rays, "seconds": seconds, "warnings": warnings, "sets": traced.sets}
 
 
-def _write_files(
-    staging, files, traced: TracedAtlas, settings: PipelineSettings, sidecar: dict, atlas_seams, seconds: dict, check
+def _finish_files(
+    out,
+    name: str,
+    parent: str,
+    traced: TracedAtlas,
+    settings,
+    sidecar: dict,
+    atlas_seams,
+    seconds: dict,
+    check,
+    release: bool = False,
 ) -> list[str]:
-    """Image → post stages → encode → write of one atlas's SH (the atlas's own, or one light
-    set's) into `files`; adds the post stages' seconds to seconds["post"]; returns their warnings."""
+    """Image → post stages → encode of one atlas's SH (the atlas's own, or one light set's), handed
+    to `out.atlas`; adds the post stages' seconds to seconds["post"]; returns their warnings.
+    `release`: `traced.release_sh()` once imaged."""
     t = time.perf_counter()
     # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH)
     raw = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise())
+    if release:
+        traced.release_sh()
     data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams)  # post stages
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=raw)  # encode
     encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"], check)
     del data, raw
-    lightmap_files.write_atlas(staging, files, encoded, sidecar)  # write
+    out.atlas(name, parent, encoded, sidecar)  # write (here) or keep (a farm worker)
     return post.warnings(sidecar["post"])
 
 

@@ -31,11 +31,18 @@ the BakeScene sent once to every worker; the BakePoints come back as plain data 
 `unplain`) and equal the local ones. They are not checkpointed (a restart builds them again).
 
 Every atlas's tracing tasks start at once (`Farm.submit`, called by `bake.run` after the bake points);
-the runner of each atlas then collects its own, so the farm traces the next atlases while the
-client encodes and writes one.
+`bake.run` then collects them atlas by atlas (`Farm.finish`) and starts each atlas's finishing task
+(`finish_task`) once its tracing is done: on a worker, with the tracing results Dask moves there,
+it assembles the statistics, builds the TracedAtlas and runs `bake.finish_atlas` (seams, post
+stages, encoding), returning the encoded images and sidecars as plain data (`plain`); the client
+only writes them (`bake.Staged`), so the farm traces and finishes the next atlases meanwhile. The
+denoiser runs on a worker only with the client's own OIDN files (`denoiser_identity`,
+`local_denoiser`); a task without them returns the TracedAtlas and the client finishes that atlas.
+`Farm.runner` traces one atlas for `tracer.bake(..., runner=)` (tests, benches).
 
 Nothing lost. A worker killed mid-task costs a retry of its task (Dask reschedules it; the
-client resubmits a failed task RETRIES times). Each finished task's statistics are written to
+client resubmits a failed task RETRIES times; a failed finishing task with its inputs made anew
+from the checkpoints). Each finished task's statistics are written to
 `<out_dir>/.hhd_farm/<atlas>-<key>/` (key: a hash of the atlas's name, the estimator's bytes, the
 tracer settings, the grouping and the code), so the same command run again resumes from them;
 `Farm.finished()` deletes them once the bake's files are committed. `cancel()` (Ctrl-C on the
@@ -44,9 +51,11 @@ command line) cancels the farm's tasks and raises BakeCancelled. docs/farm.md is
 
 from __future__ import annotations
 
+import copy
 import functools
 import hashlib
 import importlib
+import importlib.util
 import io
 import os
 import pickle
@@ -58,8 +67,9 @@ import time
 import types
 import uuid
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -199,6 +209,20 @@ def environment() -> dict:
     return env
 
 
+def _same_code(code: str) -> None:
+    """BakeError unless this worker runs the client's core code (`code`: its fingerprint)."""
+    if code != code_fingerprint():
+        raise BakeError(
+            f"this worker ({platform.node()}) runs other tracer code ({code_fingerprint()}) than the client "
+            f"({code}): install the same hhd_lightmapper version on every machine"
+        )
+
+
+def _where() -> str:
+    """This process, as a task's record names it: host:pid."""
+    return f"{platform.node()}:{os.getpid()}"
+
+
 def trace_group(
     payload: bytes,
     digest: str,
@@ -215,11 +239,7 @@ def trace_group(
     with the rays traced. With a noise target the client runs two: the first MIN_ADAPTIVE_PASSES
     passes, then (given `state`, the first's result, and the atlas's `floor`) the rest, testing
     each texel before every pass and after the last."""
-    if code != code_fingerprint():
-        raise BakeError(
-            f"this worker ({platform.node()}) runs other tracer code ({code_fingerprint()}) than the client "
-            f"({code}): install the same hhd_lightmapper version on every machine"
-        )
+    _same_code(code)
     t0 = time.perf_counter()
     estimator = shipping._receive(digest, payload)
     trace = BakeSettings(**settings)
@@ -264,7 +284,7 @@ def trace_group(
         texel_passes=texel_passes,
         converged=converged,
         seconds=time.perf_counter() - t0,
-        worker=f"{platform.node()}:{os.getpid()}",
+        worker=_where(),
     )
     return out
 
@@ -289,25 +309,174 @@ def points_task(scene_payload: bytes, scene_digest: str, atlas_payload: bytes) -
     return plain(bakepoints.build(surface, width, height, occluders=occluders, threads=1))
 
 
+# ---- the finishing task: post stages and encoding of one atlas on a worker ---------------------
+
+#: The worker's OIDN library (a file, or a folder holding it), when it has no pip `bpy` to take it from.
+OIDN_ENV = "HHD_OIDN_LIBRARY"
+#: Finished tracing statistics a finishing task assembles (`trace_group`'s arrays).
+STATISTICS = ("total", "m2", "iz", "iz_sq", "passes")
+
+_identities: dict[str, str | None] = {}  # library path -> denoiser_identity
+
+
+def denoiser_identity(library: str) -> str | None:
+    """What makes a process's denoised SH what it is: a hash of the OIDN library `library` and
+    the core and CPU-device libraries beside it (same files, same version and build: same
+    bits), or None when nothing can denoise with it here (no library, or the RTLightmap weights
+    (`core.oidn.WEIGHTS`, hash-checked) missing)."""
+    if not library:
+        return None
+    if library not in _identities:
+        from . import oidn
+
+        path = Path(library)
+        try:
+            for mode in oidn.WEIGHTS:
+                oidn.load_weights(mode)
+            h = hashlib.blake2b(digest_size=12)
+            siblings = [
+                *path.parent.glob("*OpenImageDenoise_core*"),
+                *path.parent.glob("*OpenImageDenoise_device_cpu*"),
+            ]
+            for f in [path, *sorted(siblings)]:
+                h.update(f.name.encode() + b"\0" + f.read_bytes())
+            _identities[library] = h.hexdigest()
+        except (OSError, oidn.DenoiserError):
+            _identities[library] = None
+    return _identities[library]
+
+
+def local_denoiser() -> tuple[str, str | None]:
+    """This process's OIDN library and its `denoiser_identity` ("", None: none): the file or
+    folder of $HHD_OIDN_LIBRARY, else the library of a pip-installed `bpy` (found without
+    importing it), the one Blender's Python module ships."""
+    from . import oidn
+
+    setting = os.environ.get(OIDN_ENV, "")
+    if setting:
+        path = Path(setting)
+        found = path if path.is_file() else oidn.find_library([path, path / "lib"])
+    else:
+        spec = importlib.util.find_spec("bpy")
+        dirs = [Path(d) / "lib" for d in (spec.submodule_search_locations or [])] if spec else []
+        found = oidn.find_library(dirs)
+    library = "" if found is None else str(found)
+    return library, denoiser_identity(library)
+
+
+class _Kept:
+    """A finishing task's stand-in for `bake.Staged`: keeps the finished files' data, in the
+    order the atlas handed them, as plain data for the client to stage."""
+
+    def __init__(self):
+        self.calls: list[tuple[str, tuple]] = []
+
+    def atlas(self, name: str, parent: str, encoded, sidecar: dict) -> None:
+        self.calls.append(("atlas", (name, parent, plain(encoded), copy.deepcopy(sidecar))))
+
+    def seams(self, name: str, atlas_seams) -> None:
+        self.calls.append(("seams", (name, plain(atlas_seams))))
+
+
+def finish_task(payload: bytes, digest: str, code: str, meta: bytes, *results: dict) -> dict:
+    """One task per atlas, run once its tracing tasks are done (`results`: the last stage's of
+    every group, which Dask brings to this worker): the atlas's statistics assembled, its
+    TracedAtlas built (`tracer.traced_atlas`), then `bake.finish_atlas` (seams, post stages,
+    encoding) exactly as a local bake runs them. `meta` (pickled with worker names): atlas
+    (AtlasInput without its surface), settings (PipelineSettings), t_points, extra, rays,
+    stopped_by, seconds, denoiser (the client's `denoiser_identity`; None: its OIDN cannot run,
+    so the client finishes the atlas). Returns plain data: "out", the files to stage in order, and "summary";
+    or, when this worker cannot denoise as the client would (another or no OIDN library, or
+    OIDN failing here), "traced", the TracedAtlas without its points, for the client to finish."""
+    from . import bake, tracer
+
+    _same_code(code)
+    t0 = time.perf_counter()
+    estimator = shipping._receive(digest, payload)
+    m = pickle.loads(meta)
+    settings, points = m["settings"], estimator.points
+    stats = Statistics(len(points.texel), points.normal, estimator.scene.channels)
+    for result in results:
+        first, end = int(result["first"]), int(result["end"])
+        for key in STATISTICS:
+            getattr(stats, key)[first:end] = result[key]
+    outcome = Outcome(m["stopped_by"], m["rays"])
+    traced = tracer.traced_atlas(points, estimator.scene.sets, stats, settings.trace, outcome, m["seconds"])
+    library = settings.denoiser_library  # "" (the client has none): undenoised here as there, same warning
+    denoising = settings.denoise and bool(library)
+    if denoising:
+        library, identity = local_denoiser()
+        if m["denoiser"] is None or identity != m["denoiser"]:  # None: the client's OIDN cannot run
+            return _unfinished(traced, t0, "no OIDN library here like the client's")
+    threads = _worker_threads()
+    compute = replace(settings, denoiser_library=library, trace=replace(settings.trace, threads=threads))
+    kept = _Kept()
+    summary = bake.finish_atlas(m["atlas"], traced, compute, m["t_points"], m["extra"], kept, recorded=settings.trace)
+    if denoising and not all(args[3]["post"]["denoise"].get("applied") for kind, args in kept.calls if kind == "atlas"):
+        return _unfinished(traced, t0, "OIDN failed here")
+    return {"out": kept.calls, "summary": plain(summary), "seconds": time.perf_counter() - t0, "worker": _where()}
+
+
+def _unfinished(traced, t0: float, why: str) -> dict:
+    """A finishing task's answer when the client must run the post stages: the TracedAtlas
+    without its points (the client has them)."""
+    return {
+        "traced": plain(replace(traced, points=None)),
+        "why": why,
+        "seconds": time.perf_counter() - t0,
+        "worker": _where(),
+    }
+
+
+def _worker_threads() -> int:
+    """Threads of this Dask worker (1 outside one): the post stages' count here (their result
+    does not depend on it)."""
+    try:
+        from distributed import get_worker
+
+        return max(int(getattr(get_worker(), "nthreads", 1)), 1)
+    except (ImportError, ValueError):
+        return 1
+
+
 def plain(obj):
-    """This package's dataclass instances (nested) as dicts naming their class relative to the
-    package, everything else as it is: what a worker returns to a client that may name the
-    package otherwise (`unplain` there)."""
+    """This package's dataclass instances (nested, also inside dicts, lists and tuples) as dicts
+    naming their class relative to the package, its classes and functions as dicts naming them
+    the same way, everything else as it is: what a worker returns
+    to a client that may name the package otherwise (`unplain` there)."""
     cls = type(obj)
+    if cls is dict:
+        return {k: plain(v) for k, v in obj.items()}
+    if cls is list or cls is tuple:
+        return cls(plain(v) for v in obj)
     module = getattr(cls, "__module__", "") or ""
     if hasattr(obj, "__dataclass_fields__") and _worker_module(module) is not None:
         return {"__class__": (module[len(PACKAGE) :], cls.__qualname__), **{k: plain(v) for k, v in vars(obj).items()}}
+    module = getattr(obj, "__module__", "") or ""
+    if isinstance(obj, type | types.FunctionType) and _worker_module(module) is not None:
+        return {"__object__": (module[len(PACKAGE) :], obj.__qualname__)}  # e.g. a Channel's `pack`
     return obj
 
 
 def unplain(obj):
     """The inverse of `plain`, with this process's classes."""
-    if isinstance(obj, dict) and "__class__" in obj:
+    cls = type(obj)
+    if cls is dict and "__class__" in obj:
         module, name = obj["__class__"]
         cls = getattr(importlib.import_module(PACKAGE + module), name)
         instance = cls.__new__(cls)
         instance.__dict__.update({k: unplain(v) for k, v in obj.items() if k != "__class__"})
         return instance
+    if cls is dict and "__object__" in obj:
+        module, name = obj["__object__"]
+        found = importlib.import_module(PACKAGE + module)
+        for part in name.split("."):
+            found = getattr(found, part)
+        return found
+    if cls is dict:
+        return {k: unplain(v) for k, v in obj.items()}
+    if cls is list or cls is tuple:
+        return cls(unplain(v) for v in obj)
     return obj
 
 
@@ -376,6 +545,21 @@ def check_workers(envs: dict) -> list[str]:
     return []
 
 
+class Finishing:
+    """One atlas's finishing task on the farm (`Farm.finish`): its name, its tracing's plan
+    (without the estimator's bytes), the task's arguments, the workers it should run on (none:
+    any), its future; `estimator`: to ship again for a retry."""
+
+    def __init__(self, name: str, plan: dict, args: tuple, workers: list[str], estimator):
+        self.name, self.args, self.workers, self.estimator = name, args, workers, estimator
+        self.plan = {k: v for k, v in plan.items() if k not in ("payload", "data")}
+        self.future: Any = None  # a distributed.Future once started
+        self.retries = 0
+
+    def done(self) -> bool:
+        return self.future is not None and self.future.done()
+
+
 class Farm:
     """A connected Dask client; `runner(name, out_dir)` traces one atlas on it."""
 
@@ -388,6 +572,9 @@ class Farm:
         self.tasks: list[dict] = []  # per finished task: seconds, worker, texels (bench/farm.py)
         self._submitted: dict[str, dict] = {}  # checkpoint key -> {future: group} started by `submit`
         self._points: list = []  # the futures of `bake_points`
+        self._finishing: list[Finishing] = []  # finishing tasks not collected yet
+        self._oidn: dict[str, list[str]] = {}  # the client's denoiser identity -> workers of the same
+        self.finishing: list[dict] = []  # per finished atlas: seconds, worker, finished_on (bench/farm.py)
 
     def __enter__(self) -> Farm:
         return self
@@ -538,21 +725,36 @@ class Farm:
 
     def _trace(self, name, out_dir: Path, estimator, stats: Statistics, settings, start, progress, cancel) -> Outcome:
         plan = self._plan(name, out_dir, estimator, settings)
+        rays, stopped_by, _ = self._collect(plan, stats, settings, start, progress, cancel)
+        plan.pop("data", None)
+        return Outcome(stopped_by, rays)
+
+    def _collect(
+        self, plan: dict, stats, settings: BakeSettings, start: float, progress, cancel, keep: bool = False
+    ) -> tuple[int, str, dict]:
+        """Run (or load from checkpoints) every task of one atlas, checkpointing each as it
+        finishes and copying its arrays into `stats` (those of STATISTICS it has: a finishing
+        bake keeps only what the noise target's floor needs). Returns the rays traced, what
+        stopped the bake, and with `keep` the last stage's result per group (its future, kept
+        on the farm for the finishing task, or a checkpoint's arrays)."""
         folder, groups = plan["folder"], plan["groups"]
         folder.mkdir(parents=True, exist_ok=True)
         if folder not in self.checkpoints:
             self.checkpoints.append(folder)
         rays, converged, done = 0, True, 0
         of = len(groups) * len(plan["stages"])
+        last = len(plan["stages"]) - 1
+        final: dict = {}
 
         def add(g: int, result, stage: int) -> None:
             nonlocal rays, converged, done
             first, end = int(result["first"]), int(result["end"])
-            for k in ("total", "m2", "iz", "iz_sq", "passes"):
-                getattr(stats, k)[first:end] = result[k]
+            for k in STATISTICS:
+                if getattr(stats, k, None) is not None:
+                    getattr(stats, k)[first:end] = result[k]
             stats.texel_passes += int(result["texel_passes"])
             rays += int(result["rays"])
-            if stage == len(plan["stages"]) - 1:
+            if stage == last:
                 converged &= bool(result["converged"])
             done += 1
             if progress:
@@ -569,6 +771,8 @@ class Farm:
             saved = self._saved(plan, s)
             for g, result in saved.items():
                 add(g, result, s)
+                if keep and s == last:
+                    final[g] = result
             submitted = self._submitted.pop(plan["key"], None) if s == 0 else None
             if submitted is not None:  # `submit` started them: drop those a checkpoint now holds
                 pending = {f: g for f, g in submitted.items() if g not in saved}
@@ -594,7 +798,7 @@ class Farm:
                             retries[g] = retries.get(g, 0) + 1
                             if retries[g] > RETRIES:
                                 raise BakeError(
-                                    f"farm task {g} of atlas '{name}' failed: {type(exc).__name__}: {exc}"
+                                    f"farm task {g} of atlas '{plan['name']}' failed: {type(exc).__name__}: {exc}"
                                 ) from exc
                             plan.pop("data", None)  # scattered again: its copies may be what was lost
                             pending.update(self._submit(plan, s, floor, {}, only=[g]))
@@ -608,17 +812,136 @@ class Farm:
                             }
                         )
                         add(g, result, s)
-                        future.release()
+                        if keep and s == last:
+                            final[g] = future  # its data stays on the farm for the finishing task
+                        else:
+                            future.release()
             except BaseException:
                 self.cancel_all()
                 raise
             finally:
                 if pending:  # cancelled or failed: no task of this bake keeps running on the farm
                     self.client.cancel(list(pending), force=True)
-        plan.pop("data", None)
         two_stages = len(plan["stages"]) == 2
         stopped = "noise_target" if two_stages and converged and len(stats.passes) else "samples"
-        return Outcome(stopped, rays)
+        return rays, stopped, final
+
+    # ---- finishing on the farm: post stages and encoding per atlas ----------------------------
+
+    def finish(
+        self, atlas, settings, out_dir, estimator, t_points: float, extra: dict, progress=None, cancel=None
+    ) -> Finishing:
+        """Collect the tracing of `atlas` (`core.bake.AtlasInput`; started by `submit`, or
+        started now) with `estimator` (as `submit`'s), then start its finishing task
+        (`finish_task`: post stages and encoding on a worker, ahead of queued tracing tasks);
+        returns at once with its handle (`result` waits). `settings`: the PipelineSettings;
+        `t_points`, `extra`: the sidecar's bake-point seconds and extra entries."""
+        start = time.perf_counter()
+        plan = self._plan(atlas.name, Path(out_dir), estimator, settings.trace)
+        n = len(estimator.points.texel)
+        floor_stats = Statistics.__new__(Statistics)  # only what the noise target's floor reads
+        floor_stats.iz, floor_stats.passes, floor_stats.texel_passes = np.zeros(n), np.zeros(n, np.int64), 0
+        rays, stopped_by, final = self._collect(plan, floor_stats, settings.trace, start, progress, cancel, keep=True)
+        saved = {g: r for g, r in final.items() if isinstance(r, dict)}
+        if saved:  # checkpointed results travel to the farm as data
+            for g, future in zip(saved, self.client.scatter(list(saved.values()))):
+                final[g] = future
+        if "data" not in plan:
+            [plan["data"]] = self.client.scatter([plan["payload"]], hash=True, broadcast=True)
+        identity = denoiser_identity(settings.denoiser_library) if settings.denoise else None
+        meta = dumps(
+            {
+                "atlas": replace(atlas, surface=None),
+                "settings": settings,
+                "t_points": t_points,
+                "extra": extra,
+                "rays": rays,
+                "stopped_by": stopped_by,
+                "seconds": time.perf_counter() - start,
+                "denoiser": identity,
+            }
+        )
+        args = (plan["data"], plan["digest"], plan["code"], meta, *[final[g] for g in range(len(plan["groups"]))])
+        workers = self._denoisers(identity) if identity is not None else []
+        handle = Finishing(atlas.name, plan, args, workers, estimator)
+        self._start(handle)
+        return handle
+
+    def _reload(self, handle: Finishing) -> None:
+        """The arguments of a failed finishing task made anew from what cannot be lost: the
+        estimator shipped again and the tracing results from their checkpoints (a dead worker may
+        have held the only copy of either: Dask keeps one replica of scattered data)."""
+        plan = handle.plan
+        last = len(plan["stages"]) - 1
+        results = [_load(plan["folder"] / f"task-{g}-{last}.npz") for g in range(len(plan["groups"]))]
+        if any(r is None for r in results):
+            raise BakeError(f"the checkpoints of atlas '{handle.name}' are gone from {plan['folder']}: bake again")
+        _, payload = ship(handle.estimator)
+        [data] = self.client.scatter([payload], hash=True, broadcast=True)
+        handle.args = (data, *handle.args[1:4], *self.client.scatter(results))
+
+    def _denoisers(self, identity: str) -> list[str]:
+        """The workers whose OIDN is the client's (`denoiser_identity` `identity`), asked once
+        per farm: the finishing tasks of a denoised bake go to them first."""
+        if identity not in self._oidn:
+            found = self.client.run(_Named(__name__, "local_denoiser"), on_error="return")
+            self._oidn[identity] = sorted(
+                w for w, r in found.items() if not isinstance(r, BaseException) and r[1] == identity
+            )
+        return self._oidn[identity]
+
+    def _start(self, handle: Finishing) -> None:
+        """Submit (again) the finishing task of `handle`."""
+        handle.future = self.client.submit(
+            _Named(__name__, "finish_task"),
+            *handle.args,
+            key=f"hhd-finish-{handle.plan['key']}-{uuid.uuid4().hex[:8]}",
+            pure=False,
+            priority=1,  # before the tracing tasks still queued: the client writes sooner
+            workers=handle.workers or None,
+            allow_other_workers=bool(handle.workers),  # another worker if none of them is left
+        )
+        self._finishing.append(handle)
+
+    def result(self, handle: Finishing, cancel=None) -> tuple[str, object]:
+        """Wait for the finishing task of `handle`: ("out", {"out": the files to stage in order
+        [(method of `bake.Staged`, args)], "summary": `bake.finish_atlas`'s}) or ("traced", a
+        TracedAtlas without points: this client must finish it, `finish_task`). BakeCancelled
+        when `cancel()` turns True; a failed task is submitted again RETRIES times."""
+        try:
+            while True:
+                while True:  # a cancel is seen before an answer is taken, even one already there
+                    if cancel is not None and cancel():
+                        raise BakeCancelled("bake cancelled")
+                    if handle.future.done():
+                        break
+                    time.sleep(POLL_SECONDS)
+                try:
+                    answer = handle.future.result()
+                    break
+                except BakeError:
+                    raise
+                except Exception as exc:  # KilledWorker, a worker's error, lost inputs
+                    handle.retries += 1
+                    if handle.retries > RETRIES:
+                        raise BakeError(
+                            f"the finishing task of atlas '{handle.name}' failed on the farm: {type(exc).__name__}: {exc}"
+                        ) from exc
+                    self._finishing.remove(handle)
+                    self._reload(handle)
+                    self._start(handle)
+        except BaseException:
+            self.cancel_all()
+            raise
+        self._finishing.remove(handle)
+        handle.future.release()
+        handle.args, handle.estimator = (), None  # the tracing results and the estimator may go from the farm
+        record = {"atlas": handle.name, "seconds": float(answer["seconds"]), "worker": answer["worker"]}
+        where = "client" if "traced" in answer else "worker"
+        self.finishing.append({**record, "finished_on": where, "bytes": _nbytes(answer)})
+        if "traced" in answer:
+            return "traced", unplain(answer["traced"])
+        return "out", {"out": unplain(answer["out"]), "summary": unplain(answer["summary"])}
 
     def cancel_all(self) -> None:
         """Cancel the tasks `submit` and `bake_points` started that were not collected yet."""
@@ -628,6 +951,20 @@ class Farm:
         if self._points:
             self.client.cancel(self._points, force=True)
             self._points = []
+        if self._finishing:
+            self.client.cancel([h.future for h in self._finishing], force=True)
+            self._finishing = []
+
+
+def _nbytes(obj) -> int:
+    """Bytes of the arrays in `obj` (nested dicts, lists, tuples): what a task's answer carried."""
+    if isinstance(obj, np.ndarray):
+        return obj.nbytes
+    if isinstance(obj, dict):
+        return sum(_nbytes(v) for v in obj.values())
+    if isinstance(obj, list | tuple):
+        return sum(_nbytes(v) for v in obj)
+    return 0
 
 
 def _save(path: Path, result: dict) -> None:

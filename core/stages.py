@@ -71,6 +71,12 @@ class TracedAtlas:
         error = self.sh_error[:, 0, :].astype(np.float64) @ LUMINANCE
         return np.where(self.texel_samples >= NOISE_PASSES * per_pass, error, np.nan).astype(np.float32)
 
+    def release_sh(self) -> None:
+        """Drop `sh` and `sh_error` (they become empty `(0, 9, 3)` arrays) once imaged: a bake's
+        largest arrays, freed before the post stages unless another reference holds them."""
+        self.sh = np.zeros((0, 9, 3))
+        self.sh_error = np.zeros((0, 9, 3), np.float32)
+
     def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TracedAtlas:
         """A copy carrying new SH (and standard error) for the same texels, without light sets."""
         error = self.sh_error if sh_error is None else sh_error

@@ -1,9 +1,13 @@
 """The bake on a Dask cluster (core/farm.py), on this machine only (127.0.0.1): the same bytes as
-the local bake with 1 and 2 worker processes, with light sets and with a noise target; a worker
-killed mid-bake costs a retry; a cancelled client cancels the farm's tasks and the same command
+the local bake with 1 and 2 worker processes, with light sets and with a noise target; the post
+stages and encoding of each atlas run on a worker (a finishing task), denoised there when the
+worker has the client's OIDN, on the client otherwise; a worker killed mid-bake (tracing or
+finishing) costs a retry; a cancelled client cancels the farm's tasks and the same command
 resumes from its checkpoints; what a farm refuses, and the messages it gives."""
 
+import json
 import os
+import platform
 import signal
 import sys
 import time
@@ -12,10 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, farm, tracer
+from hhd_lightmapper.core import bake, bakepoints, farm, oidn, tracer
 from hhd_lightmapper.core.errors import BakeCancelled, BakeError, DependencyMissing
 from hhd_lightmapper.core.scene import BakeScene, PointLight, SunLight
 from scenekit import meshes
+from test_oidn import bpy_library_dirs
 
 distributed = pytest.importorskip("distributed")
 
@@ -63,15 +68,91 @@ def exr_bytes(folder: Path) -> dict:
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*.exr"))}
 
 
+def sidecars(folder: Path) -> dict:
+    """Every JSON sidecar of `folder` without what differs between two runs: timings."""
+    docs = {}
+    for path in sorted(folder.glob("*.json")):
+        doc = json.loads(path.read_text())
+        doc.pop("timings_seconds", None)
+        records = list(doc["post"].values())
+        while records:  # a post stage's own timings (and its parts')
+            record = records.pop()
+            record.pop("seconds", None)
+            records += [v for v in record.values() if isinstance(v, dict)]
+        docs[path.name] = doc
+    return docs
+
+
+def seams_arrays(folder: Path) -> dict:
+    """Every seams file of `folder` as {file: {array name: bytes}} (the zip's own dates differ)."""
+    out = {}
+    for path in sorted(folder.glob("*_seams.npz")):
+        with np.load(path) as f:
+            out[path.name] = {k: f[k].tobytes() for k in f.files}
+    return out
+
+
+def same_files(folder: Path, local: Path) -> None:
+    """`folder` holds the files of the local bake in `local`: EXRs byte for byte, seams, and
+    sidecars but for their timings."""
+    assert exr_bytes(folder) == exr_bytes(local)
+    assert sidecars(folder) == sidecars(local)
+    assert seams_arrays(folder) == seams_arrays(local) != {}
+
+
+def finished_on_workers(f: farm.Farm, atlases: int, pids: dict) -> None:
+    """Every atlas's finishing task ran in one of the worker processes `pids` ({worker: pid},
+    `client.run(os.getpid)`), not in this one."""
+    workers = {f"{platform.node()}:{pid}" for pid in pids.values()}
+    assert len(f.finishing) == atlases
+    for record in f.finishing:
+        assert record["finished_on"] == "worker" and record["seconds"] > 0
+        assert record["worker"] in workers and record["worker"] != f"{platform.node()}:{os.getpid()}"
+
+
 @pytest.fixture(scope="module")
-def local_files(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("local")
-    atlases, scene = two_atlases()
-    bake.run(atlases, scene, bake.PipelineSettings(trace=TRACE), folder)
-    files = exr_bytes(folder)
+def local_files(local_folder):
+    files = exr_bytes(local_folder)
     assert any(name.startswith("Lightmap.Lamp_") for name in files)  # the light sets' files too
     assert any(name.startswith("Small_") for name in files)
     return files
+
+
+@pytest.fixture(scope="module")
+def local_folder(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("local")
+    atlases, scene = two_atlases()
+    bake.run(atlases, scene, bake.PipelineSettings(trace=TRACE), folder)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def library() -> str:
+    """Blender's OIDN library (of the bpy module), as the client finds it."""
+    path = oidn.find_library(bpy_library_dirs())
+    if path is None:
+        pytest.skip("no Open Image Denoise library in the bpy module")
+    return str(path)
+
+
+#: Denoised, with a noise target (two task stages per group) and three light sets.
+NOISY = tracer.BakeSettings(
+    samples=24, pass_samples=4, bounces=1, seed=3, chunk_texels=4096, noise_target=0.1, threads=2
+)
+
+
+@pytest.fixture(scope="module")
+def local_denoised(tmp_path_factory, library):
+    folder = tmp_path_factory.mktemp("denoised")
+    atlases, scene = two_atlases()
+    [result, _] = bake.run(
+        atlases, scene, bake.PipelineSettings(trace=NOISY, denoise=True, denoiser_library=library), folder
+    )
+    assert result.warnings == []  # denoised
+    doc = json.loads((folder / "Lightmap.json").read_text())
+    assert doc["post"]["denoise"]["applied"] and doc["bake"]["stopped_by"] in ("noise_target", "samples")
+    assert doc["bake"]["mean_samples_per_texel"] < NOISY.samples  # texels did stop early
+    return folder
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +162,7 @@ def two_workers():
 
 
 @pytest.mark.parametrize("workers", [1, 2])
-def test_a_farm_bake_writes_the_bytes_of_the_local_bake(workers, local_files, two_workers, tmp_path):
+def test_a_farm_bake_writes_the_bytes_of_the_local_bake(workers, local_files, local_folder, two_workers, tmp_path):
     atlases, scene = two_atlases()
     context = cluster(1) if workers == 1 else None
     address = context.scheduler_address if context else two_workers.scheduler_address
@@ -93,11 +174,41 @@ def test_a_farm_bake_writes_the_bytes_of_the_local_bake(workers, local_files, tw
             assert f._submitted == {}  # the tasks bake.run submitted up front were the ones collected
             assert len(f._points) == 2  # the bake points came from the workers too
             assert len({t["worker"] for t in f.tasks}) <= workers
+            finished_on_workers(f, 2, f.client.run(os.getpid))  # post stages and encoding too
+            assert f._finishing == []
     finally:
         if context:
             context.close()
     assert exr_bytes(tmp_path) == local_files
+    same_files(tmp_path, local_folder)
     assert not (tmp_path / farm.CHECKPOINTS).exists()  # gone once the files are committed
+
+
+def test_denoised_with_a_noise_target_on_workers_with_the_clients_oidn(local_denoised, library, two_workers, tmp_path):
+    atlases, scene = two_atlases()
+    settings = bake.PipelineSettings(trace=NOISY, denoise=True, denoiser_library=library)
+    with farm.connect(two_workers.scheduler_address, chunks_per_task=2) as f:
+        results = bake.run(atlases, scene, settings, tmp_path, farm=f)
+        assert len(f.tasks) == 2 * (2 + 1)  # 4 + 1 chunks of 4096 texels, 2 per task, in two stages
+        finished_on_workers(f, 2, f.client.run(os.getpid))  # the workers found the same OIDN (the bpy module's)
+        assert f._oidn == {farm.denoiser_identity(library): sorted(f.client.scheduler_info()["workers"])}
+    assert [r.warnings for r in results] == [[], []]
+    same_files(tmp_path, local_denoised)
+
+
+def test_workers_without_the_clients_oidn_leave_the_denoising_to_the_client(
+    local_denoised, library, tmp_path, monkeypatch
+):
+    atlases, scene = two_atlases()
+    settings = bake.PipelineSettings(trace=NOISY, denoise=True, denoiser_library=library)
+    monkeypatch.setenv(farm.OIDN_ENV, str(tmp_path / "no-oidn-here"))  # the workers' environment
+    messages = []
+    with cluster(1) as c, farm.connect(c.scheduler_address, chunks_per_task=2) as f:
+        assert f.client.run(farm.local_denoiser) == {w: ("", None) for w in f.client.scheduler_info()["workers"]}
+        bake.run(atlases, scene, settings, tmp_path / "out", progress=lambda _, m: messages.append(m), farm=f)
+        assert [r["finished_on"] for r in f.finishing] == ["client", "client"]
+    assert any("here (no farm worker has this OIDN)" in m for m in messages)
+    same_files(tmp_path / "out", local_denoised)
 
 
 def test_with_a_noise_target_the_farm_traces_what_the_local_bake_traces(two_workers, tmp_path):
@@ -119,6 +230,16 @@ def test_with_a_noise_target_the_farm_traces_what_the_local_bake_traces(two_work
     assert (remote.rays, remote.stopped_by, remote.sets) == (local.rays, local.stopped_by, local.sets)
 
 
+def test_the_denoiser_identity_is_of_the_library_files_beside_it_too(library, tmp_path):
+    identity = farm.denoiser_identity(library)
+    assert identity is not None and farm.local_denoiser() == (library, identity)  # a worker of this Python
+    alone = tmp_path / Path(library).name  # the same loader without its core and CPU-device libraries
+    alone.write_bytes(Path(library).read_bytes())
+    assert farm.denoiser_identity(str(alone)) not in (None, identity)
+    assert farm.denoiser_identity(str(tmp_path / "missing.so")) is None
+    assert farm.denoiser_identity("") is None
+
+
 def test_a_worker_killed_mid_bake_costs_only_a_retry(local_files, tmp_path):
     atlases, scene = two_atlases()
     killed = []
@@ -136,6 +257,31 @@ def test_a_worker_killed_mid_bake_costs_only_a_retry(local_files, tmp_path):
         bake.run(atlases, scene, bake.PipelineSettings(trace=TRACE), tmp_path, progress=progress, farm=f)
     assert killed
     assert exr_bytes(tmp_path) == local_files
+
+
+def test_a_worker_killed_while_finishing_an_atlas_costs_only_a_retry(local_denoised, library, tmp_path):
+    atlases, scene = two_atlases()
+    settings = bake.PipelineSettings(trace=NOISY, denoise=True, denoiser_library=library)
+    killed = []
+    with cluster(2) as c, farm.connect(c.scheduler_address, chunks_per_task=2) as f:
+        pids = f.client.run(os.getpid)
+
+        def progress(fraction, message):
+            if killed or "on the farm" not in message:  # once, while the client waits for a finishing task
+                return
+            while any(not h.done() for h in f._finishing):
+                finishing = [w for w, keys in f.client.processing().items() if any("hhd-finish" in k for k in keys)]
+                if finishing:  # SIGKILL mid-task: Dask runs it again, on the other worker
+                    os.kill(pids[finishing[0]], signal.SIGKILL)
+                    killed.append(finishing[0])
+                    return
+                time.sleep(0.01)
+
+        bake.run(atlases, scene, settings, tmp_path, progress=progress, farm=f)
+        assert killed
+        [survivor] = [pid for w, pid in pids.items() if w not in killed]
+        assert f"{platform.node()}:{survivor}" in [r["worker"] for r in f.finishing]
+    same_files(tmp_path, local_denoised)
 
 
 def test_cancel_stops_the_farm_and_the_same_bake_resumes_from_its_checkpoints(local_files, two_workers, tmp_path):
@@ -163,6 +309,34 @@ def test_cancel_stops_the_farm_and_the_same_bake_resumes_from_its_checkpoints(lo
         assert len(f.tasks) == 10 - len(saved)  # only what was not checkpointed ran
     assert exr_bytes(tmp_path) == local_files
     assert not (tmp_path / farm.CHECKPOINTS).exists()
+
+
+def test_cancel_while_an_atlas_finishes_on_the_farm(two_workers, tmp_path):
+    atlases, scene = two_atlases()
+    with farm.connect(two_workers.scheduler_address, chunks_per_task=2) as f:
+        waiting = []
+
+        def progress(fraction, message):
+            if "on the farm" in message:  # the client waits for a finishing task
+                waiting.append(message)
+
+        with pytest.raises(BakeCancelled):
+            bake.run(
+                atlases,
+                scene,
+                bake.PipelineSettings(trace=TRACE),
+                tmp_path,
+                progress=progress,
+                cancel=lambda: bool(waiting),
+                farm=f,
+            )
+        assert waiting and f.finishing == [] and f._finishing == []  # no atlas was finished nor written
+        assert not exr_bytes(tmp_path)
+        deadline = time.monotonic() + 10
+        while f.client.run_on_scheduler(_task_count) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert f.client.run_on_scheduler(_task_count) == 0  # no finishing (nor tracing) task left
+    assert len(list((tmp_path / farm.CHECKPOINTS).rglob("task-*.npz"))) == 5  # kept for the next run
 
 
 def _task_count(dask_scheduler):
@@ -230,3 +404,21 @@ def test_a_local_bake_never_imports_dask():
     )
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
+
+
+def test_what_a_worker_returns_names_no_module_of_the_package():
+    """A client inside Blender names the package `bl_ext.<repo>.hhd_lightmapper`, a worker
+    `hhd_lightmapper`: the plain data a finishing task returns (its encoded file specs hold the
+    package's functions, e.g. the direction's octahedral `pack`) must pickle without the
+    package's module names, and come back as this process's objects."""
+    import pickle
+
+    from hhd_lightmapper.core import octahedral
+    from hhd_lightmapper.core.encoding import hhd as hhd_encoding
+
+    spec = hhd_encoding.FILE
+    sent = pickle.dumps(farm.plain({"file": spec, "channels": [spec.channels]}))
+    assert b"hhd_lightmapper" not in sent
+    back = farm.unplain(pickle.loads(sent))
+    assert back["file"] == spec
+    assert back["file"].channels[-1].pack is octahedral.encode

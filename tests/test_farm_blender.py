@@ -2,7 +2,8 @@
 `dask scheduler` and two `dask worker` processes (127.0.0.1 only) writes the files of the same bake
 without `--scheduler`; the refusals and failures exit with a message; and the extension as
 Blender installs it (`bl_ext.user_default.hhd_lightmapper`) drives workers that know the package
-only as `hhd_lightmapper`. Denoising is off (its tests are tests/test_denoise_blender.py)."""
+only as `hhd_lightmapper`, post stages (denoised) and encoding included. Denoising is off in the
+CLI bakes (its tests are tests/test_denoise_blender.py)."""
 
 import importlib
 import json
@@ -167,12 +168,22 @@ def test_the_installed_extension_drives_workers_that_know_only_hhd_lightmapper(e
         lights=[scene_mod.SunLight(np.array([0.6, 0.2, 0.77]), np.array([3.0, 2.5, 2.0]), group="Sun")],
         world=np.array([0.1, 0.2, 0.3]),
     )
+    library = importlib.import_module(extension + ".bridge.denoiser").oidn_library()  # Blender's, as a bake finds it
+    assert library
     settings = bake.PipelineSettings(
-        trace=tracer.BakeSettings(samples=8, pass_samples=4, bounces=1, seed=1, chunk_texels=4096, threads=2)
+        trace=tracer.BakeSettings(samples=8, pass_samples=4, bounces=1, seed=1, chunk_texels=4096, threads=2),
+        denoise=True,
+        denoiser_library=library,
     )
     atlas = bake.AtlasInput("Lightmap", 96, 96, surface, ["floor"])
-    bake.run([atlas], scene, settings, tmp_path / "local")
+    [local] = bake.run([atlas], scene, settings, tmp_path / "local")
+    assert local.warnings == []  # denoised
     with ext.connect(dask_cluster, chunks_per_task=1) as farm:
-        bake.run([atlas], scene, settings, tmp_path / "farm", farm=farm)
+        [remote] = bake.run([atlas], scene, settings, tmp_path / "farm", farm=farm)
         assert len(farm.tasks) == 3 and len(farm._points) == 1  # bake points and tracing on the workers
+        # the post stages (denoised: the `dask worker`s find the same bpy module's OIDN) and the encoding too,
+        # their images come back as plain data to the client's `bl_ext…` classes
+        assert [r["finished_on"] for r in farm.finishing] == ["worker"]
+        assert farm.finishing[0]["worker"] != f"{os.uname().nodename}:{os.getpid()}"
+    assert remote.warnings == [] and set(remote.seconds) > {"post", "write"}
     assert exr_bytes(tmp_path / "farm") == exr_bytes(tmp_path / "local")

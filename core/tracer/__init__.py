@@ -44,6 +44,7 @@ from .statistics import Statistics
 __all__ = [
     "bake",
     "texel_estimator",
+    "traced_atlas",
     "BakeSettings",
     "BakeCancelled",
     "BakeError",
@@ -86,9 +87,22 @@ def bake(
     estimator = texel_estimator(points, scene, settings, ray_scene)
     stats = Statistics(len(points.texel), points.normal, estimator.scene.channels)
     outcome = (runner or scheduler.run)(estimator, stats, settings, start, progress, cancel, executor)
+    return traced_atlas(points, estimator.scene.sets, stats, settings, outcome, time.perf_counter() - start)
+
+
+def traced_atlas(
+    points: BakePoints,
+    sets: tuple[str, ...],
+    stats: Statistics,
+    settings: BakeSettings,
+    outcome: scheduler.Outcome,
+    seconds: float,
+) -> TracedAtlas:
+    """The TracedAtlas of `points` from its finished running statistics `stats` (spent: the SH
+    is computed in place), the light `sets` traced and the run's `outcome`; `seconds` of wall
+    time. `bake`'s last step, and a farm's (`core.farm`), which assembles `stats` on a worker."""
     sh, sh_error = stats.result()
     sh[points.buried] = 0.0
-    sets = estimator.scene.sets
     set_sh = set_sh_error = None
     if sets:
         set_sh, set_sh_error = _per_set(sh), _per_set(sh_error)
@@ -106,7 +120,7 @@ def bake(
         samples=passes * settings.pass_samples,
         passes=passes,
         rays=outcome.rays,
-        seconds=time.perf_counter() - start,
+        seconds=seconds,
         stopped_by=outcome.stopped_by,
         threads=settings.threads,
     )
