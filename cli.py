@@ -27,7 +27,7 @@ COMMAND = "hhd_lightmapper"
 EXIT_OK = 0
 EXIT_INPUT = 1  # the scene or the options cannot be baked as given (message names what)
 EXIT_USAGE = 2  # bad command line (argparse)
-EXIT_DEPENDENCY = 3  # a compiled package (embreex, xatlas, OpenEXR) is missing
+EXIT_DEPENDENCY = 3  # a compiled package (embreex, xatlas, OpenEXR), or Dask for --scheduler, is missing
 EXIT_OUTPUT = 4  # the output files could not be written (previous files are intact)
 EXIT_CANCELLED = 5  # interrupted (Ctrl-C): no file replaced
 EXIT_INTERNAL = 70  # a bug: the traceback is printed
@@ -253,7 +253,16 @@ def _farm(address: str, trace):
     from .core import farm
 
     farm.Farm.check(trace)
-    connected = farm.connect(address)
+    try:
+        connected = farm.connect(address)
+    except DependencyMissing:
+        if farm.PACKAGE == farm.WORKER_PACKAGE:  # the package as pip installs it: its message says how
+            raise
+        raise DependencyMissing(
+            "--scheduler needs Dask, which the extension bundles as wheels, but Blender's Python cannot import it: "
+            "reinstall the extension from the zip for this platform (Blender installs an extension's wheels when it "
+            f"enables it; 4.2.13 or newer), or {farm.INSTALL_HINT}"
+        ) from None
     print(f"farm: {connected.workers()} worker(s) at {address}", flush=True)
     for w in connected.warnings:
         print(f"warning: {w}")

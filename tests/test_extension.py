@@ -9,6 +9,12 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.bpy
+#: The farm client's bundled wheels (`bake --scheduler`): dask, distributed and their run-time needs.
+DASK = {
+    "dask", "distributed", "click", "cloudpickle", "fsspec", "importlib_metadata", "zipp", "lazy_importer", "jinja2",
+    "markupsafe", "locket", "packaging", "partd", "sortedcontainers", "tblib", "toolz", "zict", "msgpack", "pyyaml",
+    "psutil", "tornado",
+}  # fmt: skip
 
 
 def manifest():
@@ -26,15 +32,21 @@ def test_manifest_declares_licence_permissions_and_platform_wheels():
 
     by_platform = {}
     for w in m["wheels"]:
-        by_platform.setdefault(fetch_wheels.wheel_platform(Path(w).name), set()).add(Path(w).name.split("-")[0])
+        for plat in fetch_wheels.wheel_platforms(Path(w).name):
+            by_platform.setdefault(plat, set()).add(Path(w).name.split("-")[0])
     assert set(by_platform) == set(m["platforms"])
     for plat, packages in by_platform.items():
-        assert packages == {"embreex", "xatlas", "openexr", "numba", "llvmlite"}, plat
-    # every compiled package for both Pythons Blender ships: 3.11 (4.2-5.0) and 3.13 (5.1+)
+        assert packages == {"embreex", "xatlas", "openexr", "numba", "llvmlite", *DASK}, plat
+    # every version-specific compiled package for both Pythons Blender ships: 3.11 (4.2-5.0) and
+    # 3.13 (5.1+); pure-Python (none) and stable-ABI (abi3) wheels serve both (tests/test_install.py
+    # runs Blender's own filter over them)
     tags = {}
     for w in m["wheels"]:
         name = Path(w).name
-        tags.setdefault((fetch_wheels.wheel_platform(name), name.split("-")[0]), set()).add(name.split("-")[-3])
+        if name.split("-")[-2] in ("none", "abi3"):
+            continue
+        for plat in fetch_wheels.wheel_platforms(name):
+            tags.setdefault((plat, name.split("-")[0]), set()).add(name.split("-")[-3])
     assert all(t == {"cp311", "cp313"} for t in tags.values()), tags
     assert m["blender_version_min"] >= "4.2.13"  # older 4.2 installers ignore the cpXY tag
 
@@ -57,7 +69,12 @@ def test_each_platform_zip_holds_only_its_wheels_and_no_dev_files(built_zips):
         assert "core/hhd.py" in names or "core/deps.py" in names
         assert not [n for n in names if n.startswith(("tests/", "bench/", "tools/", ".ci/", "docs/"))]
         wheels = [n for n in names if n.endswith(".whl")]
-        assert len(wheels) == 10, (z.name, wheels)  # 5 packages x cp311, cp313
+        plat = next(p for p in m["platforms"] if z.stem.endswith(p.replace("-", "_")))
+        import fetch_wheels
+
+        assert sorted(Path(n).name for n in wheels) == sorted(
+            Path(w).name for w in m["wheels"] if plat in fetch_wheels.wheel_platforms(Path(w).name)
+        ), z.name  # 5 compiled packages x cp311, cp313, and Dask's 21 packages (tests/test_install.py)
         assert not [n for n in names if n.startswith(".venv")]
 
 

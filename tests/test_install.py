@@ -1,8 +1,8 @@
 """The built zip as a user installs it, and the same bake on the oldest and newest Blender.
 
 - Install: into an environment with only the `bpy` module of the running version (its own
-  isolated user directory; no embreex, xatlas, OpenEXR or numba: those must come from the zip's
-  wheels), enabled, then `bpy.ops.hhd.unwrap()` + `bpy.ops.hhd.bake()` on a small scene
+  isolated user directory; no embreex, xatlas, OpenEXR, numba or Dask: those must come from the
+  zip's wheels), enabled, then `bpy.ops.hhd.unwrap()` + `bpy.ops.hhd.bake()` on a small scene
   (tools/try_install.py). Runs in both suites of `make test`, so on bpy 5.3 and 4.2 LTS.
 - Across versions: the same scene baked headless through the CLI under bpy 5.3 (numpy 2.x) and
   bpy 4.2 LTS (numpy 1.26) gives the same I_z texel by texel. Tolerance 1e-4 of the mean I_z:
@@ -10,12 +10,23 @@
   path tracer can amplify into a different bounce direction on a few samples; the unwrap
   (xatlas), Embree and our compiled kernels are the same versions in both. Runs once, from the
   5.3 suite, using the 4.2 environment that `make test` creates beside it.
+- Dask from the zip: Blender's own installer filter (bl_pkg) keeps exactly one wheel of every
+  bundled package on each declared platform for Python 3.11 and 3.13; and in the bpy-only
+  environment (no Dask of its own) the installed extension's command line bakes the scene without
+  importing Dask, then with `--scheduler` on a LocalCluster of this suite's environment (another
+  process, 127.0.0.1), importing `dask.distributed` from the wheels Blender installed, and the
+  files are byte-identical.
 """
 
+import collections
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
+import sysconfig
+import time
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +38,8 @@ pytestmark = [pytest.mark.bpy, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parent.parent
 TRY = ROOT / "tools" / "try_install.py"
 ENVS = {"5.3": ROOT / ".venv", "4.2": ROOT / ".venv-4.2"}
+#: What the zip's wheels must provide and a bpy-only environment must lack.
+BUNDLED = ("embreex", "xatlas", "OpenEXR", "numba", "llvmlite", "dask", "distributed")
 
 
 def bpy_version() -> str:
@@ -80,8 +93,7 @@ def test_zip_installs_enables_and_bakes_in_a_bpy_only_environment(built_zips, tm
         [
             str(python),
             "-c",
-            "import importlib.util as u; print([m for m in "
-            "('embreex', 'xatlas', 'OpenEXR', 'numba', 'llvmlite') if u.find_spec(m)])",
+            f"import importlib.util as u; print([m for m in {BUNDLED!r} if u.find_spec(m)])",
         ],
         capture_output=True,
         text=True,
@@ -158,3 +170,127 @@ def test_cli_bake_gives_the_same_iz_on_blender_4_2_and_5_3(tmp_path):
     assert np.array_equal(new > 0, old > 0)  # same unwrap, same covered texels
     assert np.abs(new - old).max() <= 1e-4 * new[new > 0].mean(), np.abs(new - old).max()
     assert [o["texels"] for o in versions["5.3"]["objects"]] == [o["texels"] for o in versions["4.2"]["objects"]]
+
+
+#: Blender's `sysconfig.get_platform()` on each declared platform (what bl_pkg's filter reads).
+SYSCONFIG_PLATFORMS = {
+    "windows-x64": "win-amd64",
+    "macos-arm64": "macosx-11.0-arm64",
+    "macos-x64": "macosx-10.15-x86_64",
+    "linux-x64": "linux-x86_64",
+}
+
+
+def test_blenders_installer_keeps_one_wheel_of_every_bundled_package_per_platform_and_python(monkeypatch):
+    """The manifest's wheels through the running Blender's own filter
+    (`_extensions_wheel_filter_for_this_system`, what installing the zip applies), as it runs on
+    each declared platform under Python 3.11 (Blender 4.2-5.0) and 3.13 (5.1+): every package
+    exactly once. Covers the pure-Python wheels (py3-none-any, kept everywhere), the stable-ABI
+    ones (psutil cp36-abi3, tornado cp311-abi3: kept on 3.11 and 3.13) and tornado's macOS
+    universal2 wheel (both Macs)."""
+    import bpy  # noqa: F401 - bl_pkg needs Blender's modules
+    from bl_pkg import bl_extension_ops
+
+    import fetch_wheels
+
+    wheels = [f"./wheels/{name}" for name in fetch_wheels.manifest_wheels()]
+    packages = {Path(w).name.split("-")[0] for w in wheels}
+    assert {"dask", "distributed", "tornado", "psutil", "msgpack", "pyyaml"} <= packages
+    kept = {}
+    for platform, sysconfig_platform in SYSCONFIG_PLATFORMS.items():
+        for python in ((3, 11), (3, 13)):
+            with monkeypatch.context() as m:
+                m.setattr(sysconfig, "get_platform", lambda p=sysconfig_platform: p)
+                m.setattr(sys, "version_info", (*python, 0, "final", 0))
+                kept[platform, python] = bl_extension_ops._extensions_wheel_filter_for_this_system(wheels)
+    for key, chosen in kept.items():
+        counts = collections.Counter(Path(w).name.split("-")[0] for w in chosen)
+        assert set(counts) == packages and max(counts.values()) == 1, (key, counts)
+        parts = [Path(w).name.split("-") for w in chosen]
+        tags = {py for *_, py, abi, _plat in parts if abi not in ("none", "abi3")}  # version-specific ones
+        own, other = ("cp311", "cp313") if key[1] == (3, 11) else ("cp313", "cp311")
+        assert own in tags and other not in tags, (key, tags)
+
+
+#: A LocalCluster in its own process, as a studio's farm would be (two single-threaded workers,
+#: 127.0.0.1 only); writes the scheduler's address to argv[1] and runs until killed.
+CLUSTER = """
+import sys, time
+from pathlib import Path
+import distributed
+with distributed.LocalCluster(
+    host="127.0.0.1", scheduler_port=0, n_workers=2, threads_per_worker=1, dashboard_address=None
+) as cluster:
+    tmp = Path(sys.argv[1] + ".tmp")
+    tmp.write_text(cluster.scheduler_address)
+    tmp.replace(sys.argv[1])
+    while True:
+        time.sleep(1)
+"""
+
+
+@contextlib.contextmanager
+def local_cluster(folder: Path):
+    """The address of a LocalCluster running in a separate process of this suite's environment
+    (its workers import the package as developed: `pip install -e .` and its farm extra)."""
+    info = folder / "scheduler.txt"
+    log = open(folder / "cluster.log", "w")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CLUSTER, str(info)], stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not info.exists():
+            assert proc.poll() is None and time.monotonic() < deadline, (folder / "cluster.log").read_text()[-4000:]
+            time.sleep(0.2)
+        yield info.read_text()
+    finally:
+        if proc.poll() is None:  # only the process group this started
+            os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        log.close()
+
+
+def exr_bytes(folder: Path) -> dict:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*.exr"))}
+
+
+def test_the_zips_own_dask_bakes_on_a_farm_what_the_local_bake_writes(built_zips, tmp_path):
+    """`blender -b FILE --command hhd_lightmapper bake --scheduler tcp://…` on a Blender whose
+    Python has no Dask: the installed extension's command line, in the bpy-only environment,
+    bakes without and with `--scheduler` (tools/try_install.py --scheduler)."""
+    distributed = pytest.importorskip(
+        "distributed", reason="the farm's workers run this environment: pip install '.[farm]'"
+    )
+    zip_path = next(z for z in built_zips if z.stem.endswith(this_platform().replace("-", "_")))
+    python = bare_env()
+    absent = subprocess.run(
+        [
+            str(python),
+            "-c",
+            "import importlib.util as u; print([m for m in ('dask', 'distributed') if u.find_spec(m)])",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert absent.stdout.strip() == "[]"  # only the zip can bring Dask
+    out = tmp_path / "bake"
+    with local_cluster(tmp_path) as address:
+        cmd = [str(python), str(TRY), str(zip_path), "--out", str(out), "--scheduler", address]
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, (done.stdout[-3000:], done.stderr[-5000:])
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report["exit_codes"] == [0, 0], (report, done.stdout[-3000:], done.stderr[-5000:])
+    assert report["farm_imported_by_local_bake"] == []  # a bake without --scheduler never imports Dask
+    wheels = Path(report["wheels_site_packages"])
+    for module in ("dask", "distributed"):  # the copy Blender installed from the zip's wheels
+        assert Path(report[module]).is_relative_to(wheels), (module, report)
+    assert report["distributed_version"] == distributed.__version__  # the workers' (requirements*.txt)
+    assert f"farm: 2 worker(s) at {address}" in done.stdout
+    local = exr_bytes(out / "local")
+    assert len(local) > 5 and exr_bytes(out / "farm") == local

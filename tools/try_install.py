@@ -11,6 +11,16 @@ never touched. Steps: `bpy.ops.extensions.package_install_files(enable_on_instal
 Prints one JSON line last: Blender and numpy versions, covered texels, mean I_z (linear RGB
 luminance over covered texels) and the bake's thread count. Exit 0 on success.
 
+    python tools/try_install.py dist/hhd_lightmapper-0.1.0-linux_x64.zip --out DIR --scheduler tcp://HOST:PORT
+
+installs the zip the same way, then bakes the same scene twice through the installed extension's
+command line (`cli.main`, what `blender -b FILE --command hhd_lightmapper bake` calls) into
+DIR/local and DIR/farm, the second with `--scheduler`: Dask must come from the zip's own wheels
+(an environment that can already import dask or distributed is refused too), and the first bake
+must not import it. The JSON line then has both exit codes, whether Dask was imported before the
+farm bake, the files `dask` and `distributed` were imported from and the site-packages folder
+Blender installed the extension's wheels into.
+
     python tools/try_install.py --scene-only FILE.blend
 
 only builds and saves the scene (no extension needed), for a headless CLI bake of the same
@@ -24,12 +34,15 @@ import importlib
 import importlib.util
 import json
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPILED = ("embreex", "xatlas", "OpenEXR", "numba", "llvmlite")
+#: The farm client's packages (`bake --scheduler`), also bundled as wheels.
+FARM = ("dask", "distributed")
 MODULE = "bl_ext.user_default.hhd_lightmapper"
 RESOLUTION, SAMPLES, BOUNCES = 256, 8, 1
 
@@ -82,7 +95,7 @@ def _blender_compat():
 
 
 def refuse_preinstalled() -> None:
-    found = [name for name in COMPILED if importlib.util.find_spec(name) is not None]
+    found = [name for name in (*COMPILED, *FARM) if importlib.util.find_spec(name) is not None]
     if found:
         raise SystemExit(
             f"this environment already has {', '.join(found)}: use one with only `bpy`, "
@@ -90,7 +103,8 @@ def refuse_preinstalled() -> None:
         )
 
 
-def install_and_bake(zip_path: Path, out: Path) -> dict:
+def install(zip_path: Path) -> None:
+    """Install the zip into the user repository and enable it, as a user's Blender does."""
     import bpy
 
     result = bpy.ops.extensions.package_install_files(
@@ -98,16 +112,62 @@ def install_and_bake(zip_path: Path, out: Path) -> dict:
     )
     if result != {"FINISHED"} or MODULE not in bpy.context.preferences.addons:
         raise SystemExit(f"installing {zip_path.name} did not enable {MODULE}")
+
+
+def prepare(out: Path, denoise: bool = True):
+    """scene() with the bake settings, the receivers selected; returns the receivers."""
+    import bpy
+
     receivers = scene()
     s = bpy.context.scene
     s.hhd.resolution, s.hhd.samples, s.hhd.bounces = RESOLUTION, SAMPLES, BOUNCES
+    s.hhd.denoise = denoise
     s.hhd.output_dir = str(out)
     for ob in s.objects:
         ob.select_set(ob in receivers)
     bpy.context.view_layer.objects.active = receivers[0]
+    return receivers
+
+
+def install_and_bake(zip_path: Path, out: Path, denoise: bool = True) -> dict:
+    import bpy
+
+    install(zip_path)
+    prepare(out, denoise)
     if bpy.ops.hhd.unwrap() != {"FINISHED"} or bpy.ops.hhd.bake() != {"FINISHED"}:
         raise SystemExit("unwrap or bake did not finish")
     return summary(out)
+
+
+def install_and_bake_on_farm(zip_path: Path, out: Path, scheduler: str, denoise: bool = True) -> dict:
+    """Install, unwrap, then `bake` through the installed extension's command line twice: into
+    out/local without a scheduler, into out/farm with `--scheduler`."""
+    import bpy
+
+    install(zip_path)
+    receivers = prepare(out, denoise)
+    if bpy.ops.hhd.unwrap() != {"FINISHED"}:
+        raise SystemExit("unwrap did not finish")
+    cli = importlib.import_module(MODULE + ".cli")
+    args = ["bake", "--objects", *(ob.name for ob in receivers), "--seed", "0"]
+    local = cli.main([*args, "--out", str(out / "local")])
+    dask_before = sorted(name for name in FARM if name in sys.modules)
+    farm = cli.main([*args, "--out", str(out / "farm"), "--scheduler", scheduler])
+    import dask
+    import distributed
+
+    major_minor = "python{:d}.{:d}".format(*sys.version_info[:2])
+    wheels = Path(bpy.utils.user_resource('EXTENSIONS'), ".local", "lib", major_minor, "site-packages")
+    return {
+        "blender": bpy.app.version_string,
+        "python": sys.version.split()[0],
+        "exit_codes": [local, farm],
+        "farm_imported_by_local_bake": dask_before,
+        "dask": str(Path(dask.__file__).resolve()),
+        "distributed": str(Path(distributed.__file__).resolve()),
+        "distributed_version": distributed.__version__,
+        "wheels_site_packages": str(wheels.resolve()),
+    }
 
 
 def summary(out: Path) -> dict:
@@ -138,20 +198,33 @@ def main() -> int:
     ap.add_argument("zip", nargs="?", type=Path)
     ap.add_argument("--out", type=Path, help="bake output folder (default: a temporary one)")
     ap.add_argument("--scene-only", type=Path, metavar="FILE.blend", help="only build and save the scene")
+    ap.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="bake through the installed extension's CLI without and with this Dask scheduler",
+    )
+    ap.add_argument("--no-denoise", dest="denoise", action="store_false", help="bake without denoising")
     args = ap.parse_args()
-    os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="hhd-try-install-")
-    if args.scene_only:
-        import bpy
+    user_dir = tempfile.mkdtemp(prefix="hhd-try-install-")
+    os.environ["BLENDER_USER_RESOURCES"] = user_dir
+    try:
+        if args.scene_only:
+            import bpy
 
-        scene()
-        bpy.ops.wm.save_as_mainfile(filepath=str(args.scene_only.resolve()))
-        report = {"scene": str(args.scene_only)}
-    else:
-        if args.zip is None:
-            ap.error("give the zip to install (or --scene-only FILE.blend)")
-        refuse_preinstalled()
-        out = (args.out or Path(tempfile.mkdtemp(prefix="hhd-try-bake-"))).resolve()
-        report = install_and_bake(args.zip.resolve(), out)
+            scene()
+            bpy.ops.wm.save_as_mainfile(filepath=str(args.scene_only.resolve()))
+            report = {"scene": str(args.scene_only)}
+        else:
+            if args.zip is None:
+                ap.error("give the zip to install (or --scene-only FILE.blend)")
+            refuse_preinstalled()
+            out = (args.out or Path(tempfile.mkdtemp(prefix="hhd-try-bake-"))).resolve()
+            if args.scheduler:
+                report = install_and_bake_on_farm(args.zip.resolve(), out, args.scheduler, args.denoise)
+            else:
+                report = install_and_bake(args.zip.resolve(), out, args.denoise)
+    finally:
+        shutil.rmtree(user_dir, ignore_errors=True)  # the installed extension: hundreds of MB
     print(json.dumps(report), flush=True)
     _blender_compat().exit_process(0)
     return 0
