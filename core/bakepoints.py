@@ -36,6 +36,12 @@ JITTER_TRIES = 10
 #: from Blender 5.2.1 on (up to 5.2.0 its UV differentials were halved and it averaged the
 #: central ½ × ½). Matching Cycles is what makes shadow-edge texels agree with it.
 FOOTPRINT = 1.0
+#: Most triangles whose parts of a texel's footprint its samples cover (the texel's own, then the
+#: largest other overlaps): a texel straddling a triangle edge averages its whole footprint,
+#: centred on the texel, not only its own triangle's part (whose centre lies up to half a texel
+#: away: a shadow or contact edge there shifted into the texel, measured on the classroom's
+#: walls against Cycles at 4× the resolution). 1: only the texel's own triangle.
+FOOTPRINT_TRIANGLES = 4
 #: Probe directions per texel for the buried test (fixed, rotated per texel).
 BURIED_PROBES = 12
 #: Move bake points out from under back faces and keep every texel's samples on the side of
@@ -155,6 +161,10 @@ class BakePoints:
     mesh: SurfaceMesh
     near_cover: np.ndarray
     crossed: np.ndarray | None = None
+    #: (P, FOOTPRINT_TRIANGLES - 1) int32: the other triangles overlapping each texel, largest
+    #: overlap first (-1: none), whose parts of the footprint its samples cover too (None: only
+    #: the texel's own triangle, as before)
+    others: np.ndarray | None = None
 
     def origins(self, rows=slice(None)) -> np.ndarray:
         """Ray origins `(P, 3)` (of the texels `rows`, if given): positions pushed off the
@@ -165,13 +175,31 @@ class BakePoints:
         self, rng: np.random.Generator, idx: np.ndarray, k: int, footprint: float | None = None
     ) -> np.ndarray:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
-        footprint (`footprint` texels wide, default FOOTPRINT) inside its chosen triangle, as
-        Cycles bakes a texel: rejection sampling, JITTER_TRIES tries, then as many over the whole
-        texel, then the bake point (the centroid of texel ∩ triangle); offset along the face
-        normal. A texel's first tries cover the footprint evenly (`kernels.texel_origins`: a
-        randomly shifted Hammersley set)."""
+        footprint (`footprint` texels wide, default FOOTPRINT) covered by its triangles: its
+        chosen one and `others` (`kernels.footprint_origins`; without `others`, the chosen one
+        alone, as Cycles bakes a texel: `kernels.texel_origins`): rejection sampling,
+        JITTER_TRIES tries, then as many over the whole texel, then the bake point (the centroid
+        of texel ∩ triangle); offset along the face normal. A texel's first tries cover the
+        footprint evenly (a randomly shifted Hammersley set)."""
         tri = self.triangle[idx]
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1).astype(np.float64)
+        if self.others is not None:  # the whole footprint, over every triangle of the texel
+            tris = np.concatenate([tri[:, None], self.others[idx]], axis=1)
+            count = 1 + (tris[:, 1:] >= 0).sum(axis=1)
+            tris = np.maximum(tris, 0)
+            return kernels.get().footprint_origins(
+                corner,
+                self.mesh.texel_uv[tris],
+                self.mesh.positions[tris],
+                count,
+                self.position[idx],
+                self.face_normal[idx],
+                self.offset,
+                k,
+                FOOTPRINT if footprint is None else footprint,
+                JITTER_TRIES,
+                int(rng.integers(1 << 63)),
+            )
         return kernels.get().texel_origins(
             corner,
             self.mesh.texel_uv[tri],
@@ -223,9 +251,10 @@ def build(
         raise BakeError("lightmap bake points: NaN or infinite positions or UVs in the input")
     uv = np.asarray(surface.uv, dtype=np.float64)
     mesh = SurfaceMesh.from_surface(surface, width, height)
-    cov = raster.rasterise(uv, width, height, check)
+    cov = raster.rasterise(uv, width, height, check, threads)
     chosen, coverage = raster.choose_per_texel(cov)
     tri, texel, centroid = cov.triangle[chosen], cov.texel[chosen], cov.point[chosen]
+    others = other_triangles(cov, chosen) if FOOTPRINT_TRIANGLES > 1 else None
     del cov
     n = len(tri)
     points = BakePoints(
@@ -244,11 +273,13 @@ def build(
         buried=np.zeros(n, bool),
         mesh=mesh,
         near_cover=np.zeros(n, bool),
+        others=others,
     )
-    for s in range(0, n, chunk):
-        if check is not None:
-            check()
-        _fill_points(points, surface, slice(s, s + chunk), centroid[s : s + chunk])
+
+    def fill_chunk(rows: slice) -> None:  # each chunk writes its own rows: the same whatever the threads
+        _fill_points(points, surface, rows, centroid[rows])
+
+    _for_chunks(fill_chunk, n, chunk, check, threads)
     if occluders is not None:
         probe = covers.shared_probe(occluders, points.offset, mesh.positions)
         if SETTLE:  # else `crossed` stays None: the tracer averages whole footprints
@@ -259,6 +290,25 @@ def build(
             rows = np.flatnonzero(points.near_cover & ~points.buried)
             points.buried[rows] = probe.covered(points.origins(rows), points.face_normal[rows])
     return points
+
+
+def other_triangles(cov: raster.Coverage, chosen: np.ndarray) -> np.ndarray:
+    """(P, FOOTPRINT_TRIANGLES - 1) int32: for each chosen pair's texel (`chosen`, sorted by
+    texel as `raster.choose_per_texel` returns them) the other triangles overlapping it, largest
+    overlap first (ties: lowest index), -1 where there are fewer. All lie in the texel's own
+    chart: charts never share a texel."""
+    m = FOOTPRINT_TRIANGLES - 1
+    out = np.full((len(chosen), m), -1, np.int32)
+    if len(chosen) == 0 or m == 0:
+        return out
+    order = np.lexsort((cov.triangle, -cov.area, cov.texel))
+    texel = cov.texel[order]
+    start = np.flatnonzero(np.concatenate([[True], texel[1:] != texel[:-1]]))
+    rank = np.arange(len(order)) - np.repeat(start, np.diff(np.append(start, len(order))))
+    row = np.repeat(np.arange(len(start)), np.diff(np.append(start, len(order))))
+    take = (rank >= 1) & (rank <= m)
+    out[row[take], rank[take] - 1] = cov.triangle[order[take]]
+    return out
 
 
 def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, centroid: np.ndarray) -> None:
@@ -431,7 +481,7 @@ def settle(
     def settle_chunk(sl: slice):
         idx = np.arange(sl.start, sl.stop)
         anchor = points.origins(idx)
-        target = points.texel_points(idx, _SPOKES * FOOTPRINT + 0.5 * (1.0 - FOOTPRINT))
+        target = _spoke_targets(points, idx, _SPOKES * FOOTPRINT + 0.5 * (1.0 - FOOTPRINT))
         ray = target - anchor[:, None, :]
         length = np.linalg.norm(ray, axis=2)
         direction = ray / np.maximum(length, 1e-300)[..., None]
@@ -447,6 +497,31 @@ def settle(
 
     _for_chunks(settle_chunk, len(crossed), chunk, check, threads)
     return crossed
+
+
+def _spoke_targets(points: BakePoints, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Ray origins (len(idx), k, 3) at `offsets` (k, 2) texel units from each texel's corner: on
+    the first of the texel's triangles holding the point (its own, then `BakePoints.others`,
+    whose parts of the footprint its samples cover too), else clamped into its own triangle
+    (`BakePoints.texel_points`)."""
+    target = points.texel_points(idx, offsets)
+    if points.others is None:
+        return target
+    rows = np.flatnonzero((points.others[idx] >= 0).any(axis=1))
+    if len(rows) == 0:
+        return target
+    sub = idx[rows]
+    corner = np.stack([points.texel[sub] % points.width, points.texel[sub] // points.width], 1)
+    at = corner[:, None, :] + offsets[None]
+    done = np.zeros(at.shape[:2], bool)
+    lift = points.face_normal[sub][:, None, :] * points.offset
+    for tri in np.concatenate([points.triangle[sub, None], points.others[sub]], axis=1).T:
+        bary = _barycentric_grouped(at, points.mesh.texel_uv[np.maximum(tri, 0)])
+        take = (bary.min(axis=-1) >= 0.0) & (tri >= 0)[:, None] & ~done
+        here = np.matmul(bary, points.mesh.positions[np.maximum(tri, 0)]) + lift
+        target[rows] = np.where(take[..., None], here, target[rows])
+        done |= take
+    return target
 
 
 class _Spokes:

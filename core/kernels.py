@@ -163,6 +163,59 @@ def texel_origins(corner, tri_uv, tri_pos, centroid, face_normal, offset, k, foo
     return out
 
 
+def footprint_origins(corner, tri_uv, tri_pos, count, centroid, face_normal, offset, k, footprint, tries, seed):
+    """`texel_origins` over every triangle of a texel: k ray origins per texel (n·k, 3), uniform
+    over the part of the texel's central `footprint` × `footprint` square covered by any of its
+    first count (n,) triangles (tri_uv (n, m, 3, 2) in texel units, tri_pos (n, m, 3, 3) world
+    space; the first is the texel's own): a try is kept in the first triangle holding it, and
+    takes its position there. A texel straddling a triangle edge then averages its whole
+    footprint, centred on the texel, not the part on one triangle. Same tries, fallback,
+    offset and Hammersley first tries as `texel_origins`."""
+    state = np.uint64(seed)
+    n = corner.shape[0]
+    out = np.empty((n * k, 3))
+    for t in range(n):
+        state, shift_x = uniform(state)
+        state, shift_y = uniform(state)
+        for j in range(k):
+            s = t * k + j
+            found = False
+            for attempt in range(2 * tries):
+                width = footprint if attempt < tries else 1.0
+                if attempt == 0:
+                    ux = (j / k + shift_x) % 1.0
+                    uy = (radical_inverse(j) + shift_y) % 1.0
+                else:
+                    state, ux = uniform(state)
+                    state, uy = uniform(state)
+                qx = corner[t, 0] + 0.5 * (1.0 - width) + width * ux
+                qy = corner[t, 1] + 0.5 * (1.0 - width) + width * uy
+                for m in range(count[t]):
+                    ax, ay = tri_uv[t, m, 0, 0], tri_uv[t, m, 0, 1]
+                    v0x, v0y = tri_uv[t, m, 1, 0] - ax, tri_uv[t, m, 1, 1] - ay
+                    v1x, v1y = tri_uv[t, m, 2, 0] - ax, tri_uv[t, m, 2, 1] - ay
+                    den = v0x * v1y - v1x * v0y
+                    if den == 0.0:
+                        continue
+                    px, py = qx - ax, qy - ay
+                    w1 = (px * v1y - v1x * py) / den
+                    w2 = (v0x * py - px * v0y) / den
+                    w0 = 1.0 - w1 - w2
+                    if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                        for c in range(3):
+                            out[s, c] = w0 * tri_pos[t, m, 0, c] + w1 * tri_pos[t, m, 1, c] + w2 * tri_pos[t, m, 2, c]
+                        found = True
+                        break
+                if found:
+                    break
+            if not found:  # the overlap's centroid, as Cycles gives up
+                for c in range(3):
+                    out[s, c] = centroid[t, c]
+            for c in range(3):
+                out[s, c] += face_normal[t, c] * offset
+    return out
+
+
 def replace_hidden(hidden, k, seed):
     """For k samples per texel (hidden (n·k,) bool, True where a sample's origin is hidden from
     its texel's anchor): the sample each one takes its origin from (n·k,) int, itself when
@@ -407,6 +460,7 @@ _HELPERS = ("uniform", "radical_inverse", "sh_basis", "zonal_band1", "local_to_w
 _KERNELS = (
     "hemisphere_rays",
     "texel_origins",
+    "footprint_origins",
     "replace_hidden",
     "advance_paths",
     "project_hemisphere",

@@ -11,9 +11,13 @@ its flat index is j · width + i.
 
 from __future__ import annotations
 
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+
+from . import parallel
 
 #: Candidate (triangle, texel) pairs per chunk: bounds the temporaries; larger chunks were not faster.
 PAIRS_PER_CHUNK = 1 << 18
@@ -32,9 +36,11 @@ class Coverage:
     point: np.ndarray
 
 
-def rasterise(uv: np.ndarray, width: int, height: int, check=None) -> Coverage:
+def rasterise(uv: np.ndarray, width: int, height: int, check=None, threads: int = 1) -> Coverage:
     """All positive-area overlaps of triangles `uv (T, 3, 2)` (in [0, 1]²) with texels.
-    `check()`, if given, is called between chunks (it raises to stop, e.g. on cancel)."""
+    `check()`, if given, is called between chunks (it raises to stop, e.g. on cancel).
+    `threads`: workers over the chunks (0 = every core, `parallel.resolve_threads`); the chunks
+    are independent and joined in order, so the result does not depend on it."""
     p = np.asarray(uv, dtype=np.float64) * np.array([width, height], dtype=np.float64)
     signed = _signed_area(p)
     live = np.nonzero(np.abs(signed) > 0.0)[0]
@@ -46,16 +52,35 @@ def rasterise(uv: np.ndarray, width: int, height: int, check=None) -> Coverage:
     hi = np.clip(np.ceil(p.max(axis=1)).astype(np.int64) - 1, 0, [width - 1, height - 1])
     hi = np.maximum(hi, lo)
     counts = (hi[:, 0] - lo[:, 0] + 1) * (hi[:, 1] - lo[:, 1] + 1)
-    parts = []
+    bounds = []
     start = 0
     while start < len(p):
-        if check is not None:
-            check()
         stop = start + max(1, int(np.searchsorted(np.cumsum(counts[start:]), PAIRS_PER_CHUNK)))
-        parts.append(
-            _rasterise_chunk(p[start:stop], lo[start:stop], hi[start:stop], counts[start:stop], live[start:stop], width)
-        )
+        bounds.append((start, stop))
         start = stop
+
+    def chunk(bound: tuple[int, int]) -> Coverage:
+        a, b = bound
+        return _rasterise_chunk(p[a:b], lo[a:b], hi[a:b], counts[a:b], live[a:b], width)
+
+    parts = []
+    workers = parallel.resolve_threads(threads)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures: deque = deque()
+        try:
+            for bound in bounds:  # at most `workers` chunks ahead (memory: their temporaries)
+                futures.append(pool.submit(chunk, bound))
+                if len(futures) > workers:
+                    if check is not None:
+                        check()
+                    parts.append(futures.popleft().result())
+            while futures:
+                if check is not None:
+                    check()
+                parts.append(futures.popleft().result())
+        finally:
+            for future in futures:
+                future.cancel()
     if not parts:
         return Coverage(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
     return Coverage(*(np.concatenate(x) for x in zip(*[(c.triangle, c.texel, c.area, c.point) for c in parts])))

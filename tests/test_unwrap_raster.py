@@ -105,8 +105,10 @@ def test_sample_origins_cover_the_footprint_of_the_texel_inside_its_triangle(mes
     """The bake footprint (the whole texel, as Cycles from 5.2.1; the central ½ × ½ before):
     uniform over the central footprint × footprint square of the texel, restricted to the
     texel's triangle (rejection sampling); texels whose triangle misses that square (partly
-    covered texels at chart edges) sample the triangle's part of the whole texel instead."""
+    covered texels at chart edges) sample the triangle's part of the whole texel instead.
+    (Sampling every triangle of a texel, the default: tests/test_leaks_footprint.py.)"""
     monkeypatch.setattr(bakepoints, "FOOTPRINT", footprint)
+    monkeypatch.setattr(bakepoints, "FOOTPRINT_TRIANGLES", 1)
     v, f, result = unwrapped(mesh_fn)
     uv = result.objects[0].uv.astype(np.float64)
     surface = bakepoints.SurfaceTriangles(

@@ -62,7 +62,7 @@ class TexelEstimator(shipping.Shipped):
         flagged texels with, `covers.shared_probe`), or the BakeScene's; False when no texel is
         flagged."""
         points = self.points
-        if not points.near_cover.any():
+        if not _probed(points).any():
             return False
         if self.scene.shared_rays:
             return _covers.shared_probe(self.scene.rays, points.offset, points.mesh.positions)
@@ -116,12 +116,12 @@ class TexelEstimator(shipping.Shipped):
 
     def _uncovered(self, paths: Paths, idx, texel, origins) -> np.ndarray | None:
         """(n·k,) bool, False for samples starting on a part of the texel a coplanar face covers
-        (core.covers: no light reaches it, as in Cycles), probed for the texels flagged
-        near_cover; None when no texel of the unit is flagged."""
+        (core.covers: no light reaches it, as in Cycles), probed for the texels `_probed`
+        (flagged near_cover, or sampling other triangles too); None when no texel of the unit is."""
         covers = self.covers
         if covers is None:
             return None
-        rows = np.flatnonzero(self.points.near_cover[idx][texel])
+        rows = np.flatnonzero(_probed(self.points, idx)[texel])
         if len(rows) == 0:
             return None
         paths.count(len(rows))
@@ -152,6 +152,16 @@ class TexelEstimator(shipping.Shipped):
             weight[rows] = paths.unoccluded(take_rows(origins, rows), take_rows(dirs, rows), dist[rows]) * (1.0 / k)
             paths.kernels.accumulate_grouped(dirs, value, weight, k, out[:, :, light.column : light.column + 3])
         return out
+
+
+def _probed(points: BakePoints, idx=slice(None)) -> np.ndarray:
+    """(n,) bool: texels `idx` whose samples are probed for covers: those flagged near_cover,
+    and those whose samples also cover other triangles (`BakePoints.others`), which the flag's
+    probes (inside the texel's own triangle) do not reach."""
+    flagged = points.near_cover[idx]
+    if points.others is None:
+        return flagged
+    return flagged | (points.others[idx] >= 0).any(axis=1)
 
 
 def _mixture_pdf(cos):
