@@ -1,31 +1,79 @@
-"""Peak memory of a 4096² atlas bake (bake points + tracer + encode + files), run by hand.
+"""Peak memory and time of a 4096² atlas bake, stage by stage, through the product's own path; run by hand.
 
-    python bench/memory.py [--resolution 4096] [--fill 0.6] [--samples 4]
+    python bench/memory.py [--resolution 4096] [--fill 0.6] [--samples 4] [--no-post] [--out FILE]
 
 A 200 × 200-quad wavy sheet (80k triangles) mapped as one chart covering 60% of the atlas, lit by
-a sun and a sky;
-prints texels, seconds and peak resident memory after each stage, writes bench/results/memory.json.
+a sun and a sky. Stages as `bake.run` runs them: bake points (`bake.points_of`), trace
+(`tracer.bake`), then the atlas's files (`bake._write`: seams, image, post stages, encode, write).
+Post stages as the Production preset (`core.presets`): denoised (Blender's OIDN, found as the
+bpy side finds it) and stitched; `--no-post` switches both off.
+
+Per stage: wall seconds, CPU seconds (every thread of the process; the machine is shared, so wall
+time is inflated by the load, recorded beside it) and the stage's own peak resident memory (the
+kernel's high-water mark VmHWM, reset at each stage start through /proc/self/clear_refs), plus the
+resident memory when it ended. Writes bench/results/memory-<resolution>[-nopost].json (or --out);
+bench/results/memory.json and memory.md hold the before → after of issue 23's work.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import resource
+import os
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from hhd_lightmapper.core import bake, bakepoints, rays, tracer
+from hhd_lightmapper.core import bake, bakepoints, encoding, lightmap_files, post, presets, seams, tracer
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def peak_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+def _status(key: str) -> float:
+    """A /proc/self/status memory figure, MB."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+class Stages:
+    """Seconds, CPU seconds and peak RSS per stage: `mark(name)` ends the current stage and
+    starts `name` (resetting the kernel's peak RSS, so each stage's peak is its own)."""
+
+    def __init__(self):
+        self.rows: dict[str, dict] = {}
+        self.name: str | None = None
+        self.t = self.cpu = 0.0
+
+    def mark(self, name: str | None) -> None:
+        now, cpu = time.perf_counter(), time.process_time()
+        if self.name is not None:
+            row = self.rows.setdefault(self.name, {"seconds": 0.0, "cpu_seconds": 0.0, "peak_rss_mb": 0.0})
+            row["seconds"] += now - self.t
+            row["cpu_seconds"] += cpu - self.cpu
+            row["peak_rss_mb"] = max(row["peak_rss_mb"], _status("VmHWM"))
+            row["rss_after_mb"] = _status("VmRSS")
+        Path("/proc/self/clear_refs").write_text("5")  # VmHWM := VmRSS
+        self.name, self.t, self.cpu = name, time.perf_counter(), time.process_time()
+
+
+def _wrap(stages: Stages, module, attr: str, name: str, after: str) -> None:
+    """Time `module.attr` (a function the pipeline looks up at call time) as stage `name`."""
+    owner, key = (module, attr) if "." not in attr else (getattr(module, attr.split(".")[0]), attr.split(".")[1])
+    f = getattr(owner, key)
+
+    def timed(*args, **kwargs):
+        stages.mark(name)
+        try:
+            return f(*args, **kwargs)
+        finally:
+            stages.mark(after)
+
+    setattr(owner, key, staticmethod(timed) if isinstance(owner, type) else timed)
 
 
 def sheet(n=200, size=20.0):
@@ -38,16 +86,31 @@ def sheet(n=200, size=20.0):
     return v, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
 
 
+def _denoiser_library() -> str:
+    try:
+        from hhd_lightmapper.bridge.denoiser import oidn_library
+
+        return oidn_library()
+    except ImportError:  # no bpy
+        return ""
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--resolution", type=int, default=4096)
     ap.add_argument(
-        "--fill", type=float, default=0.6, help="fraction of the atlas the sheet covers (xatlas typically packs 60%)"
+        "--fill", type=float, default=0.6, help="fraction of the atlas the sheet covers (xatlas typically packs 60%%)"
     )
     ap.add_argument("--samples", type=int, default=4)
+    ap.add_argument("--bounces", type=int, default=1)
+    ap.add_argument("--no-post", action="store_true", help="no denoiser, no seam stitching")
+    ap.add_argument("--out", type=Path, help="default bench/results/memory-<resolution>[-nopost].json")
+    ap.add_argument("--keep", type=Path, help="write the atlas's files into this folder (default: a temporary one)")
     args = ap.parse_args()
+    if args.out is None:
+        args.out = RESULTS / f"memory-{args.resolution}{'-nopost' if args.no_post else ''}.json"
+    load_before = os.getloadavg()
     v, f = sheet()
-    rows = {}
     width = height = args.resolution
     tris = v[f]
     # one planar chart (the sheet's xy), covering `fill` of the atlas: xatlas at this size spends
@@ -62,40 +125,72 @@ def main() -> int:
         lights=[SunLight(np.array([0.5, 0.3, 0.81]), np.full(3, 3.0))],
         world=np.array([0.3, 0.45, 0.7]),
     )
-    t = time.perf_counter()
-    points = bakepoints.build(surface, width, height, occluders=rays.RayScene(tris))
-    rows["bake_points"] = (time.perf_counter() - t, peak_mb())
-    t = time.perf_counter()
-    result = tracer.bake(
-        points, scene, tracer.BakeSettings(samples=args.samples, pass_samples=min(16, args.samples), bounces=1)
+    production = presets.get("production")
+    post_on = not args.no_post
+    library = _denoiser_library() if post_on else ""
+    settings = bake.PipelineSettings(
+        trace=tracer.BakeSettings(samples=args.samples, pass_samples=min(16, args.samples), bounces=args.bounces),
+        denoise=post_on and production.denoise,
+        denoiser_library=library,
+        stitch_seams=post_on,
     )
-    rows["trace"] = (time.perf_counter() - t, peak_mb())
-    t = time.perf_counter()
-    with tempfile.TemporaryDirectory() as out:
-        from hhd_lightmapper.core import encoding, exr
+    atlas = bake.AtlasInput("Lightmap", width, height, surface, ["sheet"])
+    stages = Stages()
+    for module, attr, name in (
+        (seams, "find_seams", "seams"),
+        (encoding.TexelData, "from_points", "image"),
+        (post, "apply", "post"),
+        (encoding, "encode_atlas", "encode"),
+        (post, "stitch_encoded", "stitch_encoded"),
+        (lightmap_files, "write_atlas", "write"),
+    ):
+        _wrap(stages, module, attr, name, "files_other")
+    start_rss = _status("VmRSS")
+    stages.mark("ray_scene")
+    ray_scene = bake.ray_scene_of(scene)
+    stages.mark("bake_points")
+    points = bake.points_of(atlas, ray_scene, 0)
+    stages.mark("trace")
+    traced = tracer.bake(points, scene, settings.trace, ray_scene=ray_scene)
+    texels = len(points.texel)
+    stages.mark("files_other")
+    with tempfile.TemporaryDirectory() as tmp:
+        from hhd_lightmapper.core import exr
 
-        data = encoding.TexelData.from_points(points, result.sh)
-        del result  # as bake.run: the SH lives on as float32 images only
-        encoded = encoding.encode_atlas(data, encoding.for_settings(bake.EncoderSettings()))
-        del data
+        out = args.keep or tmp
+
         with exr.Staging() as staging:
-            bake.lightmap_files.write_atlas(staging, bake.lightmap_files.AtlasFiles(Path(out), "Lightmap"), encoded, {})
+            result = bake._write(staging, atlas, traced, settings, Path(out), 0.0, {})
+            del traced
             staging.commit()
-    rows["encode_and_write"] = (time.perf_counter() - t, peak_mb())
-    print(f"{width}×{height} atlas, {len(points.texel)} texels, {len(f)} triangles, {args.samples} spp")
-    for stage, (seconds, mb) in rows.items():
-        print(f"  {stage:18s} {seconds:7.1f} s   peak RSS so far {mb / 1024:6.2f} GB")
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "memory.json").write_text(
-        json.dumps(
-            {
-                "resolution": args.resolution,
-                "texels": int(len(points.texel)),
-                "stages": {k: {"seconds": s, "peak_rss_mb": m} for k, (s, m) in rows.items()},
-            },
-            indent=2,
+        stages.mark(None)
+    report = {
+        "resolution": args.resolution,
+        "texels": int(texels),
+        "triangles": int(len(f)),
+        "samples": args.samples,
+        "bounces": args.bounces,
+        "denoise": settings.denoise,
+        "denoiser_found": bool(library),
+        "stitch_seams": settings.stitch_seams,
+        "warnings": result.warnings,
+        "peak_rss_mb": max(r["peak_rss_mb"] for r in stages.rows.values()),
+        "rss_at_start_mb": start_rss,
+        "load_average_before": load_before,
+        "load_average_after": os.getloadavg(),
+        "cpus": os.cpu_count(),
+        "stages": stages.rows,
+    }
+    print(f"{width}×{height} atlas, {texels} texels, {len(f)} triangles, {args.samples} spp, post {post_on}")
+    print(f"  load {load_before} → {report['load_average_after']}")
+    for stage, row in stages.rows.items():
+        print(
+            f"  {stage:15s} {row['seconds']:7.1f} s  cpu {row['cpu_seconds']:7.1f} s   "
+            f"peak {row['peak_rss_mb'] / 1024:6.2f} GB  after {row['rss_after_mb'] / 1024:6.2f} GB"
         )
-    )
+    print(f"  peak RSS over the stages {max(r['peak_rss_mb'] for r in stages.rows.values()) / 1024:.2f} GB")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2))
     return 0
 
 

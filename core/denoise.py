@@ -229,51 +229,85 @@ def denoise_texels(
     h, w = data.coverage.shape
     labels, n = label_charts(data.coverage != 0.0)
     labels = np.where(data.baked, labels, -1)  # buried texels: masked like other charts' texels
-    finite = np.isfinite(data.sh).all(axis=(2, 3))
-    sh = np.where(finite[..., None, None], data.sh, 0.0).reshape(h * w, 9, 3)
+    finite = _finite_texels(data.sh).reshape(-1)
+    # the SH is read per page, a non-finite texel's as 0 (no atlas-wide copy: memory)
+    sh = data.sh.reshape(h * w, 9, 3)
     flat = labels.reshape(-1)
-    texels = np.flatnonzero((flat >= 0) & finite.reshape(-1))
+    texels = np.flatnonzero((flat >= 0) & finite)
     lum = sh[texels, 0, :].astype(np.float64) @ LUMINANCE
     brightness = np.bincount(flat[texels], lum, minlength=n) / np.maximum(np.bincount(flat[texels], minlength=n), 1)
+    del texels, lum
     normal = data.normal.reshape(h * w, 3)
-    finite = finite.reshape(-1)
     report = DenoiseReport()
     out = data.sh.copy().reshape(h * w, 9, 3)
     for page in layout(labels, n, brightness):
         if check is not None:
             check()
         rows, cols, atlas_index = _page_texels(page, labels)
+        chart_sh = sh[atlas_index]
+        chart_sh[~finite[atlas_index]] = 0.0
         values = np.zeros(page.shape + (9, 3), np.float32)
-        values[rows, cols] = sh[atlas_index]
+        values[rows, cols] = chart_sh
         normals = np.zeros(page.shape + (3,), np.float32)
         normals[rows, cols] = normal[atlas_index]
         source = np.zeros(page.shape, bool)
         source[rows, cols] = finite[atlas_index]
-        chart_sh = sh[atlas_index]
         scales = (input_scale(chart_sh[:, 0, :]), input_scale(hemisphere_irradz(chart_sh, normal[atlas_index])))
-        clean = _denoise_page(values, normals, source, denoiser, scales)
+        del chart_sh
+        features, unit_normals = _page_features(values, normals)
+        del values, normals
+        clean = _denoise_features(features, unit_normals, source, denoiser, scales)
+        del features, unit_normals, source
         out[atlas_index] = clean[rows, cols]
+        del clean
         report.charts += len(page.charts)
         report.pages += 1
         report.page_texels += page.shape[0] * page.shape[1]
     clean = out.reshape(data.sh.shape)
     if data.noise is not None:
-        clean = clamp_to_noise(clean, data.sh, data.noise)
+        clean = clamp_to_noise(clean, data.sh, data.noise, out=clean)
     report.seconds = time.perf_counter() - t0
     return replace(data, sh=clean), report
 
 
-def clamp_to_noise(denoised: np.ndarray, traced: np.ndarray, noise: np.ndarray) -> np.ndarray:
+#: Rows of the atlas per step of the atlas-wide passes (`clamp_to_noise`, `_finite_texels`): bounds their temporaries.
+ROWS_PER_STEP = 64
+
+
+def _finite_texels(sh: np.ndarray) -> np.ndarray:
+    """`(H, W)` bool: the texels of SH `(H, W, 9, 3)` whose every coefficient is finite."""
+    out = np.empty(sh.shape[:2], bool)
+    for y in range(0, sh.shape[0], ROWS_PER_STEP):
+        out[y : y + ROWS_PER_STEP] = np.isfinite(sh[y : y + ROWS_PER_STEP]).all(axis=(2, 3))
+    return out
+
+
+def clamp_to_noise(
+    denoised: np.ndarray, traced: np.ndarray, noise: np.ndarray, out: np.ndarray | None = None
+) -> np.ndarray:
     """`denoised` SH `(H, W, 9, 3)` moved back to within NOISE_CLAMP standard errors of the
     `traced` SH, per coefficient and colour: the bound is NOISE_CLAMP × `noise` `(H, W)` (the
     standard error of the traced luminance L0) × each colour's share of that luminance (|L0_c| /
     L0 luminance; 1 where it is not positive). Texels whose noise is unknown (NaN) are not
-    clamped; non-finite traced values are not either (the filter replaced them)."""
+    clamped; non-finite traced values are not either (the filter replaced them). float32, into
+    `out` if given (it may be `denoised` itself), ROWS_PER_STEP rows at a time (memory)."""
+    if out is None:
+        out = np.empty(denoised.shape, np.float32)
+    for y in range(0, denoised.shape[0], ROWS_PER_STEP):
+        rows = slice(y, y + ROWS_PER_STEP)
+        out[rows] = _clamp_rows(denoised[rows], traced[rows], noise[rows])
+    return out
+
+
+def _clamp_rows(denoised: np.ndarray, traced: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """`clamp_to_noise` of some rows."""
     l0 = traced[..., 0, :].astype(np.float64)
     l0_lum = l0 @ LUMINANCE
     lit = l0_lum > 0.0
     colour = np.where(lit[..., None], np.abs(l0) / np.where(lit, l0_lum, 1.0)[..., None], 1.0)
     known = np.isfinite(noise) & np.isfinite(traced).all(axis=(2, 3))
+    if not known.any():  # nothing to clamp (e.g. fewer than NOISE_PASSES passes)
+        return denoised.astype(np.float32, copy=False)
     bound = NOISE_CLAMP * np.where(known, noise, 0.0)[..., None] * colour  # (H, W, 3)
     step = np.clip(denoised - traced, -bound[:, :, None, :], bound[:, :, None, :])
     return np.where(known[..., None, None], traced + step, denoised).astype(np.float32)
@@ -301,15 +335,31 @@ def _denoise_page(
     smoothly elsewhere (`_smooth_fill`), then L0 and I_z denoised as HDR colour (`scales`: their
     inputScale) and the rest in directional mode over the denoised L0 (module docstring).
     Returns `(h, w, 9, 3)` float32, meaningful at the chart texels."""
+    features, n = _page_features(values, normal)
+    return _denoise_features(features, n, source, denoiser, scales)
+
+
+def _page_features(values: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`_denoise_page`'s inputs to the filter, `(h, w, 14)` float64: L0 (RGB), I_z (RGB), band 1
+    across n_v and band 2 (luminance); and the unit n_v `(h, w, 3)` float64."""
     n = normal.astype(np.float64)
     n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-    v = _band1_vector(values.astype(np.float64))  # (h, w, 3 axes, 3 colours)
+    v = _band1_vector(values[:, :, :4]).astype(np.float64)  # (h, w, 3 axes, 3 colours); exact: a sign and a cast
     along = np.einsum("hwa,hwac->hwc", n, v)
-    across = np.einsum("hwac,c->hwa", v - n[..., None] * along[:, :, None, :], LUMINANCE)
+    v -= n[..., None] * along[:, :, None, :]  # in place: v is not needed any more
+    across = np.einsum("hwac,c->hwa", v, LUMINANCE)
+    del v
     features = np.concatenate(
         [values[:, :, 0, :], IRRADZ_FROM_R10 * np.maximum(along, 0.0), across, values[:, :, 4:, :] @ LUMINANCE],
         axis=-1,
     )
+    return features, n
+
+
+def _denoise_features(
+    features: np.ndarray, n: np.ndarray, source: np.ndarray, denoiser: Denoiser, scales: tuple[float, float]
+) -> np.ndarray:
+    """`_denoise_page` from its `_page_features` (consumed: filled in place)."""
     features = _smooth_fill(features, source)
     l0 = _hdr(features[..., 0:3], source, scales[0], denoiser)
     iz = _hdr(features[..., 3:6], source, scales[1], denoiser)
@@ -318,11 +368,15 @@ def _denoise_page(
     across = _directional(features[..., 6:9], l0_lum, BAND1_BOUND, denoiser)
     across -= n * np.einsum("hwa,hwa->hw", n, across)[..., None]
     band2 = _directional(features[..., 9:14], l0_lum, BAND2_BOUND, denoiser)
+    del features
     colour = l0 / np.where(l0_lum > 0.0, l0_lum, 1.0)[..., None]  # (h, w, 3): L0 of each colour / luminance L0
-    v = across[..., None] * colour[:, :, None, :] + n[..., None] * (iz / IRRADZ_FROM_R10)[:, :, None, :]
-    out = np.empty(values.shape, np.float32)
+    scaled_iz = iz / IRRADZ_FROM_R10
+    out = np.empty(l0.shape[:2] + (9, 3), np.float32)
     out[:, :, 0, :] = l0
-    out[:, :, 1, :], out[:, :, 2, :], out[:, :, 3, :] = -v[:, :, 1], v[:, :, 2], -v[:, :, 0]
+    # v = across ⊗ colour + n ⊗ I_z / IRRADZ_FROM_R10 (3 axes × 3 colours), one axis at a time (memory)
+    for k, (axis, sign) in zip((1, 2, 3), ((1, -1.0), (2, 1.0), (0, -1.0))):
+        v = across[..., axis, None] * colour + n[..., axis, None] * scaled_iz
+        out[:, :, k, :] = -v if sign < 0 else v
     out[:, :, 4:, :] = band2[..., None] * colour[:, :, None, :]
     return out
 
@@ -341,26 +395,37 @@ def _hdr(colour: np.ndarray, source: np.ndarray, scale: float, denoiser: Denoise
 
 
 def _smooth_fill(image: np.ndarray, source: np.ndarray) -> np.ndarray:
-    """`image` `(h, w, c)` with its non-chart texels filled smoothly (float64): within FILL_BLUR
+    """`image` `(h, w, c)` (changed in place) with its non-chart texels filled smoothly (float64): within FILL_BLUR
     texels of a chart texel, the mean of the chart texels in the (2·FILL_BLUR + 1)² box around it
     (copying the nearest texel would repeat its noise in streaks, which the filter keeps as
     detail); farther, the nearest such texel (FILL_RINGS rings), beyond that the page mean."""
     weight = _box_sum(source.astype(np.float64)[..., None], FILL_BLUR)[..., 0]
     near = weight > 0.0
     inv = np.where(near, 1.0 / np.where(near, weight, 1.0), 0.0)
-    image = np.where(source[..., None], image, 0.0).astype(np.float64)
-    mean = _box_sum(image, FILL_BLUR) * inv[..., None]
-    return dilate.Fill(near, FILL_RINGS).apply(np.where(source[..., None], image, mean))
+    del weight
+    image = image.astype(np.float64, copy=False)
+    outside = ~source
+    image[outside] = 0.0  # in place: where(source, image, 0)
+    for k in range(image.shape[2]):  # where(source, image, box mean), one channel at a time, in place
+        mean = _box_sum(image[..., k : k + 1], FILL_BLUR)[..., 0]
+        mean *= inv
+        channel = image[..., k]
+        channel[outside] = mean[outside]
+    return dilate.Fill(near, FILL_RINGS).apply(image, in_place=True)
 
 
 def _box_sum(image: np.ndarray, r: int) -> np.ndarray:
-    """Sum of `image` `(h, w, c)` over the (2r + 1)² box around each texel (zero outside)."""
+    """Sum of `image` `(h, w, c)` over the (2r + 1)² box around each texel (zero outside),
+    float64, one channel at a time (memory: a few channel images)."""
     h, w = image.shape[:2]
-    c = np.zeros((h + 1, w + 1, image.shape[2]))
-    np.cumsum(np.cumsum(image, axis=0), axis=1, out=c[1:, 1:])
+    out = np.empty(image.shape, np.float64)
+    c = np.zeros((h + 1, w + 1))
     y0, y1 = np.clip(np.arange(h) - r, 0, h), np.clip(np.arange(h) + r + 1, 0, h)
     x0, x1 = np.clip(np.arange(w) - r, 0, w), np.clip(np.arange(w) + r + 1, 0, w)
-    return c[y1][:, x1] - c[y0][:, x1] - c[y1][:, x0] + c[y0][:, x0]
+    for k in range(image.shape[2]):
+        np.cumsum(np.cumsum(image[..., k], axis=0, dtype=np.float64), axis=1, out=c[1:, 1:])
+        out[..., k] = c[y1][:, x1] - c[y0][:, x1] - c[y1][:, x0] + c[y0][:, x0]
+    return out
 
 
 def _band1_vector(sh: np.ndarray) -> np.ndarray:

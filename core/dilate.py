@@ -75,12 +75,14 @@ class Fill:
         self.empty = np.flatnonzero(~valid.reshape(-1))
         self.source = source[self.empty]  # -1: no source within `rings`
 
-    def apply(self, image: np.ndarray, keep_black: bool = False) -> np.ndarray:
+    def apply(self, image: np.ndarray, keep_black: bool = False, in_place: bool = False) -> np.ndarray:
         """Filled copy of `image` `(H, W, ...)` (same dtype): empty texels take their nearest
-        source's value, those out of reach the mean of all sources (0 if there are none)."""
+        source's value, those out of reach the mean of all sources (0 if there are none).
+        `in_place`: fill `image` itself (a contiguous array) and return it (sources are never
+        written, so the result is the same)."""
         h, w = self.shape
         flat = image.reshape((h * w,) + image.shape[2:])
-        out = flat.copy()
+        out = flat if in_place else flat.copy()
         reached = self.source >= 0
         out[self.empty[reached]] = flat[self.source[reached]]
         if not reached.all():

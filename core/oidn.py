@@ -53,6 +53,11 @@ LIBRARY_NAMES = {
 }
 
 # oidn.h enums
+#: OIDN's scratch-memory cap per filter (its `maxMemoryMB`): beyond it OIDN tiles the image
+#: itself (its default, -1, lets it take ~590 bytes per pixel at once: 5.9 GB for a 10 Mpixel
+#: page). Capped at 512 MB a 1500² image took 0.42 GB instead of 1.27 GB and 15% more CPU time, its
+#: output bit-identical to the untiled one (256 MB: twice the CPU time). -1 = OIDN's default.
+MAX_MEMORY_MB = 512
 _DEVICE_TYPE_CPU = 1
 _FORMAT_FLOAT = 1  # FLOAT2 = 2, FLOAT3 = 3: _FORMAT_FLOAT - 1 + channels
 _ERRORS = {
@@ -112,6 +117,7 @@ def _bind(lib: ctypes.CDLL) -> None:
         "oidnSetSharedFilterData": (None, [p, c, p, s]),
         "oidnSetFilterBool": (None, [p, c, ctypes.c_bool]),
         "oidnSetFilterFloat": (None, [p, c, ctypes.c_float]),
+        "oidnSetFilterInt": (None, [p, c, ctypes.c_int]),
         "oidnCommitFilter": (None, [p]),
         "oidnExecuteFilter": (None, [p]),
         "oidnReleaseFilter": (None, [p]),
@@ -217,6 +223,7 @@ class Denoiser:
                 lib.oidnSetFilterBool(filt, b"directional", bool(directional))
                 scale = math.nan if input_scale is None else float(input_scale)
                 lib.oidnSetFilterFloat(filt, b"inputScale", scale)
+                lib.oidnSetFilterInt(filt, b"maxMemoryMB", MAX_MEMORY_MB)
                 self._check("filter parameters")
                 lib.oidnCommitFilter(filt)
                 self._check("filter commit")

@@ -537,6 +537,10 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
     h, w = data.coverage.shape
     if (seams.width, seams.height) != (w, h):
         raise ValueError(f"seams of a {seams.width}×{seams.height} atlas, texel images of {w}×{h}")
+    if len(seams) == 0:  # nothing to stitch: the same TexelData and record, without the image copies
+        empty = {"seams": 0, "edges": 0, "texels": 0, "groups": 0, "iterations": 0}
+        record0: dict[str, Any] = {"enabled": True, **empty, "samples_dropped": 0, "samples_hidden": 0}
+        return data, {**record0, "texels_bounded": 0, "seconds": time.perf_counter() - start}
     fill = data.fill()
     prior = fill.apply(data.sh, keep_black=True).reshape(h * w, -1)
     coverage = data.coverage.reshape(-1)
@@ -574,12 +578,11 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
     if len(seams):
         # As the SH file will read (the stitched texels are sources; no other texel the
         # metric reads changes, up to gutter texels of thin charts whose nearest source moved).
-        stitched = prior.copy()
-        stitched[texels] = new
         shape = (h, w) + data.sh.shape[2:]
         visible = seams.select(shown)
         record["before"] = _brief(_metric(sh_reader(prior.reshape(shape)), visible, worst=0))
-        record["after"] = _brief(_metric(sh_reader(stitched.reshape(shape)), visible, worst=0))
+        prior[texels] = new  # the stitched SH, in place: prior is not needed any more (memory)
+        record["after"] = _brief(_metric(sh_reader(prior.reshape(shape)), visible, worst=0))
     record["seconds"] = time.perf_counter() - start
     return out, record
 
@@ -673,6 +676,10 @@ def stitch_encoded(
     Returns the atlas with the encoding file's images replaced, and a record: enabled, texels
     (changed), iterations, seconds, and the HHD-read `seam_metric` before and after."""
     start = time.perf_counter()
+    if len(seams) == 0:  # nothing to stitch: the same atlas and record, without the image copies
+        nothing = _brief(_metric(lambda xy: None, seams))  # type: ignore[arg-type, return-value]
+        record0 = {"enabled": True, "texels": 0, "iterations": 0, "before": nothing, "after": dict(nothing)}
+        return atlas, {**record0, "seconds": time.perf_counter() - start}
     key = atlas.encoding_file.key
     spec, images = atlas.files[key]
     names = [n for n in ("Iz.R", "Iz.G", "Iz.B", "Wa.V", "Wa.R", "Wa.G", "Wa.B") if n in images]

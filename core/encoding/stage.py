@@ -149,10 +149,10 @@ def encode_images(data: TexelData, encoding: Encoding, fill: _dilate.Fill) -> tu
 
 
 def layer_images(ch: Channel, image: np.ndarray, fill: _dilate.Fill) -> dict[str, np.ndarray]:
-    """One layer's value image `(H, W, value_width)`, filled as a whole then packed, as
-    {EXR channel name: `(H, W)` view}."""
+    """One layer's value image `(H, W, value_width)` (a contiguous array of the caller's, filled
+    in place), filled as a whole then packed, as {EXR channel name: `(H, W)` view}."""
     if ch.fill != NO_FILL:
-        image = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
+        image = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK, in_place=True)
     if ch.pack is not None:
         h, w = image.shape[:2]
         image = ch.pack(image.reshape(h * w, -1)).reshape(h, w, len(ch.components))
