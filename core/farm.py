@@ -55,7 +55,6 @@ import copy
 import functools
 import hashlib
 import importlib
-import importlib.util
 import io
 import os
 import pickle
@@ -356,10 +355,12 @@ def local_denoiser() -> tuple[str, str | None]:
     if setting:
         path = Path(setting)
         found = path if path.is_file() else oidn.find_library([path, path / "lib"])
-    else:
-        spec = importlib.util.find_spec("bpy")
-        dirs = [Path(d) / "lib" for d in (spec.submodule_search_locations or [])] if spec else []
-        found = oidn.find_library(dirs)
+    else:  # the pip `bpy`'s folder: its lib/ (Linux, macOS) or itself (Windows), `bridge/denoiser.py`
+        # Every sys.path entry, not `find_spec("bpy")`: once bpy was imported in the process that
+        # started this worker, Blender's scripts/modules (holding a pure-Python `bpy` package) can
+        # come first on the path a spawned worker inherits.
+        packages = [Path(entry) / "bpy" for entry in sys.path if entry]
+        found = oidn.find_library([d for package in packages for d in (package / "lib", package)])
     library = "" if found is None else str(found)
     return library, denoiser_identity(library)
 
