@@ -253,16 +253,7 @@ def _farm(address: str, trace):
     from .core import farm
 
     farm.Farm.check(trace)
-    try:
-        connected = farm.connect(address)
-    except DependencyMissing:
-        if farm.PACKAGE == farm.WORKER_PACKAGE:  # the package as pip installs it: its message says how
-            raise
-        raise DependencyMissing(
-            "--scheduler needs Dask, which the extension bundles as wheels, but Blender's Python cannot import it: "
-            "reinstall the extension from the zip for this platform (Blender installs an extension's wheels when it "
-            f"enables it; 4.2.13 or newer), or {farm.INSTALL_HINT}"
-        ) from None
+    connected = farm.connect(address)  # DependencyMissing without Dask, saying how to get it
     print(f"farm: {connected.workers()} worker(s) at {address}", flush=True)
     for w in connected.warnings:
         print(f"warning: {w}")

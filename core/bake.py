@@ -294,9 +294,9 @@ def _farm_atlases(
         t = time.perf_counter()
         if kind == "traced":  # no worker denoises as this process does: finish it here
             report.report(fraction(), f"'{atlas.name}': {_post_message(settings)} here (no farm worker has this OIDN)")
-            traced = replace(answer, points=points[i])
+            answer.points = points[i]  # the traced atlas itself, so that `release` frees its SH
             info = finish_atlas(
-                atlas, traced, settings, t_points, extra, out, lambda: _check_cancel(cancel), release=True
+                atlas, answer, settings, t_points, extra, out, lambda: _check_cancel(cancel), release=True
             )
         else:
             for method, args in answer["out"]:
@@ -315,7 +315,6 @@ def _farm_atlases(
 
         estimator = tracer.texel_estimator(pts, scene, settings.trace, ray_scene)  # as `run` submitted it
         pending[i] = farm.finish(atlas, settings, out.out_dir, estimator, t_points, extra, on_trace, cancel)
-        del estimator
         done_texels += len(pts.texel)
         for j in [j for j, handle in pending.items() if handle.done()]:
             stage(j)

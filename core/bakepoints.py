@@ -42,6 +42,10 @@ FOOTPRINT = 1.0
 #: away: a shadow or contact edge there shifted into the texel, measured on the classroom's
 #: walls against Cycles at 4× the resolution). 1: only the texel's own triangle.
 FOOTPRINT_TRIANGLES = 4
+#: Another triangle joins a texel's footprint only if its face normal is within this cosine of the
+#: texel's own triangle's: every sample is pushed off along the texel's face normal, which must
+#: also take it off that triangle's surface (a sharper fold inside one texel keeps its own part).
+FOOTPRINT_MIN_COS = 0.9
 #: Probe directions per texel for the buried test (fixed, rotated per texel).
 BURIED_PROBES = 12
 #: Move bake points out from under back faces and keep every texel's samples on the side of
@@ -254,7 +258,7 @@ def build(
     cov = raster.rasterise(uv, width, height, check, threads)
     chosen, coverage = raster.choose_per_texel(cov)
     tri, texel, centroid = cov.triangle[chosen], cov.texel[chosen], cov.point[chosen]
-    others = other_triangles(cov, chosen) if FOOTPRINT_TRIANGLES > 1 else None
+    others = other_triangles(cov, chosen, _face_normals(pos)) if FOOTPRINT_TRIANGLES > 1 else None
     del cov
     n = len(tri)
     points = BakePoints(
@@ -292,23 +296,38 @@ def build(
     return points
 
 
-def other_triangles(cov: raster.Coverage, chosen: np.ndarray) -> np.ndarray:
+def other_triangles(cov: raster.Coverage, chosen: np.ndarray, face_normals: np.ndarray | None = None) -> np.ndarray:
     """(P, FOOTPRINT_TRIANGLES - 1) int32: for each chosen pair's texel (`chosen`, sorted by
     texel as `raster.choose_per_texel` returns them) the other triangles overlapping it, largest
     overlap first (ties: lowest index), -1 where there are fewer. All lie in the texel's own
-    chart: charts never share a texel."""
+    chart: charts never share a texel. `face_normals` (T, 3) unit (0 for degenerate triangles):
+    if given, only triangles within FOOTPRINT_MIN_COS of the texel's own triangle count."""
     m = FOOTPRINT_TRIANGLES - 1
     out = np.full((len(chosen), m), -1, np.int32)
     if len(chosen) == 0 or m == 0:
         return out
-    order = np.lexsort((cov.triangle, -cov.area, cov.texel))
-    texel = cov.texel[order]
+    triangle, area, texel = cov.triangle, cov.area, cov.texel
+    if face_normals is not None:
+        own = cov.triangle[chosen][np.searchsorted(cov.texel[chosen], texel)]
+        cos = np.einsum("ij,ij->i", face_normals[triangle], face_normals[own])
+        keep = (cos >= FOOTPRINT_MIN_COS) | (triangle == own)
+        triangle, area, texel = triangle[keep], area[keep], texel[keep]
+    order = np.lexsort((triangle, -area, texel))
+    texel = texel[order]
     start = np.flatnonzero(np.concatenate([[True], texel[1:] != texel[:-1]]))
     rank = np.arange(len(order)) - np.repeat(start, np.diff(np.append(start, len(order))))
     row = np.repeat(np.arange(len(start)), np.diff(np.append(start, len(order))))
     take = (rank >= 1) & (rank <= m)
-    out[row[take], rank[take] - 1] = cov.triangle[order[take]]
+    out[row[take], rank[take] - 1] = triangle[order[take]]
     return out
+
+
+def _face_normals(positions: np.ndarray) -> np.ndarray:
+    """(T, 3) unit face normals of triangles `positions` (T, 3, 3) (counter-clockwise), 0 where
+    a triangle has no area."""
+    n = np.cross(positions[:, 1] - positions[:, 0], positions[:, 2] - positions[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
 def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, centroid: np.ndarray) -> None:

@@ -327,21 +327,10 @@ def _page_texels(page: Page, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return np.concatenate(rows), np.concatenate(cols), np.concatenate(index)
 
 
-def _denoise_page(
-    values: np.ndarray, normal: np.ndarray, source: np.ndarray, denoiser: Denoiser, scales: tuple[float, float]
-) -> np.ndarray:
-    """One page: SH `(h, w, 9, 3)` and unit n_v `(h, w, 3)` at its chart texels `source`. L0 and
-    I_z (RGB), band 1 across n_v and band 2 (luminance) are taken at the chart texels, filled
-    smoothly elsewhere (`_smooth_fill`), then L0 and I_z denoised as HDR colour (`scales`: their
-    inputScale) and the rest in directional mode over the denoised L0 (module docstring).
-    Returns `(h, w, 9, 3)` float32, meaningful at the chart texels."""
-    features, n = _page_features(values, normal)
-    return _denoise_features(features, n, source, denoiser, scales)
-
-
 def _page_features(values: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """`_denoise_page`'s inputs to the filter, `(h, w, 14)` float64: L0 (RGB), I_z (RGB), band 1
-    across n_v and band 2 (luminance); and the unit n_v `(h, w, 3)` float64."""
+    """One page's inputs to the filter (`_denoise_features`), from its SH `(h, w, 9, 3)` and unit
+    n_v `(h, w, 3)`: `(h, w, 14)` float64: L0 (RGB), I_z (RGB), band 1 across n_v and band 2
+    (luminance); and the unit n_v `(h, w, 3)` float64."""
     n = normal.astype(np.float64)
     n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
     v = _band1_vector(values[:, :, :4]).astype(np.float64)  # (h, w, 3 axes, 3 colours); exact: a sign and a cast
@@ -359,7 +348,10 @@ def _page_features(values: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, 
 def _denoise_features(
     features: np.ndarray, n: np.ndarray, source: np.ndarray, denoiser: Denoiser, scales: tuple[float, float]
 ) -> np.ndarray:
-    """`_denoise_page` from its `_page_features` (consumed: filled in place)."""
+    """One page denoised from its `_page_features` (consumed: filled in place), meaningful at its
+    chart texels `source`: they are filled smoothly elsewhere (`_smooth_fill`), then L0 and I_z
+    are denoised as HDR colour (`scales`: their inputScale) and the rest in directional mode over
+    the denoised L0 (module docstring). Returns `(h, w, 9, 3)` float32."""
     features = _smooth_fill(features, source)
     l0 = _hdr(features[..., 0:3], source, scales[0], denoiser)
     iz = _hdr(features[..., 3:6], source, scales[1], denoiser)

@@ -2,10 +2,10 @@
 
 `connect(address)` opens a `dask.distributed` client (imported here only: a bake without a
 scheduler never imports Dask) and checks that every worker runs the same tracer code and the
-same compiled packages as this process. `Farm.runner(...)` then stands in for
-`tracer.scheduler.run` (`tracer.bake(..., runner=)`, `bake.run(..., farm=)`): the tracing of an
-atlas runs as Dask tasks, one per group of `chunks_per_task` fixed chunks of
-`BakeSettings.chunk_texels` texels, each task running *every pass* of its chunks.
+same compiled packages as this process. `bake.run(..., farm=)` then traces every atlas as Dask
+tasks, one per group of `chunks_per_task` fixed chunks of `BakeSettings.chunk_texels` texels,
+each task running *every pass* of its chunks, and finishes each atlas in one more task
+(`Farm.submit`, `Farm.finish`, below).
 
 Bit-identical. A local bake adds, pass after pass, each chunk's estimate to per-texel running
 statistics (`Statistics.add`, Welford per texel), and a chunk's estimate depends only on
@@ -412,7 +412,9 @@ def finish_task(payload: bytes, digest: str, code: str, meta: bytes, *results: d
     threads = _worker_threads()
     compute = replace(settings, denoiser_library=library, trace=replace(settings.trace, threads=threads))
     kept = _Kept()
-    summary = bake.finish_atlas(m["atlas"], traced, compute, m["t_points"], m["extra"], kept, recorded=settings.trace)
+    summary = bake.finish_atlas(  # released SH only where no fallback may need it
+        m["atlas"], traced, compute, m["t_points"], m["extra"], kept, recorded=settings.trace, release=not denoising
+    )
     if denoising and not all(args[3]["post"]["denoise"].get("applied") for kind, args in kept.calls if kind == "atlas"):
         return _unfinished(traced, t0, "OIDN failed here")
     return {"out": kept.calls, "summary": plain(summary), "seconds": time.perf_counter() - t0, "worker": _where()}
@@ -495,7 +497,13 @@ def connect(address: str, chunks_per_task: int = CHUNKS_PER_TASK, timeout: float
     try:
         import distributed
     except ImportError:
-        raise DependencyMissing(f"--scheduler needs Dask, which this Python lacks: {INSTALL_HINT}") from None
+        if PACKAGE == WORKER_PACKAGE:  # the package as pip installs it
+            raise DependencyMissing(f"--scheduler needs Dask, which this Python lacks: {INSTALL_HINT}") from None
+        raise DependencyMissing(  # the extension, which bundles Dask's wheels
+            "--scheduler needs Dask, which the extension bundles as wheels, but Blender's Python cannot import it: "
+            "reinstall the extension from the zip for this platform (Blender installs an extension's wheels when it "
+            f"enables it; 4.2.13 or newer), or {INSTALL_HINT}"
+        ) from None
     try:
         client = distributed.Client(address, timeout=timeout, set_as_default=False)
     except (OSError, TimeoutError) as exc:
@@ -562,7 +570,8 @@ class Finishing:
 
 
 class Farm:
-    """A connected Dask client; `runner(name, out_dir)` traces one atlas on it."""
+    """A connected Dask client: `submit` starts an atlas's tracing, `finish` its finishing task
+    (`result` waits for it); `runner(name, out_dir)` traces one atlas alone (tests, benches)."""
 
     def __init__(self, client, address: str, chunks_per_task: int = CHUNKS_PER_TASK):
         if chunks_per_task < 1:
@@ -654,8 +663,8 @@ class Farm:
     def submit(self, name: str, out_dir, estimator, settings: BakeSettings) -> None:
         """Start tracing atlas `name` now (its first stage's tasks not checkpointed yet), so the
         farm works on every atlas while the client collects and writes one after the other
-        (`bake.run` submits them all after the bake points). `tracer.bake(..., runner=)` with the
-        same estimator state and settings then picks these tasks up."""
+        (`bake.run` submits them all after the bake points). `finish` (or `tracer.bake(...,
+        runner=)`) with the same estimator and settings then picks these tasks up."""
         plan = self._plan(name, Path(out_dir), estimator, settings)
         if plan["key"] not in self._submitted:
             self._submitted[plan["key"]] = self._submit(plan, 0, None, self._saved(plan, 0))

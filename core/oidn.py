@@ -54,9 +54,8 @@ LIBRARY_NAMES = {
 
 # oidn.h enums
 #: OIDN's scratch-memory cap per filter (its `maxMemoryMB`): beyond it OIDN tiles the image
-#: itself (its default, -1, lets it take ~590 bytes per pixel at once: 5.9 GB for a 10 Mpixel
-#: page). Capped at 512 MB a 1500² image took 0.42 GB instead of 1.27 GB and 15% more CPU time, its
-#: output bit-identical to the untiled one (256 MB: twice the CPU time). -1 = OIDN's default.
+#: itself, output bit-identical to the untiled one (its default, -1, takes memory in proportion
+#: to the page at once; the trade in memory and CPU is measured in bench/results/memory.md).
 MAX_MEMORY_MB = 512
 _DEVICE_TYPE_CPU = 1
 _FORMAT_FLOAT = 1  # FLOAT2 = 2, FLOAT3 = 3: _FORMAT_FLOAT - 1 + channels

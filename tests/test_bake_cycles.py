@@ -46,9 +46,10 @@ def test_hard_shadow_edge_texels_average_the_same_footprint_as_cycles(floor, mon
     Blender 5.2.1, the central ½ × ½ before). Our footprint must match Cycles' within the edge
     texels' noise plus 1% of lit, and clearly better than the other footprint does.
     Texels whose footprint straddles two triangles are left out: there Cycles mirrors its jitter
-    back into the texel's triangle (`bake_clamp_mirror_repeat` in its bake kernel) and we clip
-    the footprint to that triangle, so where a shadow edge also crosses them the two differ by
-    design (measured: 2 of 161 edge texels, on the quad's diagonal, residual 0.40 of a lit 0.81;
+    back into the texel's triangle (`bake_clamp_mirror_repeat` in its bake kernel) and we average
+    the footprint over every triangle on it (`bakepoints.FOOTPRINT_TRIANGLES`), so where a shadow
+    edge also crosses them the two differ by design (measured when we still clipped to the
+    texel's triangle: 2 of 161 edge texels, on the quad's diagonal, residual 0.40 of a lit 0.81;
     the other 159: 0.013 against a noise of 0.0095)."""
     kit.light('SUN', rotation=(math.radians(30), math.radians(10), 0), energy=3.0, angle=0.0)
     r = cc.compare([floor], samples=64, bounces=0)

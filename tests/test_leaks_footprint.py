@@ -173,3 +173,28 @@ def test_a_duplicated_surface_is_baked_as_lit_as_the_surface_one_sees():
     both = (points.coverage >= 1.0 - 1e-9) & ~points.buried
     assert both[points.object_index == 1].sum() > 100 and both[points.object_index == 0].sum() > 500
     np.testing.assert_allclose(iz[both] / full, 1.0, rtol=1e-9)
+
+
+@pytest.mark.parametrize("folded", [False, True])
+def test_a_fold_inside_a_texel_keeps_the_other_side_out_of_its_footprint(folded):
+    """A square of two triangles split along its diagonal, unwrapped onto a 4 × 4 atlas: the
+    diagonal texels straddle both. Flat, each takes the other triangle into its footprint;
+    folded 90° along the diagonal, none does (its samples, pushed off along the texel's own
+    face normal, would stay on the other face: FOOTPRINT_MIN_COS)."""
+    uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
+    positions = np.concatenate([uv, np.zeros((2, 3, 1))], axis=2)
+    if folded:
+        positions[1, 2] = [0.5, 0.5, np.sqrt(0.5)]
+    surface = bakepoints.SurfaceTriangles(
+        positions, np.tile([0, 0, 1.0], (2, 3, 1)), uv, np.zeros(2, int), np.full((2, 3), 0.5)
+    )
+    points = bakepoints.build(surface, 4, 4)
+    x, y = points.texel % 4, points.texel // 4
+    diagonal = np.flatnonzero(x == y)
+    assert len(diagonal) == 4 and (points.others[x != y] == -1).all()
+    if folded:
+        assert (points.others[diagonal] == -1).all()
+    else:
+        for row in diagonal:
+            assert {points.triangle[row], points.others[row, 0]} == {0, 1}
+            assert (points.others[row, 1:] == -1).all()

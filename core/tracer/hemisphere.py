@@ -10,7 +10,7 @@ constant β per half of the samples taken from the other half (`kernels.project_
 unbiased, exact for constant radiance, every sample used by every coefficient.
 
 Every sample's origin is jittered over the texel's footprint (`BakePoints.sample_origins`: the
-texel's FOOTPRINT square within its triangle), so a texel is an area average as Cycles bakes it;
+texel's FOOTPRINT square over its triangle and the others overlapping it, `BakePoints.others`), so a texel is an area average as Cycles bakes it;
 where geometry crosses the footprint (a wall standing on the surface: `BakePoints.crossed`), only
 the part the bake point sees is averaged (samples hidden from it are replaced by visible ones),
 so light from the far side of the wall does not leak in; samples starting on a part of the
