@@ -181,33 +181,23 @@ class BakePoints:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
         footprint (`footprint` texels wide, default FOOTPRINT) covered by its triangles: its
         chosen one and `others` (`kernels.footprint_origins`; without `others`, the chosen one
-        alone, as Cycles bakes a texel: `kernels.texel_origins`): rejection sampling,
+        alone, as Cycles bakes a texel): rejection sampling,
         JITTER_TRIES tries, then as many over the whole texel, then the bake point (the centroid
         of texel ∩ triangle); offset along the face normal. A texel's first tries cover the
         footprint evenly (a randomly shifted Hammersley set)."""
         tri = self.triangle[idx]
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1).astype(np.float64)
-        if self.others is not None:  # the whole footprint, over every triangle of the texel
+        if self.others is None:  # the texel's own triangle alone
+            tris, count = tri[:, None], np.ones(len(tri), np.int64)
+        else:  # the whole footprint, over every triangle of the texel
             tris = np.concatenate([tri[:, None], self.others[idx]], axis=1)
             count = 1 + (tris[:, 1:] >= 0).sum(axis=1)
             tris = np.maximum(tris, 0)
-            return kernels.get().footprint_origins(
-                corner,
-                self.mesh.texel_uv[tris],
-                self.mesh.positions[tris],
-                count,
-                self.position[idx],
-                self.face_normal[idx],
-                self.offset,
-                k,
-                FOOTPRINT if footprint is None else footprint,
-                JITTER_TRIES,
-                int(rng.integers(1 << 63)),
-            )
-        return kernels.get().texel_origins(
+        return kernels.get().footprint_origins(
             corner,
-            self.mesh.texel_uv[tri],
-            self.mesh.positions[tri],
+            self.mesh.texel_uv[tris],
+            self.mesh.positions[tris],
+            count,
             self.position[idx],
             self.face_normal[idx],
             self.offset,

@@ -111,66 +111,20 @@ def hemisphere_rays(normals, k, seed):
     return dirs, pdf
 
 
-def texel_origins(corner, tri_uv, tri_pos, centroid, face_normal, offset, k, footprint, tries, seed):
+def footprint_origins(corner, tri_uv, tri_pos, count, centroid, face_normal, offset, k, footprint, tries, seed):
     """k ray origins per texel (n·k, 3), uniform over the part of the texel's central
-    `footprint` × `footprint` square (texel units) inside its triangle: rejection sampling,
-    `tries` tries, then as many over the whole texel, then `centroid` (n, 3); pushed off the
-    surface by `offset` along `face_normal` (n, 3). corner (n, 2): the texel's corner in texel
-    units; tri_uv (n, 3, 2): its triangle in texel units; tri_pos (n, 3, 3): in world space.
+    `footprint` × `footprint` square (texel units) covered by any of its first count (n,)
+    triangles (tri_uv (n, m, 3, 2) in texel units, tri_pos (n, m, 3, 3) world space; the first
+    is the texel's own; count 1: that triangle alone, as Cycles bakes a texel): rejection
+    sampling, `tries` tries, then as many over the whole texel, then `centroid` (n, 3); a try is
+    kept in the first triangle holding it and takes its position there, pushed off the surface
+    by `offset` along `face_normal` (n, 3). corner (n, 2): the texel's corner in texel units. A
+    texel straddling a triangle edge then averages its whole footprint, centred on the texel.
 
     The k first tries of a texel are a Hammersley set (j/k, radical inverse of j) shifted by
     one random offset per texel, modulo 1 (Cranley–Patterson): each try is uniform on its
     own, so the rejection sampling stays exact, but together they cover the square evenly,
     so a shadow edge across a texel is far less noisy than with independent tries."""
-    state = np.uint64(seed)
-    n = corner.shape[0]
-    out = np.empty((n * k, 3))
-    for t in range(n):
-        ax, ay = tri_uv[t, 0, 0], tri_uv[t, 0, 1]
-        v0x, v0y = tri_uv[t, 1, 0] - ax, tri_uv[t, 1, 1] - ay
-        v1x, v1y = tri_uv[t, 2, 0] - ax, tri_uv[t, 2, 1] - ay
-        den = v0x * v1y - v1x * v0y
-        if den == 0.0:
-            den = 1.0
-        state, shift_x = uniform(state)
-        state, shift_y = uniform(state)
-        for j in range(k):
-            s = t * k + j
-            found = False
-            for attempt in range(2 * tries):
-                width = footprint if attempt < tries else 1.0
-                if attempt == 0:
-                    ux = (j / k + shift_x) % 1.0
-                    uy = (radical_inverse(j) + shift_y) % 1.0
-                else:
-                    state, ux = uniform(state)
-                    state, uy = uniform(state)
-                px = corner[t, 0] + 0.5 * (1.0 - width) + width * ux - ax
-                py = corner[t, 1] + 0.5 * (1.0 - width) + width * uy - ay
-                w1 = (px * v1y - v1x * py) / den
-                w2 = (v0x * py - px * v0y) / den
-                w0 = 1.0 - w1 - w2
-                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
-                    for c in range(3):
-                        out[s, c] = w0 * tri_pos[t, 0, c] + w1 * tri_pos[t, 1, c] + w2 * tri_pos[t, 2, c]
-                    found = True
-                    break
-            if not found:  # the overlap's centroid, as Cycles gives up
-                for c in range(3):
-                    out[s, c] = centroid[t, c]
-            for c in range(3):
-                out[s, c] += face_normal[t, c] * offset
-    return out
-
-
-def footprint_origins(corner, tri_uv, tri_pos, count, centroid, face_normal, offset, k, footprint, tries, seed):
-    """`texel_origins` over every triangle of a texel: k ray origins per texel (n·k, 3), uniform
-    over the part of the texel's central `footprint` × `footprint` square covered by any of its
-    first count (n,) triangles (tri_uv (n, m, 3, 2) in texel units, tri_pos (n, m, 3, 3) world
-    space; the first is the texel's own): a try is kept in the first triangle holding it, and
-    takes its position there. A texel straddling a triangle edge then averages its whole
-    footprint, centred on the texel, not the part on one triangle. Same tries, fallback,
-    offset and Hammersley first tries as `texel_origins`."""
     state = np.uint64(seed)
     n = corner.shape[0]
     out = np.empty((n * k, 3))
@@ -459,7 +413,6 @@ def add_pass(idx, estimate, normals, luminance, total, m2, iz, iz_sq, passes):
 _HELPERS = ("uniform", "radical_inverse", "sh_basis", "zonal_band1", "local_to_world")
 _KERNELS = (
     "hemisphere_rays",
-    "texel_origins",
     "footprint_origins",
     "replace_hidden",
     "advance_paths",

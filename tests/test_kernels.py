@@ -178,7 +178,7 @@ def test_advance_roulette_keeps_victims_for_their_light_and_reweights_survivors(
     np.testing.assert_allclose(np.einsum("ri,ri->r", nd[:s], n[:s]), np.pi * pdf[:s], atol=1e-12)
 
 
-def test_texel_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(rng):
+def test_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(rng):
     """Inside a big triangle every first try is accepted: a texel's k origins then hit each of
     the k columns of its footprint once (a shifted Hammersley set). A triangle covering part
     of the footprint gets origins inside it only, uniform over the overlap."""
@@ -187,7 +187,10 @@ def test_texel_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(r
     big = np.array([[-100.0, -100.0], [300.0, -100.0], [-100.0, 300.0]])
     tri_pos = np.concatenate([np.tile(big, (n, 1, 1)), np.zeros((n, 3, 1))], axis=2)  # world = texel space
     up = np.tile([0.0, 0.0, 1.0], (n, 1))
-    out = K.texel_origins(corner, np.tile(big, (n, 1, 1)), tri_pos, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 3)
+    one = np.ones(n, np.int64)  # the texel's own triangle alone
+    out = K.footprint_origins(
+        corner, np.tile(big, (n, 1, 1, 1)), tri_pos[:, None], one, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 3
+    )
     local = out[:, :2].reshape(n, k, 2) - corner[:, None, :]
     assert local.min() >= 0.25 and local.max() <= 0.75
     np.testing.assert_array_equal(
@@ -197,7 +200,9 @@ def test_texel_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(r
     half = np.array([[-5.0, 6.0], [6.0, -5.0], [-5.0, -5.0]])
     tri = np.tile(half, (n, 1, 1))
     tri_pos = np.concatenate([tri, np.zeros((n, 3, 1))], axis=2)
-    out = K.texel_origins(np.zeros((n, 2)), tri, tri_pos, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 4)
+    out = K.footprint_origins(
+        np.zeros((n, 2)), tri[:, None], tri_pos[:, None], one, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 4
+    )
     assert (out[:, 0] + out[:, 1] <= 1.0 + 1e-12).all() and out[:, :2].min() >= 0.0
     assert (out[:, :2].min(axis=1) >= 0.25).mean() > 0.99  # 10 misses in a row (2⁻¹⁰): whole texel
     assert abs(out[:, 0].mean() - (0.25 + 0.5 / 3)) < 0.01  # centroid of the lower-left half
