@@ -1,19 +1,34 @@
 """Time to equal error: our bake against Cycles' Diffuse bake, plus ray rates and memory.
 
-    python bench/time_to_error.py [--scene classroom|field|both] [--resolution 512]
+    flock /tmp/bench.lock .venv/bin/python bench/time_to_error.py                  # the four scenes
+    .venv/bin/python bench/time_to_error.py --scenes staircase2 bedroom [--resolution 512]
 
-Scenes (scenekit/scenes.py): `classroom` (../shared/scenes/classroom, 104k triangles, OBJ; its environment map is not
+Scenes: `classroom` (../shared/scenes/classroom, 104k triangles, OBJ; its environment map is not
 shipped, so it is lit by a sun and a sky colour through the windows; receivers: the 6 largest room
-meshes with few charts; the backdrop and furniture only occlude) and `field` (a procedural ~1M-triangle field of spheres on a
-ground plane, sun + sky; receivers: the ground). For each: (a) raw embreex closest-hit rays/s
+meshes with few charts; the backdrop and furniture only occlude), `field` (a procedural
+~1M-triangle field of spheres on a ground plane, sun + sky; receivers: the ground) (both
+scenekit/scenes.py), and the two interiors of ../shared/scenes lit by emissive meshes,
+`staircase2` (8 emitters) and `bedroom` (receivers as bench/denoise.py picks them: the largest
+meshes by area that are not emitters or glass). For each: (a) raw embreex closest-hit rays/s
 (embreex's own TriangleMesh + run(); incoherent, 2 threads, median of 5, same run; and the same
-for our binding of the same Embree library, core.embree), (b) our bake's rays/s (all rays, shadow rays included) and
-texel-samples/s, (c) I_z RMSE against a long Cycles Diffuse bake (Direct + Indirect, Color off,
-3 bounces) for our bake and Cycles at increasing sample counts, and the time each needs to reach
-three error levels (log-log interpolation); our time counts the Embree scene, the bake points and
-the tracing (Cycles' counts its whole bake operator); both are warm (Cycles by the reference bake,
-ours by loading the compiled kernels first, which a Blender session does once). The peak RSS of this run is recorded; a 4096² atlas's
-peak memory is bench/memory.py's job. Writes bench/results/time_to_error.json.
+for our binding of the same Embree library, core.embree), (b) our bake's rays/s (all rays, shadow
+rays included) and texel-samples/s, (c) I_z error against a long Cycles Diffuse bake (Direct +
+Indirect, Color off, BOUNCES bounces, sample clamps off, all cores) for our bake and Cycles at
+increasing sample counts, and the time each needs to reach three error levels (log-log
+interpolation); our time counts the Embree scene, the bake points and the tracing (Cycles' counts
+its whole bake operator); both are warm (Cycles by the reference bake, ours by loading the
+compiled kernels first, which a Blender session does once).
+
+Errors: relative RMSE of I_z's luminance over fully covered, unburied texels, relative to the
+reference's mean. The reference is two Cycles bakes of half its samples each with other seeds
+than the rows': their mean is the reference and half their RMS difference is its own noise (the
+floor), which is removed from each row's error in quadrature (sqrt(e² − floor²)), so levels near
+the reference's noise stay measurable (the floor is printed; a level below ~the floor is not).
+Per-sample variance: at each sample count both engines ran, (corrected error)² × samples, ours
+over Cycles' (< 1: our samples are worth more); time to error ≈ the texel-sample rate ratio over
+that variance ratio. The peak RSS of this run is recorded; a 4096² atlas's peak memory is
+bench/memory.py's job. Writes bench/results/time_to_error.json (and a per-scene entry is kept
+from an earlier run when `--scenes` leaves it out).
 """
 
 from __future__ import annotations
@@ -33,34 +48,54 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 LAYER = "HHD_Lightmap"
 BOUNCES = 3
+SCENES = ("classroom", "field", "staircase2", "bedroom")
+#: Cycles seeds of the reference's two halves (the rows use seed 0: Cycles' samples for one seed
+#: are nested, so a row must not share its samples with the reference)
+REFERENCE_SEEDS = (9173, 9174)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", choices=["classroom", "field", "both"], default="both")
+    ap.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES))
     ap.add_argument("--resolution", type=int, default=512)
     ap.add_argument("--padding", type=int, default=2, help="texels between charts (the classroom has ~2000 charts)")
-    ap.add_argument("--reference-samples", type=int, default=1024)
+    ap.add_argument("--reference-samples", type=int, default=2048, help="Cycles' reference, both halves together")
     ap.add_argument("--ours", type=int, nargs="+", default=[4, 16, 64, 256])
     ap.add_argument("--cycles", type=int, nargs="+", default=[4, 16, 64, 256])
     ap.add_argument("--levels", type=float, nargs="+", default=[0.20, 0.10, 0.05])
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
+    sys.path.insert(0, str(ROOT / "bench"))  # denoise (the .blend scenes' receivers)
     sys.path.insert(0, str(ROOT))  # scenekit
     import bpy  # noqa: F401
 
     import hhd_lightmapper
-    from scenekit import scenes
 
     hhd_lightmapper.register()
-    results = {}
-    for name in ["classroom", "field"] if args.scene == "both" else [args.scene]:
-        receivers = scenes.classroom() if name == "classroom" else scenes.field()
+    out = RESULTS / "time_to_error.json"
+    results = json.loads(out.read_text()) if out.exists() else {}
+    results = {k: v for k, v in results.items() if k in SCENES and "floor" in v}  # this format only
+    for name in args.scenes:
+        receivers = load_scene(name)
         results[name] = measure(receivers, args)
+        results[name]["load_average"] = os.getloadavg()
         print_table(name, results[name], args.levels)
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "time_to_error.json").write_text(json.dumps(results, indent=2))
+        RESULTS.mkdir(exist_ok=True)
+        out.write_text(json.dumps(results, indent=2))
     return 0
+
+
+def load_scene(name: str) -> list:
+    """The scene opened or built; its receivers."""
+    from scenekit import scenes
+
+    if name == "classroom":
+        return scenes.classroom()
+    if name == "field":
+        return scenes.field()
+    import denoise
+
+    return denoise.load_scene(name)
 
 
 # ---- measurement --------------------------------------------------------------------------
@@ -69,6 +104,7 @@ def measure(receivers, args) -> dict:
 
     from hhd_lightmapper.bridge import mesh_data, scene_data
     from hhd_lightmapper.core import bakepoints, rays
+    from hhd_lightmapper.core.colour import LUMINANCE
     from scenekit.blender import select
 
     scene = bpy.context.scene
@@ -90,9 +126,13 @@ def measure(receivers, args) -> dict:
     }
     warm_up(points, bake_scene, ray_scene)
     t = time.perf_counter()
-    reference = cycles_bake(receivers, points, args.reference_samples, seed=9173)
-    out["reference"] = {"samples": args.reference_samples, "seconds": time.perf_counter() - t}
+    halves = [cycles_bake(receivers, points, args.reference_samples // 2, seed=s) @ LUMINANCE for s in REFERENCE_SEEDS]
+    reference = 0.5 * (halves[0] + halves[1])
     mean = float(reference[keep].mean())
+    floor = 0.5 * rmse(halves[0], halves[1], keep, mean)
+    out["reference"] = {"samples": args.reference_samples, "seconds": time.perf_counter() - t, "mean_iz": mean}
+    out["floor"] = floor
+    print(f"  reference: Cycles {args.reference_samples} spp, its own noise (floor) {100 * floor:.2f}%", flush=True)
     out["ours"], out["cycles"] = [], []
     for samples in args.ours:
         iz, seconds, result = our_bake(surface, bake_scene, samples, points)
@@ -103,12 +143,12 @@ def measure(receivers, args) -> dict:
                 "setup_seconds": result.setup_seconds,
                 "rays_per_s": result.rays / result.seconds,
                 "texel_samples_per_s": len(points.texel) * result.samples / result.seconds,
-                "rmse": rmse(iz, reference, keep, mean),
+                **errors(iz @ LUMINANCE, reference, keep, mean, floor),
             }
         )
         print(
             f"  ours   {samples:5d} spp {seconds:7.1f} s (scene + bake points {result.setup_seconds:.1f} s)  "
-            f"RMSE {out['ours'][-1]['rmse']:.4f}",
+            f"RMSE {out['ours'][-1]['measured']:.4f} -> {out['ours'][-1]['rmse']:.4f}",
             flush=True,
         )
     for samples in args.cycles:
@@ -119,15 +159,20 @@ def measure(receivers, args) -> dict:
             {
                 "samples": samples,
                 "seconds": seconds,
-                "rmse": rmse(iz, reference, keep, mean),
+                **errors(iz @ LUMINANCE, reference, keep, mean, floor),
                 "texel_samples_per_s": len(points.texel) * samples / seconds,
             }
         )
-        print(f"  cycles {samples:5d} spp {seconds:7.1f} s  RMSE {out['cycles'][-1]['rmse']:.4f}", flush=True)
+        print(
+            f"  cycles {samples:5d} spp {seconds:7.1f} s  RMSE {out['cycles'][-1]['measured']:.4f} -> "
+            f"{out['cycles'][-1]['rmse']:.4f}",
+            flush=True,
+        )
     out["time_to_error"] = {
         f"{level:g}": {"ours": time_at(out["ours"], level), "cycles": time_at(out["cycles"], level)}
         for level in args.levels
     }
+    out["variance_per_sample"] = variance_ratios(out["ours"], out["cycles"])
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out
 
@@ -235,7 +280,34 @@ def cycles_bake(receivers, points, samples, seed=0) -> np.ndarray:
 
 
 def rmse(iz, reference, keep, mean) -> float:
+    """Relative RMSE of `iz` (P,) against `reference` (P,) over `keep`, relative to `mean`."""
     return float(np.sqrt(np.mean((iz[keep] - reference[keep]) ** 2)) / mean)
+
+
+def errors(iz, reference, keep, mean, floor) -> dict:
+    """A row's error: `measured` (relative RMSE), `rmse` (the reference's floor removed in
+    quadrature: what time_at interpolates) and `bias` (ΣI_z / Σ reference − 1)."""
+    e = rmse(iz, reference, keep, mean)
+    return {
+        "measured": e,
+        "rmse": float(np.sqrt(max(e * e - floor * floor, 0.0))),
+        "bias": float(iz[keep].sum() / reference[keep].sum() - 1.0),
+    }
+
+
+def variance_ratios(ours: list[dict], cycles: list[dict]) -> dict:
+    """Per sample count both ran: our per-sample I_z variance (corrected error² × samples) over
+    Cycles', and our texel-sample rate over Cycles'."""
+    theirs = {r["samples"]: r for r in cycles}
+    out = {}
+    for r in ours:
+        c = theirs.get(r["samples"])
+        if c and c["rmse"] > 0:
+            out[str(r["samples"])] = {
+                "variance": (r["rmse"] / c["rmse"]) ** 2,
+                "rate": r["texel_samples_per_s"] / c["texel_samples_per_s"],
+            }
+    return out
 
 
 def time_at(rows, level):
@@ -256,6 +328,11 @@ def print_table(name, r, levels):
         f"our bake {ours['rays_per_s'] / 1e6:.2f} M rays/s ({100 * ours['rays_per_s'] / r['raw_rays_per_s']:.0f}% of raw), "
         f"{ours['texel_samples_per_s'] / 1e6:.2f} M texel-samples/s; reference: Cycles {r['reference']['samples']} spp"
     )
+    print(f"  reference noise (floor) {100 * r['floor']:.2f}%, load average {r.get('load_average')}")
+    for spp, v in r["variance_per_sample"].items():
+        print(
+            f"  {spp:>5s} spp: per-sample variance ours / Cycles {v['variance']:.2f}, texel-sample rate {v['rate']:.2f}"
+        )
     print(f"{'I_z RMSE':>10s} {'ours (s)':>10s} {'Cycles (s)':>11s} {'ratio':>7s}")
     for level in levels:
         row = r["time_to_error"][f"{level:g}"]

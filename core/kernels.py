@@ -410,8 +410,249 @@ def add_pass(idx, estimate, normals, luminance, total, m2, iz, iz_sq, passes):
         passes[t] = k + 1
 
 
-_HELPERS = ("uniform", "radical_inverse", "sh_basis", "zonal_band1", "local_to_world")
+def _unit3(x, y, z):
+    """(x, y, z) / its length (NaN for a zero vector)."""
+    inv = 1.0 / math.sqrt(x * x + y * y + z * z)
+    return x * inv, y * inv, z * inv
+
+
+def _unit_cross(a, b):
+    """The unit cross product of 3-tuples a × b."""
+    return _unit3(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _angle_between(v1, v2):
+    """The angle between unit 3-tuples, accurate near 0 and π (PBRT-v4's AngleBetween)."""
+    if v1[0] * v2[0] + v1[1] * v2[1] + v1[2] * v2[2] < 0.0:
+        sx, sy, sz = v1[0] + v2[0], v1[1] + v2[1], v1[2] + v2[2]
+        return math.pi - 2.0 * math.asin(min(math.sqrt(sx * sx + sy * sy + sz * sz) / 2.0, 1.0))
+    dx, dy, dz = v2[0] - v1[0], v2[1] - v1[1], v2[2] - v1[2]
+    return 2.0 * math.asin(min(math.sqrt(dx * dx + dy * dy + dz * dz) / 2.0, 1.0))
+
+
+def _spherical(x, i, triangles, t):
+    """Seen from x[i] (of (R, 3)), triangle triangles[t] (T, 3, 3): unit directions a, b, c
+    (3-tuples) to its corners, the angle at a and the solid angle (NaN when degenerate):
+    `lights.spherical_triangles`, one row."""
+    px, py, pz = x[i, 0], x[i, 1], x[i, 2]
+    a = _unit3(triangles[t, 0, 0] - px, triangles[t, 0, 1] - py, triangles[t, 0, 2] - pz)
+    b = _unit3(triangles[t, 1, 0] - px, triangles[t, 1, 1] - py, triangles[t, 1, 2] - pz)
+    c = _unit3(triangles[t, 2, 0] - px, triangles[t, 2, 1] - py, triangles[t, 2, 2] - pz)
+    n_ab, n_bc, n_ca = _unit_cross(a, b), _unit_cross(b, c), _unit_cross(c, a)
+    alpha = _angle_between(n_ab, (-n_ca[0], -n_ca[1], -n_ca[2]))
+    beta = _angle_between(n_bc, (-n_ab[0], -n_ab[1], -n_ab[2]))
+    gamma = _angle_between(n_ca, (-n_bc[0], -n_bc[1], -n_bc[2]))
+    return a, b, c, alpha, alpha + beta + gamma - math.pi
+
+
+def _spherical_direction(a, b, c, alpha, area, u1, u2):
+    """A unit direction (3-tuple) uniform in the spherical triangle a, b, c (`_spherical`) for
+    uniform numbers u1, u2 (Arvo 1995, as `lights.sample_spherical_triangles`)."""
+    ap_pi = math.pi + u1 * area
+    cos_a, sin_a = math.cos(alpha), math.sin(alpha)
+    sin_phi = math.sin(ap_pi) * cos_a - math.cos(ap_pi) * sin_a
+    cos_phi = math.cos(ap_pi) * cos_a + math.sin(ap_pi) * sin_a
+    k1 = cos_phi + cos_a
+    k2 = sin_phi - sin_a * (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+    cos_bp = (k2 + (k2 * cos_phi - k1 * sin_phi) * cos_a) / ((k2 * sin_phi + k1 * cos_phi) * sin_a)
+    cos_bp = min(max(cos_bp, -1.0), 1.0)
+    sin_bp = math.sqrt(max(1.0 - cos_bp * cos_bp, 0.0))
+    ca = c[0] * a[0] + c[1] * a[1] + c[2] * a[2]
+    e = _unit3(c[0] - ca * a[0], c[1] - ca * a[1], c[2] - ca * a[2])
+    cp = (cos_bp * a[0] + sin_bp * e[0], cos_bp * a[1] + sin_bp * e[1], cos_bp * a[2] + sin_bp * e[2])
+    cpb = cp[0] * b[0] + cp[1] * b[1] + cp[2] * b[2]
+    cos_t = 1.0 - u2 * (1.0 - cpb)
+    sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
+    f = _unit3(cp[0] - cpb * b[0], cp[1] - cpb * b[1], cp[2] - cpb * b[2])
+    return _unit3(cos_t * b[0] + sin_t * f[0], cos_t * b[1] + sin_t * f[1], cos_t * b[2] + sin_t * f[2])
+
+
+def _emitter_density(chance, area, solid_angle, cos, dist, lo, hi):
+    """Density per steradian of a sampled emitter point: chance (of its cluster and triangle)
+    over the solid angle where that lies in [lo, hi] (sampled by direction), else over the area
+    times dist²/cos (sampled by area); 0 when not finite or grazing."""
+    if solid_angle >= lo and solid_angle <= hi:
+        density = chance / solid_angle
+    elif cos > 1e-12:
+        density = chance / area * dist * dist / cos
+    else:
+        return 0.0
+    return density if math.isfinite(density) else 0.0
+
+
+def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emitters, share, window):
+    """One emitter sample per point x (R, 3) (`lights.EmissiveTriangles._sample_points`, one
+    row at a time): the cluster by `u[0]` (`_cluster_weights` with normals (R, 3) or no rows),
+    the triangle of the cluster by `u[1]` (the first of its rows of `key` above cluster + u),
+    then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
+    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (centre (K, 3),
+    radius2 (K,), cluster power (K,), key (E,), order (E,), first (K,), last (K,)).
+    Returns directions (R, 3), distances (R,), triangles (R,) int64 and densities (R,)."""
+    centre, radius2, power, key, order, first, last = emitters
+    n = x.shape[0]
+    k = centre.shape[0]
+    dirs = np.empty((n, 3))
+    dist = np.empty(n)
+    pick = np.empty(n, np.int64)
+    pdf = np.empty(n)
+    w = np.empty(k)
+    all_power = 0.0
+    for c in range(k):
+        all_power += power[c]
+    for i in range(n):
+        cluster, chance = k - 1, 1.0
+        if k > 1:
+            total = _cluster_weights(x, normals, i, centre, radius2, power, w)
+            acc = 0.0
+            for c in range(k):
+                p = _cluster_chance(w, total, power, all_power, share, c)
+                acc += p
+                if u[0, i] < acc:
+                    cluster = c
+                    break
+            chance = _cluster_chance(w, total, power, all_power, share, cluster)
+        lo, hi = first[cluster], last[cluster]  # the first row whose key exceeds cluster + u
+        v = cluster + u[1, i]
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if key[mid] > v:
+                hi = mid
+            else:
+                lo = mid + 1
+        t = order[lo]
+        pick[i] = t
+        chance *= within[t]
+        a, b, c3, alpha, omega = _spherical(x, i, triangles, t)
+        nx, ny, nz = tri_normal[t, 0], tri_normal[t, 1], tri_normal[t, 2]
+        if omega >= window[0] and omega <= window[1]:
+            d = _spherical_direction(a, b, c3, alpha, omega, u[2, i], u[3, i])
+            along = (
+                (triangles[t, 0, 0] - x[i, 0]) * nx
+                + (triangles[t, 0, 1] - x[i, 1]) * ny
+                + (triangles[t, 0, 2] - x[i, 2]) * nz
+            )
+            reach = along / (d[0] * nx + d[1] * ny + d[2] * nz)
+            dirs[i, 0], dirs[i, 1], dirs[i, 2] = d
+            dist[i] = reach
+            pdf[i] = chance / omega if math.isfinite(reach) and reach > 0.0 else 0.0  # 0: no sample
+            continue
+        s = math.sqrt(u[2, i])
+        b0, b1, b2 = 1.0 - s, s * (1.0 - u[3, i]), s * u[3, i]
+        px = b0 * triangles[t, 0, 0] + b1 * triangles[t, 1, 0] + b2 * triangles[t, 2, 0] - x[i, 0]
+        py = b0 * triangles[t, 0, 1] + b1 * triangles[t, 1, 1] + b2 * triangles[t, 2, 1] - x[i, 1]
+        pz = b0 * triangles[t, 0, 2] + b1 * triangles[t, 1, 2] + b2 * triangles[t, 2, 2] - x[i, 2]
+        r = math.sqrt(px * px + py * py + pz * pz)
+        inv = 1.0 / max(r, 1e-300)
+        dirs[i, 0], dirs[i, 1], dirs[i, 2] = px * inv, py * inv, pz * inv
+        dist[i] = r
+        cos = abs(px * nx + py * ny + pz * nz) * inv
+        pdf[i] = _emitter_density(chance, tri_area[t], omega, cos, r, window[0], window[1])
+    return dirs, dist, pick, pdf
+
+
+def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within, cluster_of, emitters, share, window):
+    """(R,): the density per steradian with which `sample_emitters` at x (R, 3) (normals (R, 3)
+    or no rows) picks the point at distance t (R,) along d (R, 3) on triangle prim (R,) (0 for
+    triangles that do not emit)."""
+    centre, radius2, power = emitters[0], emitters[1], emitters[2]
+    k = centre.shape[0]
+    w = np.empty(k)
+    all_power = 0.0
+    for c in range(k):
+        all_power += power[c]
+    out = np.empty(x.shape[0])
+    for i in range(x.shape[0]):
+        tri = prim[i]
+        if within[tri] <= 0.0:
+            out[i] = 0.0
+            continue
+        chance = within[tri]
+        if k > 1:
+            total = _cluster_weights(x, normals, i, centre, radius2, power, w)
+            chance *= _cluster_chance(w, total, power, all_power, share, cluster_of[tri])
+        omega = _spherical(x, i, triangles, tri)[4]
+        cos = abs(d[i, 0] * tri_normal[tri, 0] + d[i, 1] * tri_normal[tri, 1] + d[i, 2] * tri_normal[tri, 2])
+        out[i] = _emitter_density(chance, tri_area[tri], omega, cos, t[i], window[0], window[1])
+    return out
+
+
+#: Bases of the radical inverses of `texel_sequence`'s dimensions (Halton's first primes).
+_PRIMES = np.array([2, 3, 5, 7, 11, 13, 17, 19], np.int64)
+
+
+def texel_sequence(texels, k, first, dim, seed):
+    """(n·k,) numbers in [0, 1): for each texel of texels (n,) (global ids) its samples first ..
+    first + k − 1 of dimension dim of a Halton sequence (radical inverse in base _PRIMES[dim])
+    shifted modulo 1 by a random offset per (seed, texel, dim) (Cranley–Patterson rotation):
+    every number is uniform, a texel's samples are stratified across all its passes, and the
+    offsets make texels and seeds independent."""
+    base = _PRIMES[dim % _PRIMES.shape[0]]
+    inv = 1.0 / base
+    out = np.empty(texels.shape[0] * k)
+    for t in range(texels.shape[0]):
+        state = np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(texels[t]) * np.uint64(0xD1B54A32D192ED03)
+        state = state + np.uint64(dim) * np.uint64(0xAEF17502108EF2D9)
+        state, shift = uniform(state)
+        for j in range(k):
+            i = first + j
+            v = 0.0
+            f = inv
+            while i > 0:
+                v += (i % base) * f
+                i //= base
+                f *= inv
+            v += shift
+            out[t * k + j] = v - 1.0 if v >= 1.0 else v
+    return out
+
+
+def _cluster_weights(x, normals, i, centre, radius2, power, w):
+    """Into w (K,): each emitter cluster's power over max(distance², radius²) from x[i], times
+    the largest cosine to normals[i] of a direction into the cluster's bounding sphere (0 for a
+    cluster wholly below the horizon; 1 when normals has no rows); returns their sum."""
+    total = 0.0
+    for c in range(centre.shape[0]):
+        dx, dy, dz = centre[c, 0] - x[i, 0], centre[c, 1] - x[i, 1], centre[c, 2] - x[i, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        w[c] = power[c] / max(d2, radius2[c])
+        if normals.shape[0] and d2 > radius2[c]:
+            d = math.sqrt(d2)
+            cos_t = (normals[i, 0] * dx + normals[i, 1] * dy + normals[i, 2] * dz) / d
+            sin_a = math.sqrt(radius2[c] / d2)
+            cos_a = math.sqrt(1.0 - sin_a * sin_a)
+            if cos_t < cos_a:  # the normal lies outside the cone: the nearest edge's cosine
+                w[c] *= max(cos_t * cos_a + math.sqrt(max(1.0 - cos_t * cos_t, 0.0)) * sin_a, 0.0)
+        total += w[c]
+    return total
+
+
+def _cluster_chance(w, total, power, all_power, share, c):
+    """The probability of cluster c: (1 − share)·w_c / Σw + share·power_c / Σpower (power alone
+    where every w is 0: all below the horizon)."""
+    if total <= 0.0:
+        return power[c] / all_power
+    return (1.0 - share) * w[c] / total + share * power[c] / all_power
+
+
+_HELPERS = (
+    "uniform",
+    "radical_inverse",
+    "sh_basis",
+    "zonal_band1",
+    "local_to_world",
+    "_cluster_weights",
+    "_cluster_chance",
+    "_unit3",
+    "_unit_cross",
+    "_angle_between",
+    "_spherical",
+    "_spherical_direction",
+    "_emitter_density",
+)
 _KERNELS = (
+    "sample_emitters",
+    "emitter_pdf",
+    "texel_sequence",
     "hemisphere_rays",
     "footprint_origins",
     "replace_hidden",

@@ -16,7 +16,9 @@ the part the bake point sees is averaged (samples hidden from it are replaced by
 so light from the far side of the wall does not leak in; samples starting on a part of the
 texel a coplanar face covers receive nothing (core.covers).
 Lights are added by next-event estimation at the bake point too: one shadow ray per light per
-sample, projected to SH along the light's direction (`kernels.accumulate_grouped`; a delta
+sample (its random numbers from the texel's own stratified sequence across all its passes,
+`lights.TexelStream`; emitters chosen by what they bring to the texel, `lights.EmissiveTriangles`),
+projected to SH along the light's direction (`kernels.accumulate_grouped`; a delta
 light has an exact direction: an unshadowed sun adds exactly s·Y(l), no noise), MIS-weighted
 against the mixture pdf for the lights rays can reach. Light from below n_v's horizon is not
 part of the hemisphere's SH.
@@ -32,9 +34,13 @@ from .. import bakepoints as _bakepoints
 from .. import covers as _covers
 from ..bakepoints import BakePoints
 from ..covers import CoverProbe
-from . import shipping
+from . import lights, shipping
 from .paths import Paths, TraceScene, seed, take_rows
 from .scheduler import UnitResult, WorkUnit
+
+#: The bake point's light samples from each texel's stratified sequence (`lights.TexelStream`);
+#: False: independent random numbers (bench/light_sampling.py measures what this saves).
+STRATIFIED_LIGHTS = True
 
 
 class TexelEstimator(shipping.Shipped):
@@ -85,9 +91,11 @@ class TexelEstimator(shipping.Shipped):
         if crossed is not None:  # settled bake points: hidden samples are replaced
             origins = self._visible(paths, rng, idx, origins, k, crossed[idx], uncovered)
             uncovered = None
-        radiance = paths.radiance(rng, origins, dirs, pdf, uncovered)  # (n·k, C)
+        normal = np.repeat(self.points.normal[idx], k, axis=0)  # the light samples' too (`_direct_sh`)
+        radiance = paths.radiance(rng, origins, dirs, pdf, uncovered, normal)  # (n·k, C)
         estimate = paths.kernels.project_hemisphere(dirs, radiance, pdf, normals, k)
-        estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered)
+        stream = lights.TexelStream(idx, k, unit.pass_index * k, unit.seed) if STRATIFIED_LIGHTS else None
+        estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered, stream)
         return UnitResult(estimate, paths.traced)
 
     def _visible(self, paths: Paths, rng, idx, origins, k, crossed, uncovered=None) -> np.ndarray:
@@ -129,7 +137,7 @@ class TexelEstimator(shipping.Shipped):
         uncovered[rows] = ~covers.covered(origins[rows], self.points.face_normal[idx[texel[rows]]])
         return uncovered
 
-    def _direct_sh(self, paths: Paths, rng, idx, origins, k, uncovered=None) -> np.ndarray:
+    def _direct_sh(self, paths: Paths, rng, idx, origins, k, uncovered=None, stream=None) -> np.ndarray:
         """Next-event estimation at the bake point: one shadow ray per light from each of the
         pass's k origins (those `uncovered`, if given), projected to SH (len(idx), 9, C), each
         light into its set's columns; light arriving from below n_v's horizon is left out.
@@ -140,7 +148,7 @@ class TexelEstimator(shipping.Shipped):
         def mixture_pdf(w):
             return _mixture_pdf(np.einsum("ri,ri->r", w, normal))
 
-        samples = paths.light_samples(rng, origins, mixture_pdf)
+        samples = paths.light_samples(rng, origins, mixture_pdf, strata=1 if stream is None else stream, normals=normal)
         for light, (dirs, value, dist) in zip(self.scene.lights, samples):
             above = np.einsum("ri,ri->r", dirs, normal) > 0.0
             if uncovered is not None:

@@ -15,18 +15,25 @@ Two kinds, told apart by `Light.reachable`:
     `evaluate` the MIS-weighted radiance a ray that reached the light brings.
 Weights sum to one per direction, so every SH coefficient stays unbiased.
 
-Emissive triangles are picked with probability ∝ their power (area × emitted luminance;
-emission is two-sided, so both sides count alike), then a uniform point on the triangle. Array
-conventions: x (R, 3) shading points, directions (R, 3) unit, world space; densities per steradian.
+Emissive triangles are grouped into at most CLUSTERS spatial clusters (median splits of their
+centroids along the longest axis). At each shading point x a cluster is picked with probability
+∝ its power over max(distance², radius²) to x (mixed with POWER_SHARE of power alone), then a
+triangle of the cluster ∝ its power (area × emitted luminance; emission is two-sided, so both
+sides count alike), then a uniform point on the triangle: a lamp across the room no longer takes
+as many samples as the one beside the texel. The density therefore depends on x: `pdf` and
+`evaluate` take the rays' origins. Array conventions: x (R, 3) shading points, directions (R, 3)
+unit, world space; densities per steradian.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels as _kernels
 from .. import sh as _sh
 from ..colour import LUMINANCE
 from ..environment import EnvironmentMap
@@ -53,20 +60,45 @@ class Light(ABC):
     at_infinity: bool = False
 
     @abstractmethod
-    def sample(self, rng: np.random.Generator, x: np.ndarray, ray_pdf: RayPdf) -> Sample:
+    def sample(
+        self,
+        rng: np.random.Generator,
+        x: np.ndarray,
+        ray_pdf: RayPdf,
+        strata: Strata = 1,
+        normals: np.ndarray | None = None,
+    ) -> Sample:
         """One sample per shading point x (R, 3), drawn from `rng` (see `Sample`); a reachable
-        light weights it against `ray_pdf`, the others ignore it."""
+        light weights it against `ray_pdf`, the others ignore it. strata: x comes in groups of
+        that many points of one texel, whose random numbers are stratified together
+        (`uniforms`); normals (R, 3): the points' normals, for lights that favour what lies above
+        the horizon (`pdf` and `evaluate` must then get the same)."""
 
-    def pdf(self, d: np.ndarray, t: np.ndarray | None = None, prim: np.ndarray | None = None) -> np.ndarray:
-        """Density per steradian (R,) with which `sample` picks the point a ray along d (R, 3)
-        reached (at distance t (R,) on triangle prim (R,), where that applies); 0 for a light
-        rays never reach."""
+    def pdf(
+        self,
+        d: np.ndarray,
+        t: np.ndarray | None = None,
+        prim: np.ndarray | None = None,
+        origins: np.ndarray | None = None,
+        normals: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Density per steradian (R,) with which `sample` at `origins` (R, 3) with `normals` picks
+        the point a ray along d (R, 3) reached (at distance t (R,) on triangle prim (R,), where
+        that applies); 0 for a light rays never reach."""
         return np.zeros(len(d))
 
-    def evaluate(self, d: np.ndarray, t: np.ndarray | None, prim: np.ndarray | None, pdf: np.ndarray) -> np.ndarray:
-        """Radiance (R, 3) that rays along d (R, 3), sampled with density `pdf` (R,), bring from
-        this light (ending at distance t on triangle prim, where that applies), MIS-weighted
-        against `sample`; 0 for a light rays never reach."""
+    def evaluate(
+        self,
+        d: np.ndarray,
+        t: np.ndarray | None,
+        prim: np.ndarray | None,
+        pdf: np.ndarray,
+        origins: np.ndarray | None = None,
+        normals: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Radiance (R, 3) that rays from `origins` (R, 3) (with `normals`) along d (R, 3), sampled with density
+        `pdf` (R,), bring from this light (ending at distance t on triangle prim, where that
+        applies), MIS-weighted against `sample`; 0 for a light rays never reach."""
         return np.zeros((len(d), 3))
 
     @property
@@ -87,10 +119,10 @@ class Sun(Light):
         self.direction, self.irradiance, self.angle = light.direction, light.irradiance, light.angle
         self.is_delta, self.group = light.is_delta, light.group
 
-    def sample(self, rng, x, ray_pdf=None) -> Sample:
+    def sample(self, rng, x, ray_pdf=None, strata=1, normals=None) -> Sample:
         r = len(x)
         axis = np.broadcast_to(self.direction, (r, 3))
-        dirs = axis if self.is_delta else _cone_directions(rng, axis, np.cos(0.5 * self.angle))
+        dirs = axis if self.is_delta else _cone_directions(rng, axis, np.cos(0.5 * self.angle), strata)
         return dirs, np.broadcast_to(self.irradiance, (r, 3)), np.full(r, np.inf)
 
     @property
@@ -107,7 +139,7 @@ class Point(Light):
         self.position, self.rgb_power, self.radius = light.position, light.power, light.radius
         self.soft_falloff, self.is_delta, self.group = light.soft_falloff, light.is_delta, light.group
 
-    def sample(self, rng, x, ray_pdf=None) -> Sample:
+    def sample(self, rng, x, ray_pdf=None, strata=1, normals=None) -> Sample:
         to = self.position - x
         dist = np.maximum(np.linalg.norm(to, axis=1), 1e-30)
         axis = to / dist[:, None]
@@ -119,7 +151,7 @@ class Point(Light):
             cos_a = np.sqrt(1.0 - np.minimum(self.radius / dist, 1.0) ** 2)
         # radiance P/(4π² r²) over the cone the light subtends, solid angle 2π(1 - cos α)
         value = self.rgb_power[None, :] / (4.0 * np.pi**2 * self.radius**2) * (2.0 * np.pi * (1.0 - cos_a))[:, None]
-        return _cone_directions(rng, axis, cos_a), value, np.maximum(dist - self.radius, 0.0)
+        return _cone_directions(rng, axis, cos_a, strata), value, np.maximum(dist - self.radius, 0.0)
 
     @property
     def power(self) -> float:
@@ -134,8 +166,8 @@ class Spot(Point):
         super().__init__(light)
         self.axis, self.size, self.blend = light.direction, light.size, light.blend
 
-    def sample(self, rng, x, ray_pdf=None) -> Sample:
-        dirs, value, dist = super().sample(rng, x)
+    def sample(self, rng, x, ray_pdf=None, strata=1, normals=None) -> Sample:
+        dirs, value, dist = super().sample(rng, x, ray_pdf, strata)
         return dirs, value * self.attenuation(-dirs)[:, None], dist
 
     def attenuation(self, light_to_point: np.ndarray) -> np.ndarray:
@@ -157,8 +189,8 @@ class Area(Light):
         self.normal, self.rgb_power, self.shape = light.normal, light.power, light.shape
         self.area, self.group = light.area, light.group
 
-    def sample(self, rng, x, ray_pdf=None) -> Sample:
-        p = self.sample_points(rng, len(x))
+    def sample(self, rng, x, ray_pdf=None, strata=1, normals=None) -> Sample:
+        p = self.sample_points(rng, len(x), strata)
         to = p - x
         dist = np.maximum(np.linalg.norm(to, axis=1), 1e-30)
         dirs = to / dist[:, None]
@@ -167,13 +199,14 @@ class Area(Light):
         # radiance × (solid angle of the sampled area element = A cos_l / d²)
         return dirs, radiance[None, :] * (self.area * cos_l / dist**2)[:, None], dist
 
-    def sample_points(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """n points (n, 3) uniform over the light's surface."""
+    def sample_points(self, rng: np.random.Generator, n: int, strata: Strata = 1) -> np.ndarray:
+        """n points (n, 3) uniform over the light's surface (`strata`: `uniforms`)."""
+        u1, u2 = uniforms(rng, n, strata, 2), uniforms(rng, n, strata, 3)
         if self.shape in ("DISK", "ELLIPSE"):
-            r, phi = np.sqrt(rng.random(n)), 2.0 * np.pi * rng.random(n)
+            r, phi = np.sqrt(u1), 2.0 * np.pi * u2
             a, b = r * np.cos(phi), r * np.sin(phi)
         else:
-            a, b = 2.0 * rng.random(n) - 1.0, 2.0 * rng.random(n) - 1.0
+            a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
         return self.position + a[:, None] * self.axis_u + b[:, None] * self.axis_v
 
     @property
@@ -191,7 +224,7 @@ class Environment(Light):
     def __init__(self, environment: EnvironmentMap, group: str = ""):
         self.map, self.group = environment, group
 
-    def sample(self, rng, x, ray_pdf: RayPdf) -> Sample:
+    def sample(self, rng, x, ray_pdf: RayPdf, strata=1, normals=None) -> Sample:
         dirs, p_env = self.map.sample(rng, len(x))
         p_other = ray_pdf(dirs)
         return (
@@ -200,10 +233,10 @@ class Environment(Light):
             np.full(len(x), np.inf),
         )
 
-    def pdf(self, d, t=None, prim=None) -> np.ndarray:
+    def pdf(self, d, t=None, prim=None, origins=None, normals=None) -> np.ndarray:
         return self.map.pdf(d)
 
-    def evaluate(self, d, t, prim, pdf) -> np.ndarray:
+    def evaluate(self, d, t, prim, pdf, origins=None, normals=None) -> np.ndarray:
         p_env = self.map.pdf(d)
         return self.map.radiance(d) * (pdf * pdf / (pdf * pdf + p_env * p_env))[:, None]
 
@@ -215,10 +248,18 @@ class Environment(Light):
         return float(((self.map.pixels @ LUMINANCE) * solid_angle[:, None]).sum())
 
 
+#: Most spatial clusters the emitting triangles of one light group are split into.
+CLUSTERS = 32
+#: Share of the cluster choice made by power alone, whatever the distance: the distance bound
+#: knows nothing of occlusion, so a bright emitter behind a wall keeps some samples.
+POWER_SHARE = 0.1
+
+
 class EmissiveTriangles(Light):
     """The emitting triangles of one light group. triangles (T, 3, 3) world space (all of the
     scene's: primitive ids index them); emission (T, 3) radiance, zero for triangles that do not
-    emit or belong to another group. Empty (`len` 0) when nothing emits."""
+    emit or belong to another group. Empty (`len` 0) when nothing emits. Sampling: the module
+    docstring (clusters, then a triangle ∝ power, then a uniform point)."""
 
     reachable = True
 
@@ -230,48 +271,122 @@ class EmissiveTriangles(Light):
         self.area = 0.5 * np.linalg.norm(cross, axis=1)
         power = self.area * np.maximum(self.emission @ LUMINANCE, 0.0)
         self.index = np.nonzero(power > 0.0)[0]
-        self.probability = np.zeros(len(self.triangles))
-        if len(self.index):
-            self.probability[self.index] = power[self.index] / power[self.index].sum()
-        self.cdf = np.cumsum(self.probability[self.index])
-        if len(self.cdf):
-            self.cdf /= self.cdf[-1]
         self.normal = cross / np.maximum(2.0 * self.area, 1e-300)[:, None]
+        self._cluster(power)
+
+    def _cluster(self, power: np.ndarray) -> None:
+        """Clusters of the emitters `index` (`cluster_splits`) and per cluster its power `cluster_power`
+        (K,), bounding-box centre `centre` (K, 3) and squared radius `radius2` (K,); per
+        triangle (T,) its cluster `cluster_of` and its probability within it `within`; the
+        emitters sorted by cluster `order` and `key` (E,): cluster + cumulative share within it."""
+        t = len(self.triangles)
+        self.cluster_of = np.zeros(t, np.int64)
+        self.within = np.zeros(t)
+        if not len(self.index):
+            self.cluster_power = np.zeros(0)
+            self.centre, self.radius2 = np.zeros((0, 3)), np.zeros(0)
+            self.order, self.key = self.index, np.zeros(0)
+            self.first = self.last = np.zeros(0, np.int64)
+            return
+        cluster = cluster_splits(self.triangles[self.index].mean(axis=1), CLUSTERS)
+        k = int(cluster.max()) + 1
+        self.cluster_of[self.index] = cluster
+        self.cluster_power = np.bincount(cluster, power[self.index], minlength=k)
+        self.within[self.index] = power[self.index] / self.cluster_power[cluster]
+        corners = self.triangles[self.index]
+        lo = np.full((k, 3), np.inf)
+        hi = np.full((k, 3), -np.inf)
+        np.minimum.at(lo, cluster, corners.min(axis=1))
+        np.maximum.at(hi, cluster, corners.max(axis=1))
+        self.centre = 0.5 * (lo + hi)
+        self.radius2 = np.maximum(0.25 * np.square(hi - lo).sum(axis=1), 1e-12)
+        self.order = self.index[np.argsort(cluster, kind="stable")]
+        c = self.cluster_of[self.order]
+        share = self.within[self.order]
+        cum = np.cumsum(share)
+        first = np.searchsorted(c, np.arange(k))  # each cluster's first row in order
+        self.key = c + (cum - (cum - share)[first][c])
+        last = np.append(first[1:], len(c)) - 1
+        self.key[last] = np.arange(k) + 1.0  # each cluster's segment ends exactly at c + 1
+        self.first, self.last = first, last
 
     def __len__(self) -> int:
         return len(self.index)
 
-    def sample(self, rng, x, ray_pdf: RayPdf) -> Sample:
-        dirs, dist, emitted, p_light = self._sample_points(rng, x)
+    def cluster_probability(self, x: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+        """(R, K): the probability of picking each cluster at the points x (R, 3): ∝ its power
+        over max(distance², radius²) to its bounding box's centre, times (given the points'
+        `normals` (R, 3)) the largest cosine of a direction into the box's bounding sphere (0
+        below the horizon), mixed with POWER_SHARE ∝ power alone (power alone where every
+        cluster is below the horizon); rows sum to 1. numpy: the spec of the compiled choice
+        (`kernels.sample_emitters`, `kernels.emitter_pdf`), the tests compare them."""
+        phi = self.cluster_power
+        if len(phi) == 1:
+            return np.ones((len(x), 1))
+        to = self.centre[None] - x[:, None, :]
+        d2 = np.square(to).sum(axis=2)
+        w = phi / np.maximum(d2, self.radius2)
+        if normals is not None:
+            d = np.sqrt(d2)
+            cos_t = np.einsum("rki,ri->rk", to, normals) / np.maximum(d, 1e-300)
+            sin_a = np.sqrt(np.minimum(self.radius2 / np.maximum(d2, 1e-300), 1.0))
+            cos_a = np.sqrt(1.0 - sin_a * sin_a)
+            edge = np.maximum(cos_t * cos_a + np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0)) * sin_a, 0.0)
+            w *= np.where((d2 > self.radius2) & (cos_t < cos_a), edge, 1.0)
+        total = w.sum(axis=1, keepdims=True)
+        power_only = np.broadcast_to(phi / phi.sum(), w.shape)
+        mixed = (1.0 - POWER_SHARE) * w / np.where(total > 0.0, total, 1.0) + POWER_SHARE * power_only
+        return np.where(total > 0.0, mixed, power_only)
+
+    def sample(self, rng, x, ray_pdf: RayPdf, strata=1, normals=None) -> Sample:
+        dirs, dist, emitted, p_light = self._sample_points(rng, x, strata, normals)
         p_other = ray_pdf(dirs)
         with np.errstate(divide="ignore", invalid="ignore"):
             weight = np.where(p_light > 0.0, p_light / (p_light * p_light + p_other * p_other), 0.0)
         return dirs, emitted * weight[:, None], dist
 
-    def _sample_points(self, rng, x):
-        """One point per shading point x (R, 3): directions (R, 3), distances (R,), emitted
-        radiance (R, 3) and the pdf per steradian (R,) (0 for a grazing or coincident point)."""
+    def _sample_points(self, rng, x, strata=1, normals=None, u=None):
+        """One point per shading point x (R, 3) (normals (R, 3) or None): directions (R, 3),
+        distances (R,), emitted radiance (R, 3) and the pdf per steradian (R,) (0: no sample, a
+        grazing or coincident point). Compiled (`kernels.sample_emitters`); its random numbers
+        u (4, R): cluster, triangle, then two for the point or direction, from `uniforms`
+        (strata) unless given."""
         r = len(x)
-        pick = self.index[np.minimum(np.searchsorted(self.cdf, rng.random(r), side="right"), len(self.index) - 1)]
-        u1, u2 = rng.random(r), rng.random(r)
-        s = np.sqrt(u1)
-        tri = self.triangles[pick]
-        p = tri[:, 0] * (1.0 - s)[:, None] + tri[:, 1] * (s * (1.0 - u2))[:, None] + tri[:, 2] * (s * u2)[:, None]
-        to = p - x
-        dist = np.linalg.norm(to, axis=1)
-        dirs = to / np.maximum(dist, 1e-300)[:, None]
-        return dirs, dist, self.emission[pick], self.pdf(dirs, dist, pick)
+        if u is None:
+            u = np.stack([uniforms(rng, r, strata, dim) for dim in range(4)])
+        tri = (self.triangles, self.normal, self.area, self.within)
+        dirs, dist, pick, pdf = _kernels.get().sample_emitters(
+            _rows(x), _rows(normals), u, *tri, self._emitters(), POWER_SHARE, SOLID_ANGLE_RANGE
+        )
+        return dirs, dist, self.emission[pick], pdf
 
-    def pdf(self, d, t=None, prim=None) -> np.ndarray:
-        """Density per steradian of sampling the point at distance t (float64) along d on
-        triangle prim (an emitter or not: 0 for non-emitters)."""
-        cos = np.abs(np.einsum("ri,ri->r", d, self.normal[prim]))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            density = self.probability[prim] / self.area[prim] * t * t / cos
-        return np.where((cos > 1e-12) & np.isfinite(density), density, 0.0)
+    def _emitters(self) -> tuple:
+        """The cluster arrays the kernels take (`kernels.sample_emitters`)."""
+        return (self.centre, self.radius2, self.cluster_power, self.key, self.order, self.first, self.last)
 
-    def evaluate(self, d, t, prim, pdf) -> np.ndarray:
-        p_light = self.pdf(d, t.astype(np.float64), prim)
+    def pdf(self, d, t=None, prim=None, origins=None, normals=None) -> np.ndarray:
+        """Density per steradian of sampling, from `origins` (R, 3) with `normals` (R, 3) or
+        None, the point at distance t (float64) along d on triangle prim (an emitter or not: 0
+        for non-emitters). Compiled (`kernels.emitter_pdf`)."""
+        if origins is None:
+            raise ValueError("the emitters' density depends on where the ray starts: pass origins")
+        if not len(self.index):
+            return np.zeros(len(d))
+        tri = (self.triangles, self.normal, self.area, self.within, self.cluster_of)
+        return _kernels.get().emitter_pdf(
+            _rows(origins),
+            _rows(normals),
+            _rows(d),
+            np.ascontiguousarray(t, np.float64),
+            np.ascontiguousarray(prim, np.int64),
+            *tri,
+            self._emitters(),
+            POWER_SHARE,
+            SOLID_ANGLE_RANGE,
+        )
+
+    def evaluate(self, d, t, prim, pdf, origins=None, normals=None) -> np.ndarray:
+        p_light = self.pdf(d, t.astype(np.float64), prim, origins, normals)
         weight = pdf * pdf / np.maximum(pdf * pdf + p_light * p_light, 1e-300)
         return self.emission[prim] * weight[:, None]
 
@@ -279,6 +394,92 @@ class EmissiveTriangles(Light):
     def power(self) -> float:
         """Both sides of a Lambertian emitter: 2π · Σ area × emitted luminance."""
         return float(2.0 * np.pi * (self.area * np.maximum(self.emission @ LUMINANCE, 0.0)).sum())
+
+
+#: Solid angles (sr) within which an emitting triangle is sampled by a uniform direction in it
+#: (`sample_spherical_triangles`) rather than a uniform point on it: below, the spherical
+#: formulas lose precision and the two agree anyway; above, a triangle fills most of a
+#: hemisphere (PBRT-v4's bounds).
+SOLID_ANGLE_RANGE = (3e-4, 6.22)
+
+
+def by_solid_angle(solid_angle: np.ndarray) -> np.ndarray:
+    """(R,) bool: the triangles of these solid angles (R,) are sampled by direction."""
+    return (solid_angle >= SOLID_ANGLE_RANGE[0]) & (solid_angle <= SOLID_ANGLE_RANGE[1])
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _angle_between(v1: np.ndarray, v2: np.ndarray) -> np.ndarray:
+    """Angles (R,) between unit vectors (R, 3), accurate near 0 and π (PBRT-v4's AngleBetween)."""
+    dot = np.einsum("ri,ri->r", v1, v2)
+    small = 2.0 * np.arcsin(np.minimum(np.linalg.norm(v2 - v1, axis=1) / 2.0, 1.0))
+    large = np.pi - 2.0 * np.arcsin(np.minimum(np.linalg.norm(v1 + v2, axis=1) / 2.0, 1.0))
+    return np.where(dot < 0.0, large, small)
+
+
+def spherical_triangles(x: np.ndarray, tri: np.ndarray):
+    """(numpy: the spec of the compiled `kernels._spherical`, the tests compare them.)
+    The spherical triangles triangles tri (R, 3, 3) make seen from points x (R, 3): unit
+    directions a, b, c (R, 3) to their corners, the angle at a (R,) and the solid angle (R,) in
+    steradians (NaN where degenerate: seen edge-on or from a corner)."""
+    a, b, c = (_unit(tri[:, i] - x) for i in range(3))
+    n_ab, n_bc, n_ca = _unit(np.cross(a, b)), _unit(np.cross(b, c)), _unit(np.cross(c, a))
+    alpha = _angle_between(n_ab, -n_ca)
+    beta = _angle_between(n_bc, -n_ab)
+    gamma = _angle_between(n_ca, -n_bc)
+    return a, b, c, alpha, alpha + beta + gamma - np.pi
+
+
+def sample_spherical_triangles(x: np.ndarray, tri: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """Unit directions (R, 3) from x (R, 3) uniform in the solid angle of triangles tri (R, 3, 3)
+    for uniform numbers u1, u2 (R,) (Arvo 1995, in PBRT-v4's SampleSphericalTriangle form).
+    numpy: the spec of the compiled `kernels._spherical_direction`, the tests compare them."""
+    a, b, c, alpha, area = spherical_triangles(x, tri)
+    ap_pi = np.pi + u1 * area  # the sampled sub-triangle's area + π
+    cos_a, sin_a = np.cos(alpha), np.sin(alpha)
+    sin_phi = np.sin(ap_pi) * cos_a - np.cos(ap_pi) * sin_a
+    cos_phi = np.cos(ap_pi) * cos_a + np.sin(ap_pi) * sin_a
+    k1 = cos_phi + cos_a
+    k2 = sin_phi - sin_a * np.einsum("ri,ri->r", a, b)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cos_bp = np.clip((k2 + (k2 * cos_phi - k1 * sin_phi) * cos_a) / ((k2 * sin_phi + k1 * cos_phi) * sin_a), -1, 1)
+    sin_bp = np.sqrt(np.maximum(1.0 - cos_bp * cos_bp, 0.0))
+    cp = cos_bp[:, None] * a + sin_bp[:, None] * _unit(c - np.einsum("ri,ri->r", c, a)[:, None] * a)
+    cos_t = 1.0 - u2 * (1.0 - np.einsum("ri,ri->r", cp, b))
+    sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
+    return _unit(cos_t[:, None] * b + sin_t[:, None] * _unit(cp - np.einsum("ri,ri->r", cp, b)[:, None] * b))
+
+
+def _rows(a: np.ndarray | None) -> np.ndarray:
+    """`a` (R, 3) as contiguous float64 for the kernels; None as no rows (0, 3)."""
+    return np.zeros((0, 3)) if a is None else np.ascontiguousarray(a, np.float64)
+
+
+def cluster_splits(centroids: np.ndarray, most: int) -> np.ndarray:
+    """(E,) cluster ids 0..K-1 (K ≤ `most`) of points `centroids` (E, 3): the cluster whose points'
+    box has the longest diagonal is split at the middle of its longest axis (both halves keep
+    points), until there are `most` clusters or every cluster's points coincide."""
+    ids = np.zeros(len(centroids), np.int64)
+    extent = [float(np.linalg.norm(np.ptp(centroids, axis=0)))] if len(centroids) else [0.0]
+    while len(extent) < most:  # at most `most` splits, each over one cluster's points
+        c = int(np.argmax(extent))
+        if extent[c] <= 0.0:
+            break
+        members = np.flatnonzero(ids == c)
+        pts = centroids[members]
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        axis = int(np.argmax(hi - lo))
+        upper = pts[:, axis] >= 0.5 * (lo[axis] + hi[axis])
+        if upper.all():  # the middle rounds onto the lowest point: split off the lowest points
+            upper = pts[:, axis] > lo[axis]
+        ids[members[upper]] = len(extent)
+        extent[c] = float(np.linalg.norm(np.ptp(pts[~upper], axis=0)))
+        extent.append(float(np.linalg.norm(np.ptp(pts[upper], axis=0))))
+    return ids
 
 
 #: The sampling class of each light data type of core.scene.
@@ -318,9 +519,46 @@ def _emission_groups(emission: np.ndarray, groups: np.ndarray | None) -> list[tu
     return [(name, np.where((group == name)[:, None], emission, 0.0)) for name in names]
 
 
-def _cone_directions(rng, axis: np.ndarray, cos_max) -> np.ndarray:
-    """Uniform directions in cones around `axis` (R, 3) with half-angle arccos(cos_max)."""
-    u1, u2 = rng.random(len(axis)), rng.random(len(axis))
+@dataclass(frozen=True)
+class TexelStream:
+    """Where a pass's light samples come from when they are grouped by texel: the texels (n,)
+    (bake point ids), k samples each, the pass's first sample index (pass × k) and the bake's
+    seed. `uniforms` then takes dimension `dim` of each texel's own sequence
+    (`kernels.texel_sequence`), stratified across every pass of the texel, not only this one."""
+
+    texels: np.ndarray
+    k: int
+    first: int
+    seed: int
+
+    def uniforms(self, dim: int) -> np.ndarray:
+        texels = np.ascontiguousarray(self.texels, np.int64)
+        return _kernels.get().texel_sequence(texels, self.k, self.first, dim, self.seed)
+
+
+#: `Light.sample`'s strata: a group size (int) or a TexelStream.
+Strata = int | TexelStream
+
+
+def uniforms(rng: np.random.Generator, n: int, strata: Strata = 1, dim: int = 0) -> np.ndarray:
+    """(n,) uniform numbers in [0, 1) for dimension `dim` of a light's sampling. A TexelStream:
+    its texels' own sequences (n must be its texels × k). An int > 1 (and n a multiple of it):
+    each group of `strata` consecutive numbers is stratified, one in each [j/strata,
+    (j+1)/strata), in random order (a Latin hypercube when several dimensions are drawn so).
+    Either way each number is still uniform, so estimates stay unbiased, while a texel's light
+    samples cover the light evenly."""
+    if isinstance(strata, TexelStream):
+        return strata.uniforms(dim)
+    if strata <= 1 or n % strata:
+        return rng.random(n)
+    order = np.argsort(rng.random((n // strata, strata)), axis=1)
+    return ((order + rng.random((n // strata, strata))) / strata).reshape(n)
+
+
+def _cone_directions(rng, axis: np.ndarray, cos_max, strata: Strata = 1) -> np.ndarray:
+    """Uniform directions in cones around `axis` (R, 3) with half-angle arccos(cos_max)
+    (`strata`: `uniforms`)."""
+    u1, u2 = uniforms(rng, len(axis), strata, 2), uniforms(rng, len(axis), strata, 3)
     z = 1.0 - u1 * (1.0 - cos_max)
     s = np.sqrt(np.maximum(1.0 - z * z, 0.0))
     phi = 2.0 * np.pi * u2

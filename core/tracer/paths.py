@@ -127,11 +127,14 @@ class Paths:
         dirs: np.ndarray,
         pdf: np.ndarray,
         start: np.ndarray | None = None,
+        normals: np.ndarray | None = None,
     ) -> np.ndarray:
         """Radiance (R, C) arriving at `origins` from directions `dirs` (R, 3) sampled with density
         `pdf` (R,) per steradian (what the MIS weights of reachable lights are taken against):
         wavefront over bounces, the arrays compacted to the live paths. `start` (R,) bool, if
-        given: only those paths are traced (the others receive nothing). C = `TraceScene.channels`
+        given: only those paths are traced (the others receive nothing). `normals` (R, 3), if
+        given: the origins' normals, as the light samples taken there got them (the emitters'
+        density depends on them: `lights.EmissiveTriangles`). C = `TraceScene.channels`
         (3 per light set). Each live path gathers
         into its own row of `acc` (compacted with it), written out once when the path ends:
         cheaper than scattering into the (R, 3) result every bounce."""
@@ -139,10 +142,11 @@ class Paths:
         scene = ts.scene
         radiance = np.zeros((len(origins), ts.channels))
         if start is None:
-            live, o, d = np.arange(len(origins)), origins, dirs
+            live, o, d, nrm = np.arange(len(origins)), origins, dirs, normals
         else:
             live = np.flatnonzero(start)
             o, d, pdf = take_rows(origins, live), take_rows(dirs, live), pdf[live]
+            nrm = None if normals is None else take_rows(normals, live)
         acc = np.zeros((len(live), ts.channels))
         throughput = np.ones((len(live), 3))
         for bounce in range(ts.bounces + 1):
@@ -151,7 +155,9 @@ class Paths:
                 hit = np.flatnonzero(prim >= 0)
                 for light in ts.surface_lights:
                     c = light.column
-                    acc[hit, c : c + 3] += throughput[hit] * light.evaluate(d[hit], t[hit], prim[hit], pdf[hit])
+                    acc[hit, c : c + 3] += throughput[hit] * light.evaluate(
+                        d[hit], t[hit], prim[hit], pdf[hit], o[hit], None if nrm is None else nrm[hit]
+                    )
             sky = self._sky(prim, d, pdf)
             if bounce == ts.bounces:
                 hit, miss = prim >= 0, prim < 0
@@ -190,7 +196,7 @@ class Paths:
                 return radiance
             acc += ts.per_column(throughput) * self.irradiance_at(rng, o, n)
             radiance[live[s:]] = acc[s:]
-            live, acc, o, d, pdf = live[:s], acc[:s], o[:s], d[:s], pdf[:s]
+            live, acc, o, nrm, d, pdf = live[:s], acc[:s], o[:s], n[:s], d[:s], pdf[:s]
             throughput = throughput[:s] * weight[:, None]
             if s == 0:
                 return radiance
@@ -212,10 +218,19 @@ class Paths:
             sky[miss, c : c + 3] += light.evaluate(d[miss], None, None, pdf[miss])
         return sky
 
-    def light_samples(self, rng: np.random.Generator, x: np.ndarray, ray_pdf) -> list:
+    def light_samples(
+        self,
+        rng: np.random.Generator,
+        x: np.ndarray,
+        ray_pdf,
+        strata: _lights.Strata = 1,
+        normals: np.ndarray | None = None,
+    ) -> list:
         """One sample (`lights.Sample`) per point x (R, 3) of every light, in sampling order (that
-        of `TraceScene.lights`); `ray_pdf(dirs)`: the density of the strategy sampling rays at x (MIS)."""
-        return [light.sample(rng, x, ray_pdf) for light in self.scene.lights]
+        of `TraceScene.lights`); `ray_pdf(dirs)`: the density of the strategy sampling rays at x
+        (MIS); strata: x comes in groups of that many points of one texel (`lights.uniforms`);
+        normals (R, 3): x's normals (rays leaving x must be evaluated with the same)."""
+        return [light.sample(rng, x, ray_pdf, strata, normals) for light in self.scene.lights]
 
     def irradiance_at(self, rng: np.random.Generator, x: np.ndarray, n: np.ndarray) -> np.ndarray:
         """Next-event estimate of the irradiance (R, C) (DESIGN units, E/π·π = outgoing radiance
@@ -223,7 +238,7 @@ class Paths:
         from every light, one shadow ray per light and point; MIS against cosine sampling at x."""
         total = np.zeros((len(x), self.scene.channels))
         cosine_pdf = lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi
-        samples = self.light_samples(rng, x, cosine_pdf)
+        samples = self.light_samples(rng, x, cosine_pdf, normals=n)
         for light, (dirs, value, dist) in zip(self.scene.lights, samples):
             cos = np.einsum("ri,ri->r", dirs, n)
             facing = np.flatnonzero(cos > 0.0)
