@@ -19,8 +19,10 @@ Emissive triangles are grouped into at most CLUSTERS spatial clusters (median sp
 centroids along the longest axis). At each shading point x a cluster is picked with probability
 ∝ its power over max(distance², radius²) to x (mixed with POWER_SHARE of power alone), then a
 triangle of the cluster ∝ its power (area × emitted luminance; emission is two-sided, so both
-sides count alike), then a uniform point on the triangle: a lamp across the room no longer takes
-as many samples as the one beside the texel. The density therefore depends on x: `pdf` and
+sides count alike), then a uniform point on the triangle or, where the triangle subtends a solid
+angle within SOLID_ANGLE_RANGE, a uniform direction in that solid angle (Arvo 1995: no 1/d²
+spikes beside a lamp): a lamp across the room no longer takes as many samples as the one beside
+the texel. Sampling and densities are compiled (`kernels.sample_emitters`, `kernels.emitter_pdf`). The density therefore depends on x: `pdf` and
 `evaluate` take the rays' origins. Array conventions: x (R, 3) shading points, directions (R, 3)
 unit, world space; densities per steradian.
 """
@@ -259,7 +261,8 @@ class EmissiveTriangles(Light):
     """The emitting triangles of one light group. triangles (T, 3, 3) world space (all of the
     scene's: primitive ids index them); emission (T, 3) radiance, zero for triangles that do not
     emit or belong to another group. Empty (`len` 0) when nothing emits. Sampling: the module
-    docstring (clusters, then a triangle ∝ power, then a uniform point)."""
+    docstring (a cluster, a triangle ∝ power, then a uniform point on it or a uniform direction
+    in its solid angle)."""
 
     reachable = True
 
