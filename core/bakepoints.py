@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import covers, kernels, parallel, raster
+from . import covers, kernels, parallel, raster, raster_kernels
 from .covers import CoverProbe
 from .errors import BakeError
 from .rays import RayScene, ray_offset
@@ -210,11 +210,19 @@ class BakePoints:
     def texel_points(self, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Ray origins `(len(idx), k, 3)` at `offsets` (k, 2) texel units from each texel's corner,
         clamped into the texel's triangle."""
-        corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1)
-        tri = self.triangle[idx]
-        bary = np.clip(_barycentric_grouped(corner[:, None, :] + offsets[None], self.mesh.texel_uv[tri]), 0.0, None)
-        bary /= np.maximum(bary.sum(axis=-1, keepdims=True), 1e-300)
-        return np.matmul(bary, self.mesh.positions[tri]) + self.face_normal[idx][:, None, :] * self.offset
+        idx = np.asarray(idx)
+        idx = np.flatnonzero(idx) if idx.dtype == bool else idx.astype(np.int64, copy=False)
+        return raster_kernels.get().texel_points(  # numpy's arithmetic, compiled (identical floats)
+            self.texel,
+            self.triangle,
+            self.width,
+            self.mesh.texel_uv,
+            self.mesh.positions,
+            self.face_normal,
+            self.offset,
+            idx,
+            np.asarray(offsets, dtype=np.float64).reshape(-1, 2),
+        )
 
     def image(self, values: np.ndarray, fill=0.0, dtype=np.float64) -> np.ndarray:
         """Scatter per-point values `(P, ...)` into a `(height, width, ...)` image of `dtype`."""
@@ -324,18 +332,19 @@ def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, cen
     """Position, n_v, face normal, albedo and texel size of the texels `rows`, whose overlap
     centroids (texel space) are `centroid`."""
     tri = points.triangle[rows]
-    pos = points.mesh.positions[tri]  # (n, 3, 3)
-    bary = _barycentric(centroid, points.mesh.texel_uv[tri])
-    points.position[rows] = np.einsum("pk,pki->pi", bary, pos)
-    normal = _normalise(np.einsum("pk,pki->pi", bary, points.mesh.normals[tri]))
-    face = _normalise(np.cross(pos[:, 1] - pos[:, 0], pos[:, 2] - pos[:, 0]))
-    # A vertex normal of zero length (degenerate input) falls back to the face normal.
-    bad = ~np.isfinite(normal).all(axis=1) | (np.linalg.norm(normal, axis=1) < 0.5)
-    normal[bad] = face[bad]
-    face *= np.where(np.einsum("pi,pi->p", face, normal) < 0.0, -1.0, 1.0)[:, None]
-    points.normal[rows], points.face_normal[rows] = normal, face
+    n = len(tri)
+    # barycentric coordinates clamped to the triangle, position, n_v (normalised; a vertex normal
+    # of zero length, degenerate input, falls back to the face normal), face normal on n_v's
+    # side, texel size: `raster_kernels.fill_points`, the numpy arithmetic compiled
+    out = [np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty((n, 3))]
+    mesh = points.mesh
+    raster_kernels.get().fill_points(
+        tri, np.asarray(centroid, np.float64), mesh.texel_uv, mesh.positions, mesh.normals, *out
+    )
+    position, normal, face, size, bary = out
+    points.position[rows], points.normal[rows], points.face_normal[rows] = position, normal, face
+    points.texel_size[rows] = size
     points.albedo[rows] = _albedo(surface, tri, bary)
-    points.texel_size[rows] = _texel_world_size(pos, points.mesh.texel_uv[tri])
 
 
 def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -391,17 +400,33 @@ def find_near_cover(
 ) -> np.ndarray:
     """Texels part of whose samples may start under a coplanar face (core.covers): the bake point,
     the footprint's corners and the texel's corners (where the samples' fallback can reach),
-    mapped into the texel's triangle, are probed. The tracer probes every sample of the texels
-    flagged here, so the flag only has to be conservative at the scale of a texel. (P,) bool."""
+    mapped into the texel's triangle, are probed (each distinct ray once: neighbouring texels on
+    one triangle share their corners, `raster_kernels.cover_rays`). The tracer probes every sample
+    of the texels flagged here, so the flag only has to be conservative at the scale of a texel.
+    (P,) bool."""
     corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
     offsets = np.concatenate([0.5 + FOOTPRINT * (corners - 0.5), corners])  # texel units from its corner
+    offsets = np.unique(offsets, axis=0)  # FOOTPRINT 1: the footprint's corners are the texel's
     flags = np.zeros(len(points.texel), bool)
+    # which texel corner each offset is (neighbouring texels on one triangle share its point there)
+    corner = np.array([int(x + 2 * y) if {x, y} <= {0.0, 1.0} else -1 for x, y in offsets], np.int64)
 
     def probe_chunk(rows: slice):
-        idx = np.arange(rows.start, rows.stop)
-        origins = np.concatenate([points.origins(idx)[:, None, :], points.texel_points(idx, offsets)], axis=1)
-        normals = np.repeat(points.face_normal[idx], origins.shape[1], axis=0)
-        flags[idx] = probe.covered(origins.reshape(-1, 3), normals).reshape(len(idx), -1).any(axis=1)
+        texel_points = np.ascontiguousarray(points.texel_points(np.arange(rows.start, rows.stop), offsets), np.float64)
+        face_normal = np.ascontiguousarray(points.face_normal[rows], dtype=np.float64)
+        # the bake point's origin, then the texel points; a ray equal to one already probed is not probed again
+        origins, normals, ray = raster_kernels.get().cover_rays(
+            points.texel[rows],
+            points.width,
+            points.position[rows],
+            face_normal,
+            points.offset,
+            texel_points,
+            texel_points.view(np.int64),
+            face_normal.view(np.int64),
+            corner,
+        )
+        flags[rows] = probe.covered(origins, normals)[ray].any(axis=1)
 
     _for_chunks(probe_chunk, len(flags), chunk, check, threads)
     return flags
@@ -443,27 +468,27 @@ def find_buried(
     (bounded memory) on `threads` workers (0 = every core), calling `check()` between chunks. Every texel gets
     the first probes − need + 1 probes, only those with a back-face hit among them the rest:
     the same answer (the others cannot reach `need`) for most of the rays on open surfaces."""
-    from .sh import tangent_frames
-
     buried = np.zeros(len(points.texel), bool)
     local = _probe_directions(probes)
     need = int(np.ceil(BURIED_FRACTION * probes))  # back-face hits that make a texel buried
     first = probes - need + 1  # with none in these, the rest cannot add up to `need`: not buried
+    compiled = raster_kernels.get()
 
     def back_hits(sl, rows, directions):
-        """Back-face hits (len(rows),) of the probes `directions` from the texels sl[rows]."""
-        frames = tangent_frames(points.face_normal[sl][rows])
-        dirs = np.einsum("pij,kj->pki", frames, directions).reshape(-1, 3)
-        k = len(directions)
-        origins = np.repeat(points.origins(sl)[rows], k, axis=0)
-        reach = np.repeat(4.0 * points.texel_size[sl][rows] + 4.0 * points.offset, k)
+        """Back-face hits (len(rows),) of the probes `directions` from the texels sl[rows]:
+        origins, directions in the face normal's tangent frame (`sh.tangent_frames`) and reach
+        4 texels + 4 offsets (`raster_kernels.buried_rays`), closest hits, back faces counted."""
+        origins, dirs, reach = compiled.buried_rays(
+            points.position[sl], points.face_normal[sl], points.texel_size[sl], points.offset, rows, directions
+        )
         t, prim, ng = scene.intersect(origins, dirs, reach)
-        return ((prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)).reshape(-1, k).sum(axis=1)
+        return compiled.back_hits(dirs, prim, ng, len(directions))
 
     def probe_chunk(sl: slice):
-        hits = back_hits(sl, slice(None), local[:first])
+        hits = back_hits(sl, np.arange(sl.stop - sl.start), local[:first])
         rows = np.flatnonzero(hits > 0)  # most texels (open surfaces) stop here
-        hits[rows] += back_hits(sl, rows, local[first:])
+        if len(rows) and first < probes:
+            hits[rows] += back_hits(sl, rows, local[first:])
         buried[sl] = hits >= need
 
     _for_chunks(probe_chunk, len(buried), chunk, check, threads)
