@@ -4,7 +4,8 @@
 
 A 200 × 200-quad wavy sheet (80k triangles) mapped as one chart covering 60% of the atlas, lit by
 a sun and a sky. Stages as `bake.run` runs them: bake points (`bake.points_of`), trace
-(`tracer.bake`), then the atlas's files (`bake._write`: seams, image, post stages, encode, write).
+(`tracer.bake(..., compact=True)`, streamed), then the atlas's files (`bake._write`: seams,
+image, post stages, encode, write).
 Post stages as the Production preset (`core.presets`): denoised (Blender's OIDN, found as the
 bpy side finds it) and stitched; `--no-post` switches both off.
 
@@ -27,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from hhd_lightmapper.core import bake, bakepoints, encoding, lightmap_files, post, presets, seams, tracer
+from hhd_lightmapper.core import stages as stages_module
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -74,6 +76,19 @@ def _wrap(stages: Stages, module, attr: str, name: str, after: str) -> None:
             stages.mark(after)
 
     setattr(owner, key, staticmethod(timed) if isinstance(owner, type) else timed)
+
+
+def _mark_at(stages: Stages, owner, attr: str, name: str) -> None:
+    """Start stage `name` when `owner.attr` (a method the pipeline looks up at call time) is
+    called, without ending it there: unlike `_wrap`, no frame of ours holds the call's arguments,
+    which the callee may release (`TexelData.from_points` drops the bake points)."""
+    f = getattr(owner, attr)
+
+    def marked(*args, **kwargs):
+        stages.mark(name)
+        return f(*args, **kwargs)
+
+    setattr(owner, attr, marked)
 
 
 def sheet(n=200, size=20.0):
@@ -136,9 +151,10 @@ def main() -> int:
     )
     atlas = bake.AtlasInput("Lightmap", width, height, surface, ["sheet"])
     stages = Stages()
+    # the image stage: from the noise image (`bake._finish_files` takes it first) to the post stages
+    _mark_at(stages, stages_module.TracedAtlas, "noise", "image")
     for module, attr, name in (
         (seams, "find_seams", "seams"),
-        (encoding.TexelData, "from_points", "image"),
         (post, "apply", "post"),
         (encoding, "encode_atlas", "encode"),
         (post, "stitch_encoded", "stitch_encoded"),
@@ -151,8 +167,9 @@ def main() -> int:
     stages.mark("bake_points")
     points = bake.points_of(atlas, ray_scene, 0)
     stages.mark("trace")
-    traced = tracer.bake(points, scene, settings.trace, ray_scene=ray_scene)
+    traced = tracer.bake(points, scene, settings.trace, ray_scene=ray_scene, compact=True)  # as `bake.run`
     texels = len(points.texel)
+    del points  # as `bake.run`: the traced atlas holds them until they are imaged
     stages.mark("files_other")
     with tempfile.TemporaryDirectory() as tmp:
         from hhd_lightmapper.core import exr

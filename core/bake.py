@@ -237,17 +237,19 @@ def _local_atlases(
     total_texels = sum(len(p.texel) for p in points)
     results, done_texels = [], 0
     t_trace = time.perf_counter()
-    for i, (atlas, pts) in enumerate(zip(atlases, points)):
+    for i, atlas in enumerate(atlases):
+        pts, points[i] = points[i], None  # held by the traced atlas only: freed once it is imaged
+        n = len(pts.texel)
 
-        def on_trace(f, msg, base=done_texels, n=len(pts.texel), written=i / len(atlases), name=atlas.name):
+        def on_trace(f, msg, base=done_texels, n=n, written=i / len(atlases), name=atlas.name):
             frac = (base + f * n) / total_texels
             report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{name}': {msg}")
 
-        trace = _atlas_settings(
-            settings.trace, time.perf_counter() - t_trace, len(pts.texel), total_texels - done_texels
-        )
-        traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene)
-        done_texels += len(pts.texel)
+        trace = _atlas_settings(settings.trace, time.perf_counter() - t_trace, n, total_texels - done_texels)
+        # compact: the SH the files take (float32) and L0's standard error, streamed chunk by chunk
+        traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene, compact=True)
+        del pts
+        done_texels += n
         _check_cancel(cancel)
         on_trace(1.0, _post_message(settings))
         info = finish_atlas(atlas, traced, settings, t_points, extra, out, lambda: _check_cancel(cancel), release=True)
@@ -304,6 +306,7 @@ def _farm_atlases(
             info = answer["summary"]
             info["seconds"]["write"] = time.perf_counter() - t
         results[i] = atlas_result(atlas, out.out_dir, info)
+        points[i] = None  # written: its bake points may go
         report.report(fraction(), f"wrote '{atlas.name}'")
 
     for i, (atlas, pts) in enumerate(zip(atlases, points)):
@@ -426,9 +429,11 @@ def finish_atlas(
     `check()` raises to cancel; `recorded`: the tracer settings the sidecar records (default
     `settings.trace`; a farm worker computes with its own thread count). `release`: drop
     `traced`'s SH and standard error once they are imaged (`TracedAtlas.release_sh`; the caller
-    no longer needs them, and they are the largest arrays of a bake). Returns the atlas's
-    summary: texels, rays, seconds per stage, warnings, light sets."""
+    no longer needs them, and they are the largest arrays of a bake), and without light sets its
+    bake points too (`TracedAtlas.release_points`: the sets' images need them later). Returns the
+    atlas's summary: texels, rays, seconds per stage, warnings, light sets."""
     t = time.perf_counter()
+    texels = len(traced.points.texel)
     atlas_seams = seams.find_seams(traced.points.mesh, atlas.width, atlas.height)
     seconds = {"bake_points": t_points, "trace": traced.seconds, "seams": time.perf_counter() - t}
     t = time.perf_counter()
@@ -450,7 +455,9 @@ def finish_atlas(
     set_names = [light_sets.set_atlas_name(atlas.name, s) for s in traced.sets]
     if traced.sets:
         sidecar["light_sets"] = [{"name": s, "atlas": n} for s, n in zip(traced.sets, set_names)]
-    warnings = _finish_files(out, atlas.name, "", traced, settings, sidecar, atlas_seams, seconds, check, release)
+    warnings = _finish_files(
+        out, atlas.name, "", traced, settings, sidecar, atlas_seams, seconds, check, release, last=not traced.sets
+    )
     out.seams(atlas.name, atlas_seams)
     for k, (name, set_name) in enumerate(zip(traced.sets, set_names)):
         set_sidecar = {key: v for key, v in sidecar.items() if key not in ("light_sets", "timings_seconds")}
@@ -460,7 +467,7 @@ def finish_atlas(
         )
     seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
     warnings = [f"atlas '{atlas.name}', {w}" for w in dict.fromkeys(warnings)]
-    texels, rays = len(traced.points.texel), traced.rays
+    rays = traced.rays
     return {"texels": texels, "rays": rays, "seconds": seconds, "warnings": warnings, "sets": traced.sets}
 
 
@@ -475,18 +482,24 @@ def _finish_files(
     seconds: dict,
     check,
     release: bool = False,
+    last: bool = False,
 ) -> list[str]:
     """Image → post stages → encode of one atlas's SH (the atlas's own, or one light set's), handed
     to `out.atlas`; adds the post stages' seconds to seconds["post"]; returns their warnings.
-    `release`: `traced.release_sh()` once imaged."""
+    `release`: `traced.release_sh()` once imaged, and with `last` (no image of these bake points
+    follows) `traced.release_points()`."""
     t = time.perf_counter()
-    # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH)
-    raw = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise())
+    # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH);
+    # the bake points go before the SH is imaged when nothing else needs them
+    raw = encoding.TexelData.from_points(
+        traced.points, traced.sh, noise=traced.noise(), release=traced.release_points if release and last else None
+    )
     if release:
         traced.release_sh()
     data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams)  # post stages
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
-    encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=raw)  # encode
+    # encode (the raw SH file's channels filled in `raw` itself: nothing reads its SH after this)
+    encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=raw, spend_raw=True)
     encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"], check)
     del data, raw
     out.atlas(name, parent, encoded, sidecar)  # write (here) or keep (a farm worker)

@@ -32,9 +32,10 @@ def fits_half(values: np.ndarray) -> bool:
     return finite.size == 0 or float(np.abs(finite).max()) <= HALF_MAX
 
 
-def to_exr_rows(image: np.ndarray) -> np.ndarray:
-    """Bottom-up texel rows (row y = v · height) to EXR's top-down scanlines."""
-    return np.ascontiguousarray(image[::-1])
+def to_exr_rows(image: np.ndarray, copy: bool = True) -> np.ndarray:
+    """Bottom-up texel rows (row y = v · height) to EXR's top-down scanlines: a contiguous copy,
+    or without `copy` a view (rows reversed; `write_file` takes it as it is)."""
+    return np.ascontiguousarray(image[::-1]) if copy else image[::-1]
 
 
 def from_exr_rows(image: np.ndarray) -> np.ndarray:
@@ -56,19 +57,44 @@ def set_threads(threads: int) -> None:
         openexr.set_global_thread_count(count)
 
 
+#: Scanlines handed to OpenEXR per call when writing (a multiple of ZIP's 16-line blocks): the
+#: memory a write adds is this many rows of every channel, whatever the image size.
+WRITE_ROWS = 64
+
+
 def write_file(path, channels: dict[str, np.ndarray], attributes: dict | None = None) -> None:
     """Write one scanline EXR (ZIP compression) directly to `path`. Channel arrays are
-    `(height, width)` float16 (HALF) or float32 (FLOAT); `attributes` are string header fields."""
+    `(height, width)` float16 (HALF) or float32 (FLOAT), any strides (views of larger arrays,
+    rows reversed: nothing is copied whole); `attributes` are string header fields.
+
+    Written WRITE_ROWS scanlines at a time through the binding's scanline writer
+    (`OpenEXR.OutputFile`), so the file never exists whole in memory a second time; its bytes
+    are those of the binding's whole-image writer (`OpenEXR.File(header, pixels).write`, which
+    wants every channel contiguous at once): the same header attributes, the same ZIP blocks
+    (tests/test_exr_write.py compares them)."""
     openexr = deps.require("OpenEXR")
-    header = {"compression": openexr.ZIP_COMPRESSION, "type": openexr.scanlineimage}
-    header.update({k: str(v) for k, v in (attributes or {}).items()})
-    pixels = {}
+    import Imath  # the OpenEXR wheel's own module of header types
+
+    types = {np.dtype(np.float16): Imath.PixelType.HALF, np.dtype(np.float32): Imath.PixelType.FLOAT}
+    shapes = {np.shape(data) for data in channels.values()}
     for name, data in channels.items():
-        data = np.ascontiguousarray(data)
-        if data.dtype not in (np.float16, np.float32):
+        if data.dtype not in types:
             raise TypeError(f"EXR channel {name!r}: store float16 or float32, not {data.dtype}")
-        pixels[name] = data
-    openexr.File(header, pixels).write(str(path))
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise ValueError(f"EXR channels must be (height, width) images of one size, got {sorted(shapes)}")
+    height, width = next(iter(shapes))
+    header = openexr.Header(width, height)
+    header["compression"] = Imath.Compression(Imath.Compression.ZIP_COMPRESSION)
+    header["channels"] = {name: Imath.Channel(Imath.PixelType(types[data.dtype])) for name, data in channels.items()}
+    header["type"] = b"scanlineimage"  # as the whole-image writer records it
+    header.update({k: str(v).encode("utf-8") for k, v in (attributes or {}).items()})
+    out = openexr.OutputFile(str(path), header)
+    try:
+        for start in range(0, height, WRITE_ROWS):
+            rows = slice(start, min(start + WRITE_ROWS, height))
+            out.writePixels({name: data[rows].tobytes() for name, data in channels.items()}, rows.stop - start)
+    finally:
+        out.close()
 
 
 def write(path, channels: dict[str, np.ndarray], attributes: dict | None = None) -> None:

@@ -33,8 +33,8 @@ the BakeScene sent once to every worker; the BakePoints come back as plain data 
 Every atlas's tracing tasks start at once (`Farm.submit`, called by `bake.run` after the bake points);
 `bake.run` then collects them atlas by atlas (`Farm.finish`) and starts each atlas's finishing task
 (`finish_task`) once its tracing is done: on a worker, with the tracing results Dask moves there,
-it assembles the statistics, builds the TracedAtlas and runs `bake.finish_atlas` (seams, post
-stages, encoding), returning the encoded images and sidecars as plain data (`plain`); the client
+it reduces the statistics group by group to what the files take, builds the (compact)
+TracedAtlas and runs `bake.finish_atlas` (seams, post stages, encoding), returning the encoded images and sidecars as plain data (`plain`); the client
 only writes them (`bake.Staged`), so the farm traces and finishes the next atlases meanwhile. The
 denoiser runs on a worker only with the client's own OIDN files (`denoiser_identity`,
 `local_denoiser`); a task without them returns the TracedAtlas and the client finishes that atlas.
@@ -76,7 +76,7 @@ from .errors import BakeCancelled, BakeError, DependencyMissing
 from .tracer import scheduler, shipping
 from .tracer.scheduler import Outcome, WorkUnit
 from .tracer.settings import MIN_ADAPTIVE_PASSES, BakeSettings
-from .tracer.statistics import Statistics
+from .tracer.statistics import Reduced, Statistics
 
 #: The package name workers import (`pip install ".[farm]"` installs it under this name).
 WORKER_PACKAGE = "hhd_lightmapper"
@@ -381,8 +381,8 @@ class _Kept:
 
 def finish_task(payload: bytes, digest: str, code: str, meta: bytes, *results: dict) -> dict:
     """One task per atlas, run once its tracing tasks are done (`results`: the last stage's of
-    every group, which Dask brings to this worker): the atlas's statistics assembled, its
-    TracedAtlas built (`tracer.traced_atlas`), then `bake.finish_atlas` (seams, post stages,
+    every group, which Dask brings to this worker): the atlas's statistics reduced group by group,
+    its compact TracedAtlas built (`tracer.traced_atlas`), then `bake.finish_atlas` (seams, post stages,
     encoding) exactly as a local bake runs them. `meta` (pickled with worker names): atlas
     (AtlasInput without its surface), settings (PipelineSettings), t_points, extra, rays,
     stopped_by, seconds, denoiser (the client's `denoiser_identity`; None: its OIDN cannot run,
@@ -395,14 +395,17 @@ def finish_task(payload: bytes, digest: str, code: str, meta: bytes, *results: d
     t0 = time.perf_counter()
     estimator = shipping._receive(digest, payload)
     m = pickle.loads(meta)
-    settings, points = m["settings"], estimator.points
-    stats = Statistics(len(points.texel), points.normal, estimator.scene.channels)
+    settings, points, sets = m["settings"], estimator.points, estimator.scene.sets
+    # reduced group by group to what the files take, as a local bake's (`tracer.bake(..., compact=True)`)
+    reduced = Reduced(points.normal, estimator.scene.channels, points.buried, bool(sets))
     for result in results:
         first, end = int(result["first"]), int(result["end"])
+        stats = reduced.statistics(first, end)
         for key in STATISTICS:
-            getattr(stats, key)[first:end] = result[key]
+            getattr(stats, key)[:] = result[key]
+        reduced.take(first, stats)
     outcome = Outcome(m["stopped_by"], m["rays"])
-    traced = tracer.traced_atlas(points, estimator.scene.sets, stats, settings.trace, outcome, m["seconds"])
+    traced = tracer.traced_atlas(points, sets, reduced, settings.trace, outcome, m["seconds"])
     library = settings.denoiser_library  # "" (the client has none): undenoised here as there, same warning
     denoising = settings.denoise and bool(library)
     if denoising:

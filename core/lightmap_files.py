@@ -129,15 +129,16 @@ def storage_type(dtype: str, images: list[np.ndarray]) -> type:
 
 def exr_channels(spec: FileSpec, images: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """One file's EXR channels `(H, W)` in spec order: EXR rows (top-down), stored as each
-    Channel's dtype says. Takes the images out of `images` (bottom-up rows), so each is released
-    once laid out."""
+    Channel's dtype says. Takes the images out of `images` (bottom-up rows); a channel already
+    of its stored type stays a view of its image (rows reversed: `exr.write_file` writes views
+    a band of rows at a time), others are converted copies."""
     out: dict[str, np.ndarray] = {}
     for ch in spec.channels:
         names = [n for n in ch.exr_names if n in images]
         if names:
             dtype = storage_type(ch.dtype, [images[n] for n in names])
             for name in names:
-                out[name] = exr.to_exr_rows(images.pop(name)).astype(dtype, copy=False)
+                out[name] = exr.to_exr_rows(images.pop(name), copy=False).astype(dtype, copy=False)
     return out
 
 

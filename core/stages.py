@@ -38,7 +38,11 @@ class TracedAtlas:
     (K, P, 9, 3) float64 and set_sh_error (K, P, 9, 3) float32, each set's SH and its standard
     error (None without sets); `sh` is then their sum, `sh_error` the sum of their errors.
     Run statistics: samples (the most a texel took), passes, rays traced, seconds of wall time,
-    stopped_by ("samples", "noise_target": every texel converged, "time_budget"), threads."""
+    stopped_by ("samples", "noise_target": every texel converged, "time_budget"), threads.
+
+    Compact (`tracer.bake(..., compact=True)`, as `bake.run` traces): sh and set_sh are float32
+    (the float32 of the float64 mean: the bits the files hold) and sh_error, set_sh_error hold
+    band 0 only, (P, 1, 3) and (K, P, 1, 3): all that `noise` and the files read."""
 
     points: BakePoints
     sh: np.ndarray
@@ -76,6 +80,11 @@ class TracedAtlas:
         largest arrays, freed before the post stages unless another reference holds them."""
         self.sh = np.zeros((0, 9, 3))
         self.sh_error = np.zeros((0, 9, 3), np.float32)
+
+    def release_points(self) -> None:
+        """Drop `points` (None from then on) once the atlas's last image is made (`bake.finish_atlas`
+        with `release`): the bake points are as large as the traced SH."""
+        self.points = None  # type: ignore[assignment]
 
     def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TracedAtlas:
         """A copy carrying new SH (and standard error) for the same texels, without light sets."""

@@ -14,6 +14,7 @@ time (memory: one channel's copy).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -62,18 +63,35 @@ class TexelData:
 
     @classmethod
     def from_points(
-        cls, points: BakePoints, sh: np.ndarray, sh_error: np.ndarray | None = None, noise: np.ndarray | None = None
+        cls,
+        points: BakePoints,
+        sh: np.ndarray,
+        sh_error: np.ndarray | None = None,
+        noise: np.ndarray | None = None,
+        release: Callable[[], None] | None = None,
     ) -> TexelData:
         """Images of per-point `sh` `(P, 9, 3)` (and optionally its standard error and the
-        `noise` (P,) of `TracedAtlas.noise`) at `points`; noise is NaN outside the charts."""
+        `noise` (P,) of `TracedAtlas.noise`) at `points`; noise is NaN outside the charts.
+        `release()`, if given, is called once nothing but the SH is left to image, before it is:
+        the caller may drop the bake points there (as large as the SH image), this call keeps
+        only their texel indices."""
         coverage = np.where(points.buried, -1.0, points.coverage)
         error = None if sh_error is None else points.image(sh_error, dtype=np.float32)
+        normal = points.image(points.normal, dtype=np.float32)
+        coverage = points.image(coverage, dtype=np.float32)
+        noise = None if noise is None else points.image(noise, fill=np.nan, dtype=np.float32)
+        texel, h, w = points.texel, points.height, points.width
+        if release is not None:
+            del points
+            release()
+        image = np.zeros((h * w,) + sh.shape[1:], np.float32)  # as `BakePoints.image`
+        image[texel] = sh
         return cls(
-            sh=points.image(sh, dtype=np.float32),
-            normal=points.image(points.normal, dtype=np.float32),
-            coverage=points.image(coverage, dtype=np.float32),
+            sh=image.reshape((h, w) + sh.shape[1:]),
+            normal=normal,
+            coverage=coverage,
             sh_error=error,
-            noise=None if noise is None else points.image(noise, fill=np.nan, dtype=np.float32),
+            noise=noise,
         )
 
     def fill(self) -> _dilate.Fill:
@@ -108,10 +126,15 @@ class EncodedAtlas:
     stats: dict
 
 
-def encode_atlas(data: TexelData, encoding: Encoding, raw: bool | TexelData = True) -> EncodedAtlas:
+def encode_atlas(
+    data: TexelData, encoding: Encoding, raw: bool | TexelData = True, spend_raw: bool = False
+) -> EncodedAtlas:
     """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
     files' images: of `data` (True), of another TexelData of the same atlas (the SH as traced,
-    when post stages changed `data`), or none (False: a re-encode keeps the files it read)."""
+    when post stages changed `data`), or none (False: a re-encode keeps the files it read).
+    `spend_raw`: the caller no longer needs that TexelData's SH (nor `data`'s, when it is the
+    same), so the SH file's channels are filled in it in place and are views of it (no copy of
+    the atlas's SH; the same values)."""
     h, w = data.coverage.shape
     fill = data.fill()
     images, summary = encode_images(data, encoding, fill)
@@ -123,7 +146,7 @@ def encode_atlas(data: TexelData, encoding: Encoding, raw: bool | TexelData = Tr
         raw_fill = fill if source.extra_sources is data.extra_sources else source.fill()
         layers = source.layers()
         for spec in (SH_FILE, TEXELS_FILE):
-            files[spec.key] = (spec, raw_images(spec, layers, raw_fill))
+            files[spec.key] = (spec, raw_images(spec, layers, raw_fill, in_place=spend_raw))
     stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.invalid)), **summary}
     return EncodedAtlas(w, h, files, encoding.file, dict(encoding.settings), stats)
 
@@ -153,18 +176,52 @@ def layer_images(ch: Channel, image: np.ndarray, fill: _dilate.Fill) -> dict[str
     in place), filled as a whole then packed, as {EXR channel name: `(H, W)` view}."""
     if ch.fill != NO_FILL:
         image = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK, in_place=True)
-    if ch.pack is not None:
+    if ch.pack is not None:  # ENCODE_CHUNK texels at a time: a pack's float64 temporaries stay small
         h, w = image.shape[:2]
-        image = ch.pack(image.reshape(h * w, -1)).reshape(h, w, len(ch.components))
+        flat = image.reshape(h * w, -1)
+        packed = ch.pack(flat[:ENCODE_CHUNK])
+        if len(flat) > ENCODE_CHUNK:
+            part, packed = packed, np.empty((len(flat),) + packed.shape[1:], packed.dtype)
+            packed[:ENCODE_CHUNK] = part
+            for s in range(ENCODE_CHUNK, len(flat), ENCODE_CHUNK):
+                packed[s : s + ENCODE_CHUNK] = ch.pack(flat[s : s + ENCODE_CHUNK])
+        image = packed.reshape(h, w, len(ch.components))
     return {name: image[..., k] for k, name in enumerate(ch.exr_names)}
 
 
-def raw_images(spec: FileSpec, layers: dict[str, np.ndarray], fill: _dilate.Fill) -> dict[str, np.ndarray]:
+def raw_images(
+    spec: FileSpec, layers: dict[str, np.ndarray], fill: _dilate.Fill, in_place: bool = False
+) -> dict[str, np.ndarray]:
     """A raw file's channel images `(H, W)` from `layers` (`TexelData.layers`), each filled on
-    its own when its Channel says so (unfilled ones are views of the TexelData)."""
+    its own when its Channel says so (unfilled ones are views of the TexelData). `in_place`:
+    filled in the TexelData itself, the images being views of it (`fill_in_place`)."""
     out = {}
     for ch in spec.channels:
         for k, name in enumerate(ch.exr_names):
             image = layers[ch.name][..., k]
-            out[name] = image if ch.fill == NO_FILL else fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
+            if ch.fill == NO_FILL:
+                out[name] = image
+            elif in_place and fill_in_place(fill, image, keep_black=ch.fill == DILATE_BURIED_BLACK):
+                out[name] = image
+            else:
+                out[name] = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
     return out
+
+
+def fill_in_place(fill: _dilate.Fill, image: np.ndarray, keep_black: bool) -> bool:
+    """`fill.apply(image, keep_black)` written into `image` `(H, W)` itself, which may be a
+    strided view (one channel of a TexelData's SH): the same operations on the same values (a
+    texel's source is never written; the mean of the sources is taken over a contiguous gather
+    of them, as `apply` takes it). False, with nothing written, when `image` cannot be walked as
+    one run of texels (its rows not evenly spaced): fill a copy then."""
+    h, w = image.shape
+    if h > 1 and image.strides[0] != w * image.strides[1]:
+        return False
+    flat = np.lib.stride_tricks.as_strided(image, (h * w,), (image.strides[1],))
+    reached = fill.source >= 0
+    flat[fill.empty[reached]] = flat[fill.source[reached]]
+    if not reached.all():
+        flat[fill.empty[~reached]] = flat[fill.valid].mean(axis=0, dtype=np.float64) if len(fill.valid) else 0.0
+    if keep_black:
+        flat[fill.black] = 0.0
+    return True

@@ -39,7 +39,7 @@ from .hemisphere import TexelEstimator
 from .paths import RR_MAX_SURVIVAL, RR_START, TraceScene
 from .scheduler import WorkUnit
 from .settings import MIN_ADAPTIVE_PASSES, NOISE_FLOOR, BakeSettings
-from .statistics import Statistics
+from .statistics import Reduced, Statistics, finished
 
 __all__ = [
     "bake",
@@ -56,6 +56,7 @@ __all__ = [
     "TraceScene",
     "WorkUnit",
     "Statistics",
+    "Reduced",
 ]
 
 
@@ -68,6 +69,7 @@ def bake(
     ray_scene: RayScene | None = None,
     executor: Executor | None = None,
     runner: Callable[..., scheduler.Outcome] | None = None,
+    compact: bool = False,
 ) -> TracedAtlas:
     """Trace every bake point; progressive passes of `pass_samples` each, each pass over the
     texels still converging (all of them unless `settings.noise_target` is set).
@@ -77,7 +79,14 @@ def bake(
     cover probe). `executor`: runs the work units (any concurrent.futures.Executor, e.g. a
     ProcessPoolExecutor; `settings.threads` should be its worker count); default a thread pool
     of `settings.threads` workers. The result does not depend on either. `runner`: runs the
-    passes in place of `scheduler.run` (same arguments; `core.farm.Farm.runner`)."""
+    passes in place of `scheduler.run` (same arguments; `core.farm.Farm.runner`).
+
+    `compact`: keep only what an atlas's files take (`statistics.Reduced`: the SH as float32,
+    the bits the files hold, and the standard error of band 0 only, `sh_error` (P, 1, 3)), as
+    `bake.run` does. Without a noise target, a time budget or a `runner`, each chunk's passes then
+    run together (`scheduler.run_streamed`) and the trace never holds running statistics for
+    the whole atlas (348 → 120 bytes per texel); otherwise they are reduced once traced. The
+    files are the same either way."""
     if settings.pass_samples < 4 or settings.pass_samples % 4:
         raise BakeError(f"samples per pass must be a multiple of 4, got {settings.pass_samples}")
     if settings.noise_target < 0 or settings.time_budget < 0 or not np.isfinite(settings.noise_target):
@@ -85,29 +94,37 @@ def bake(
     start = time.perf_counter()
     settings = replace(settings, threads=_parallel.resolve_threads(settings.threads))
     estimator = texel_estimator(points, scene, settings, ray_scene)
-    stats = Statistics(len(points.texel), points.normal, estimator.scene.channels)
+    channels, sets = estimator.scene.channels, estimator.scene.sets
+    if compact and runner is None and scheduler.streams(settings):
+        reduced = Reduced(points.normal, channels, points.buried, bool(sets))
+        outcome = scheduler.run_streamed(estimator, reduced, settings, start, progress, cancel, executor)
+        return traced_atlas(points, sets, reduced, settings, outcome, time.perf_counter() - start)
+    stats = Statistics(len(points.texel), points.normal, channels)
     outcome = (runner or scheduler.run)(estimator, stats, settings, start, progress, cancel, executor)
-    return traced_atlas(points, estimator.scene.sets, stats, settings, outcome, time.perf_counter() - start)
+    if compact:
+        reduced = Reduced(points.normal, channels, points.buried, bool(sets))
+        reduced.take_all(stats)
+        del stats
+        return traced_atlas(points, sets, reduced, settings, outcome, time.perf_counter() - start)
+    return traced_atlas(points, sets, stats, settings, outcome, time.perf_counter() - start)
 
 
 def traced_atlas(
     points: BakePoints,
     sets: tuple[str, ...],
-    stats: Statistics,
+    stats: Statistics | Reduced,
     settings: BakeSettings,
     outcome: scheduler.Outcome,
     seconds: float,
 ) -> TracedAtlas:
     """The TracedAtlas of `points` from its finished running statistics `stats` (spent: the SH
-    is computed in place), the light `sets` traced and the run's `outcome`; `seconds` of wall
-    time. `bake`'s last step, and a farm's (`core.farm`), which assembles `stats` on a worker."""
-    sh, sh_error = stats.result()
-    sh[points.buried] = 0.0
-    set_sh = set_sh_error = None
-    if sets:
-        set_sh, set_sh_error = _per_set(sh), _per_set(sh_error)
-        # the sum's error as if the sets' errors were fully correlated (they share their paths)
-        sh, sh_error = set_sh.sum(axis=0), set_sh_error.sum(axis=0)
+    is computed in place) or their reduction (`Reduced`: a compact TracedAtlas), the light `sets`
+    traced and the run's `outcome`; `seconds` of wall time. `bake`'s last step, and a farm's
+    (`core.farm`), which assembles `stats` on a worker."""
+    if isinstance(stats, Reduced):
+        sh, sh_error, set_sh, set_sh_error = stats.sh, stats.sh_error, stats.set_sh, stats.set_sh_error
+    else:
+        sh, sh_error, set_sh, set_sh_error = finished(stats, points.buried, bool(sets))
     passes = int(np.max(stats.passes, initial=0))
     return TracedAtlas(
         points=points,
@@ -124,12 +141,6 @@ def traced_atlas(
         stopped_by=outcome.stopped_by,
         threads=settings.threads,
     )
-
-
-def _per_set(a: np.ndarray) -> np.ndarray:
-    """`(N, 9, 3K)` statistics → `(K, N, 9, 3)`, one block per light set."""
-    n, m, c = a.shape
-    return np.ascontiguousarray(a.reshape(n, m, c // 3, 3).transpose(2, 0, 1, 3))
 
 
 def texel_estimator(

@@ -15,6 +15,12 @@ executor that pickles its calls) runs them too: the estimator ships as `shipping
 At most 2 × settings.threads units are queued ahead of the one being added, so finished
 estimates never pile up: memory stays bounded whatever the atlas size.
 
+Streamed (`run_streamed`, `tracer.bake(..., compact=True)` without a noise target or a time
+budget): the same units in another order, every pass of chunk 0, then of chunk 1, …, each chunk's
+statistics reduced (`statistics.Reduced`) once its last pass is added. A texel's statistics
+depend only on its own estimates in pass order, so the numbers are the same, while running
+statistics exist for one chunk at a time instead of the whole atlas.
+
 Between units: progress, cancel (raises BakeCancelled within a unit), the time budget (no unit
 starts after it, the first pass always completes) and, after each pass, the noise target. Its
 rule is fixed so that `core/farm.py` (every pass of a group of chunks in one task) gives the same
@@ -26,7 +32,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -36,7 +42,7 @@ import numpy as np
 
 from ..errors import BakeCancelled
 from .settings import MIN_ADAPTIVE_PASSES, BakeSettings
-from .statistics import Statistics
+from .statistics import Reduced, Statistics
 
 
 @dataclass(frozen=True)
@@ -94,7 +100,7 @@ class _Run:
     def __init__(
         self,
         estimator: Estimator,
-        stats: Statistics,
+        stats: Statistics | None,
         settings: BakeSettings,
         start: float,
         progress: Callable[[float, str], None] | None,
@@ -102,10 +108,11 @@ class _Run:
     ):
         self.estimator, self.stats, self.settings, self.start = estimator, stats, settings, start
         self.progress, self.cancel = progress, cancel
-        self.rays = 0
+        self.rays = self.texel_passes = 0
 
     def passes(self, pool: Executor) -> str:
         settings, stats = self.settings, self.stats
+        assert stats is not None
         n = len(stats.passes)
         max_passes = max(1, -(-settings.samples // settings.pass_samples))
         active = chunks(settings, n)
@@ -118,7 +125,11 @@ class _Run:
                     self.progress(
                         _fraction(p, done / of, max_passes, settings, elapsed),
                         _status(
-                            p, max_passes, converging, n, self.rays, stats.texel_passes, settings.pass_samples, elapsed
+                            _pass_status(p, max_passes, converging, n),
+                            self.rays,
+                            stats.texel_passes,
+                            settings.pass_samples,
+                            elapsed,
                         ),
                     )
                 return not (settings.time_budget and elapsed >= settings.time_budget and p > 0)
@@ -137,22 +148,84 @@ class _Run:
         """The units of one pass on the pool, added in order. `on_unit(done, of)` after each
         returns False to end the pass early (returns False then); `cancel()` returning True
         raises BakeCancelled."""
+        stats = self.stats
+        assert stats is not None
+        return self.run_units(pool, iter(work), len(work), lambda unit, r: stats.add(unit.texels, r), on_unit)
+
+    def streamed(self, pool: Executor, reduced: Reduced) -> str:
+        """Every pass of chunk 0, then of chunk 1, …, each chunk's statistics reduced into
+        `reduced` once its last pass is added (`run_streamed`)."""
+        settings = self.settings
+        n = len(reduced.passes)
+        max_passes = max(1, -(-settings.samples // settings.pass_samples))
+        size = settings.chunk_texels
+        count = -(-n // size)
+        current: dict = {}
+
+        def work():
+            for c, first in enumerate(range(0, n, size)):
+                texels = np.arange(first, min(first + size, n))
+                for p in range(max_passes):
+                    yield WorkUnit(settings.seed, p, c, texels)
+
+        def add(unit: WorkUnit, estimate: np.ndarray) -> None:
+            first, end = int(unit.texels[0]), int(unit.texels[-1]) + 1
+            if unit.pass_index == 0:
+                current["stats"] = reduced.statistics(first, end)
+            stats = current["stats"]
+            stats.add(unit.texels - first, estimate)
+            self.texel_passes += len(unit.texels)
+            if unit.pass_index == max_passes - 1:  # the chunk is finished
+                reduced.take(first, stats)
+                del current["stats"]
+
+        def on_unit(done, of):
+            if self.progress:
+                elapsed = time.perf_counter() - self.start
+                chunk = min((done - 1) // max_passes + 1, count)
+                self.progress(
+                    done / of,
+                    _status(
+                        f"chunk {chunk} of {count} ({max_passes} passes each)",
+                        self.rays,
+                        self.texel_passes,
+                        settings.pass_samples,
+                        elapsed,
+                    ),
+                )
+            return True
+
+        self.run_units(pool, work(), count * max_passes, add, on_unit)
+        return "samples"
+
+    def run_units(self, pool: Executor, work: Iterator[WorkUnit], of: int, add, on_unit) -> bool:
+        """The `of` units of `work` on the pool, at most 2 × threads queued ahead of the one being
+        added, each result handed to `add(unit, estimate)` in order. `on_unit(done, of)` after
+        each returns False to stop early (returns False then); `cancel()` returning True raises
+        BakeCancelled."""
         ahead = 2 * self.settings.threads
         queued: deque = deque()
+        done = 0
         try:
-            for c, unit in enumerate(work):
-                while len(queued) < ahead and c + len(queued) < len(work):
-                    queued.append(pool.submit(run_unit, self.estimator, work[c + len(queued)]))
+            while True:
+                while len(queued) < ahead:
+                    unit = next(work, None)
+                    if unit is None:
+                        break
+                    queued.append((unit, pool.submit(run_unit, self.estimator, unit)))
+                if not queued:
+                    return True
                 if self.cancel is not None and self.cancel():
                     raise BakeCancelled("bake cancelled")
-                result = queued.popleft().result()
+                unit, future = queued.popleft()
+                result = future.result()
                 self.rays += result.rays
-                self.stats.add(unit.texels, result.estimate)
-                if not on_unit(c + 1, len(work)):
+                add(unit, result.estimate)
+                done += 1
+                if not on_unit(done, of):
                     return False
         finally:  # cancelled, stopped early or failed: no unit left queued
-            self._drop(queued)
-        return True
+            self._drop([future for _, future in queued])
 
     def _drop(self, futures) -> None:
         """Cancel the units not started; wait for the running ones (no worker outlives the
@@ -183,6 +256,34 @@ def run(
     return Outcome(stopped_by, state.rays)
 
 
+def streams(settings: BakeSettings) -> bool:
+    """Whether `run_streamed` can trace with `settings`: without a noise target or a time budget
+    (the presets), every texel takes every pass whatever the others do."""
+    return not settings.noise_target and not settings.time_budget
+
+
+def run_streamed(
+    estimator: Estimator,
+    reduced: Reduced,
+    settings: BakeSettings,
+    start: float,
+    progress: Callable[[float, str], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    executor: Executor | None = None,
+) -> Outcome:
+    """`run` for settings that `streams`, into `reduced` (`statistics.Reduced`, of every texel)
+    instead of whole-atlas running statistics: every pass of chunk 0, then of chunk 1, and so on
+    (the same units, added in another order), each chunk reduced as soon as its last pass is in.
+    A texel's statistics depend only on its own estimates in pass order (`kernels.add_pass`), so
+    the numbers are `run`'s, while full statistics exist for one chunk at a time."""
+    if not streams(settings):
+        raise ValueError("a noise target or a time budget needs every pass over the atlas in turn: use `run`")
+    state = _Run(estimator, None, settings, start, progress, cancel)
+    with _pool(executor, settings.threads) as pool:
+        stopped_by = state.streamed(pool, reduced)
+    return Outcome(stopped_by, state.rays)
+
+
 @contextmanager
 def _pool(executor: Executor | None, threads: int):
     if executor is not None:
@@ -199,10 +300,14 @@ def _fraction(p, unit_fraction, max_passes, settings, elapsed) -> float:
     return fraction
 
 
-def _status(p, max_passes, active, n, rays, texel_passes, pass_samples, elapsed) -> str:
-    elapsed = max(elapsed, 1e-9)
+def _pass_status(p, max_passes, active, n) -> str:
     converging = f", {100 * active / max(n, 1):.0f}% of texels converging" if active < n else ""
+    return f"pass {p + 1} of {max_passes}{converging}"
+
+
+def _status(where: str, rays, texel_passes, pass_samples, elapsed) -> str:
+    elapsed = max(elapsed, 1e-9)
     return (
-        f"pass {p + 1} of {max_passes}{converging}, {rays / elapsed / 1e6:.2f} M rays/s, "
+        f"{where}, {rays / elapsed / 1e6:.2f} M rays/s, "
         f"{texel_passes * pass_samples / elapsed / 1e3:.0f} k texel-samples/s"
     )
