@@ -31,9 +31,11 @@ fully covered texels that are valid (not buried) in both of our bakes and that C
 Cycles averages a texel's whole footprint (Blender ≥ 5.2.1), so where a wall stands on a texel
 it mixes both sides: where ours is darker there, it is usually Cycles that leaks (see the
 fixtures, where the truth is known). Crossed texels are therefore judged against Cycles at FINE ×
-the resolution over the part their bake point sees, and texels straddling a triangle edge against
-the same fine bake over their whole footprint: Cycles' own texel samples only the triangle under
-its centre (on a wall split along a line of texel centres, the half on one side of the edge).
+the resolution over the fine texels their bake point sees wholly (a fine texel the crossing
+geometry straddles mixes both sides in Cycles too; a crossed texel with none is not compared),
+and texels straddling a triangle edge against the same fine bake over their whole footprint:
+Cycles' own texel samples only the triangle under its centre (on a wall split along a line of
+texel centres, the half on one side of the edge).
 
 The two-seed rule flags; two causes then set flagged texels aside, each shown per texel in
 bench/results/leaks.md's notes: (1) a coincident twin (`Coincident`): another triangle lies in
@@ -44,7 +46,15 @@ neighbours are 0.15–0.25), while the surface anyone sees is lit; (2) noise: th
 error has one degree of freedom, so the rule selects texels where both seeds happen to lie on the
 same side, and our estimator's dim, indirectly lit texels are heavy-tailed; every other flagged
 texel is re-traced by the bake's own estimator (CONFIRM_SAMPLES, an independent seed, the standard
-error from the spread of its passes) and counts only if the re-measure is flagged by the same rule.
+error from the spread of its passes) and counts only if the re-measure is flagged by the same rule;
+(3) light off duplicated geometry: Cycles' bake loses all light bounced off a surface that has a
+coincident twin (its path vertex there starts its rays on the surface and they hit the twin at
+distance 0; measured, bench/results/leaks.md, Notes), so a confirmed leak is re-traced with the
+same samples, those whose first hit lies on duplicated geometry bringing nothing
+(`light_off_duplicates`), and is set aside if that is not flagged; (4) noise in Cycles: a texel
+still flagged whose reference is Cycles' own texel is re-judged against Cycles' mean of four
+seeds (SEEDS + MORE_SEEDS) and set aside if that is not flagged (the two-seed rule has one degree
+of freedom on Cycles' side too).
 
 Writes bench/results/leaks.json and leaks.md.
 """
@@ -72,9 +82,11 @@ X = 0.25  # of the local level
 FLOOR = 0.1  # × Cycles' mean: the local level of near-black texels
 POOL = 5  # texels: the window whose median relative error floors a texel's own
 SEEDS = (1, 2)
+MORE_SEEDS = (3, 4)  # Cycles' seeds re-measuring the texels still flagged after our re-measure
 #: per-texel arrays of each scene's audit, for diagnosis (not a result)
 ARRAYS = Path(tempfile.gettempdir()) / "hhd-bench-leaks-arrays"
 FINE = 4  # Cycles' resolution for the visible part of texels a wall crosses, × the atlas's
+SUB = 4  # points per side of a fine texel tested for visibility from a crossed texel's bake point
 #: texels the two-seed rule flags are re-traced by our estimator with this many samples and an
 #: independent seed; a leak (or darker texel) counts only if the re-measured value is flagged too
 CONFIRM_SAMPLES = 1024
@@ -139,6 +151,9 @@ def rule() -> dict:
         "seeds": list(SEEDS),
         "confirm_samples": CONFIRM_SAMPLES,
         "coincident_cos": COINCIDENT_COS,
+        "more_cycles_seeds": list(MORE_SEEDS),
+        "fine": FINE,
+        "fine_sub": SUB,
     }
 
 
@@ -223,6 +238,20 @@ def audit_scene(name: str, args) -> dict:
     cyc = [np.where(crossed | straddling, part, c) for part, c in zip(fine["values"], cyc)]
     c_mean, c_se = mean_and_error(*cyc, keep, points)
     twin = Coincident(atlas.bake_scene.triangles)
+    own = ~(crossed | straddling)  # texels whose reference is Cycles' own texel
+    more: dict = {}
+
+    def cycles_again(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cycles' reference at the texels `rows` re-measured: where it is Cycles' own texel, the
+        mean of four seeds (SEEDS and MORE_SEEDS) and its standard error (the two pairs' errors
+        combined); elsewhere (the fine reference) as it was."""
+        if not more:
+            extra = [cycles_bake(atlas.receivers, args.resolution, args.cycles_samples, BOUNCES, s) for s in MORE_SEEDS]
+            m34, se34 = mean_and_error(*[(im.reshape(-1, 3) @ LUMINANCE)[points.texel] for im in extra], keep, points)
+            more["mean"], more["se"] = 0.5 * (c_mean + m34), 0.5 * np.hypot(c_se, se34)
+        mine = own[rows]
+        return np.where(mine, more["mean"][rows], c_mean[rows]), np.where(mine, more["se"][rows], c_se[rows])
+
     out = {
         "receivers": [o.name for o in atlas.receivers],
         "resolution": args.resolution,
@@ -244,7 +273,9 @@ def audit_scene(name: str, args) -> dict:
         o_mean, o_se = mean_and_error(*o, keep, points)
         arrays |= {state: o_mean, f"{state}_se": o_se, f"{state}_position": runs[0].points.position}
         flagged = compare(o_mean, o_se, c_mean, c_se, keep, crossed)
-        causes, masks = explain(runs[0].points, atlas.bake_scene, twin, o_mean, o_se, c_mean, c_se, keep, crossed)
+        causes, masks = explain(
+            runs[0].points, atlas.bake_scene, twin, o_mean, o_se, c_mean, c_se, keep, crossed, cycles_again
+        )
         arrays |= {f"{state}_{k}": v for k, v in masks.items()}
         if state == "after":  # against Cycles' own texels, the whole footprint of crossed ones
             out["after_vs_cycles_texels"] = compare(o_mean, o_se, *whole, keep, crossed)
@@ -266,8 +297,11 @@ def visible_parts(atlas, points, args, straddling) -> dict:
     footprint of each texel `straddling` (P,) bool a triangle edge (Cycles' own texel is the
     part of the footprint on the triangle under the texel's centre only: half of it where the
     centre lies on the edge): Cycles bakes the same UVs at FINE × the resolution, and a texel's
-    value is the mean of the fine texels in its block, for a crossed texel those whose centres
-    the bake point (after settling) sees (a segment test against the scene).
+    value is the mean of the fine texels in its block; for a crossed texel, of those its bake
+    point (after settling) sees wholly (SUB × SUB points of each, segment tests against the
+    scene): a fine texel the crossing geometry straddles averages both sides in Cycles (its dark
+    halo, or the lit far side), so it cannot stand for the visible part. A crossed texel with no
+    wholly seen fine texel is not compared: the reference does not resolve its visible part.
     Returns values [(P,) per seed] (NaN where none is seen), found (P,) bool, and the settings."""
     from hhd_lightmapper.core import bakepoints
     from hhd_lightmapper.core.rays import RayScene
@@ -282,12 +316,23 @@ def visible_parts(atlas, points, args, straddling) -> dict:
     owner = where[coarse]
     rows = np.flatnonzero((owner >= 0) & (points.crossed | straddling)[np.maximum(owner, 0)])
     test = points.crossed[owner[rows]]
-    anchor = points.origins(owner[rows][test])
-    ray = fine.position[rows][test] + fine.face_normal[rows][test] * points.offset - anchor
-    length = np.linalg.norm(ray, axis=1)
-    seen = np.ones(len(rows), bool)
-    seen[test] = ~RayScene(atlas.bake_scene.triangles).occluded(
-        anchor, ray / np.maximum(length, 1e-300)[:, None], length
+    rays = RayScene(atlas.bake_scene.triangles)
+
+    def seen_from_bake_point(at: np.ndarray, of: np.ndarray) -> np.ndarray:
+        """(len(of),) bool: ray origins `at` (len(of), 3) seen from the bake points of texels `of`."""
+        anchor = points.origins(of)
+        ray = at - anchor
+        length = np.linalg.norm(ray, axis=1)
+        return ~rays.occluded(anchor, ray / np.maximum(length, 1e-300)[:, None], length)
+
+    crossed_rows = rows[test]
+    grid = (np.stack(np.meshgrid(np.arange(SUB), np.arange(SUB)), axis=-1).reshape(-1, 2) + 0.5) / SUB
+    sub = fine.texel_points(crossed_rows, grid)  # (n, SUB², 3), off the surface
+    seen = np.ones(len(rows), bool)  # the whole fine texel
+    seen[test] = (
+        seen_from_bake_point(sub.reshape(-1, 3), np.repeat(owner[crossed_rows], len(grid)))
+        .reshape(len(crossed_rows), -1)
+        .all(axis=1)
     )
     values = []
     for seed in SEEDS:
@@ -330,7 +375,7 @@ def flags(o, o_se, c, c_se, keep) -> tuple[np.ndarray, np.ndarray]:
     return keep & (excess > K * sigma) & (excess > X * level), keep & (-excess > K * sigma) & (-excess > X * level)
 
 
-def explain(points, scene, twin, o, o_se, c, c_se, keep, crossed) -> tuple[dict, dict]:
+def explain(points, scene, twin, o, o_se, c, c_se, keep, crossed, cycles_again=None) -> tuple[dict, dict]:
     """Why the texels the two-seed rule flags differ from Cycles. Each flagged texel is first
     checked for a coincident twin (`Coincident`: duplicated geometry, where Cycles' own bake is
     the artefact: its rays start on the surface and hit the twin at distance 0, so it bakes such
@@ -338,8 +383,14 @@ def explain(points, scene, twin, o, o_se, c, c_se, keep, crossed) -> tuple[dict,
     are re-traced (`retrace`: CONFIRM_SAMPLES, an independent seed, the standard error from the
     spread of passes: many degrees of freedom, where the two-seed estimate has one and our
     estimator's dim, indirectly lit texels are heavy-tailed). A texel the re-measure does not
-    flag by the same rule was noise. Returns (counts per cause and side, masks (P,) bool:
-    `excluded` = coincident | noise, and each cause per side)."""
+    flag by the same rule was noise. A leaking texel the re-measure confirms is re-traced once
+    more with the same samples, its light off duplicated geometry taken out as Cycles' bake
+    takes it out (`light_off_duplicates`: first hits only); if that is not flagged, the excess
+    is Cycles' artefact. Last, `cycles_again(rows)` (if given) re-measures Cycles at the texels
+    still flagged whose reference is Cycles' own texel (two more seeds: (mean, standard error)
+    of the four); a texel that re-measure does not flag was noise in Cycles (its two seeds both
+    on one side). Returns (counts per cause and side, masks (P,) bool: `excluded` = the union of
+    the causes, and each cause)."""
     leak, dark = flags(o, o_se, c, c_se, keep)
     rows = np.flatnonzero(leak | dark)
     kind = twin.kind(points, rows)
@@ -352,15 +403,39 @@ def explain(points, scene, twin, o, o_se, c, c_se, keep, crossed) -> tuple[dict,
     leak2, dark2 = flags(o2, se2, c, c_se, keep)
     noise = np.zeros(len(o), bool)
     noise[rest] = ~(leak2 | dark2)[rest]
-    masks = {"coincident": same, "noise": noise, "excluded": same | noise}
+    left = rest[leak2[rest]]
+    with light_off_duplicates(Duplicated(scene.triangles, points.offset), scene.emission):
+        m3, se3 = retrace(points, scene, left)
+    o3, s3 = o2.copy(), se2.copy()
+    o3[left], s3[left] = m3, se3
+    duplicates = np.zeros(len(o), bool)
+    duplicates[left] = ~flags(o3, s3, c, c_se, keep)[0][left]
+    cycles_noise = np.zeros(len(o), bool)
+    if cycles_again is not None:
+        left = np.flatnonzero((leak2 | dark2) & ~duplicates & ~same)
+        if len(left):
+            c4, c4_se = c.copy(), c_se.copy()
+            c4[left], c4_se[left] = cycles_again(left)
+            leak4, dark4 = flags(o2, se2, c4, c4_se, keep)
+            cycles_noise[left] = ~(leak4 | dark4)[left]
+    excluded = same | noise | duplicates | cycles_noise
+    masks = {
+        "coincident": same,
+        "noise": noise,
+        "duplicates": duplicates,
+        "cycles_noise": cycles_noise,
+        "excluded": excluded,
+    }
     causes = {}
     for side, mask in (("leaking", leak), ("darker", dark)):
         causes[side] = {
             "two_seed_rule": int(mask.sum()),
             "coincident_twin": int((mask & same).sum()),
             "noise": int((mask & noise).sum()),
-            "confirmed": int((mask & ~same & ~noise).sum()),
-            "confirmed_crossed": int((mask & ~same & ~noise & crossed).sum()),
+            "light_off_duplicates": int((mask & duplicates).sum()),
+            "cycles_noise": int((mask & cycles_noise).sum()),
+            "confirmed": int((mask & ~excluded).sum()),
+            "confirmed_crossed": int((mask & ~excluded & crossed).sum()),
         }
     causes["opposite_cover_among_flagged"] = int((kind < 0).sum())
     causes["retraced"] = int(len(rest))
@@ -426,6 +501,94 @@ class Coincident:
             elif (inside & (cos < -COINCIDENT_COS)).any():
                 out[j] = -1
         return out
+
+
+class Duplicated:
+    """Points on duplicated geometry: another triangle lies in the plane of the triangle a point
+    is on (normals this parallel, COINCIDENT_COS, facing either way), within `tol` of the point,
+    and holds it (two coincident faces of a wall and its reveal, a slab and the lintel against
+    it). Cycles bakes no light bounced off such a point: a path vertex there starts its bounce
+    and shadow rays on the surface, skipping only its own triangle, and they hit the twin at
+    distance 0 (`light_off_duplicates`). Partners are found once per triangle asked about."""
+
+    def __init__(self, triangles: np.ndarray, tol: float):
+        self.tri = np.asarray(triangles, np.float64)
+        self.lo, self.hi = self.tri.min(axis=1), self.tri.max(axis=1)
+        n = np.cross(self.tri[:, 1] - self.tri[:, 0], self.tri[:, 2] - self.tri[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        self.normal = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+        self.tol = tol
+        self._partners: dict[int, np.ndarray] = {}
+
+    def partners(self, prim: int) -> np.ndarray:
+        """Triangles (other than `prim`) parallel to it, in its plane within `tol`, whose
+        bounding boxes meet its own."""
+        if prim not in self._partners:
+            tol, n = self.tol, self.normal[prim]
+            near = ((self.lo - tol) <= self.hi[prim]).all(axis=1) & ((self.hi + tol) >= self.lo[prim]).all(axis=1)
+            cand = np.flatnonzero(near)
+            cand = cand[(cand != prim) & (np.abs(self.normal[cand] @ n) > COINCIDENT_COS)]
+            dist = np.abs((self.tri[cand] - self.tri[prim, 0]) @ n).max(axis=1)
+            self._partners[prim] = cand[dist <= tol]
+        return self._partners[prim]
+
+    def on(self, q: np.ndarray, prim: np.ndarray) -> np.ndarray:
+        """(R,) bool: the points q (R, 3) on triangles prim (R,) (-1: none) lie on duplicated
+        geometry."""
+        out = np.zeros(len(q), bool)
+        for p in np.unique(prim[prim >= 0]):
+            partners = self.partners(int(p))
+            if len(partners) == 0:
+                continue
+            rows = np.flatnonzero(prim == p)
+            tri = np.repeat(self.tri[partners][None], len(rows), axis=0).reshape(-1, 3, 3)
+            pts = np.repeat(q[rows], len(partners), axis=0)
+            bary = _barycentric3(pts, tri).reshape(len(rows), len(partners), 3)
+            normal = np.repeat(self.normal[partners][None], len(rows), axis=0).reshape(-1, 3)
+            dist = np.abs(np.einsum("ri,ri->r", pts - tri[:, 0], normal)).reshape(len(rows), len(partners))
+            out[rows] = ((bary.min(axis=2) >= -1e-6) & (dist <= self.tol)).any(axis=1)
+        return out
+
+
+class light_off_duplicates:
+    """Within this context every texel sample whose first hit lies on duplicated geometry
+    (`Duplicated`, not an emitter) brings no light, as in Cycles' bake: measured on a floor lit
+    by the sun and by a wall facing it (bench/results/leaks.md, Notes), a coincident twin of the
+    wall, facing either way, takes all of the wall's bounce light out of Cycles' floor (0.880 →
+    0.637 = the sun alone), and none out of ours. Only first hits: light Cycles loses at later
+    path vertices on duplicated geometry is kept, so the emulation errs towards our value."""
+
+    def __init__(self, duplicated: Duplicated, emission: np.ndarray | None):
+        self.duplicated = duplicated
+        self.emissive = (
+            np.zeros(len(duplicated.tri), bool) if emission is None else (np.asarray(emission) > 0).any(axis=1)
+        )
+
+    def __enter__(self):
+        from hhd_lightmapper.core.tracer.paths import Paths
+
+        self.original = original = Paths.radiance
+        duplicated, emissive = self.duplicated, self.emissive
+
+        def radiance(paths, rng, origins, dirs, pdf, start=None, *args, **kwargs):
+            out = original(paths, rng, origins, dirs, pdf, start, *args, **kwargs)
+            t, prim, _ = paths.scene.rays.intersect(origins, dirs)
+            hit = prim >= 0
+            q = origins + dirs * np.where(hit, t, 0.0)[:, None]
+            dark = duplicated.on(q, prim) & hit & ~emissive[np.maximum(prim, 0)]
+            if start is not None:
+                dark &= start
+            out[dark] = 0.0
+            return out
+
+        Paths.radiance = radiance
+        return self
+
+    def __exit__(self, *exc):
+        from hhd_lightmapper.core.tracer.paths import Paths
+
+        Paths.radiance = self.original
+        return False
 
 
 def _barycentric3(q: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -560,11 +723,17 @@ def markdown(results: dict) -> str:
             "coincident twin, where Cycles' bake is the artefact) is set aside, the others are re-traced by "
             f"our estimator ({rule.get('confirm_samples', CONFIRM_SAMPLES)} samples, an independent seed, "
             "the standard error from the spread of its passes) and count only if the re-measure is "
-            "flagged by the same rule.",
+            "flagged by the same rule; a confirmed leak whose re-measure without the light its "
+            "samples' first hits take off duplicated geometry (which Cycles' bake loses: Notes) is not "
+            "flagged is set aside as Cycles' artefact; the texels still flagged whose reference is "
+            "Cycles' own texel are re-judged against Cycles' mean of four seeds "
+            f"({', '.join(str(x) for x in SEEDS + MORE_SEEDS)}) and set aside as noise in Cycles if "
+            "that is not flagged.",
             "",
             "Where geometry crosses a texel (`crossed`), the reference is Cycles' bake at "
-            f"{FINE}× the resolution averaged over the fine texels the bake point sees (the visible "
-            "part); where a texel straddles a triangle edge, the same fine bake over the whole "
+            f"{FINE}× the resolution averaged over the fine texels the bake point sees wholly ({SUB}×{SUB} "
+            "points each; a fine texel the crossing geometry straddles averages both sides in Cycles), "
+            "a crossed texel with none not compared; where a texel straddles a triangle edge, the same fine bake over the whole "
             "footprint (Cycles' own texel covers only the triangle under its centre); elsewhere "
             "Cycles' own texel. The last column judges Cycles' own texels (its whole footprint) by "
             "the two-seed rule.",
@@ -587,8 +756,9 @@ def markdown(results: dict) -> str:
             "",
             "Why the texels the two-seed rule flags differ (leaking / darker):",
             "",
-            "| scene | state | flagged | coincident twin (Cycles' artefact) | noise (not confirmed) | confirmed (crossed) |",
-            "| --- | --- | --- | --- | --- | --- |",
+            "| scene | state | flagged | coincident twin (Cycles' artefact) | noise (not confirmed) "
+            "| light off duplicated geometry (Cycles' artefact) | noise in Cycles | confirmed (crossed) |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |",
         ]
         for name, r in results["scenes"].items():
             for state in ("before", "after"):
@@ -599,6 +769,8 @@ def markdown(results: dict) -> str:
                 lines.append(
                     f"| {name} | {state} | {lk['two_seed_rule']} / {dk['two_seed_rule']} | "
                     f"{lk['coincident_twin']} / {dk['coincident_twin']} | {lk['noise']} / {dk['noise']} | "
+                    f"{lk.get('light_off_duplicates', 0)} / {dk.get('light_off_duplicates', 0)} | "
+                    f"{lk.get('cycles_noise', 0)} / {dk.get('cycles_noise', 0)} | "
                     f"{lk['confirmed']} ({lk['confirmed_crossed']}) / {dk['confirmed']} ({dk['confirmed_crossed']}) |"
                 )
         lines += [
