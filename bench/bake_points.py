@@ -1,6 +1,6 @@
 """Bake points alone, phase by phase, at 1024², 2048² and 4096² (issue 23 part 5); run by hand.
 
-    python bench/bake_points.py [--resolutions 1024 2048 4096] [--threads 0] [--compare] [--what-if]
+    python bench/bake_points.py [--resolutions 1024 2048 4096] [--threads 0] [--compare]
 
 The scene is bench/memory.py's: its 200 × 200-quad wavy sheet (80k triangles) mapped as one chart
 covering `--fill` (60%) of the atlas, with the sheet itself as the occluders (10.07 M texels at
@@ -15,13 +15,11 @@ the Embree queries (`RayScene.intersect` / `occluded`, every thread's own) and o
 `_spoke_targets` are counted apart.
 
 `--compare` also runs the code path before issue 23 part 5 compiled it (the numpy rasteriser,
-per-texel choice, point fill, texel points and probes of tests/raster_reference.py, patched in
-for that run) on the same scene in the same process, checks that every array of the two
-`BakePoints` is identical (reporting the largest difference otherwise) and reports old / new
-ratios. `--what-if` also runs the new path with two functions of other changes compiled:
-`bakepoints.other_triangles` (numpy, single-threaded) replaced by its compiled twin
-`raster_kernels.other_triangles`, and `bakepoints._spoke_targets` by `compiled_spoke_targets`
-here, to show what wiring them in would give (the bake points must stay identical). Results: bench/results/bake_points.json and .md (or --out).
+per-texel choice, footprint triangles, point fill, texel points, settle spokes and probes of
+tests/raster_reference.py, patched in for that run) on the same scene in the same process,
+checks that every array of the two `BakePoints` is identical (reporting the largest difference
+otherwise) and reports old / new ratios. Results: bench/results/bake_points.json and .md (or
+--out).
 """
 
 from __future__ import annotations
@@ -34,13 +32,13 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT / "bench"), str(ROOT / "tests")]  # memory (the scene), raster_reference (old path)
 
+import raster_reference  # noqa: E402
 from hhd_lightmapper.core import bake, bakepoints, covers, raster  # noqa: E402
 from hhd_lightmapper.core.rays import RayScene  # noqa: E402
 from hhd_lightmapper.core.scene import BakeScene  # noqa: E402
@@ -125,12 +123,13 @@ class Phases:
 
 def patch_old() -> list:
     """Put the pre-compilation numpy path in place (tests/raster_reference.py); returns the undo list."""
-    import raster_reference as ref
-
+    ref = raster_reference
     undo = []
     for owner, attr, f in (
         (raster, "rasterise", ref.rasterise),
         (raster, "choose_per_texel", ref.choose_per_texel),
+        (bakepoints, "other_triangles", ref.other_triangles),
+        (bakepoints, "settle", ref.settle),
         (bakepoints, "_fill_points", ref._fill_points),
         (bakepoints, "find_near_cover", ref.find_near_cover),
         (bakepoints, "find_buried", ref.find_buried),
@@ -139,103 +138,6 @@ def patch_old() -> list:
         undo.append((owner, attr, getattr(owner, attr)))
         setattr(owner, attr, f)
     return undo
-
-
-def compiled_other_triangles(cov, chosen, face_normals=None):
-    """`bakepoints.other_triangles` through `raster_kernels.other_triangles` (what `--what-if`
-    patches in: that function belongs to another change, so the product does not call it yet)."""
-    from hhd_lightmapper.core import raster_kernels
-
-    m = bakepoints.FOOTPRINT_TRIANGLES - 1
-    if len(chosen) == 0 or m == 0:
-        return np.full((len(chosen), m), -1, np.int32)
-    return raster_kernels.get().other_triangles(
-        cov.texel,
-        cov.triangle,
-        cov.area,
-        chosen,
-        np.zeros((1, 3)) if face_normals is None else face_normals,
-        face_normals is not None,
-        bakepoints.FOOTPRINT_MIN_COS,
-        m,
-        int(cov.texel.max()) + 1,
-    )
-
-
-barycentric: Any = None  # raster_kernels' compiled helpers, bound by `compiled_spoke_targets`
-fma: Any = None
-
-
-def _spoke_targets_kernel(
-    target, idx, texel, width, triangle, others, texel_uv, positions, face_normal, offset, offsets
-):
-    """`bakepoints._spoke_targets`' loop over the texels with other triangles, compiled (the same
-    floating-point operations; matmul's fused multiply-adds as `raster_kernels.texel_points`)."""
-    m = others.shape[1]
-    k = offsets.shape[0]
-    done = np.zeros(k, np.bool_)
-    for r in range(idx.shape[0]):
-        i = idx[r]
-        has = False
-        for c in range(m):
-            if others[i, c] >= 0:
-                has = True
-        if not has:
-            continue
-        cx, cy = float(texel[i] % width), float(texel[i] // width)
-        lx, ly, lz = face_normal[i, 0] * offset, face_normal[i, 1] * offset, face_normal[i, 2] * offset
-        done[:] = False
-        for c in range(m + 1):
-            tri = triangle[i] if c == 0 else others[i, c - 1]
-            if tri < 0:
-                continue
-            uv, pos = texel_uv[tri], positions[tri]
-            for j in range(k):
-                if done[j]:
-                    continue
-                b0, b1, b2 = barycentric(
-                    cx + offsets[j, 0], cy + offsets[j, 1], uv[0, 0], uv[0, 1], uv[1, 0], uv[1, 1], uv[2, 0], uv[2, 1]
-                )
-                if b0 >= 0.0 and b1 >= 0.0 and b2 >= 0.0:
-                    target[r, j, 0] = fma(b2, pos[2, 0], fma(b1, pos[1, 0], b0 * pos[0, 0])) + lx
-                    target[r, j, 1] = fma(b2, pos[2, 1], fma(b1, pos[1, 1], b0 * pos[0, 1])) + ly
-                    target[r, j, 2] = fma(b2, pos[2, 2], fma(b1, pos[1, 2], b0 * pos[0, 2])) + lz
-                    done[j] = True
-
-
-_compiled_spokes = None
-
-
-def compiled_spoke_targets(points, idx, offsets):
-    """`bakepoints._spoke_targets` with its loop compiled (what `--what-if` patches in: that
-    function belongs to the leaks change, so the product does not use this)."""
-    global _compiled_spokes
-    if _compiled_spokes is None:
-        import numba
-
-        from hhd_lightmapper.core import raster_kernels
-
-        raster_kernels.get()  # compiles the helpers the kernel calls
-        globals().update(barycentric=raster_kernels.barycentric, fma=raster_kernels.fma)
-        _compiled_spokes = numba.njit(nogil=True, error_model="numpy")(_spoke_targets_kernel)
-    target = points.texel_points(idx, offsets)
-    if points.others is None:
-        return target
-    idx = np.asarray(idx, np.int64)
-    _compiled_spokes(
-        target,
-        idx,
-        points.texel,
-        points.width,
-        points.triangle,
-        points.others,
-        points.mesh.texel_uv,
-        points.mesh.positions,
-        points.face_normal,
-        points.offset,
-        np.asarray(offsets, np.float64),
-    )
-    return target
 
 
 def run(surface, scene: RayScene, resolution: int, threads: int) -> tuple[bakepoints.BakePoints, dict]:
@@ -251,6 +153,7 @@ def run(surface, scene: RayScene, resolution: int, threads: int) -> tuple[bakepo
     phases.part(RayScene, "intersect", "embree")
     phases.part(RayScene, "occluded", "embree")
     phases.part(bakepoints, "_spoke_targets", "_spoke_targets")
+    phases.part(raster_reference, "_spoke_targets", "_spoke_targets")  # the old path's
     covers._shared.clear()  # each run builds its own cover probe (`build` would reuse the last run's)
     load = os.getloadavg()[0]
     t, c = time.perf_counter(), time.process_time()
@@ -301,18 +204,11 @@ def main() -> int:
     ap.add_argument("--fill", type=float, default=0.6)
     ap.add_argument("--threads", type=int, default=0, help="0 = every core")
     ap.add_argument("--compare", action="store_true", help="also run the numpy path before issue 23 part 5")
-    ap.add_argument(
-        "--what-if",
-        action="store_true",
-        help="also run the new path with bakepoints.other_triangles compiled (raster_kernels.other_triangles)",
-    )
     ap.add_argument("--out", type=Path, default=RESULTS / "bake_points.json")
     args = ap.parse_args()
 
     warm, tris = sheet_surface(64, args.fill)  # compiles (or loads the cached) kernels outside the timing
     bakepoints.build(warm, 64, 64, occluders=RayScene(tris), threads=args.threads)
-    if args.what_if:  # and the what-if's kernels
-        compiled_spoke_targets(bakepoints.build(warm, 64, 64), np.arange(10), np.zeros((1, 2)))
     report: dict = {"cpus": os.cpu_count(), "threads": args.threads, "fill": args.fill, "runs": []}
     for resolution in args.resolutions:
         surface, tris = sheet_surface(resolution, args.fill)
@@ -320,18 +216,6 @@ def main() -> int:
         points, new = run(surface, scene, resolution, args.threads)
         entry = {"resolution": resolution, "texels": new["texels"], "new": new}
         print(_line(resolution, "new", new))
-        if args.what_if:
-            originals = bakepoints.other_triangles, bakepoints._spoke_targets
-            bakepoints.other_triangles, bakepoints._spoke_targets = compiled_other_triangles, compiled_spoke_targets
-            try:
-                what_if_points, what_if = run(surface, scene, resolution, args.threads)
-            finally:
-                bakepoints.other_triangles, bakepoints._spoke_targets = originals
-            entry["what_if"] = what_if
-            entry["what_if_identity"] = differences(what_if_points, points)
-            del what_if_points
-            print(_line(resolution, "new + compiled other_triangles, _spoke_targets", what_if))
-            print("   identity:", entry["what_if_identity"])
         if args.compare:
             undo = patch_old()
             try:
@@ -370,7 +254,7 @@ def markdown(report: dict) -> str:
         f"`bakepoints.build` with the sheet as occluders, threads {report['threads']} (0 = all "
         f"{report['cpus']} cores). Seconds are wall (CPU, every thread); the load is the 1-min "
         "average at the start → end of each run. Old: the numpy path before the compiled kernels "
-        "(tests/raster_reference.py), run in the same process after the new one (and the what-if).",
+        "(tests/raster_reference.py), run in the same process after the new one.",
         "",
     ]
     for entry in report["runs"]:
@@ -403,19 +287,6 @@ def markdown(report: dict) -> str:
             if row and row.get("parts_cpu"):
                 parts = "; ".join(f"{k} {v:.2f}" for k, v in row["parts_cpu"].items())
                 lines += ["", f"CPU seconds inside ({which}): {parts}."]
-        if "what_if" in entry:
-            w = entry["what_if"]
-            same = all(v == "identical" for v in entry["what_if_identity"].values())
-            lines += [
-                "",
-                "What if `bakepoints.other_triangles` and `_spoke_targets` were compiled "
-                f"(`raster_kernels.other_triangles`, the bench's `compiled_spoke_targets`; `--what-if`; load "
-                f"{w['load_before']:.1f} → {w['load_after']:.1f}): footprint others "
-                f"{w['wall']['footprint others']:.2f} s ({w['cpu']['footprint others']:.2f} s cpu), settle "
-                f"{w['wall']['settle']:.2f} s ({w['cpu']['settle']:.2f} s cpu), total "
-                f"{w['total_wall']:.2f} s ({w['total_cpu']:.2f} s cpu); bake points "
-                f"{'identical' if same else 'DIFFERENT: ' + str(entry['what_if_identity'])}.",
-            ]
         if "identity" in entry:
             same = [k for k, v in entry["identity"].items() if v == "identical"]
             differ = {k: v for k, v in entry["identity"].items() if v != "identical"}

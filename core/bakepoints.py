@@ -256,7 +256,7 @@ def build(
     cov = raster.rasterise(uv, width, height, check, threads)
     chosen, coverage = raster.choose_per_texel(cov)
     tri, texel, centroid = cov.triangle[chosen], cov.texel[chosen], cov.point[chosen]
-    others = other_triangles(cov, chosen, _face_normals(pos)) if FOOTPRINT_TRIANGLES > 1 else None
+    others = other_triangles(cov, chosen, _face_normals(pos), threads) if FOOTPRINT_TRIANGLES > 1 else None
     del cov
     n = len(tri)
     points = BakePoints(
@@ -294,29 +294,37 @@ def build(
     return points
 
 
-def other_triangles(cov: raster.Coverage, chosen: np.ndarray, face_normals: np.ndarray | None = None) -> np.ndarray:
+def other_triangles(
+    cov: raster.Coverage, chosen: np.ndarray, face_normals: np.ndarray | None = None, threads: int = 0
+) -> np.ndarray:
     """(P, FOOTPRINT_TRIANGLES - 1) int32: for each chosen pair's texel (`chosen`, sorted by
     texel as `raster.choose_per_texel` returns them) the other triangles overlapping it, largest
     overlap first (ties: lowest index), -1 where there are fewer. All lie in the texel's own
     chart: charts never share a texel. `face_normals` (T, 3) unit (0 for degenerate triangles):
-    if given, only triangles within FOOTPRINT_MIN_COS of the texel's own triangle count."""
+    if given, only triangles within FOOTPRINT_MIN_COS of the texel's own triangle count.
+    `raster_kernels.other_triangles` (one pass over the pairs, compiled) on `threads` workers
+    (0 = every core), each over its own range of texels: the result does not depend on it."""
     m = FOOTPRINT_TRIANGLES - 1
     out = np.full((len(chosen), m), -1, np.int32)
     if len(chosen) == 0 or m == 0:
         return out
-    triangle, area, texel = cov.triangle, cov.area, cov.texel
-    if face_normals is not None:
-        own = cov.triangle[chosen][np.searchsorted(cov.texel[chosen], texel)]
-        cos = np.einsum("ij,ij->i", face_normals[triangle], face_normals[own])
-        keep = (cos >= FOOTPRINT_MIN_COS) | (triangle == own)
-        triangle, area, texel = triangle[keep], area[keep], texel[keep]
-    order = np.lexsort((triangle, -area, texel))
-    texel = texel[order]
-    start = np.flatnonzero(np.concatenate([[True], texel[1:] != texel[:-1]]))
-    rank = np.arange(len(order)) - np.repeat(start, np.diff(np.append(start, len(order))))
-    row = np.repeat(np.arange(len(start)), np.diff(np.append(start, len(order))))
-    take = (rank >= 1) & (rank <= m)
-    out[row[take], rank[take] - 1] = triangle[order[take]]
+    chosen = np.asarray(chosen, np.int64)
+    best = np.zeros(out.shape)  # the areas of out's triangles
+    point = np.zeros(int(cov.texel[chosen[-1]]) + 1, np.int32)  # sorted by texel: the last is the largest
+    use_normals = face_normals is not None
+    normals = np.asarray(face_normals, np.float64) if use_normals else np.zeros((1, 3))
+    kernel = raster_kernels.get().other_triangles
+    workers = parallel.resolve_threads(threads)
+    bounds = [len(chosen) * k // workers for k in range(workers + 1)]
+
+    def work(k: int) -> None:
+        texel, triangle, area = cov.texel, cov.triangle, cov.area
+        kernel(
+            texel, triangle, area, chosen, normals, use_normals, FOOTPRINT_MIN_COS, point, out, best, *bounds[k : k + 2]
+        )
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        list(pool.map(work, range(workers)))
     return out
 
 
@@ -329,21 +337,27 @@ def _face_normals(positions: np.ndarray) -> np.ndarray:
 
 
 def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, centroid: np.ndarray) -> None:
-    """Position, n_v, face normal, albedo and texel size of the texels `rows`, whose overlap
-    centroids (texel space) are `centroid`."""
+    """Position, n_v, face normal, albedo and texel size of the texels `rows` (a slice), whose
+    overlap centroids (texel space) are `centroid`."""
     tri = points.triangle[rows]
-    n = len(tri)
+    bary = np.empty((len(tri), 3))
+    mesh = points.mesh
     # barycentric coordinates clamped to the triangle, position, n_v (normalised; a vertex normal
     # of zero length, degenerate input, falls back to the face normal), face normal on n_v's
-    # side, texel size: `raster_kernels.fill_points`, the numpy arithmetic compiled
-    out = [np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty((n, 3))]
-    mesh = points.mesh
+    # side, texel size: `raster_kernels.fill_points`, the numpy arithmetic compiled, written
+    # straight into the rows (`rows` is a slice: views, no copies)
     raster_kernels.get().fill_points(
-        tri, np.asarray(centroid, np.float64), mesh.texel_uv, mesh.positions, mesh.normals, *out
+        tri,
+        np.asarray(centroid, np.float64),
+        mesh.texel_uv,
+        mesh.positions,
+        mesh.normals,
+        points.position[rows],
+        points.normal[rows],
+        points.face_normal[rows],
+        points.texel_size[rows],
+        bary,
     )
-    position, normal, face, size, bary = out
-    points.position[rows], points.normal[rows], points.face_normal[rows] = position, normal, face
-    points.texel_size[rows] = size
     points.albedo[rows] = _albedo(surface, tri, bary)
 
 
@@ -514,13 +528,12 @@ def settle(
 
     def settle_chunk(sl: slice):
         idx = np.arange(sl.start, sl.stop)
-        anchor = points.origins(idx)
         target = _spoke_targets(points, idx, _SPOKES * FOOTPRINT + 0.5 * (1.0 - FOOTPRINT))
-        ray = target - anchor[:, None, :]
-        length = np.linalg.norm(ray, axis=2)
-        direction = ray / np.maximum(length, 1e-300)[..., None]
-        reach = np.maximum(length, points.texel_size[idx][:, None])
-        origin = np.repeat(anchor, k, axis=0)
+        # from each bake point's ray origin (the anchor) to its targets: unit directions, lengths,
+        # reach at least a texel (`raster_kernels.spoke_rays`: numpy's arithmetic compiled)
+        anchor, origin, direction, length, reach = raster_kernels.get().spoke_rays(
+            points.position, points.face_normal, points.texel_size, points.offset, sl.start, target
+        )
         near = scene.occluded(origin, direction.reshape(-1, 3), reach.reshape(-1)).reshape(-1, k)
         rows = np.flatnonzero((near & (length > 0.0)).any(axis=1))  # the few texels near geometry
         if len(rows) == 0:
@@ -541,20 +554,19 @@ def _spoke_targets(points: BakePoints, idx: np.ndarray, offsets: np.ndarray) -> 
     target = points.texel_points(idx, offsets)
     if points.others is None:
         return target
-    rows = np.flatnonzero((points.others[idx] >= 0).any(axis=1))
-    if len(rows) == 0:
-        return target
-    sub = idx[rows]
-    corner = np.stack([points.texel[sub] % points.width, points.texel[sub] // points.width], 1)
-    at = corner[:, None, :] + offsets[None]
-    done = np.zeros(at.shape[:2], bool)
-    lift = points.face_normal[sub][:, None, :] * points.offset
-    for tri in np.concatenate([points.triangle[sub, None], points.others[sub]], axis=1).T:
-        bary = _barycentric_grouped(at, points.mesh.texel_uv[np.maximum(tri, 0)])
-        take = (bary.min(axis=-1) >= 0.0) & (tri >= 0)[:, None] & ~done
-        here = np.matmul(bary, points.mesh.positions[np.maximum(tri, 0)]) + lift
-        target[rows] = np.where(take[..., None], here, target[rows])
-        done |= take
+    raster_kernels.get().spoke_targets(  # numpy's arithmetic compiled (tests/raster_reference.py)
+        target,
+        np.asarray(idx, np.int64),
+        points.texel,
+        points.width,
+        points.triangle,
+        points.others,
+        points.mesh.texel_uv,
+        points.mesh.positions,
+        points.face_normal,
+        points.offset,
+        np.ascontiguousarray(offsets, np.float64),
+    )
     return target
 
 

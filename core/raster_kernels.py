@@ -410,21 +410,28 @@ def cover_rays(texel, width, position, face_normal, offset, points, point_bits, 
     return origins[:m].copy(), normals[:m].copy(), ray
 
 
-def other_triangles(texel, triangle, area, chosen, face_normals, use_normals, min_cos, m, texels):
-    """`bakepoints.other_triangles` compiled (not wired in: that function is another change's;
-    tests/test_raster_compiled.py checks they agree): for each chosen pair (`chosen`, indices
-    into the pairs texel, triangle, area, sorted by texel, flat ids < `texels`) up to m other
-    triangles overlapping its texel, largest overlap first (ties: lowest index), −1 where there
-    are fewer; with `use_normals`, only triangles whose face normal (face_normals (T, 3), dot
-    product summed as einsum did) is within `min_cos` of the texel's own. (P, m) int32."""
-    p_count = chosen.shape[0]
-    out = np.full((p_count, m), -1, np.int32)
-    best = np.zeros((p_count, m))  # the areas of out's triangles
-    point = np.full(texels, -1, np.int64)
-    for p in range(p_count):
+def other_triangles(texel, triangle, area, chosen, face_normals, use_normals, min_cos, point, out, best, lo, hi):
+    """`bakepoints.other_triangles` for the chosen pairs lo … hi − 1 (`chosen` (P,), indices into
+    the pairs texel (N,) flat ids, triangle (N,), area (N,) texel units; sorted by texel): up to
+    m other triangles overlapping each one's texel, largest overlap first (ties: lowest index),
+    written into out (P, m) int32 (−1 where there are fewer; to start all −1), best (P, m) their
+    areas; with `use_normals`, only triangles whose face normal (face_normals (T, 3) unit, dot
+    product summed as einsum did) is within `min_cos` of the texel's own. point (texels,) int32
+    is scratch shared between calls (each sets and reads only its own texels' entries). One pass
+    over every pair, keeping each texel's m best by insertion (the numpy code's lexsort of every
+    pair, tests/raster_reference.py, gives the same order); calls over disjoint ranges write
+    disjoint rows, so they can run on parallel threads."""
+    if hi <= lo:
+        return
+    m = out.shape[1]
+    first, last = texel[chosen[lo]], texel[chosen[hi - 1]]
+    for p in range(lo, hi):
         point[texel[chosen[p]]] = p
     for i in range(texel.shape[0]):
-        p = point[texel[i]]
+        x = texel[i]
+        if x < first or x > last:  # another range's texel
+            continue
+        p = point[x]
         own = triangle[chosen[p]]
         t = triangle[i]
         if t == own:
@@ -442,7 +449,81 @@ def other_triangles(texel, triangle, area, chosen, face_normals, use_normals, mi
                 out[p, j] = t
                 best[p, j] = a
                 break
-    return out
+
+
+def spoke_targets(target, idx, texel, width, triangle, others, texel_uv, positions, face_normal, offset, offsets):
+    """`bakepoints._spoke_targets` after `BakePoints.texel_points`: for the texels idx (n,) (indices
+    into the bake points' texel (P,) flat ids, triangle (P,), others (P, m) −1 for none,
+    face_normal (P, 3)) that have other triangles, each point at offsets (k, 2) texel units from
+    the texel's corner that lies on one of the texel's triangles (its own, then `others` in order;
+    barycentric coordinates all ≥ 0 in texel_uv (T, 3, 2) texel units) is moved onto the first
+    such: mapped onto positions (T, 3, 3) world space (matmul's fused multiply-adds, as
+    `texel_points`) and pushed off along the face normal by `offset` (scene units). Writes
+    target (n, k, 3) world space, which holds the points clamped into the texel's own triangle
+    (`texel_points`), in place; the points on none of the texel's triangles stay."""
+    m = others.shape[1]
+    k = offsets.shape[0]
+    done = np.zeros(k, np.bool_)
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        has = False
+        for c in range(m):
+            if others[i, c] >= 0:
+                has = True
+        if not has:
+            continue
+        cx, cy = float(texel[i] % width), float(texel[i] // width)
+        lx, ly, lz = face_normal[i, 0] * offset, face_normal[i, 1] * offset, face_normal[i, 2] * offset
+        done[:] = False
+        for c in range(m + 1):
+            tri = triangle[i] if c == 0 else others[i, c - 1]
+            if tri < 0:
+                continue
+            uv, pos = texel_uv[tri], positions[tri]
+            for j in range(k):
+                if done[j]:
+                    continue
+                b0, b1, b2 = barycentric(
+                    cx + offsets[j, 0], cy + offsets[j, 1], uv[0, 0], uv[0, 1], uv[1, 0], uv[1, 1], uv[2, 0], uv[2, 1]
+                )
+                if b0 >= 0.0 and b1 >= 0.0 and b2 >= 0.0:  # numpy's bary.min() ≥ 0: False for NaN
+                    target[r, j, 0] = fma(b2, pos[2, 0], fma(b1, pos[1, 0], b0 * pos[0, 0])) + lx
+                    target[r, j, 1] = fma(b2, pos[2, 1], fma(b1, pos[1, 1], b0 * pos[0, 1])) + ly
+                    target[r, j, 2] = fma(b2, pos[2, 2], fma(b1, pos[1, 2], b0 * pos[0, 2])) + lz
+                    done[j] = True
+
+
+def spoke_rays(position, face_normal, texel_size, offset, start, target):
+    """`bakepoints.settle`'s spokes of the bake points start … start + n − 1 (position, face_normal
+    (P, 3), texel_size (P,) metres): from each one's ray origin (the anchor: position + face
+    normal × `offset`, scene units) to its k targets (target (n, k, 3), `bakepoints._spoke_targets`).
+    Returns anchor (n, 3), origin (n·k, 3) (the anchor repeated), direction (n, k, 3) unit
+    (zero-length spokes: 0), length (n, k) and reach (n, k) = max(length, texel size), with the
+    numpy code's operations in its order (tests/raster_reference.py `settle`: the norm summed
+    x² + y² first, then + z²; divisions by max(length, 1e-300))."""
+    n, k = target.shape[0], target.shape[1]
+    anchor = np.empty((n, 3))
+    origin = np.empty((n * k, 3))
+    direction = np.empty((n, k, 3))
+    length = np.empty((n, k))
+    reach = np.empty((n, k))
+    for r in range(n):
+        i = start + r
+        ax = position[i, 0] + face_normal[i, 0] * offset
+        ay = position[i, 1] + face_normal[i, 1] * offset
+        az = position[i, 2] + face_normal[i, 2] * offset
+        anchor[r, 0], anchor[r, 1], anchor[r, 2] = ax, ay, az
+        size = texel_size[i]
+        for j in range(k):
+            dx, dy, dz = target[r, j, 0] - ax, target[r, j, 1] - ay, target[r, j, 2] - az
+            d = math.sqrt(dx * dx + dy * dy + dz * dz)
+            s = d if (d >= 1e-300 or d != d) else 1e-300  # np.maximum: NaN propagates
+            direction[r, j, 0], direction[r, j, 1], direction[r, j, 2] = dx / s, dy / s, dz / s
+            length[r, j] = d
+            reach[r, j] = d if (d >= size or d != d) else size  # np.maximum
+            q = r * k + j
+            origin[q, 0], origin[q, 1], origin[q, 2] = ax, ay, az
+    return anchor, origin, direction, length, reach
 
 
 _HELPERS = ("max0", "min0", "clip", "overlap_with_texel", "barycentric")
@@ -455,6 +536,8 @@ _KERNELS = (
     "back_hits",
     "cover_rays",
     "other_triangles",
+    "spoke_targets",
+    "spoke_rays",
 )
 _compiled: SimpleNamespace | None = None
 _lock = threading.Lock()

@@ -1,7 +1,8 @@
 """The numpy bake-point code as it was before issue 23 part 5 compiled it: the reference the
-compiled rasteriser and probe points are checked against (tests/test_raster_compiled.py) and the
-old path `bench/bake_points.py --compare` times. Not shipped; copied unchanged from core/raster.py
-and core/bakepoints.py (only module prefixes added)."""
+compiled rasteriser, probe points, footprint triangles and settle spokes are checked against
+(tests/test_raster_compiled.py) and the old path `bench/bake_points.py --compare` times. Not
+shipped; copied unchanged from core/raster.py and core/bakepoints.py (only module prefixes
+added)."""
 
 from __future__ import annotations
 
@@ -12,9 +13,12 @@ import numpy as np
 
 from hhd_lightmapper.core import parallel
 from hhd_lightmapper.core.bakepoints import (
+    _SPOKES,
     BURIED_FRACTION,
     BURIED_PROBES,
     FOOTPRINT,
+    FOOTPRINT_MIN_COS,
+    FOOTPRINT_TRIANGLES,
     BakePoints,
     SurfaceTriangles,
     _albedo,
@@ -22,6 +26,8 @@ from hhd_lightmapper.core.bakepoints import (
     _barycentric_grouped,
     _normalise,
     _probe_directions,
+    _push_out,
+    _Spokes,
     _texel_world_size,
 )
 from hhd_lightmapper.core.covers import CoverProbe
@@ -286,3 +292,86 @@ def find_buried(
 
     _for_chunks(probe_chunk, len(buried), chunk, check, threads)
     return buried
+
+
+def other_triangles(
+    cov: Coverage, chosen: np.ndarray, face_normals: np.ndarray | None = None, threads: int = 0
+) -> np.ndarray:
+    """(P, FOOTPRINT_TRIANGLES - 1) int32: for each chosen pair's texel (`chosen`, sorted by
+    texel as `raster.choose_per_texel` returns them) the other triangles overlapping it, largest
+    overlap first (ties: lowest index), -1 where there are fewer. All lie in the texel's own
+    chart: charts never share a texel. `face_normals` (T, 3) unit (0 for degenerate triangles):
+    if given, only triangles within FOOTPRINT_MIN_COS of the texel's own triangle count.
+    (`threads`, unused, only to be called as the compiled one is: this runs on one.)"""
+    m = FOOTPRINT_TRIANGLES - 1
+    out = np.full((len(chosen), m), -1, np.int32)
+    if len(chosen) == 0 or m == 0:
+        return out
+    triangle, area, texel = cov.triangle, cov.area, cov.texel
+    if face_normals is not None:
+        own = cov.triangle[chosen][np.searchsorted(cov.texel[chosen], texel)]
+        cos = np.einsum("ij,ij->i", face_normals[triangle], face_normals[own])
+        keep = (cos >= FOOTPRINT_MIN_COS) | (triangle == own)
+        triangle, area, texel = triangle[keep], area[keep], texel[keep]
+    order = np.lexsort((triangle, -area, texel))
+    texel = texel[order]
+    start = np.flatnonzero(np.concatenate([[True], texel[1:] != texel[:-1]]))
+    rank = np.arange(len(order)) - np.repeat(start, np.diff(np.append(start, len(order))))
+    row = np.repeat(np.arange(len(start)), np.diff(np.append(start, len(order))))
+    take = (rank >= 1) & (rank <= m)
+    out[row[take], rank[take] - 1] = triangle[order[take]]
+    return out
+
+
+def settle(
+    points: BakePoints, scene: RayScene, probe: CoverProbe, check=None, chunk: int = 1 << 15, threads: int = 0
+) -> np.ndarray:
+    """Bake points moved out from under back faces (`bakepoints.settle`, its spokes built with
+    numpy). Updates `points.position` in place; returns (P,) bool: crossed."""
+    crossed = np.zeros(len(points.texel), bool)
+    k = len(_SPOKES)
+
+    def settle_chunk(sl: slice):
+        idx = np.arange(sl.start, sl.stop)
+        anchor = points.origins(idx)
+        target = _spoke_targets(points, idx, _SPOKES * FOOTPRINT + 0.5 * (1.0 - FOOTPRINT))
+        ray = target - anchor[:, None, :]
+        length = np.linalg.norm(ray, axis=2)
+        direction = ray / np.maximum(length, 1e-300)[..., None]
+        reach = np.maximum(length, points.texel_size[idx][:, None])
+        origin = np.repeat(anchor, k, axis=0)
+        near = scene.occluded(origin, direction.reshape(-1, 3), reach.reshape(-1)).reshape(-1, k)
+        rows = np.flatnonzero((near & (length > 0.0)).any(axis=1))  # the few texels near geometry
+        if len(rows) == 0:
+            return
+        spokes = _Spokes(scene, anchor[rows], direction[rows], reach[rows])
+        moved = _push_out(points, idx[rows], spokes, probe)
+        crossed[idx[rows]] = (spokes.t < length[rows]).any(axis=1) | moved
+
+    _for_chunks(settle_chunk, len(crossed), chunk, check, threads)
+    return crossed
+
+
+def _spoke_targets(points: BakePoints, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Ray origins (len(idx), k, 3) at `offsets` (k, 2) texel units from each texel's corner: on
+    the first of the texel's triangles holding the point (its own, then `BakePoints.others`,
+    whose parts of the footprint its samples cover too), else clamped into its own triangle
+    (`BakePoints.texel_points`)."""
+    target = points.texel_points(idx, offsets)
+    if points.others is None:
+        return target
+    rows = np.flatnonzero((points.others[idx] >= 0).any(axis=1))
+    if len(rows) == 0:
+        return target
+    sub = idx[rows]
+    corner = np.stack([points.texel[sub] % points.width, points.texel[sub] // points.width], 1)
+    at = corner[:, None, :] + offsets[None]
+    done = np.zeros(at.shape[:2], bool)
+    lift = points.face_normal[sub][:, None, :] * points.offset
+    for tri in np.concatenate([points.triangle[sub, None], points.others[sub]], axis=1).T:
+        bary = _barycentric_grouped(at, points.mesh.texel_uv[np.maximum(tri, 0)])
+        take = (bary.min(axis=-1) >= 0.0) & (tri >= 0)[:, None] & ~done
+        here = np.matmul(bary, points.mesh.positions[np.maximum(tri, 0)]) + lift
+        target[rows] = np.where(take[..., None], here, target[rows])
+        done |= take
+    return target

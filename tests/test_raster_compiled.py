@@ -1,6 +1,7 @@
-"""The compiled rasteriser and probe points (core/raster_kernels.py) against the numpy code they
-replaced (tests/raster_reference.py): the same pairs, areas, centroids, per-texel choices and
-bake points, bit for bit, on random and degenerate triangles, whatever the thread count."""
+"""The compiled rasteriser, probe points, footprint triangles and settle spokes
+(core/raster_kernels.py) against the numpy code they replaced (tests/raster_reference.py): the
+same pairs, areas, centroids, per-texel choices and bake points, bit for bit, on random and
+degenerate triangles, whatever the thread count."""
 
 import dataclasses
 
@@ -128,6 +129,8 @@ def use_reference(monkeypatch):
         (bakepoints, "_fill_points", ref._fill_points),
         (bakepoints, "find_near_cover", ref.find_near_cover),
         (bakepoints, "find_buried", ref.find_buried),
+        (bakepoints, "other_triangles", ref.other_triangles),
+        (bakepoints, "settle", ref.settle),
         (bakepoints.BakePoints, "texel_points", ref.texel_points),
     ):
         monkeypatch.setattr(owner, name, f)
@@ -205,11 +208,10 @@ def test_near_cover_probes_each_distinct_ray_once():
 
 
 @pytest.mark.parametrize("normals", [True, False])
-def test_compiled_other_triangles_agree_with_bakepoints(normals):
-    """`raster_kernels.other_triangles` (offered for `bakepoints.other_triangles`, not wired in)
-    gives the same triangles in the same order, on awkward triangles and on the test scene."""
-    from hhd_lightmapper.core import raster_kernels
-
+def test_compiled_other_triangles_are_the_numpy_ones(normals):
+    """`bakepoints.other_triangles` (`raster_kernels.other_triangles`) gives the numpy version's
+    triangles in the same order, on awkward triangles and on the test scene, whatever the
+    thread count."""
     rng = np.random.default_rng(7)
     surface, _ = scene(rng)
     cases = [(surface.uv, surface.positions, 96), (awkward_triangles(rng, 800, 64), None, 64)]
@@ -220,17 +222,59 @@ def test_compiled_other_triangles_agree_with_bakepoints(normals):
         cov = raster.rasterise(uv, res, res)
         chosen, _ = raster.choose_per_texel(cov)
         fn = bakepoints._face_normals(positions) if normals else None
-        want = bakepoints.other_triangles(cov, chosen, fn)
-        got = raster_kernels.get().other_triangles(
-            cov.texel,
-            cov.triangle,
-            cov.area,
-            chosen,
-            fn if normals else np.zeros((1, 3)),
-            normals,
-            bakepoints.FOOTPRINT_MIN_COS,
-            bakepoints.FOOTPRINT_TRIANGLES - 1,
-            int(cov.texel.max()) + 1,
-        )
+        want = ref.other_triangles(cov, chosen, fn)
         assert (want >= 0).sum() > 50
+        for threads in (1, 2, 3):  # each worker its own range of texels
+            got = bakepoints.other_triangles(cov, chosen, fn, threads=threads)
+            np.testing.assert_array_equal(got, want, strict=True)
+    empty = raster.rasterise(np.zeros((0, 3, 2)), 8, 8)
+    chosen, _ = raster.choose_per_texel(empty)
+    assert bakepoints.other_triangles(empty, chosen).shape == (0, bakepoints.FOOTPRINT_TRIANGLES - 1)
+
+
+def test_compiled_spoke_targets_are_the_numpy_ones():
+    """`bakepoints._spoke_targets` (`raster_kernels.spoke_targets`: points on the texel's other
+    triangles where they lie on one) is the numpy version bit for bit, for settle's spokes and
+    for points anywhere around the texel, any texels in any order."""
+    surface, occluders = scene(np.random.default_rng(8))
+    points = bakepoints.build(surface, 96, 96, occluders=occluders)
+    spokes = bakepoints._SPOKES * bakepoints.FOOTPRINT + 0.5 * (1.0 - bakepoints.FOOTPRINT)
+    rng = np.random.default_rng(9)
+    moved = 0
+    for offsets in (spokes, rng.random((5, 2)) * 2.0 - 0.5):
+        idx = rng.permutation(len(points.texel))[: len(points.texel) // 2]
+        want = ref._spoke_targets(points, idx, offsets)
+        got = bakepoints._spoke_targets(points, idx, offsets)
         np.testing.assert_array_equal(got, want, strict=True)
+        moved += (got != points.texel_points(idx, offsets)).any(axis=2).sum()
+    assert moved > 500  # many points lie on another triangle of their texel
+    alone = dataclasses.replace(points, others=None)
+    np.testing.assert_array_equal(
+        bakepoints._spoke_targets(alone, idx, offsets), ref._spoke_targets(alone, idx, offsets), strict=True
+    )
+
+
+def test_compiled_spoke_rays_are_numpys():
+    """`raster_kernels.spoke_rays` (settle's anchors, unit directions, lengths and reach) is the
+    numpy code's arithmetic bit for bit, zero-length spokes (the target at the anchor) and
+    spokes shorter than a texel included."""
+    from hhd_lightmapper.core import raster_kernels
+
+    surface, occluders = scene(np.random.default_rng(10))
+    points = bakepoints.build(surface, 64, 64, occluders=occluders)
+    start, stop = 100, len(points.texel) - 50
+    idx = np.arange(start, stop)
+    target = ref._spoke_targets(points, idx, bakepoints._SPOKES)
+    target[::7, 3] = points.origins(idx[::7])  # zero length
+    got = raster_kernels.get().spoke_rays(
+        points.position, points.face_normal, points.texel_size, points.offset, start, target
+    )
+    anchor = points.origins(idx)  # tests/raster_reference.py `settle`'s numpy
+    ray = target - anchor[:, None, :]
+    length = np.linalg.norm(ray, axis=2)
+    direction = ray / np.maximum(length, 1e-300)[..., None]
+    reach = np.maximum(length, points.texel_size[idx][:, None])
+    want = anchor, np.repeat(anchor, len(bakepoints._SPOKES), axis=0), direction, length, reach
+    for name, a, b in zip(("anchor", "origin", "direction", "length", "reach"), got, want):
+        np.testing.assert_array_equal(a, b, err_msg=name, strict=True)
+    assert (length == 0.0).sum() >= len(idx) // 7 and (length < reach).sum() > 1000
