@@ -176,7 +176,13 @@ class BakePoints:
         return self.position[rows] + self.face_normal[rows] * self.offset
 
     def sample_origins(
-        self, rng: np.random.Generator, idx: np.ndarray, k: int, footprint: float | None = None
+        self,
+        rng: np.random.Generator,
+        idx: np.ndarray,
+        k: int,
+        footprint: float | None = None,
+        first: int | None = None,
+        seed: int = 0,
     ) -> np.ndarray:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
         footprint (`footprint` texels wide, default FOOTPRINT) covered by its triangles: its
@@ -184,7 +190,9 @@ class BakePoints:
         alone, as Cycles bakes a texel): rejection sampling,
         JITTER_TRIES tries, then as many over the whole texel, then the bake point (the centroid
         of texel ∩ triangle); offset along the face normal. A texel's first tries cover the
-        footprint evenly (a randomly shifted Hammersley set)."""
+        footprint evenly: a randomly shifted Hammersley set per call, or, given the pass's
+        first sample index `first` (pass × k) and the bake's `seed`, the texel's own scrambled
+        (0,2)-sequence, stratified across all its passes."""
         tri = self.triangle[idx]
         corner = np.stack([self.texel[idx] % self.width, self.texel[idx] // self.width], 1).astype(np.float64)
         if self.others is None:  # the texel's own triangle alone
@@ -205,6 +213,9 @@ class BakePoints:
             FOOTPRINT if footprint is None else footprint,
             JITTER_TRIES,
             int(rng.integers(1 << 63)),
+            idx.astype(np.int64, copy=False) if first is not None else np.zeros(0, np.int64),
+            0 if first is None else first,
+            seed,
         )
 
     def texel_points(self, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:

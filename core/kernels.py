@@ -58,6 +58,68 @@ def radical_inverse(i):
     return out
 
 
+_M32 = np.uint64(0xFFFFFFFF)
+
+
+def sobol_02(i):
+    """Point i of the (0,2)-sequence of Sobol's first two dimensions, as two 32-bit integers
+    (uint64) in [0, 2^32): i's bits reversed, and Sobol's second dimension (direction numbers
+    v ^= v >> 1). Every prefix of 2^m points holds one point in each elementary interval of
+    area 2^-m (Kollig & Keller 2002; PBRT's Sobol02)."""
+    a = np.uint64(0)
+    b = np.uint64(0)
+    v = np.uint64(1) << np.uint64(31)
+    bit = np.uint64(1) << np.uint64(31)
+    n = np.uint64(i)
+    while n > np.uint64(0):
+        if n & np.uint64(1):
+            a ^= bit
+            b ^= v
+        n >>= np.uint64(1)
+        bit >>= np.uint64(1)
+        v ^= v >> np.uint64(1)
+    return a, b
+
+
+def reverse_bits32(x):
+    """x's 32 low bits in reverse order (uint64)."""
+    x = ((x >> np.uint64(1)) & np.uint64(0x55555555)) | ((x & np.uint64(0x55555555)) << np.uint64(1))
+    x = ((x >> np.uint64(2)) & np.uint64(0x33333333)) | ((x & np.uint64(0x33333333)) << np.uint64(2))
+    x = ((x >> np.uint64(4)) & np.uint64(0x0F0F0F0F)) | ((x & np.uint64(0x0F0F0F0F)) << np.uint64(4))
+    x = ((x >> np.uint64(8)) & np.uint64(0x00FF00FF)) | ((x & np.uint64(0x00FF00FF)) << np.uint64(8))
+    return ((x >> np.uint64(16)) | (x << np.uint64(16))) & _M32
+
+
+def owen_scramble(x, seed):
+    """A nested uniform (Owen) scramble of the 32-bit fraction x (uint64) keyed by `seed`
+    (uint64 < 2^32): Laine–Karras's hash on the reversed bits, where each bit only depends on
+    the bits above it (Burley 2020). A scrambled net stays a net; each point is uniform."""
+    x = reverse_bits32(x)
+    x = (x + seed) & _M32
+    x ^= (x * np.uint64(0x6C50B47C)) & _M32
+    x ^= (x * np.uint64(0xB82F1E52)) & _M32
+    x ^= (x * np.uint64(0xC7AFE638)) & _M32
+    x ^= (x * np.uint64(0x8D22F6E6)) & _M32
+    return reverse_bits32(x)
+
+
+def mixture_cos(u, alpha):
+    """cosθ for the uniform number u under the hemisphere mixture α/(2π) + (1 − α)·cosθ/π:
+    the root in [0, 1] of α z + (1 − α) z² = u, in the form without cancellation near 0."""
+    if u <= 0.0:
+        return 0.0
+    return 2.0 * u / (alpha + math.sqrt(alpha * alpha + 4.0 * (1.0 - alpha) * u))
+
+
+def stream_key(seed, texel, stream):
+    """A 64-bit state keyed by (seed, texel, stream), decorrelated (SplitMix64 of their mix)."""
+    state = np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(texel) * np.uint64(0xD1B54A32D192ED03)
+    state = state + np.uint64(stream) * np.uint64(0xAEF17502108EF2D9)
+    z = (state ^ (state >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
 #: The 9 real SH basis values at direction (x, y, z), as a tuple (not array arguments: a view
 #: per call costs more than the arithmetic); `get()` rebinds both to their compiled versions.
 sh_basis = sh.basis
@@ -111,7 +173,48 @@ def hemisphere_rays(normals, k, seed):
     return dirs, pdf
 
 
-def footprint_origins(corner, tri_uv, tri_pos, count, centroid, face_normal, offset, k, footprint, tries, seed):
+#: The first stream number of `texel_hemisphere_rays`' groups (`stream_key`), apart from the
+#: dimensions `texel_sequence` draws for lights.
+_DIRECTION_STREAMS = 64
+#: The stream number of `footprint_origins`' first tries.
+_ORIGIN_STREAM = 96
+
+
+def texel_hemisphere_rays(normals, k, texels, first, seed, uniform_share):
+    """k directions per texel over the hemisphere of its unit normal (normals (n, 3)) drawn
+    from the mixture p(ω) = α/(2π) + (1 − α)·cosθ/π (α = uniform_share) by inverting its
+    cumulative distribution in cosθ (`mixture_cos`), in two independent halves of k/2 (the
+    control variate's, `project_halves`). Each half's (u1, u2) come from its texel's own
+    Owen-scrambled (0,2)-sequence (`sobol_02`, `owen_scramble`; one per (seed, texel id, half))
+    at indices first/2 .. first/2 + k/2 − 1: `first` is the pass's first sample (pass × k),
+    so a texel's samples are stratified across all its passes, not only within each.
+    texels (n,): the texels' global ids. Returns directions (n·k, 3) and the density per
+    steradian (n·k,)."""
+    n = normals.shape[0]
+    half = k // 2
+    start = first // 2
+    dirs = np.empty((n * k, 3))
+    pdf = np.empty(n * k)
+    scale = 1.0 / 4294967296.0
+    for t in range(n):
+        nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
+        for h in range(2):
+            key = stream_key(seed, texels[t], _DIRECTION_STREAMS + h)
+            key_a, key_b = key & _M32, key >> np.uint64(32)
+            for i in range(half):
+                s = t * k + h * half + i
+                a, b = sobol_02(start + i)
+                z = mixture_cos(float(owen_scramble(a, key_a)) * scale, uniform_share)
+                r = math.sqrt(max(1.0 - z * z, 0.0))
+                phi = _TWO_PI * float(owen_scramble(b, key_b)) * scale
+                dirs[s, 0], dirs[s, 1], dirs[s, 2] = local_to_world(nx, ny, nz, r * math.cos(phi), r * math.sin(phi), z)
+                pdf[s] = uniform_share * 0.5 * _INV_PI + (1.0 - uniform_share) * z * _INV_PI
+    return dirs, pdf
+
+
+def footprint_origins(
+    corner, tri_uv, tri_pos, count, centroid, face_normal, offset, k, footprint, tries, seed, texels, first, key_seed
+):
     """k ray origins per texel (n·k, 3), uniform over the part of the texel's central
     `footprint` × `footprint` square (texel units) covered by any of its first count (n,)
     triangles (tri_uv (n, m, 3, 2) in texel units, tri_pos (n, m, 3, 3) world space; the first
@@ -124,19 +227,32 @@ def footprint_origins(corner, tri_uv, tri_pos, count, centroid, face_normal, off
     The k first tries of a texel are a Hammersley set (j/k, radical inverse of j) shifted by
     one random offset per texel, modulo 1 (Cranley–Patterson): each try is uniform on its
     own, so the rejection sampling stays exact, but together they cover the square evenly,
-    so a shadow edge across a texel is far less noisy than with independent tries."""
+    so a shadow edge across a texel is far less noisy than with independent tries. Given the
+    texels' global ids texels (n,) (else no rows), the first tries are instead points first ..
+    first + k − 1 of the texel's own Owen-scrambled (0,2)-sequence (keyed by (key_seed, texel
+    id): `sobol_02`, `owen_scramble`), stratified across all the texel's passes (first: the
+    pass's first sample, pass × k); later tries and everything else draw on `seed`."""
     state = np.uint64(seed)
     n = corner.shape[0]
     out = np.empty((n * k, 3))
+    by_texel = texels.shape[0] > 0
+    key_x = key_y = np.uint64(0)
     for t in range(n):
         state, shift_x = uniform(state)
         state, shift_y = uniform(state)
+        if by_texel:
+            key = stream_key(key_seed, texels[t], _ORIGIN_STREAM)
+            key_x, key_y = key & _M32, key >> np.uint64(32)
         for j in range(k):
             s = t * k + j
             found = False
             for attempt in range(2 * tries):
                 width = footprint if attempt < tries else 1.0
-                if attempt == 0:
+                if attempt == 0 and by_texel:
+                    a, b = sobol_02(first + j)
+                    ux = float(owen_scramble(a, key_x)) * (1.0 / 4294967296.0)
+                    uy = float(owen_scramble(b, key_y)) * (1.0 / 4294967296.0)
+                elif attempt == 0:
                     ux = (j / k + shift_x) % 1.0
                     uy = (radical_inverse(j) + shift_y) % 1.0
                 else:
@@ -355,15 +471,52 @@ def project_hemisphere(dirs, radiance, pdf, normals, k):
                 v = (radiance[s, c] - beta[h, c]) * w
                 for m in range(9):
                     out[t, m, c] += y[m] * v
-        nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
-        band0 = _TWO_PI * _Y00
-        band1 = _C1 * math.pi
+        _add_hemisphere_integral(out, t, normals, beta)
+    return out
+
+
+def _add_hemisphere_integral(out, t, normals, beta):
+    """Adds to out[t] (9, C) the mean of beta's two rows (2, C) times ∫Y over the hemisphere of
+    normals[t]: band 0 2π·Y00, band 1 π·C1·n, band 2 zero (`project_hemisphere`)."""
+    nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
+    band0 = _TWO_PI * _Y00
+    band1 = _C1 * math.pi
+    for c in range(out.shape[2]):
+        b = 0.5 * (beta[0, c] + beta[1, c])
+        out[t, 0, c] += band0 * b
+        out[t, 1, c] += -band1 * ny * b
+        out[t, 2, c] += band1 * nz * b
+        out[t, 3, c] += -band1 * nx * b
+
+
+def project_halves(dirs, radiance, pdf, normals, k):
+    """`project_hemisphere` for samples in two independent halves of k/2 (`texel_hemisphere_rays`):
+    each half subtracts β = the mean radiance of the *other* half and adds back β·∫Y."""
+    n = normals.shape[0]
+    half = k // 2
+    cols = radiance.shape[1]
+    out = np.zeros((n, 9, cols))
+    beta = np.empty((2, cols))
+    for t in range(n):
+        base = t * k
         for c in range(cols):
-            b = 0.5 * (beta[0, c] + beta[1, c])
-            out[t, 0, c] += band0 * b
-            out[t, 1, c] += -band1 * ny * b
-            out[t, 2, c] += band1 * nz * b
-            out[t, 3, c] += -band1 * nx * b
+            sa = 0.0
+            sb = 0.0
+            for i in range(half):
+                sa += radiance[base + half + i, c]  # half B: β for half A
+                sb += radiance[base + i, c]  # half A: β for half B
+            beta[0, c] = sa / half
+            beta[1, c] = sb / half
+        for j in range(k):
+            s = base + j
+            h = 0 if j < half else 1
+            w = 1.0 / (pdf[s] * k)
+            y = sh_basis(dirs[s, 0], dirs[s, 1], dirs[s, 2])
+            for c in range(cols):
+                v = (radiance[s, c] - beta[h, c]) * w
+                for m in range(9):
+                    out[t, m, c] += y[m] * v
+        _add_hemisphere_integral(out, t, normals, beta)
     return out
 
 
@@ -467,6 +620,17 @@ def _spherical_direction(a, b, c, alpha, area, u1, u2):
     return _unit3(cos_t * b[0] + sin_t * f[0], cos_t * b[1] + sin_t * f[1], cos_t * b[2] + sin_t * f[2])
 
 
+def _surely_small(x, i, t, tri_area, bound, lo):
+    """True when triangle t, inside the sphere bound[t] = (centre, radius), subtends from x[i]
+    less than half the solid angle lo: Ω ≤ area / (d − radius)² with d the distance to the
+    centre (every point of the triangle is at least d − radius away). Then `_spherical` need
+    not be evaluated: the triangle is sampled by area either way (the half keeps triangles
+    near lo, where `_spherical`'s rounding decides, on the exact test)."""
+    dx, dy, dz = bound[t, 0] - x[i, 0], bound[t, 1] - x[i, 1], bound[t, 2] - x[i, 2]
+    gap = math.sqrt(dx * dx + dy * dy + dz * dz) - bound[t, 3]
+    return gap > 0.0 and tri_area[t] < 0.5 * lo * gap * gap
+
+
 def _emitter_density(chance, area, solid_angle, cos, dist, lo, hi):
     """Density per steradian of a sampled emitter point: chance (of its cluster and triangle)
     over the solid angle where that lies in [lo, hi] (sampled by direction), else over the area
@@ -485,32 +649,32 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
     row at a time): the cluster by `u[0]` (`_cluster_weights` with normals (R, 3) or no rows),
     the triangle of the cluster by `u[1]` (the first of its rows of `key` above cluster + u),
     then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
-    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (centre (K, 3),
-    radius2 (K,), cluster power (K,), key (E,), order (E,), first (K,), last (K,)).
+    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (centre (3, K),
+    radius2 (K,), cluster power (K,), key (E,), order (E,), first (K,), last (K,), each
+    triangle's bounding sphere (T, 4): centre, radius).
     Returns directions (R, 3), distances (R,), triangles (R,) int64 and densities (R,)."""
-    centre, radius2, power, key, order, first, last = emitters
+    centre, radius2, power, key, order, first, last, bound = emitters
     n = x.shape[0]
-    k = centre.shape[0]
+    k = centre.shape[1]
     dirs = np.empty((n, 3))
     dist = np.empty(n)
     pick = np.empty(n, np.int64)
     pdf = np.empty(n)
     w = np.empty(k)
-    all_power = 0.0
-    for c in range(k):
-        all_power += power[c]
+    floor, alone = _power_shares(power, share)
     for i in range(n):
         cluster, chance = k - 1, 1.0
         if k > 1:
-            total = _cluster_weights(x, normals, i, centre, radius2, power, w)
+            scale, base = _cluster_chances(
+                _cluster_weights(x, normals, i, centre, radius2, power, w), share, floor, alone
+            )
             acc = 0.0
             for c in range(k):
-                p = _cluster_chance(w, total, power, all_power, share, c)
-                acc += p
+                acc += scale * w[c] + base[c]
                 if u[0, i] < acc:
                     cluster = c
                     break
-            chance = _cluster_chance(w, total, power, all_power, share, cluster)
+            chance = scale * w[cluster] + base[cluster]
         lo, hi = first[cluster], last[cluster]  # the first row whose key exceeds cluster + u
         v = cluster + u[1, i]
         while lo < hi:
@@ -522,8 +686,10 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
         t = order[lo]
         pick[i] = t
         chance *= within[t]
-        a, b, c3, alpha, omega = _spherical(x, i, triangles, t)
         nx, ny, nz = tri_normal[t, 0], tri_normal[t, 1], tri_normal[t, 2]
+        omega = 0.0  # below the window: sampled by area (`_surely_small`)
+        if not _surely_small(x, i, t, tri_area, bound, window[0]):
+            a, b, c3, alpha, omega = _spherical(x, i, triangles, t)
         if omega >= window[0] and omega <= window[1]:
             d = _spherical_direction(a, b, c3, alpha, omega, u[2, i], u[3, i])
             along = (
@@ -555,11 +721,9 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
     or no rows) picks the point at distance t (R,) along d (R, 3) on triangle prim (R,) (0 for
     triangles that do not emit)."""
     centre, radius2, power = emitters[0], emitters[1], emitters[2]
-    k = centre.shape[0]
+    k = centre.shape[1]
     w = np.empty(k)
-    all_power = 0.0
-    for c in range(k):
-        all_power += power[c]
+    floor, alone = _power_shares(power, share)
     out = np.empty(x.shape[0])
     for i in range(x.shape[0]):
         tri = prim[i]
@@ -568,9 +732,13 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
             continue
         chance = within[tri]
         if k > 1:
-            total = _cluster_weights(x, normals, i, centre, radius2, power, w)
-            chance *= _cluster_chance(w, total, power, all_power, share, cluster_of[tri])
-        omega = _spherical(x, i, triangles, tri)[4]
+            scale, base = _cluster_chances(
+                _cluster_weights(x, normals, i, centre, radius2, power, w), share, floor, alone
+            )
+            chance *= scale * w[cluster_of[tri]] + base[cluster_of[tri]]
+        omega = (
+            0.0 if _surely_small(x, i, tri, tri_area, emitters[7], window[0]) else _spherical(x, i, triangles, tri)[4]
+        )
         cos = abs(d[i, 0] * tri_normal[tri, 0] + d[i, 1] * tri_normal[tri, 1] + d[i, 2] * tri_normal[tri, 2])
         out[i] = _emitter_density(chance, tri_area[tri], omega, cos, t[i], window[0], window[1])
     return out
@@ -609,58 +777,105 @@ def texel_sequence(texels, k, first, dim, seed):
 def _cluster_weights(x, normals, i, centre, radius2, power, w):
     """Into w (K,): each emitter cluster's power over max(distance², radius²) from x[i], times
     the largest cosine to normals[i] of a direction into the cluster's bounding sphere (0 for a
-    cluster wholly below the horizon; 1 when normals has no rows); returns their sum."""
+    cluster wholly below the horizon; 1 when normals has no rows); returns their sum. centre
+    (3, K): the clusters' centres, one row per axis, so the loops over clusters vectorise."""
+    px, py, pz = x[i, 0], x[i, 1], x[i, 2]
+    if normals.shape[0] == 0:
+        return _distance_weights(px, py, pz, centre[0], centre[1], centre[2], radius2, power, w)
+    nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+    return _horizon_weights(px, py, pz, nx, ny, nz, centre[0], centre[1], centre[2], radius2, power, w)
+
+
+def _distance_weights(px, py, pz, cx, cy, cz, radius2, power, w):
+    """`_cluster_weights` without normals (compiled with fastmath: vectorised over clusters)."""
     total = 0.0
-    for c in range(centre.shape[0]):
-        dx, dy, dz = centre[c, 0] - x[i, 0], centre[c, 1] - x[i, 1], centre[c, 2] - x[i, 2]
-        d2 = dx * dx + dy * dy + dz * dz
-        w[c] = power[c] / max(d2, radius2[c])
-        if normals.shape[0] and d2 > radius2[c]:
-            d = math.sqrt(d2)
-            cos_t = (normals[i, 0] * dx + normals[i, 1] * dy + normals[i, 2] * dz) / d
-            sin_a = math.sqrt(radius2[c] / d2)
-            cos_a = math.sqrt(1.0 - sin_a * sin_a)
-            if cos_t < cos_a:  # the normal lies outside the cone: the nearest edge's cosine
-                w[c] *= max(cos_t * cos_a + math.sqrt(max(1.0 - cos_t * cos_t, 0.0)) * sin_a, 0.0)
-        total += w[c]
+    for c in range(cx.shape[0]):
+        dx, dy, dz = cx[c] - px, cy[c] - py, cz[c] - pz
+        v = power[c] / max(dx * dx + dy * dy + dz * dz, radius2[c])
+        w[c] = v
+        total += v
     return total
 
 
-def _cluster_chance(w, total, power, all_power, share, c):
-    """The probability of cluster c: (1 − share)·w_c / Σw + share·power_c / Σpower (power alone
-    where every w is 0: all below the horizon)."""
+def _horizon_weights(px, py, pz, nx, ny, nz, cx, cy, cz, radius2, power, w):
+    """`_cluster_weights` with the normal (nx, ny, nz) (compiled with fastmath: vectorised over
+    clusters, branch-free). With d the distance, r the radius and a = normal · (centre − x):
+    the normal lies inside the cone of directions into the sphere when a ≥ √(d² − r²), else
+    the nearest edge's cosine is (a √(d² − r²) + √(d² − a²) r) / d²; inside the sphere, 1."""
+    total = 0.0
+    for c in range(cx.shape[0]):
+        dx, dy, dz = cx[c] - px, cy[c] - py, cz[c] - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        r2 = radius2[c]
+        a = nx * dx + ny * dy + nz * dz
+        h2 = d2 - r2
+        edge = (a * math.sqrt(max(h2, 0.0)) + math.sqrt(max(d2 - a * a, 0.0)) * math.sqrt(r2)) / d2
+        outside = (h2 > 0.0) & ((a < 0.0) | (a * a < h2))
+        v = power[c] / max(d2, r2) * (max(edge, 0.0) if outside else 1.0)
+        w[c] = v
+        total += v
+    return total
+
+
+def _power_shares(power, share):
+    """Per cluster (K,) its power share times `share` (the part of its chance power alone
+    gives), and its power share alone (its chance where every weight is 0)."""
+    alone = power / power.sum()
+    return share * alone, alone
+
+
+def _cluster_chances(total, share, floor, alone):
+    """(scale, base): cluster c's probability is scale·w_c + base_c, i.e. (1 − share)·w_c / Σw
+    + share·power_c / Σpower, or power alone where every w is 0 (all below the horizon);
+    total = Σw, floor and alone from `_power_shares`."""
     if total <= 0.0:
-        return power[c] / all_power
-    return (1.0 - share) * w[c] / total + share * power[c] / all_power
+        return 0.0, alone
+    return (1.0 - share) / total, floor
 
 
 _HELPERS = (
     "uniform",
     "radical_inverse",
+    "sobol_02",
+    "reverse_bits32",
+    "owen_scramble",
+    "stream_key",
+    "mixture_cos",
+    "_add_hemisphere_integral",
     "sh_basis",
     "zonal_band1",
     "local_to_world",
+    "_distance_weights",
+    "_horizon_weights",
     "_cluster_weights",
-    "_cluster_chance",
+    "_power_shares",
+    "_cluster_chances",
     "_unit3",
     "_unit_cross",
     "_angle_between",
     "_spherical",
     "_spherical_direction",
     "_emitter_density",
+    "_surely_small",
 )
 _KERNELS = (
     "sample_emitters",
     "emitter_pdf",
     "texel_sequence",
     "hemisphere_rays",
+    "texel_hemisphere_rays",
     "footprint_origins",
     "replace_hidden",
     "advance_paths",
     "project_hemisphere",
+    "project_halves",
     "accumulate_grouped",
     "add_pass",
 )
+#: Helpers whose loops over clusters vectorise when their sums may be reassociated (no NaN or
+#: infinity assumptions: the flags keep IEEE semantics otherwise).
+_VECTORISED = ("_distance_weights", "_horizon_weights")
+_FASTMATH = {"reassoc", "nsz", "contract"}
 _compiled: SimpleNamespace | None = None
 _lock = threading.Lock()
 
@@ -674,7 +889,8 @@ def get() -> SimpleNamespace:
             numba = deps.require("numba")
             jit = numba.njit(nogil=True, cache=True, error_model="numpy")
             module = globals()
+            fast = numba.njit(nogil=True, cache=True, error_model="numpy", fastmath=_FASTMATH)
             for name in _HELPERS:  # rebinding the globals: kernels then call compiled helpers
-                module[name] = jit(module[name])
+                module[name] = (fast if name in _VECTORISED else jit)(module[name])
             _compiled = SimpleNamespace(**{name: jit(module[name]) for name in _KERNELS})
     return _compiled

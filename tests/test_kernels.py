@@ -72,6 +72,112 @@ def test_hemisphere_ray_groups_are_stratified_uniform_and_cosine():
     assert abs(z[:, [4, 5, 6, 7, 12, 13, 14, 15]].mean() - 2 / 3) < 0.01
 
 
+def texel_rays(normals, k, passes, texels=None, seed=11, alpha=0.5):
+    """`kernels.texel_hemisphere_rays` over `passes` passes of k, concatenated per texel:
+    directions (n, passes·k, 3) in pass order, and the pdf (n, passes·k)."""
+    texels = np.arange(len(normals)) if texels is None else texels
+    out = [K.texel_hemisphere_rays(normals, k, texels, p * k, seed, alpha) for p in range(passes)]
+    dirs = np.concatenate([d.reshape(len(normals), k, 3) for d, _ in out], axis=1)
+    pdf = np.concatenate([f.reshape(len(normals), k) for _, f in out], axis=1)
+    return dirs, pdf
+
+
+def half_numbers(normals, dirs, k, passes, alpha=0.5):
+    """The (u1, u2) each texel's samples were drawn from, per half: (2, n, passes·k/2) each
+    (u1: the mixture's CDF in cosθ, α z + (1 − α) z²; u2: the azimuth / 2π)."""
+    local = np.einsum("tji,tsj->tsi", sh.tangent_frames(normals), dirs)
+    z, phi = local[..., 2], np.mod(np.arctan2(local[..., 1], local[..., 0]), 2 * np.pi) / (2 * np.pi)
+    u1 = alpha * z + (1.0 - alpha) * z * z
+    half = np.tile(np.repeat(np.arange(2), k // 2), passes)
+    return np.stack([u1[:, half == h] for h in range(2)]), np.stack([phi[:, half == h] for h in range(2)])
+
+
+@pytest.mark.parametrize("alpha", [0.5, 0.25])
+def test_texel_hemisphere_rays_have_the_mixture_density_and_are_stratified_across_passes(alpha):
+    """Across 4 passes of 16 each half's 32 numbers lie one per 1/32 stratum of u1 and of u2,
+    and one per cell of the 4 × 8 and 8 × 4 grids (a (0,5,2)-net), for every texel; within
+    one pass too (8 numbers: one per eighth). The cosines follow the mixture: E[cosθ] =
+    α/2 + 2(1 − α)/3."""
+    normals = unit(np.random.default_rng(4), 200)
+    dirs, pdf = texel_rays(normals, 16, 4, alpha=alpha)
+    cos = np.einsum("tsi,ti->ts", dirs, normals)
+    np.testing.assert_allclose(np.linalg.norm(dirs, axis=2), 1.0, atol=1e-12)
+    assert cos.min() >= 0.0
+    np.testing.assert_allclose(pdf, alpha / (2 * np.pi) + (1 - alpha) * cos / np.pi, atol=1e-12)
+    assert abs(cos.mean() - (alpha / 2 + 2 * (1 - alpha) / 3)) < 0.01
+    u1, u2 = half_numbers(normals, dirs, 16, 4, alpha)
+    every = np.tile(np.arange(32), (2, 200, 1))
+    np.testing.assert_array_equal(np.sort(np.floor(u1 * 32 + 1e-9), axis=2), every)
+    np.testing.assert_array_equal(np.sort(np.floor(u2 * 32), axis=2), every)
+    for rows, cols in ((4, 8), (8, 4)):
+        cells = np.floor(u1 * rows + 1e-9) * cols + np.floor(u2 * cols)
+        np.testing.assert_array_equal(np.sort(cells, axis=2), every)
+    first_pass = np.sort(np.floor(u1[:, :, :8] * 8 + 1e-9), axis=2)
+    np.testing.assert_array_equal(first_pass, np.tile(np.arange(8), (2, 200, 1)))
+
+
+def test_texel_hemisphere_rays_are_uniform_and_independent_between_halves_texels_and_seeds():
+    """Each number is uniform (its scramble is random per (seed, texel, half)): over many texels
+    the first sample of each half is uniform in u1 and u2, and the halves (the control
+    variate's) are uncorrelated; a texel's sequence depends on its id and the seed only."""
+    n = 20000
+    normals = unit(np.random.default_rng(6), n)
+    dirs, _ = texel_rays(normals, 4, 1)
+    u1, u2 = half_numbers(normals, dirs, 4, 1)
+    for u in (u1[:, :, 0], u2[:, :, 0]):
+        counts = np.stack([np.bincount(np.floor(row * 10).astype(int), minlength=10) for row in u])
+        assert np.abs(counts - n / 10).max() < 5 * np.sqrt(n / 10)  # 5 σ
+    assert abs(np.corrcoef(u1[0, :, 0], u1[1, :, 0])[0, 1]) < 0.04
+    same, _ = texel_rays(normals[:50], 16, 2, texels=np.arange(50))
+    shifted, _ = texel_rays(normals[:50], 16, 2, texels=np.arange(50) + 1)
+    reseeded, _ = texel_rays(normals[:50], 16, 2, seed=12)
+    np.testing.assert_array_equal(same, texel_rays(normals[:50], 16, 2)[0])
+    assert not np.isclose(same, shifted).all(axis=2).any()
+    assert not np.isclose(same, reseeded).all(axis=2).any()
+
+
+def test_mixture_cosine_solves_the_cdf_to_rounding_from_1e_300_to_1():
+    """cosθ = z with α z + (1 − α) z² = u, to a relative 1e-14 of u even where u ≪ α² (the
+    textbook root (−α + √(α² + 4(1 − α)u)) / (2(1 − α)) cancels to 0 there)."""
+    mixture_cos = kernels.mixture_cos  # the compiled helper (`get()` rebinds it)
+    for alpha in (0.0, 1e-9, 0.25, 0.5, 1.0):
+        assert mixture_cos(0.0, alpha) == 0.0
+        assert abs(mixture_cos(1.0, alpha) - 1.0) < 1e-15
+        for u in np.logspace(-300, 0, 61):
+            z = mixture_cos(u, alpha)
+            assert 0.0 < z <= 1.0
+            assert abs(alpha * z + (1.0 - alpha) * z * z - u) <= 1e-14 * u
+
+
+def project_halves_reference(dirs, radiance, pdf, normals, k):
+    """The control-variate estimator of kernels.project_halves, from its docstring."""
+    half = k // 2
+    r = radiance.reshape(-1, k, 3)
+    beta_a, beta_b = r[:, half:].mean(axis=1), r[:, :half].mean(axis=1)
+    adjusted = np.concatenate([r[:, :half] - beta_a[:, None], r[:, half:] - beta_b[:, None]], axis=1)
+    estimate = sh_reference(dirs, adjusted.reshape(-1, 3), 1.0 / (pdf * k), k)
+    hemisphere = np.zeros((len(normals), 9))
+    hemisphere[:, 0] = 2 * np.pi * sh.Y00
+    hemisphere[:, 1:4] = sh.C1 * np.pi * normals[:, [1, 2, 0]] * [-1, 1, -1]
+    return estimate + hemisphere[:, :, None] * (0.5 * (beta_a + beta_b))[:, None, :]
+
+
+def test_projection_of_halves_matches_its_estimator_and_the_furnace(rng):
+    normals = unit(rng, 40)
+    dirs, pdf = K.texel_hemisphere_rays(normals, 16, np.arange(40), 16, 5, 0.25)
+    radiance = rng.random((len(dirs), 3)) * 5.0
+    np.testing.assert_allclose(
+        K.project_halves(dirs, radiance, pdf, normals, 16),
+        project_halves_reference(dirs, radiance, pdf, normals, 16),
+        atol=1e-10,
+    )
+    got = K.project_halves(dirs, np.full((len(dirs), 3), 2.5), pdf, normals, 16)
+    qd, w = quad.hemisphere(n_z=200, n_phi=400)
+    for t, n in enumerate(normals[:6]):
+        world = qd @ sh.tangent_frames(n[None])[0].T
+        np.testing.assert_allclose(got[t], 2.5 * (w @ sh.evaluate(world))[:, None] * np.ones(3), atol=1e-4)
+
+
 def test_kernels_depend_on_the_seed_only():
     a, b, c = hemisphere_rays(50, 8, 1), hemisphere_rays(50, 8, 1), hemisphere_rays(50, 8, 2)
     np.testing.assert_array_equal(a[1], b[1])
@@ -189,7 +295,7 @@ def test_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(rng):
     up = np.tile([0.0, 0.0, 1.0], (n, 1))
     one = np.ones(n, np.int64)  # the texel's own triangle alone
     out = K.footprint_origins(
-        corner, np.tile(big, (n, 1, 1, 1)), tri_pos[:, None], one, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 3
+        corner, np.tile(big, (n, 1, 1, 1)), tri_pos[:, None], one, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 3, NONE, 0, 0
     )
     local = out[:, :2].reshape(n, k, 2) - corner[:, None, :]
     assert local.min() >= 0.25 and local.max() <= 0.75
@@ -201,11 +307,42 @@ def test_origins_cover_the_footprint_evenly_and_stay_inside_the_triangle(rng):
     tri = np.tile(half, (n, 1, 1))
     tri_pos = np.concatenate([tri, np.zeros((n, 3, 1))], axis=2)
     out = K.footprint_origins(
-        np.zeros((n, 2)), tri[:, None], tri_pos[:, None], one, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 4
+        np.zeros((n, 2)), tri[:, None], tri_pos[:, None], one, np.zeros((n, 3)), up, 0.0, k, 0.5, 10, 4, NONE, 0, 0
     )
     assert (out[:, 0] + out[:, 1] <= 1.0 + 1e-12).all() and out[:, :2].min() >= 0.0
     assert (out[:, :2].min(axis=1) >= 0.25).mean() > 0.99  # 10 misses in a row (2⁻¹⁰): whole texel
     assert abs(out[:, 0].mean() - (0.25 + 0.5 / 3)) < 0.01  # centroid of the lower-left half
+
+
+NONE = np.zeros(0, np.int64)  # footprint_origins without texel ids: per-pass stratification
+
+
+def test_origins_by_texel_are_stratified_across_passes_and_depend_on_texel_and_seed(rng):
+    """With texel ids, 4 passes of 16 first tries of a texel form a (0,6,2)-net's projections:
+    its 64 origins hit each of the 64 columns and rows of its footprint once, and each cell of
+    the 8 × 8 grid; within one pass each of 16 columns. Another texel id or seed: other origins."""
+    n, k, passes = 100, 16, 4
+    corner = rng.integers(0, 50, (n, 2)).astype(float)
+    big = np.array([[-100.0, -100.0], [300.0, -100.0], [-100.0, 300.0]])
+    tri_pos = np.concatenate([np.tile(big, (n, 1, 1)), np.zeros((n, 3, 1))], axis=2)
+    up = np.tile([0.0, 0.0, 1.0], (n, 1))
+    one = np.ones(n, np.int64)
+    ids = np.arange(n, dtype=np.int64) * 7
+
+    def origins(p, ids=ids, key=5):
+        args = (corner, np.tile(big, (n, 1, 1, 1)), tri_pos[:, None], one, np.zeros((n, 3)), up, 0.0, k, 0.5, 10)
+        return K.footprint_origins(*args, 3 + p, ids, p * k, key)[:, :2].reshape(n, k, 2) - corner[:, None]
+
+    local = (np.concatenate([origins(p) for p in range(passes)], axis=1) - 0.25) * 2  # [0, 1)²
+    every = np.tile(np.arange(k * passes), (n, 1))
+    for axis in (0, 1):
+        np.testing.assert_array_equal(np.sort(np.floor(local[..., axis] * k * passes), axis=1), every)
+    cells = np.floor(local[..., 0] * 8) * 8 + np.floor(local[..., 1] * 8)
+    np.testing.assert_array_equal(np.sort(cells, axis=1), every)
+    one_pass = np.sort(np.floor(local[:, :k, 0] * k), axis=1)
+    np.testing.assert_array_equal(one_pass, np.tile(np.arange(k), (n, 1)))
+    assert not np.isclose(origins(0), origins(0, ids + 1)).all(axis=2).any()
+    assert not np.isclose(origins(0), origins(0, key=6)).all(axis=2).any()
 
 
 def test_add_pass_keeps_the_running_mean_variance_and_iz_of_each_texel(rng):

@@ -1,15 +1,20 @@
 """The texel estimator: one pass's radiance SH over the hemisphere of each texel's n_v. No bpy.
 
 Estimator. For each texel, directions ω over the hemisphere of n_v are drawn from the mixture
-p(ω) = ½·1/(2π) + ½·cosθ/π (half the samples uniform, half cosine-weighted; `kernels.hemisphere_rays`).
-Every SH coefficient then has finite variance (pure cosine sampling gives r_0 infinite variance
-from the 1/cosθ weight at the horizon) while I_z keeps most of the cosine-sampling benefit. The
-radiance L arriving along ω is `paths.Paths.radiance` from the sample's origin, and
+p(ω) = α/(2π) + (1 − α)·cosθ/π with α = UNIFORM_SHARE = ½, by inverting its distribution in
+cosθ (`kernels.texel_hemisphere_rays`). Every SH coefficient then has finite variance (pure
+cosine sampling gives r_0 infinite variance from the 1/cosθ weight at the horizon) while I_z
+keeps most of the cosine-sampling benefit (bench/estimator.py: α ¼ lowers I_z's per-sample
+variance by 5–13% and raises bands 0 and 1's by ~20%). The samples come in two independent
+halves, each from the texel's own scrambled (0,2)-sequence, stratified across all of the
+texel's passes (so 16 passes of 16 samples cover the hemisphere as one 256-sample net would).
+The radiance L arriving along ω is `paths.Paths.radiance` from the sample's origin, and
 Σ (L(ω) − β) Y(ω) / (K p(ω)) + β·∫Y estimates the radiance SH over the hemisphere, with a
-constant β per half of the samples taken from the other half (`kernels.project_hemisphere`):
+constant β per half of the samples taken from the other half (`kernels.project_halves`):
 unbiased, exact for constant radiance, every sample used by every coefficient.
 
-Every sample's origin is jittered over the texel's footprint (`BakePoints.sample_origins`: the
+Every sample's origin is jittered over the texel's footprint (`BakePoints.sample_origins`, the
+first tries from the texel's own (0,2)-sequence across its passes too: the
 texel's FOOTPRINT square over its triangle and the others overlapping it, `BakePoints.others`), so a texel is an area average as Cycles bakes it;
 where geometry crosses the footprint (a wall standing on the surface: `BakePoints.crossed`), only
 the part the bake point sees is averaged (samples hidden from it are replaced by visible ones),
@@ -38,6 +43,17 @@ from . import lights, shipping
 from .paths import Paths, TraceScene, seed, take_rows
 from .scheduler import UnitResult, WorkUnit
 
+#: Each texel's hemisphere directions from its own scrambled (0,2)-sequences, stratified
+#: across all its passes (`kernels.texel_hemisphere_rays`); False: the estimator until
+#: 2026-12-02, stratified within each pass only (`kernels.hemisphere_rays`, α ½;
+#: bench/estimator.py measures what this saves).
+STRATIFIED_DIRECTIONS = True
+#: Each texel's first tries of its sample origins from its own scrambled (0,2)-sequence,
+#: stratified across all its passes (`BakePoints.sample_origins`); False: within each pass.
+STRATIFIED_ORIGINS = True
+#: α, the uniform share of the hemisphere mixture α/(2π) + (1 − α)·cosθ/π the directions are
+#: drawn from (with STRATIFIED_DIRECTIONS; else ½).
+UNIFORM_SHARE = 0.5
 #: The bake point's light samples from each texel's stratified sequence (`lights.TexelStream`);
 #: False: independent random numbers (bench/light_sampling.py measures what this saves).
 STRATIFIED_LIGHTS = True
@@ -83,9 +99,15 @@ class TexelEstimator(shipping.Shipped):
         k = self.pass_samples
         idx = unit.texels
         normals = self.points.normal[idx]
-        dirs, pdf = paths.kernels.hemisphere_rays(normals, k, seed(rng))  # (n·k, 3), (n·k,)
+        if STRATIFIED_DIRECTIONS:  # (n·k, 3), (n·k,)
+            dirs, pdf = paths.kernels.texel_hemisphere_rays(
+                normals, k, idx, unit.pass_index * k, unit.seed, UNIFORM_SHARE
+            )
+        else:
+            dirs, pdf = paths.kernels.hemisphere_rays(normals, k, seed(rng))
         texel = np.repeat(np.arange(len(idx)), k)
-        origins = self.points.sample_origins(rng, idx, k, self.footprint)
+        first = unit.pass_index * k if STRATIFIED_ORIGINS else None
+        origins = self.points.sample_origins(rng, idx, k, self.footprint, first, unit.seed)
         uncovered = self._uncovered(paths, idx, texel, origins)
         crossed = self.points.crossed
         if crossed is not None:  # settled bake points: hidden samples are replaced
@@ -93,7 +115,8 @@ class TexelEstimator(shipping.Shipped):
             uncovered = None
         normal = np.repeat(self.points.normal[idx], k, axis=0)  # the light samples' too (`_direct_sh`)
         radiance = paths.radiance(rng, origins, dirs, pdf, uncovered, normal)  # (n·k, C)
-        estimate = paths.kernels.project_hemisphere(dirs, radiance, pdf, normals, k)
+        project = paths.kernels.project_halves if STRATIFIED_DIRECTIONS else paths.kernels.project_hemisphere
+        estimate = project(dirs, radiance, pdf, normals, k)
         stream = lights.TexelStream(idx, k, unit.pass_index * k, unit.seed) if STRATIFIED_LIGHTS else None
         estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered, stream)
         return UnitResult(estimate, paths.traced)
@@ -173,5 +196,6 @@ def _probed(points: BakePoints, idx=slice(None)) -> np.ndarray:
 
 
 def _mixture_pdf(cos):
-    """Density per steradian of `kernels.hemisphere_rays` (half uniform, half cosine) at cosθ."""
-    return np.where(cos > 0.0, 0.5 / (2.0 * np.pi) + 0.5 * cos / np.pi, 0.0)
+    """Density per steradian of the hemisphere directions (`TexelEstimator.trace`) at cosθ."""
+    alpha = UNIFORM_SHARE if STRATIFIED_DIRECTIONS else 0.5
+    return np.where(cos > 0.0, alpha / (2.0 * np.pi) + (1.0 - alpha) * cos / np.pi, 0.0)

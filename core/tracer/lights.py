@@ -275,6 +275,12 @@ class EmissiveTriangles(Light):
         power = self.area * np.maximum(self.emission @ LUMINANCE, 0.0)
         self.index = np.nonzero(power > 0.0)[0]
         self.normal = cross / np.maximum(2.0 * self.area, 1e-300)[:, None]
+        # each emitter's bounding sphere (T, 4): centroid, farthest corner (kernels._surely_small)
+        self.bound = np.zeros((len(self.triangles), 4))
+        corners = self.triangles[self.index]
+        centroid = corners.mean(axis=1)
+        self.bound[self.index, :3] = centroid
+        self.bound[self.index, 3] = np.linalg.norm(corners - centroid[:, None], axis=2).max(axis=1) * (1 + 1e-12)
         self._cluster(power)
 
     def _cluster(self, power: np.ndarray) -> None:
@@ -365,7 +371,8 @@ class EmissiveTriangles(Light):
 
     def _emitters(self) -> tuple:
         """The cluster arrays the kernels take (`kernels.sample_emitters`)."""
-        return (self.centre, self.radius2, self.cluster_power, self.key, self.order, self.first, self.last)
+        centre = np.ascontiguousarray(self.centre.T)  # (3, K): one row per axis
+        return (centre, self.radius2, self.cluster_power, self.key, self.order, self.first, self.last, self.bound)
 
     def pdf(self, d, t=None, prim=None, origins=None, normals=None) -> np.ndarray:
         """Density per steradian of sampling, from `origins` (R, 3) with `normals` (R, 3) or

@@ -1,0 +1,202 @@
+"""The hemisphere estimator's variants: per-sample variance of I_z, band 0 and band 1.
+
+    flock /tmp/bench.lock .venv/bin/python bench/estimator.py              # classroom, staircase2
+    .venv/bin/python bench/estimator.py --scenes classroom --samples 4 16 64 256
+
+Our bake against our own converged bake (two halves of `--reference` samples with their own
+seeds; their noise, the floor, is removed from every error in quadrature), so the variants are
+compared with each other, not with Cycles (bench/time_to_error.py does that). Scenes and atlas
+as bench/time_to_error.py sets them up, BOUNCES bounces, `--resolution` atlas. Variants
+(`core.tracer.hemisphere`):
+
+- `per pass`: half the directions uniform, half cosine-weighted, in four groups each Latin-
+  hypercube stratified within its pass only, β of the control variate from the other half's
+  cosine samples (`kernels.hemisphere_rays`, `kernels.project_hemisphere`), the origins a
+  shifted Hammersley set per pass (until 2026-12-02);
+- `directions across passes`: the mixture α/(2π) + (1 − α)·cosθ/π (α ½) sampled by inversion,
+  in two halves each from its texel's own scrambled (0,2)-sequence stratified across all the
+  texel's passes, β from the other half's mean (`kernels.texel_hemisphere_rays`,
+  `kernels.project_halves`);
+- `+ origins across passes`: the origins' first tries from the texel's own (0,2)-sequence too
+  (`BakePoints.sample_origins`);
+- `+ α 0.25`: a quarter of the mixture uniform instead of half.
+
+Every row is the mean over `--seeds` bakes with different seeds (a few heavy-tailed texels make
+one bake's error swing by ±10%).
+
+Per row: the relative RMSE (luminance, over fully covered unburied texels) of I_z, of band 0
+and of band 1 (the three coefficients' errors summed in quadrature; both bands relative to the
+mean |band 0|), each as per-sample variance (error² × samples, lower is better), and the bias
+of I_z (ΣI_z ratio − 1). Writes bench/results/estimator.json and .md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "bench" / "results"
+SCENES = ("classroom", "field", "staircase2", "bedroom")
+#: (name, STRATIFIED_DIRECTIONS, STRATIFIED_ORIGINS, UNIFORM_SHARE)
+VARIANTS = (
+    ("per pass", False, False, 0.5),
+    ("directions across passes", True, False, 0.5),
+    ("+ origins across passes", True, True, 0.5),
+    ("+ α 0.25", True, True, 0.25),
+)
+REFERENCE_SEEDS = (101, 102)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", nargs="+", choices=SCENES, default=["classroom", "staircase2"])
+    ap.add_argument("--resolution", type=int, default=256)
+    ap.add_argument("--reference", type=int, default=1024, help="our reference's samples, both halves")
+    ap.add_argument("--samples", type=int, nargs="+", default=[4, 16, 64, 256])
+    ap.add_argument("--seeds", type=int, default=4, help="bakes per row, averaged")
+    args = ap.parse_args()
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
+    sys.path.insert(0, str(ROOT / "bench"))
+    sys.path.insert(0, str(ROOT))
+    import bpy  # noqa: F401
+
+    import hhd_lightmapper
+    import time_to_error as tte
+
+    hhd_lightmapper.register()
+    out_json = RESULTS / "estimator.json"
+    results = json.loads(out_json.read_text()) if out_json.exists() else {}
+    for name in args.scenes:
+        surface, bake_scene = read_scene(tte, name, args.resolution)
+        results[name] = measure(surface, bake_scene, args)
+        results[name]["load_average"] = os.getloadavg()
+        RESULTS.mkdir(exist_ok=True)
+        out_json.write_text(json.dumps(results, indent=2))
+    (RESULTS / "estimator.md").write_text(markdown(results, args))
+    print((RESULTS / "estimator.md").read_text())
+    return 0
+
+
+def read_scene(tte, name: str, resolution: int):
+    """The scene's receivers unwrapped as bench/time_to_error.py does; (surface, bake scene)."""
+    import bpy
+
+    from hhd_lightmapper.bridge import mesh_data, scene_data
+    from scenekit.blender import select
+
+    receivers = tte.load_scene(name)
+    scene = bpy.context.scene
+    scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density = tte.LAYER, resolution, 0.0
+    scene.hhd.padding = 2
+    select(receivers)
+    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    return mesh_data.read_surface(receivers, tte.LAYER, depsgraph), scene_data.read_bake_scene(depsgraph)
+
+
+def bake(surface, bake_scene, resolution: int, samples: int, seed: int, variant) -> tuple[np.ndarray, np.ndarray]:
+    """Our bake with `variant`: (I_z, L0, L1x, L1y, L1z) luminance per texel (P, 5) and `keep`
+    (P,) bool (fully covered, unburied)."""
+    from hhd_lightmapper.core import bake as _bake
+    from hhd_lightmapper.core import hhd, tracer
+    from hhd_lightmapper.core.colour import LUMINANCE
+    from hhd_lightmapper.core.tracer import hemisphere
+
+    hemisphere.STRATIFIED_DIRECTIONS, hemisphere.STRATIFIED_ORIGINS, hemisphere.UNIFORM_SHARE = variant[1:]
+    settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=3, seed=seed)
+    result = _bake.trace_surface(surface, resolution, resolution, bake_scene, settings)
+    iz = hhd.irradz(result.sh, result.points.normal) @ LUMINANCE
+    values = np.concatenate([iz[:, None], (result.sh @ LUMINANCE)[:, :4]], axis=1)
+    keep = (result.points.coverage >= 1.0 - 1e-9) & ~result.points.buried
+    return values, keep
+
+
+def measure(surface, bake_scene, args) -> dict:
+    reference_variant = VARIANTS[2]
+    halves = []
+    for seed in REFERENCE_SEEDS:
+        values, keep = bake(surface, bake_scene, args.resolution, args.reference // 2, seed, reference_variant)
+        halves.append(values)
+    reference = 0.5 * (halves[0] + halves[1])
+    scale = np.abs(reference[keep]).mean(axis=0)
+    scale[1:] = scale[1]  # both bands relative to the mean |band 0|
+
+    def errors(values):
+        return np.sqrt(np.mean((values[keep] - reference[keep]) ** 2, axis=0)) / scale
+
+    floor = 0.5 * errors(halves[0] - halves[1] + reference)
+    out = {
+        "texels": int(keep.sum()),
+        "reference": args.reference,
+        "seeds": args.seeds,
+        "floor": floor.tolist(),
+        "rows": [],
+    }
+    print(
+        f"reference {args.reference} spp, floors I_z / L0 / L1: {floor[0]:.4f} / {floor[1]:.4f} / {floor[2:].max():.4f}"
+    )
+    for variant in VARIANTS:
+        for samples in args.samples:
+            t = time.perf_counter()
+            squared, bias = np.zeros(5), 0.0
+            for seed in range(args.seeds):
+                values, _ = bake(surface, bake_scene, args.resolution, samples, 7 + seed, variant)
+                squared += np.maximum(errors(values) ** 2 - floor**2, 0.0) / args.seeds
+                bias += (values[keep, 0].sum() / reference[keep, 0].sum() - 1.0) / args.seeds
+            seconds = (time.perf_counter() - t) / args.seeds
+            row = {
+                "variant": variant[0],
+                "samples": samples,
+                "seconds": seconds,
+                "iz": float(squared[0] * samples),
+                "band0": float(squared[1] * samples),
+                "band1": float(squared[2:].sum() * samples),
+                "bias": float(bias),
+            }
+            out["rows"].append(row)
+            print(
+                f"  {variant[0]:26s} {samples:4d} spp: per-sample variance I_z {row['iz']:.4f}, band 0 "
+                f"{row['band0']:.4f}, band 1 {row['band1']:.4f}; bias {row['bias']:+.4f}  ({seconds:.1f} s)",
+                flush=True,
+            )
+    return out
+
+
+def markdown(results: dict, args) -> str:
+    lines = [
+        "# The hemisphere estimator's variants (`bench/estimator.py`)",
+        "",
+        "Per-sample variance (relative error² × samples; lower is better) of I_z, band 0 and band 1",
+        "(luminance) against our own converged bake, its noise removed; bias of I_z. See the",
+        "script's docstring for the variants.",
+        "",
+    ]
+    for name, r in results.items():
+        f = r["floor"]
+        lines += [
+            f"## {name}: {r['texels']} texels, reference {r['reference']} spp (floor I_z {f[0]:.4f}), "
+            f"{r.get('seeds', 1)} seeds per row, "
+            f"load {tuple(round(v, 1) for v in r.get('load_average', ()))}",
+            "",
+            "| variant | spp | I_z | band 0 | band 1 | bias |",
+            "| --- | ---: | ---: | ---: | ---: | ---: |",
+        ]
+        for row in r["rows"]:
+            lines.append(
+                f"| {row['variant']} | {row['samples']} | {row['iz']:.4f} | {row['band0']:.4f} | "
+                f"{row['band1']:.4f} | {row['bias']:+.4f} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
