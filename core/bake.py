@@ -496,7 +496,8 @@ def _finish_files(
     )
     if release:
         traced.release_sh()
-    data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams)  # post stages
+    # post stages; the denoiser writes into `raw`'s SH, which the encoder restores before the raw SH file
+    data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams, in_place=True)
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
     # encode (the raw SH file's channels filled in `raw` itself: nothing reads its SH after this)
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=raw, spend_raw=True)

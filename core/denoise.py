@@ -51,7 +51,7 @@ import numpy as np
 
 from . import dilate
 from .colour import LUMINANCE
-from .encoding import TexelData
+from .encoding import Replaced, TexelData
 from .oidn import Denoiser, DenoiserError
 from .sh import IRRADZ_FROM_R10, hemisphere_irradz
 
@@ -79,6 +79,18 @@ ENERGY_CLAMP = 1.5
 NOISE_CLAMP = 2.5
 #: OIDN's auto-exposure key value (its `autoexposure` op): inputScale = KEY / geometric-mean luminance.
 KEY = 0.18
+#: A page larger than this many texels per band goes through the filter in horizontal bands
+#: (`_denoise_banded`): each band's core rows (a multiple of BAND_ALIGN, about BAND_TEXELS
+#: texels) with BAND_OVERLAP rows of context above and below, so that the page's own buffers
+#: (SH, features, smooth fill, output) exist for one band at a time, not for the page.
+BAND_TEXELS = 1 << 20
+#: Rows of context on each side of a band: OIDN's receptive field is ±87 texels (its own tiles
+#: overlap by 96); a band aligned to BAND_ALIGN rows with this context gives OIDN's bits.
+BAND_OVERLAP = 96
+#: Band rows are multiples of this (OIDN's tile alignment: its U-Net pools 4 times).
+BAND_ALIGN = 16
+#: Texels of SH gathered at once for a banded page's inputScale (`_page_scales`).
+SCALE_CHUNK = 1 << 16
 
 
 def label_charts(mask: np.ndarray) -> tuple[np.ndarray, int]:
@@ -192,7 +204,11 @@ def _shelves(charts: np.ndarray, rh, rw, ry, rx, width: int) -> list[Page]:
 def input_scale(colour: np.ndarray) -> float:
     """OIDN's auto-exposure over HDR colours `(T, 3)` (a page's texels): KEY over the geometric
     mean luminance of the non-black ones (1 if all are black)."""
-    lum = colour @ LUMINANCE
+    return _scale_of_luminance(colour @ LUMINANCE)
+
+
+def _scale_of_luminance(lum: np.ndarray) -> float:
+    """`input_scale` of the luminances `lum` (T,)."""
     lum = lum[lum > 1e-8]
     if not len(lum):
         return 1.0
@@ -219,12 +235,18 @@ class DenoiseReport:
 
 
 def denoise_texels(
-    data: TexelData, denoiser: Denoiser, check: Callable[[], None] | None = None
+    data: TexelData, denoiser: Denoiser, check: Callable[[], None] | None = None, in_place: bool = False
 ) -> tuple[TexelData, DenoiseReport]:
     """`data` with the SH of its baked texels denoised (the module's steps, the noise clamp
     where `data.noise` is known); everything else as it was. A baked texel with a non-finite coefficient is not
     used and gets the denoised value of its surroundings. `check()`, if given, runs between pages
-    (it raises to cancel). Raises DenoiserError if OIDN fails."""
+    (it raises to cancel). Raises DenoiserError if OIDN fails.
+
+    `in_place`: the denoised SH is written into `data.sh` itself (no copy of the atlas's SH:
+    memory) and the SH it replaced is kept compact (116 bytes a denoised texel, index included)
+    in the result's `replaced` (`encoding.Replaced`: the encoder writes it back before the raw
+    SH file is filled);
+    on any error or cancellation `data.sh` is restored before the exception leaves."""
     t0 = time.perf_counter()
     h, w = data.coverage.shape
     labels, n = label_charts(data.coverage != 0.0)
@@ -238,36 +260,255 @@ def denoise_texels(
     brightness = np.bincount(flat[texels], lum, minlength=n) / np.maximum(np.bincount(flat[texels], minlength=n), 1)
     del texels, lum
     normal = data.normal.reshape(h * w, 3)
+    noise = None if data.noise is None else data.noise.reshape(h * w)
     report = DenoiseReport()
-    out = data.sh.copy().reshape(h * w, 9, 3)
-    for page in layout(labels, n, brightness):
-        if check is not None:
-            check()
-        rows, cols, atlas_index = _page_texels(page, labels)
-        chart_sh = sh[atlas_index]
-        chart_sh[~finite[atlas_index]] = 0.0
-        values = np.zeros(page.shape + (9, 3), np.float32)
-        values[rows, cols] = chart_sh
-        normals = np.zeros(page.shape + (3,), np.float32)
-        normals[rows, cols] = normal[atlas_index]
-        source = np.zeros(page.shape, bool)
-        source[rows, cols] = finite[atlas_index]
-        scales = (input_scale(chart_sh[:, 0, :]), input_scale(hemisphere_irradz(chart_sh, normal[atlas_index])))
+    out = sh if in_place else data.sh.copy().reshape(h * w, 9, 3)
+    replaced = Replaced(out)
+    written = np.zeros(h * w, bool)
+    try:
+        for page in layout(labels, n, brightness):
+            if check is not None:
+                check()
+            band = _band_rows(page.shape)
+            if band:
+                index, traced = _denoise_banded(page, labels, sh, normal, noise, finite, out, denoiser, band, check)
+            else:
+                index, traced = _denoise_page(page, labels, sh, normal, noise, finite, out, denoiser)
+            written[index] = True
+            if in_place:  # what the page's texels held (the raw SH file's bits)
+                replaced.parts.append((index, traced))
+            del index, traced
+            report.charts += len(page.charts)
+            report.pages += 1
+            report.page_texels += page.shape[0] * page.shape[1]
+    except BaseException:
+        if in_place:
+            replaced.restore()
+        raise
+    del labels, flat, finite
+    if data.noise is not None:  # the clamp of the texels no page changed (traced + 0: as `clamp_to_noise`)
+        _clamp_unwritten(out.reshape(data.sh.shape), data.noise, written.reshape(h, w), replaced if in_place else None)
+    del written
+    report.seconds = time.perf_counter() - t0
+    return replace(data, sh=out.reshape(data.sh.shape), replaced=replaced if in_place else None), report
+
+
+def _denoise_page(
+    page: Page,
+    labels: np.ndarray,
+    sh: np.ndarray,
+    normal: np.ndarray,
+    noise: np.ndarray | None,
+    finite: np.ndarray,
+    out: np.ndarray,
+    denoiser: Denoiser,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One page denoised whole, its chart texels written into `out` `(H·W, 9, 3)` (clamped to
+    the noise if `noise` (H·W,) is given). Returns their flat indices and their SH as it was."""
+    rows, cols, atlas_index = _page_texels(page, labels)
+    traced = sh[atlas_index]
+    ok = finite[atlas_index]
+    chart_sh = np.where(ok[:, None, None], traced, np.float32(0.0))
+    values = np.zeros(page.shape + (9, 3), np.float32)
+    values[rows, cols] = chart_sh
+    normals = np.zeros(page.shape + (3,), np.float32)
+    normals[rows, cols] = normal[atlas_index]
+    source = np.zeros(page.shape, bool)
+    source[rows, cols] = ok
+    scales = (input_scale(chart_sh[:, 0, :]), input_scale(hemisphere_irradz(chart_sh, normal[atlas_index])))
+    del chart_sh, ok
+    features, unit_normals = _page_features(values, normals)
+    del values, normals
+    clean = _denoise_features(features, unit_normals, source, denoiser, scales)
+    del features, unit_normals, source
+    _write(out, atlas_index, clean[rows, cols], traced, noise)
+    return atlas_index, traced
+
+
+def _write(out: np.ndarray, index: np.ndarray, clean: np.ndarray, traced: np.ndarray, noise: np.ndarray | None) -> None:
+    """Denoised SH `clean` `(T, 9, 3)` of the texels `index` into `out`, clamped to the noise
+    around their `traced` SH where `noise` (H·W,) is given (`clamp_to_noise`'s bits)."""
+    if noise is not None:
+        clean = _clamp_rows(clean[None], traced[None], noise[index][None])[0]
+    out[index] = clean
+
+
+def _clamp_unwritten(sh: np.ndarray, noise: np.ndarray, written: np.ndarray, replaced: Replaced | None = None) -> None:
+    """`clamp_to_noise` of the texels of `sh` `(H, W, 9, 3)` no page wrote (denoised = traced:
+    traced + 0, which only turns -0 into +0), in place, ROWS_PER_STEP rows at a time; the few
+    texels whose bits that changes added to `replaced`, if given."""
+    w = sh.shape[1]
+    for y in range(0, sh.shape[0], ROWS_PER_STEP):
+        rows = slice(y, y + ROWS_PER_STEP)
+        keep = ~written[rows]
+        if not keep.any():
+            continue
+        block = sh[rows][keep]
+        clamped = _clamp_rows(block[None], block[None], noise[rows][keep][None])[0]
+        if replaced is not None:
+            changed = (clamped.view(np.uint32) != block.view(np.uint32)).any(axis=(1, 2))
+            if changed.any():
+                replaced.parts.append((y * w + np.flatnonzero(keep)[changed], block[changed]))
+        sh[rows][keep] = clamped
+
+
+def _band_rows(shape: tuple[int, int]) -> int:
+    """Core rows of each band of a page of `shape` (h, w) denoised in bands, 0 if it is
+    denoised whole (not larger than one band and its context)."""
+    h, w = shape
+    band = max(BAND_ALIGN, BAND_TEXELS // max(w, 1) // BAND_ALIGN * BAND_ALIGN)
+    return band if h > band + 2 * BAND_OVERLAP else 0
+
+
+def _denoise_banded(
+    page: Page,
+    labels: np.ndarray,
+    sh: np.ndarray,
+    normal: np.ndarray,
+    noise: np.ndarray | None,
+    finite: np.ndarray,
+    out: np.ndarray,
+    denoiser: Denoiser,
+    band: int,
+    check: Callable[[], None] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One page denoised in horizontal bands of `band` rows, its chart texels written into `out`
+    `(H·W, 9, 3)` as `_denoise_page` writes them (and returned as it does): the same values as the whole page gives, with the page's buffers one band at a
+    time. Each band is filtered with BAND_OVERLAP rows of context on each side (OIDN tiles a
+    large image the same way: its bits), and its features are built and smoothly filled with
+    FILL_BLUR + FILL_RINGS rows more (the fill's reach), the box sums continuing the rows
+    above's (`_box_sum`'s `seed`). What the page shares is found first: the inputScales
+    (`_page_scales`), the page mean of the fill where some texel is beyond its reach; then L0 and
+    I_z are filtered band by band (kept for the page, 24 bytes a texel) and their energy sums
+    added up, in the page's order; then, band by band again, the rest (`_assemble`)."""
+    ph, pw = page.shape
+    rows, cols, index = _page_texels(page, labels)
+    ok = finite[index]
+    scales = _page_scales(sh, normal, index, ok)
+    order = np.argsort(rows, kind="stable")  # bands select their texels by row
+    rows, cols, index, ok = rows[order].astype(np.int32), cols[order].astype(np.int32), index[order], ok[order]
+    del order
+    traced = sh[index]  # the page's SH as traced: the bands read it here, `out` may be `sh`
+    halo = FILL_BLUR + FILL_RINGS
+    cores = [(y, min(y + band, ph)) for y in range(0, ph, band)]
+    windows = []  # per band: its core, the rows filtered and the rows built (page rows)
+    for y0, y1 in cores:
+        fa, fb = max(y0 - BAND_OVERLAP, 0), min(y1 + BAND_OVERLAP, ph)
+        windows.append(((y0, y1), (fa, fb), (max(fa - halo, 0), min(fb + halo, ph))))
+
+    def built(i: int, seed: np.ndarray | None, mean: np.ndarray | None, fill: bool = True):
+        """Band i's rows built: filled features, unit n_v, chart texels, the next band's seed."""
+        _, _, (wa, wb) = windows[i]
+        keep = windows[i + 1][2][0] - 1 - wa if i + 1 < len(windows) else None
+        lo, hi = np.searchsorted(rows, (wa, wb))
+        r, c, idx, good = rows[lo:hi] - wa, cols[lo:hi], index[lo:hi], ok[lo:hi]
+        chart_sh = np.where(good[:, None, None], traced[lo:hi], np.float32(0.0))
+        values = np.zeros((wb - wa, pw, 9, 3), np.float32)
+        values[r, c] = chart_sh
         del chart_sh
+        normals = np.zeros((wb - wa, pw, 3), np.float32)
+        normals[r, c] = normal[idx]
+        source = np.zeros((wb - wa, pw), bool)
+        source[r, c] = good
         features, unit_normals = _page_features(values, normals)
         del values, normals
-        clean = _denoise_features(features, unit_normals, source, denoiser, scales)
-        del features, unit_normals, source
-        out[atlas_index] = clean[rows, cols]
+        features, kept, near = _smooth_fill(
+            features, source, seed, keep if keep is not None and keep >= 0 else None, mean, fill
+        )
+        return features, unit_normals, source, kept, near
+
+    def passes():
+        """Band indices in order, with cancellation between them."""
+        for i in range(len(windows)):
+            if check is not None and i:
+                check()
+            yield i
+
+    # the page mean of the fill (`dilate.Fill.apply`'s: added up in the same order) if it is used
+    mean: np.ndarray | None = None
+    if not _within(ok, rows, cols, page.shape, halo):
+        total: np.ndarray | None = None
+        count, seed = 0, None
+        for i in passes():
+            (y0, y1), _, (wa, _) = windows[i]
+            features, _, _, seed, near = built(i, seed, None, fill=False)
+            core = features[y0 - wa : y1 - wa][near[y0 - wa : y1 - wa]]
+            total = _carried_sum(total, core)
+            count += len(core)
+            del features, near, core
+        mean = total / count if count and total is not None else np.zeros(14)
+    # L0 and I_z, filtered band by band, then their energy corrections over the page
+    l0 = np.empty((ph, pw, 3), np.float32)
+    iz = np.empty((ph, pw, 3), np.float32)
+    sums: list = [None] * 4
+    seed = None
+    for i in passes():
+        (y0, y1), (fa, fb), (wa, _) = windows[i]
+        features, _, source, seed, _ = built(i, seed, mean)
+        core = slice(y0 - wa, y1 - wa)
+        for k, image, scale in ((0, l0, scales[0]), (2, iz, scales[1])):
+            colour = features[fa - wa : fb - wa, :, 3 * k // 2 : 3 * k // 2 + 3]
+            filtered = _hdr_filtered(colour, scale, denoiser)[y0 - fa : y1 - fa]
+            image[y0:y1] = filtered
+            chart = source[core]
+            sums[k] = _carried_sum(sums[k], features[core][chart][:, 3 * k // 2 : 3 * k // 2 + 3])
+            sums[k + 1] = _carried_sum(sums[k + 1], filtered[chart].astype(np.float64))
+            del filtered
+        del features, source
+    for k, image in ((0, l0), (2, iz)):
+        image *= _energy_ratio(sums[k], sums[k + 1])
+    # the rest, band by band, into `out`
+    seed = None
+    for i in passes():
+        (y0, y1), (fa, fb), (wa, _) = windows[i]
+        features, unit_normals, _, seed, _ = built(i, seed, mean)
+        clean = _assemble(features[fa - wa : fb - wa], unit_normals[fa - wa : fb - wa], l0[fa:fb], iz[fa:fb], denoiser)
+        del features, unit_normals
+        lo, hi = np.searchsorted(rows, (y0, y1))
+        _write(out, index[lo:hi], clean[rows[lo:hi] - fa, cols[lo:hi]], traced[lo:hi], noise)
         del clean
-        report.charts += len(page.charts)
-        report.pages += 1
-        report.page_texels += page.shape[0] * page.shape[1]
-    clean = out.reshape(data.sh.shape)
-    if data.noise is not None:
-        clean = clamp_to_noise(clean, data.sh, data.noise, out=clean)
-    report.seconds = time.perf_counter() - t0
-    return replace(data, sh=clean), report
+    return index, traced
+
+
+def _carried_sum(total: np.ndarray | None, values: np.ndarray) -> np.ndarray:
+    """`values` `(T, c)` summed over T (float64) after `total` `(c,)` (None: nothing before): the
+    same additions, in the same order, as one sum of the rows that gave `total` and then these."""
+    if total is None:
+        return values.sum(axis=0, dtype=np.float64)
+    return np.concatenate([total[None], values.astype(np.float64, copy=False)]).sum(axis=0)
+
+
+def _page_scales(sh: np.ndarray, normal: np.ndarray, index: np.ndarray, ok: np.ndarray) -> tuple[float, float]:
+    """The inputScales of L0 and I_z of a page's texels (flat atlas `index`, in the page's order;
+    `ok`: finite, the others taken as 0), as the whole page's `input_scale`, SCALE_CHUNK texels'
+    SH at a time."""
+    lum = np.empty((2, len(index)), np.float64)
+    for s in range(0, len(index), SCALE_CHUNK):
+        chart_sh = sh[index[s : s + SCALE_CHUNK]]
+        chart_sh[~ok[s : s + SCALE_CHUNK]] = 0.0
+        lum[0, s : s + SCALE_CHUNK] = chart_sh[:, 0, :] @ LUMINANCE
+        irradz = hemisphere_irradz(chart_sh, normal[index[s : s + SCALE_CHUNK]])
+        lum[1, s : s + SCALE_CHUNK] = irradz @ LUMINANCE
+    return _scale_of_luminance(lum[0]), _scale_of_luminance(lum[1])
+
+
+def _within(ok: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int], reach: int) -> bool:
+    """Whether every texel of a page of `shape` lies within `reach` texels (chessboard) of one of
+    its chart texels (`ok` at `rows`, `cols`): then the smooth fill never takes the page mean."""
+    h, w = shape
+    if not ok.any():
+        return False
+    mask = np.zeros(shape, bool)
+    mask[rows[ok], cols[ok]] = True
+    for axis, n in ((0, h), (1, w)):  # a max filter of width 2·reach + 1, one axis at a time
+        count = np.cumsum(mask, axis=axis, dtype=np.int32)
+        count = np.concatenate([np.zeros((1, w) if axis == 0 else (h, 1), np.int32), count], axis=axis)
+        hi = np.minimum(np.arange(n) + reach + 1, n)
+        lo = np.maximum(np.arange(n) - reach, 0)
+        window = count.take(hi, axis=axis) - count.take(lo, axis=axis)
+        mask = window > 0
+        del count, window
+    return bool(mask.all())
 
 
 #: Rows of the atlas per step of the atlas-wide passes (`clamp_to_noise`, `_finite_texels`): bounds their temporaries.
@@ -352,9 +593,16 @@ def _denoise_features(
     chart texels `source`: they are filled smoothly elsewhere (`_smooth_fill`), then L0 and I_z
     are denoised as HDR colour (`scales`: their inputScale) and the rest in directional mode over
     the denoised L0 (module docstring). Returns `(h, w, 9, 3)` float32."""
-    features = _smooth_fill(features, source)
+    features = _smooth_fill(features, source)[0]
     l0 = _hdr(features[..., 0:3], source, scales[0], denoiser)
     iz = _hdr(features[..., 3:6], source, scales[1], denoiser)
+    return _assemble(features, n, l0, iz, denoiser)
+
+
+def _assemble(features: np.ndarray, n: np.ndarray, l0: np.ndarray, iz: np.ndarray, denoiser: Denoiser) -> np.ndarray:
+    """The SH `(h, w, 9, 3)` float32 of a page (or band) from its filled features, unit n_v and
+    its denoised, energy-corrected L0 and I_z `(h, w, 3)` (`_hdr`): band 1 across n_v and band 2
+    denoised in directional mode over the denoised luminance L0, scaled by each colour's L0."""
     # the rest in luminance over luminance L0 (one direction for all colours, as HHD keeps), scaled by each colour's L0
     l0_lum = l0 @ LUMINANCE
     across = _directional(features[..., 6:9], l0_lum, BAND1_BOUND, denoiser)
@@ -379,45 +627,100 @@ def _hdr(colour: np.ndarray, source: np.ndarray, scale: float, denoiser: Denoise
     ENERGY_CLAMP]): at a few samples per texel the noise is heavy-tailed and the filter takes the
     rare bright samples for outliers, darkening the page; the sum over a page of texels is an
     unbiased estimate with little noise of its own."""
-    out = np.maximum(denoiser.denoise(colour.astype(np.float32), input_scale=scale), 0.0)
+    out = _hdr_filtered(colour, scale, denoiser)
     before = colour[source].sum(axis=0, dtype=np.float64)
     after = out[source].sum(axis=0, dtype=np.float64)
+    return out * _energy_ratio(before, after)
+
+
+def _hdr_filtered(colour: np.ndarray, scale: float, denoiser: Denoiser) -> np.ndarray:
+    """`_hdr`'s filter, before its energy correction: float32, ≥ 0."""
+    return np.maximum(denoiser.denoise(colour.astype(np.float32), input_scale=scale), 0.0)
+
+
+def _energy_ratio(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """`_hdr`'s energy correction (3,) float32 from the traced and the filtered sums."""
     ratio = np.where(after > 0.0, before / np.where(after > 0.0, after, 1.0), 1.0)
-    return out * np.clip(ratio, 1.0 / ENERGY_CLAMP, ENERGY_CLAMP).astype(np.float32)
+    return np.clip(ratio, 1.0 / ENERGY_CLAMP, ENERGY_CLAMP).astype(np.float32)
 
 
-def _smooth_fill(image: np.ndarray, source: np.ndarray) -> np.ndarray:
+def _smooth_fill(
+    image: np.ndarray,
+    source: np.ndarray,
+    seed: np.ndarray | None = None,
+    keep: int | None = None,
+    mean: np.ndarray | None = None,
+    fill: bool = True,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """`image` `(h, w, c)` (changed in place) with its non-chart texels filled smoothly (float64): within FILL_BLUR
     texels of a chart texel, the mean of the chart texels in the (2·FILL_BLUR + 1)² box around it
     (copying the nearest texel would repeat its noise in streaks, which the filter keeps as
-    detail); farther, the nearest such texel (FILL_RINGS rings), beyond that the page mean."""
-    weight = _box_sum(source.astype(np.float64)[..., None], FILL_BLUR)[..., 0]
+    detail); farther, the nearest such texel (FILL_RINGS rings), beyond that the page mean.
+
+    For a band of a page (`_denoise_banded`), rows of it: `seed` `(c, w)`, the column sums of
+    the page's masked channels over the rows above the band (`_box_sum`), `keep` a row whose
+    column sums to return for the next band, `mean` `(c,)` the page mean (None: the band's), and
+    `fill=False` stops before the nearest-texel fill. Returns the image, the kept column sums
+    (None without `keep`) and the mask of texels within FILL_BLUR of a chart texel."""
+    weight = _box_sum(source.astype(np.float64)[..., None], FILL_BLUR)[0][..., 0]
     near = weight > 0.0
     inv = np.where(near, 1.0 / np.where(near, weight, 1.0), 0.0)
     del weight
     image = image.astype(np.float64, copy=False)
     outside = ~source
     image[outside] = 0.0  # in place: where(source, image, 0)
+    kept = None if keep is None else np.empty((image.shape[2], image.shape[1]), np.float64)
     for k in range(image.shape[2]):  # where(source, image, box mean), one channel at a time, in place
-        mean = _box_sum(image[..., k : k + 1], FILL_BLUR)[..., 0]
-        mean *= inv
+        box, column = _box_sum(image[..., k : k + 1], FILL_BLUR, None if seed is None else seed[k : k + 1], keep)
+        box = box[..., 0]
+        box *= inv
         channel = image[..., k]
-        channel[outside] = mean[outside]
-    return dilate.Fill(near, FILL_RINGS).apply(image, in_place=True)
+        channel[outside] = box[outside]
+        if kept is not None and column is not None:
+            kept[k] = column[0]
+    if not fill:
+        return image, kept, near
+    filler = dilate.Fill(near, FILL_RINGS)
+    if mean is None:
+        return filler.apply(image, in_place=True), kept, near
+    # `Fill.apply` with the page's mean for the texels out of reach
+    flat = image.reshape((-1, image.shape[2]))
+    reached = filler.source >= 0
+    flat[filler.empty[reached]] = flat[filler.source[reached]]
+    flat[filler.empty[~reached]] = mean
+    return image, kept, near
 
 
-def _box_sum(image: np.ndarray, r: int) -> np.ndarray:
+def _box_sum(
+    image: np.ndarray, r: int, seed: np.ndarray | None = None, keep: int | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Sum of `image` `(h, w, c)` over the (2r + 1)² box around each texel (zero outside),
-    float64, one channel at a time (memory: a few channel images)."""
+    float64, one channel at a time (memory: a few channel images); and, with `keep`, the column
+    sums `(c, w)` of rows 0..keep (the summed-area table's, so None without it).
+
+    `seed` `(c, w)`: the image is rows of a larger one, and these are the column sums of its rows
+    above: the summed-area table then continues the larger one's, the same additions in the same
+    order, so a row r texels or more inside the rows has the bits the larger image gives it."""
     h, w = image.shape[:2]
     out = np.empty(image.shape, np.float64)
+    kept = None if keep is None else np.empty((image.shape[2], w), np.float64)
     c = np.zeros((h + 1, w + 1))
     y0, y1 = np.clip(np.arange(h) - r, 0, h), np.clip(np.arange(h) + r + 1, 0, h)
     x0, x1 = np.clip(np.arange(w) - r, 0, w), np.clip(np.arange(w) + r + 1, 0, w)
     for k in range(image.shape[2]):
-        np.cumsum(np.cumsum(image[..., k], axis=0, dtype=np.float64), axis=1, out=c[1:, 1:])
+        if seed is None:
+            column = np.cumsum(image[..., k], axis=0, dtype=np.float64)
+            np.cumsum(column, axis=1, out=c[1:, 1:])
+            if kept is not None and keep is not None:
+                kept[k] = column[keep]
+        else:
+            column = np.cumsum(np.concatenate([seed[k][None], image[..., k]]), axis=0, dtype=np.float64)
+            np.cumsum(column, axis=1, out=c[:, 1:])
+            if kept is not None and keep is not None:
+                kept[k] = column[keep + 1]
+        del column
         out[..., k] = c[y1][:, x1] - c[y0][:, x1] - c[y1][:, x0] + c[y0][:, x0]
-    return out
+    return out, kept
 
 
 def _band1_vector(sh: np.ndarray) -> np.ndarray:

@@ -277,3 +277,63 @@ def test_a_bake_without_noise_is_denoised_without_the_clamp(tmp_path, library): 
     settings = bake.PipelineSettings(denoise=True, denoiser_library=str(library))
     out, records = post.apply(data, settings)
     assert records["denoise"]["applied"] and np.isfinite(out.sh).all()
+
+
+def banded_atlas() -> encoding.TexelData:
+    """A tall L-shaped chart (its page has texels beyond the smooth fill's reach: the page mean is
+    used), a small one, a black one (-0 coefficients), a buried patch, non-finite texels and
+    the tracer's noise: every path of the banded page."""
+    rng = np.random.default_rng(5)
+    h, w = 520, 200
+    data = atlas_data([(slice(10, 500), slice(5, 50), 1.0), (slice(440, 500), slice(5, 190), 1.0)], size=h, seed=5)
+    data = replace(
+        data, sh=data.sh[:, :w].copy(), normal=data.normal[:, :w].copy(), coverage=data.coverage[:, :w].copy()
+    )
+    data.coverage[20:60, 120:180] = 1.0
+    data.sh[20:60, 120:180] = 1.5 * data.sh[20:60, 20:80]
+    data.coverage[100:120, 120:180] = 1.0
+    data.sh[100:120, 120:180] = -0.0
+    data.coverage[300:305, 20:30] = -1.0
+    data.sh[300:305, 20:30] = 1e4
+    data.sh[100, 20] = np.nan
+    data.sh[101, 21, 3] = np.inf
+    data.normal[..., 0] = 0.1 * np.sin(np.arange(w) / 7.0)
+    noise = np.where(data.coverage > 0, 0.05 * rng.random((h, w)), np.nan).astype(np.float32)
+    return replace(data, noise=noise)
+
+
+@pytest.mark.parametrize("band_rows", [16, 48, 96])
+def test_a_page_denoised_in_bands_has_the_whole_pages_bits(denoiser, monkeypatch, band_rows):  # noqa: F811
+    """Bands of 16 to 96 rows (the first bands' context reaching the page's top, box sums and the
+    fill's page mean carried from band to band) give bit for bit what the whole page gives, in a
+    copy and in place; in place, `replaced` restores the traced SH bit for bit."""
+    data = banded_atlas()
+    whole, _ = denoise.denoise_texels(data, denoiser)
+    labels, n = denoise.label_charts(data.coverage != 0)
+    width = max(p.shape[1] for p in denoise.layout(labels, n, np.ones(n)))
+    monkeypatch.setattr(denoise, "BAND_TEXELS", band_rows * width)
+    monkeypatch.setattr(denoise, "SCALE_CHUNK", 1000)
+    assert denoise._band_rows((data.coverage.shape[0], width)) == band_rows
+    banded, _ = denoise.denoise_texels(data, denoiser)
+    np.testing.assert_array_equal(banded.sh.view(np.uint32), whole.sh.view(np.uint32))
+    traced = data.sh.copy()
+    in_place, _ = denoise.denoise_texels(data, denoiser, in_place=True)
+    assert np.shares_memory(in_place.sh, data.sh) and in_place.replaced is not None
+    np.testing.assert_array_equal(in_place.sh.view(np.uint32), whole.sh.view(np.uint32))
+    in_place.replaced.restore()
+    np.testing.assert_array_equal(data.sh.view(np.uint32), traced.view(np.uint32))
+
+
+def test_a_cancelled_denoise_in_place_leaves_the_traced_sh(denoiser):  # noqa: F811
+    data = atlas_data([(slice(10, 40), slice(10, 40), 1.0), (slice(50, 90), slice(10, 60), 30.0)])
+    traced = data.sh.copy()
+    calls = []
+
+    def check():
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        denoise.denoise_texels(data, denoiser, check, in_place=True)
+    np.testing.assert_array_equal(data.sh.view(np.uint32), traced.view(np.uint32))

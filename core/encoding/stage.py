@@ -15,7 +15,7 @@ time (memory: one channel's copy).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -36,6 +36,21 @@ ENCODE_CHUNK = 1 << 17
 
 
 @dataclass
+class Replaced:
+    """The SH a post stage overwrote in place (`core.denoise`'s `in_place`), kept compact:
+    `target` the `(H·W, 9, 3)` view of the SH image written, `parts` per page (flat texel indices,
+    their SH `(T, 9, 3)` as it was). `restore()` writes them back and drops them."""
+
+    target: np.ndarray
+    parts: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+
+    def restore(self) -> None:
+        while self.parts:
+            index, values = self.parts.pop()
+            self.target[index] = values
+
+
+@dataclass
 class TexelData:
     """An atlas's per-texel inputs to the encoder, as float32 images `(H, W, ...)` (rows
     bottom-up): sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried);
@@ -44,8 +59,10 @@ class TexelData:
     of their own (seam stitching's gutter texels, `core.seams`): encoded and dilated from like
     baked texels instead of being filled; noise `(H, W)`, optional: the standard error of each
     texel's luminance L0 (radiance) as traced, NaN where unknown (`TracedAtlas.noise`), as
-    the texels file keeps it (the denoiser's noise clamp reads it). float32 as in the files, so
-    encoding a fresh bake and re-encoding its files agree exactly."""
+    the texels file keeps it (the denoiser's noise clamp reads it); replaced, optional: the SH as
+    it was where a post stage wrote `sh` in place over another TexelData's (`Replaced`: the
+    encoder restores it once `sh` is encoded, before that TexelData's raw files). float32 as in
+    the files, so encoding a fresh bake and re-encoding its files agree exactly."""
 
     sh: np.ndarray
     normal: np.ndarray
@@ -53,6 +70,7 @@ class TexelData:
     sh_error: np.ndarray | None = None
     extra_sources: np.ndarray | None = None
     noise: np.ndarray | None = None
+    replaced: Replaced | None = None
 
     @property
     def baked(self) -> np.ndarray:
@@ -132,12 +150,16 @@ def encode_atlas(
     """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
     files' images: of `data` (True), of another TexelData of the same atlas (the SH as traced,
     when post stages changed `data`), or none (False: a re-encode keeps the files it read).
+    `data.replaced` (a post stage's SH written in place over the traced one) is restored once
+    `data` is encoded: `data.sh` is then no longer its own.
     `spend_raw`: the caller no longer needs that TexelData's SH (nor `data`'s, when it is the
     same), so the SH file's channels are filled in it in place and are views of it (no copy of
     the atlas's SH; the same values)."""
     h, w = data.coverage.shape
     fill = data.fill()
     images, summary = encode_images(data, encoding, fill)
+    if data.replaced is not None:  # the SH a post stage wrote in place, back (the raw SH file's)
+        data.replaced.restore()
     files = {encoding.file.key: (encoding.file, images)}
     if raw is not False:
         source = data if raw is True else raw
