@@ -19,6 +19,8 @@ as bench/time_to_error.py sets them up, BOUNCES bounces, `--resolution` atlas. V
   `kernels.project_halves`);
 - `+ origins across passes`: the origins' first tries from the texel's own (0,2)-sequence too
   (`BakePoints.sample_origins`);
+- `+ first bounce across passes`: each path's first bounce (its light samples and its next
+  direction) from the texel's own sequences too (`paths.TexelSamples`);
 - `+ α 0.25`: a quarter of the mixture uniform instead of half.
 
 Every row is the mean over `--seeds` bakes with different seeds (a few heavy-tailed texels make
@@ -45,12 +47,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 SCENES = ("classroom", "field", "staircase2", "bedroom")
-#: (name, STRATIFIED_DIRECTIONS, STRATIFIED_ORIGINS, UNIFORM_SHARE)
+#: (name, STRATIFIED_DIRECTIONS, STRATIFIED_ORIGINS, STRATIFIED_FIRST_BOUNCE, UNIFORM_SHARE)
 VARIANTS = (
-    ("per pass", False, False, 0.5),
-    ("directions across passes", True, False, 0.5),
-    ("+ origins across passes", True, True, 0.5),
-    ("+ α 0.25", True, True, 0.25),
+    ("per pass", False, False, False, 0.5),
+    ("directions across passes", True, False, False, 0.5),
+    ("+ origins across passes", True, True, False, 0.5),
+    ("+ first bounce across passes", True, True, True, 0.5),
+    ("+ α 0.25", True, True, True, 0.25),
 )
 REFERENCE_SEEDS = (101, 102)
 
@@ -110,7 +113,12 @@ def bake(surface, bake_scene, resolution: int, samples: int, seed: int, variant)
     from hhd_lightmapper.core.colour import LUMINANCE
     from hhd_lightmapper.core.tracer import hemisphere
 
-    hemisphere.STRATIFIED_DIRECTIONS, hemisphere.STRATIFIED_ORIGINS, hemisphere.UNIFORM_SHARE = variant[1:]
+    (
+        hemisphere.STRATIFIED_DIRECTIONS,
+        hemisphere.STRATIFIED_ORIGINS,
+        hemisphere.STRATIFIED_FIRST_BOUNCE,
+        hemisphere.UNIFORM_SHARE,
+    ) = variant[1:]
     settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=3, seed=seed)
     result = _bake.trace_surface(surface, resolution, resolution, bake_scene, settings)
     iz = hhd.irradz(result.sh, result.points.normal) @ LUMINANCE
@@ -120,7 +128,7 @@ def bake(surface, bake_scene, resolution: int, samples: int, seed: int, variant)
 
 
 def measure(surface, bake_scene, args) -> dict:
-    reference_variant = VARIANTS[2]
+    reference_variant = VARIANTS[3]
     halves = []
     for seed in REFERENCE_SEEDS:
         values, keep = bake(surface, bake_scene, args.resolution, args.reference // 2, seed, reference_variant)
@@ -163,7 +171,7 @@ def measure(surface, bake_scene, args) -> dict:
             }
             out["rows"].append(row)
             print(
-                f"  {variant[0]:26s} {samples:4d} spp: per-sample variance I_z {row['iz']:.4f}, band 0 "
+                f"  {variant[0]:30s} {samples:4d} spp: per-sample variance I_z {row['iz']:.4f}, band 0 "
                 f"{row['band0']:.4f}, band 1 {row['band1']:.4f}; bias {row['bias']:+.4f}  ({seconds:.1f} s)",
                 flush=True,
             )

@@ -103,6 +103,20 @@ def owen_scramble(x, seed):
     return reverse_bits32(x)
 
 
+def sobol_pair(i, key):
+    """(u1, u2) in [0, 1): point i (< 2^32) of a (0,2)-sequence keyed by `key` (uint64, e.g.
+    `stream_key`): Sobol's first two dimensions (`sobol_02`) at a shuffled index, each
+    coordinate Owen-scrambled (`owen_scramble`). The index shuffle is itself a nested scramble
+    (Burley 2020), so every aligned block of 2^m indices (a pass, the first 2^j passes) still
+    maps to an aligned block, i.e. a (0,m,2)-net; without it, sample j of every pass would
+    fall in the same coarse stratum, and two sequences indexed alike (a texel's directions and
+    its origins) would pair the same strata in every pass: a texel's error would stop falling."""
+    shuffle = stream_key(key, 0, 1) & _M32
+    a, b = sobol_02(owen_scramble(np.uint64(i) & _M32, shuffle))
+    scale = 1.0 / 4294967296.0
+    return float(owen_scramble(a, key & _M32)) * scale, float(owen_scramble(b, key >> np.uint64(32))) * scale
+
+
 def mixture_cos(u, alpha):
     """cosθ for the uniform number u under the hemisphere mixture α/(2π) + (1 − α)·cosθ/π:
     the root in [0, 1] of α z + (1 − α) z² = u, in the form without cancellation near 0."""
@@ -185,7 +199,7 @@ def texel_hemisphere_rays(normals, k, texels, first, seed, uniform_share):
     from the mixture p(ω) = α/(2π) + (1 − α)·cosθ/π (α = uniform_share) by inverting its
     cumulative distribution in cosθ (`mixture_cos`), in two independent halves of k/2 (the
     control variate's, `project_halves`). Each half's (u1, u2) come from its texel's own
-    Owen-scrambled (0,2)-sequence (`sobol_02`, `owen_scramble`; one per (seed, texel id, half))
+    (0,2)-sequence (`sobol_pair`; one per (seed, texel id, half))
     at indices first/2 .. first/2 + k/2 − 1: `first` is the pass's first sample (pass × k),
     so a texel's samples are stratified across all its passes, not only within each.
     texels (n,): the texels' global ids. Returns directions (n·k, 3) and the density per
@@ -195,21 +209,30 @@ def texel_hemisphere_rays(normals, k, texels, first, seed, uniform_share):
     start = first // 2
     dirs = np.empty((n * k, 3))
     pdf = np.empty(n * k)
-    scale = 1.0 / 4294967296.0
     for t in range(n):
         nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
         for h in range(2):
             key = stream_key(seed, texels[t], _DIRECTION_STREAMS + h)
-            key_a, key_b = key & _M32, key >> np.uint64(32)
             for i in range(half):
                 s = t * k + h * half + i
-                a, b = sobol_02(start + i)
-                z = mixture_cos(float(owen_scramble(a, key_a)) * scale, uniform_share)
+                u1, u2 = sobol_pair(start + i, key)
+                z = mixture_cos(u1, uniform_share)
                 r = math.sqrt(max(1.0 - z * z, 0.0))
-                phi = _TWO_PI * float(owen_scramble(b, key_b)) * scale
+                phi = _TWO_PI * u2
                 dirs[s, 0], dirs[s, 1], dirs[s, 2] = local_to_world(nx, ny, nz, r * math.cos(phi), r * math.sin(phi), z)
                 pdf[s] = uniform_share * 0.5 * _INV_PI + (1.0 - uniform_share) * z * _INV_PI
     return dirs, pdf
+
+
+def row_sequence(rows, texels, k, first, seed, stream):
+    """(2, R) uniform numbers for rows (R,) of a pass's samples (row t·k + j: sample j of the
+    texel texels[t], global id): point first + j of that texel's (0,2)-sequence keyed by
+    (seed, texel id, stream) (`sobol_pair`). A texel's rows across all
+    its passes (first = pass × k) are stratified together, whichever rows a pass asks for."""
+    out = np.empty((2, rows.shape[0]))
+    for i in range(rows.shape[0]):
+        out[0, i], out[1, i] = sobol_pair(first + rows[i] % k, stream_key(seed, texels[rows[i] // k], stream))
+    return out
 
 
 def footprint_origins(
@@ -229,29 +252,26 @@ def footprint_origins(
     own, so the rejection sampling stays exact, but together they cover the square evenly,
     so a shadow edge across a texel is far less noisy than with independent tries. Given the
     texels' global ids texels (n,) (else no rows), the first tries are instead points first ..
-    first + k − 1 of the texel's own Owen-scrambled (0,2)-sequence (keyed by (key_seed, texel
-    id): `sobol_02`, `owen_scramble`), stratified across all the texel's passes (first: the
+    first + k − 1 of the texel's own (0,2)-sequence (keyed by (key_seed, texel id):
+    `sobol_pair`), stratified across all the texel's passes (first: the
     pass's first sample, pass × k); later tries and everything else draw on `seed`."""
     state = np.uint64(seed)
     n = corner.shape[0]
     out = np.empty((n * k, 3))
     by_texel = texels.shape[0] > 0
-    key_x = key_y = np.uint64(0)
+    key = np.uint64(0)
     for t in range(n):
         state, shift_x = uniform(state)
         state, shift_y = uniform(state)
         if by_texel:
             key = stream_key(key_seed, texels[t], _ORIGIN_STREAM)
-            key_x, key_y = key & _M32, key >> np.uint64(32)
         for j in range(k):
             s = t * k + j
             found = False
             for attempt in range(2 * tries):
                 width = footprint if attempt < tries else 1.0
                 if attempt == 0 and by_texel:
-                    a, b = sobol_02(first + j)
-                    ux = float(owen_scramble(a, key_x)) * (1.0 / 4294967296.0)
-                    uy = float(owen_scramble(b, key_y)) * (1.0 / 4294967296.0)
+                    ux, uy = sobol_pair(first + j, key)
                 elif attempt == 0:
                     ux = (j / k + shift_x) % 1.0
                     uy = (radical_inverse(j) + shift_y) % 1.0
@@ -314,6 +334,9 @@ def replace_hidden(hidden, k, seed):
     return out
 
 
+_NO_NUMBERS = np.zeros((2, 0))  # advance_paths without given numbers
+
+
 def advance_paths(
     live,
     acc,
@@ -332,6 +355,7 @@ def advance_paths(
     max_survival,
     seed,
     back_faces_black=False,
+    u_dir=_NO_NUMBERS,
 ):
     """One wavefront step after a closest-hit query of the rays o + t·d (R, 3), (R,), one row per
     live path: `live` (R,) its sample index, `acc` (R, C) radiance gathered so far (C = 3 per
@@ -344,7 +368,8 @@ def advance_paths(
     cosine-distributed direction around n (pdf cosθ/π) and the weight 1/p for what follows.
     With `back_faces_black`, a hit on the back of a triangle (ng · d > 0: the ray started inside
     a closed mesh or behind a wall's modelled side) ends the path like a miss without sky: the
-    light gathered before it stays, nothing more is added there.
+    light gathered before it stays, nothing more is added there. u_dir (2, R), if it has
+    columns: the uniform numbers of each row's new direction (else drawn from `seed`'s stream).
 
     Returns the hits compacted, survivors first: (live, acc, throughput, x, n, directions, pdf,
     weight, s) with s survivors; directions and pdf are set for survivors only, weight (s,).
@@ -423,8 +448,11 @@ def advance_paths(
         if j >= survivors:
             continue
         weight[j] = 1.0 / survive[i]
-        state, u1 = uniform(state)
-        state, u2 = uniform(state)
+        if u_dir.shape[1] > 0:
+            u1, u2 = u_dir[0, i], u_dir[1, i]
+        else:
+            state, u1 = uniform(state)
+            state, u2 = uniform(state)
         rr = math.sqrt(u1)
         phi = _TWO_PI * u2
         lz = math.sqrt(max(1.0 - u1, 0.0))
@@ -840,6 +868,7 @@ _HELPERS = (
     "reverse_bits32",
     "owen_scramble",
     "stream_key",
+    "sobol_pair",
     "mixture_cos",
     "_add_hemisphere_integral",
     "sh_basis",
@@ -864,6 +893,7 @@ _KERNELS = (
     "texel_sequence",
     "hemisphere_rays",
     "texel_hemisphere_rays",
+    "row_sequence",
     "footprint_origins",
     "replace_hidden",
     "advance_paths",

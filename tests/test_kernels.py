@@ -178,6 +178,30 @@ def test_projection_of_halves_matches_its_estimator_and_the_furnace(rng):
         np.testing.assert_allclose(got[t], 2.5 * (w @ sh.evaluate(world))[:, None] * np.ones(3), atol=1e-4)
 
 
+def test_row_sequences_are_stratified_across_passes_whichever_rows_are_asked():
+    """4 passes of 16 samples of 30 texels: each texel's 64 pairs lie one per 1/64 stratum of
+    either number and one per cell of the 8 × 8 grid; asking for a subset of a pass's rows
+    (the paths that hit something) gives those rows' numbers unchanged; another stream: others."""
+    n, k, passes = 30, 16, 4
+    texels = np.arange(n, dtype=np.int64) * 3 + 1
+    rows = np.arange(n * k, dtype=np.int64)
+    u = np.stack([K.row_sequence(rows, texels, k, p * k, 9, 128).reshape(2, n, k) for p in range(passes)], axis=2)
+    u = u.reshape(2, n, k * passes)
+    every = np.tile(np.arange(k * passes), (n, 1))
+    for dim in range(2):
+        np.testing.assert_array_equal(np.sort(np.floor(u[dim] * k * passes), axis=1), every)
+    np.testing.assert_array_equal(np.sort(np.floor(u[0] * 8) * 8 + np.floor(u[1] * 8), axis=1), every)
+    some = rows[np.random.default_rng(2).random(len(rows)) < 0.4]
+    np.testing.assert_array_equal(
+        K.row_sequence(some, texels, k, 16, 9, 128), K.row_sequence(rows, texels, k, 16, 9, 128)[:, some]
+    )
+    assert (
+        not np.isclose(K.row_sequence(rows, texels, k, 0, 9, 129), K.row_sequence(rows, texels, k, 0, 9, 128))
+        .all(axis=0)
+        .any()
+    )
+
+
 def test_kernels_depend_on_the_seed_only():
     a, b, c = hemisphere_rays(50, 8, 1), hemisphere_rays(50, 8, 1), hemisphere_rays(50, 8, 2)
     np.testing.assert_array_equal(a[1], b[1])

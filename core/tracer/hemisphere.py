@@ -7,7 +7,11 @@ cosine sampling gives r_0 infinite variance from the 1/cosθ weight at the horiz
 keeps most of the cosine-sampling benefit (bench/estimator.py: α ¼ lowers I_z's per-sample
 variance by 5–13% and raises bands 0 and 1's by ~20%). The samples come in two independent
 halves, each from the texel's own scrambled (0,2)-sequence, stratified across all of the
-texel's passes (so 16 passes of 16 samples cover the hemisphere as one 256-sample net would).
+texel's passes (so 16 passes of 16 samples cover the hemisphere as one 256-sample net would);
+so are the samples' origins and their paths' first bounce (its light samples and its next
+direction: `paths.TexelSamples`), each from a sequence of its own whose order is shuffled
+(`kernels.sobol_pair`), so no two pair the same strata pass after pass. bench/estimator.py
+measures what each step saves.
 The radiance L arriving along ω is `paths.Paths.radiance` from the sample's origin, and
 Σ (L(ω) − β) Y(ω) / (K p(ω)) + β·∫Y estimates the radiance SH over the hemisphere, with a
 constant β per half of the samples taken from the other half (`kernels.project_halves`):
@@ -40,7 +44,7 @@ from .. import covers as _covers
 from ..bakepoints import BakePoints
 from ..covers import CoverProbe
 from . import lights, shipping
-from .paths import Paths, TraceScene, seed, take_rows
+from .paths import Paths, TexelSamples, TraceScene, seed, take_rows
 from .scheduler import UnitResult, WorkUnit
 
 #: Each texel's hemisphere directions from its own scrambled (0,2)-sequences, stratified
@@ -51,6 +55,9 @@ STRATIFIED_DIRECTIONS = True
 #: Each texel's first tries of its sample origins from its own scrambled (0,2)-sequence,
 #: stratified across all its passes (`BakePoints.sample_origins`); False: within each pass.
 STRATIFIED_ORIGINS = True
+#: Each path's first bounce (its light samples and its new direction) from its texel's own
+#: sequences, stratified across all its passes (`paths.TexelSamples`); False: independent.
+STRATIFIED_FIRST_BOUNCE = True
 #: α, the uniform share of the hemisphere mixture α/(2π) + (1 − α)·cosθ/π the directions are
 #: drawn from (with STRATIFIED_DIRECTIONS; else ½).
 UNIFORM_SHARE = 0.5
@@ -114,7 +121,10 @@ class TexelEstimator(shipping.Shipped):
             origins = self._visible(paths, rng, idx, origins, k, crossed[idx], uncovered)
             uncovered = None
         normal = np.repeat(self.points.normal[idx], k, axis=0)  # the light samples' too (`_direct_sh`)
-        radiance = paths.radiance(rng, origins, dirs, pdf, uncovered, normal)  # (n·k, C)
+        texels = None
+        if STRATIFIED_FIRST_BOUNCE:
+            texels = TexelSamples(np.ascontiguousarray(idx, np.int64), k, unit.pass_index * k, unit.seed)
+        radiance = paths.radiance(rng, origins, dirs, pdf, uncovered, normal, texels)  # (n·k, C)
         project = paths.kernels.project_halves if STRATIFIED_DIRECTIONS else paths.kernels.project_hemisphere
         estimate = project(dirs, radiance, pdf, normals, k)
         stream = lights.TexelStream(idx, k, unit.pass_index * k, unit.seed) if STRATIFIED_LIGHTS else None

@@ -546,18 +546,41 @@ class TexelStream:
         return _kernels.get().texel_sequence(texels, self.k, self.first, dim, self.seed)
 
 
-#: `Light.sample`'s strata: a group size (int) or a TexelStream.
-Strata = int | TexelStream
+@dataclass
+class RowStream:
+    """Where the light samples of some rows of a pass come from: rows (R,) of the pass's
+    samples (row t·k + j: sample j of texel `texels[t]`, global ids (n,)), k samples per texel,
+    the pass's first sample index (pass × k), the bake's seed and the first stream number.
+    `uniforms(dim)` takes each row's number from its texel's own (0,2)-sequence for the pair of
+    dimensions dim // 2 (`kernels.row_sequence`), stratified across every pass of the texel:
+    the light sample at a path's first bounce, say, is stratified like the texel's own."""
+
+    rows: np.ndarray
+    texels: np.ndarray
+    k: int
+    first: int
+    seed: int
+    stream: int
+
+    def uniforms(self, dim: int) -> np.ndarray:
+        rows = np.ascontiguousarray(self.rows, np.int64)
+        texels = np.ascontiguousarray(self.texels, np.int64)
+        pair = _kernels.get().row_sequence(rows, texels, self.k, self.first, self.seed, self.stream + dim // 2)
+        return pair[dim % 2]
+
+
+#: `Light.sample`'s strata: a group size (int), a TexelStream or a RowStream.
+Strata = int | TexelStream | RowStream
 
 
 def uniforms(rng: np.random.Generator, n: int, strata: Strata = 1, dim: int = 0) -> np.ndarray:
     """(n,) uniform numbers in [0, 1) for dimension `dim` of a light's sampling. A TexelStream:
-    its texels' own sequences (n must be its texels × k). An int > 1 (and n a multiple of it):
+    its texels' own sequences (n must be its texels × k); a RowStream: its rows' (n rows). An int > 1 (and n a multiple of it):
     each group of `strata` consecutive numbers is stratified, one in each [j/strata,
     (j+1)/strata), in random order (a Latin hypercube when several dimensions are drawn so).
     Either way each number is still uniform, so estimates stay unbiased, while a texel's light
     samples cover the light evenly."""
-    if isinstance(strata, TexelStream):
+    if isinstance(strata, (TexelStream, RowStream)):
         return strata.uniforms(dim)
     if strata <= 1 or n % strata:
         return rng.random(n)

@@ -23,6 +23,8 @@ that receives it); a `Paths` traces in one thread for one work unit and counts i
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .. import kernels as _kernels
@@ -44,6 +46,7 @@ RR_MAX_SURVIVAL = 0.95
 BACK_FACES_BLACK = False
 _BLACK = np.zeros((1, 3))  # the sky of a scene without a world (kernels.advance_paths)
 _NO_ROWS = np.zeros((0, 3))  # no per-row albedo: the kernel takes the triangles' own
+_NO_NUMBERS = np.zeros((2, 0))  # no given numbers: advance_paths draws its own
 
 
 class TraceScene:
@@ -128,6 +131,7 @@ class Paths:
         pdf: np.ndarray,
         start: np.ndarray | None = None,
         normals: np.ndarray | None = None,
+        texels: TexelSamples | None = None,
     ) -> np.ndarray:
         """Radiance (R, C) arriving at `origins` from directions `dirs` (R, 3) sampled with density
         `pdf` (R,) per steradian (what the MIS weights of reachable lights are taken against):
@@ -135,7 +139,9 @@ class Paths:
         given: only those paths are traced (the others receive nothing). `normals` (R, 3), if
         given: the origins' normals, as the light samples taken there got them (the emitters'
         density depends on them: `lights.EmissiveTriangles`). C = `TraceScene.channels`
-        (3 per light set). Each live path gathers
+        (3 per light set). `texels`, if given: whose samples the rows are; the paths' first
+        bounce (its light samples and its new direction) then takes its numbers from each
+        texel's own sequences, stratified across its passes. Each live path gathers
         into its own row of `acc` (compacted with it), written out once when the path ends:
         cheaper than scattering into the (R, 3) result every bounce."""
         ts = self.scene
@@ -173,6 +179,8 @@ class Paths:
             # misses end (written to radiance); every hit adds its light, then the roulette's
             # victims end and the survivors continue with a cosine-distributed direction
             # (BRDF·cos/pdf = albedo, applied to the throughput), reweighted by 1/p
+            first = texels if bounce == 0 else None  # its numbers from the texels' sequences
+            u_dir = first.directions(live) if first is not None else _NO_NUMBERS
             live, acc, throughput, o, n, d, pdf, weight, s = self.kernels.advance_paths(
                 live,
                 acc,
@@ -191,10 +199,12 @@ class Paths:
                 RR_MAX_SURVIVAL,
                 seed(rng),
                 ts.back_faces_black,
+                u_dir,
             )
             if len(live) == 0:
                 return radiance
-            acc += ts.per_column(throughput) * self.irradiance_at(rng, o, n)
+            strata = first.lights(live) if first is not None else 1
+            acc += ts.per_column(throughput) * self.irradiance_at(rng, o, n, strata)
             radiance[live[s:]] = acc[s:]
             live, acc, o, nrm, d, pdf = live[:s], acc[:s], o[:s], n[:s], d[:s], pdf[:s]
             throughput = throughput[:s] * weight[:, None]
@@ -232,13 +242,16 @@ class Paths:
         normals (R, 3): x's normals (rays leaving x must be evaluated with the same)."""
         return [light.sample(rng, x, ray_pdf, strata, normals) for light in self.scene.lights]
 
-    def irradiance_at(self, rng: np.random.Generator, x: np.ndarray, n: np.ndarray) -> np.ndarray:
+    def irradiance_at(
+        self, rng: np.random.Generator, x: np.ndarray, n: np.ndarray, strata: _lights.Strata = 1
+    ) -> np.ndarray:
         """Next-event estimate of the irradiance (R, C) (DESIGN units, E/π·π = outgoing radiance
         per unit albedo; C: 3 per light set) at surface points x (R, 3) with unit normals n (R, 3)
-        from every light, one shadow ray per light and point; MIS against cosine sampling at x."""
+        from every light, one shadow ray per light and point; MIS against cosine sampling at x.
+        strata: where the light samples' numbers come from (`lights.uniforms`)."""
         total = np.zeros((len(x), self.scene.channels))
         cosine_pdf = lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi
-        samples = self.light_samples(rng, x, cosine_pdf, normals=n)
+        samples = self.light_samples(rng, x, cosine_pdf, strata, normals=n)
         for light, (dirs, value, dist) in zip(self.scene.lights, samples):
             cos = np.einsum("ri,ri->r", dirs, n)
             facing = np.flatnonzero(cos > 0.0)
@@ -260,6 +273,36 @@ class Paths:
         tmax = np.where(np.isfinite(dist), dist * (1.0 - 1e-4) - self.scene.offset, np.float32(3e38))
         self.count(len(o))
         return 1.0 - self._rays.occluded(o, d, np.maximum(tmax, 0.0))
+
+
+@dataclass(frozen=True)
+class TexelSamples:
+    """Whose samples a batch of rays is: texels (n,) (global ids), k rays each (row t·k + j is
+    sample j of texel t), the pass's first sample index (pass × k) and the bake's seed. The
+    paths' first bounce takes its numbers from the texels' own (0,2)-sequences
+    (`kernels.row_sequence`; streams FIRST_BOUNCE_STREAM on, apart from the texel's other
+    sequences), so a texel's first bounces are stratified across its passes as its own
+    directions are."""
+
+    texels: np.ndarray
+    k: int
+    first: int
+    seed: int
+
+    def directions(self, rows: np.ndarray) -> np.ndarray:
+        """(2, R): the numbers of the new directions leaving the first hits of rows (R,)."""
+        return _kernels.get().row_sequence(
+            np.ascontiguousarray(rows, np.int64), self.texels, self.k, self.first, self.seed, FIRST_BOUNCE_STREAM
+        )
+
+    def lights(self, rows: np.ndarray) -> _lights.RowStream:
+        """Where the light samples at the first hits of rows (R,) take their numbers."""
+        return _lights.RowStream(rows, self.texels, self.k, self.first, self.seed, FIRST_BOUNCE_STREAM + 2)
+
+
+#: The first `kernels.row_sequence` stream of a path's first bounce (its direction; its light
+#: samples take the next ones), apart from `kernels`' direction and origin streams.
+FIRST_BOUNCE_STREAM = 128
 
 
 def seed(rng: np.random.Generator) -> int:
