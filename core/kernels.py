@@ -187,8 +187,8 @@ def hemisphere_rays(normals, k, seed):
     return dirs, pdf
 
 
-#: The first stream number of `texel_hemisphere_rays`' groups (`stream_key`), apart from the
-#: dimensions `texel_sequence` draws for lights.
+#: The first stream number of `texel_hemisphere_rays`' two halves (`stream_key`), apart from
+#: the dimensions `texel_sequence` draws for lights.
 _DIRECTION_STREAMS = 64
 #: The stream number of `footprint_origins`' first tries.
 _ORIGIN_STREAM = 96
@@ -475,66 +475,35 @@ def project_hemisphere(dirs, radiance, pdf, normals, k):
     estimate stays unbiased, and constant radiance is reproduced exactly (the furnace test)
     while near-constant skies lose most of the pdf-shape noise (lower per-texel I_z noise than
     taking I_z from the cosine half alone: README, "Speed vs accuracy")."""
-    n = normals.shape[0]
-    q = k // 4
-    cols = radiance.shape[1]
-    out = np.zeros((n, 9, cols))
-    beta = np.empty((2, cols))
-    for t in range(n):
-        base = t * k
-        for c in range(cols):
-            sa = 0.0
-            sb = 0.0
-            for i in range(q):
-                sa += radiance[base + 3 * q + i, c]  # cosine half B: β for half A
-                sb += radiance[base + q + i, c]  # cosine half A: β for half B
-            beta[0, c] = sa / q
-            beta[1, c] = sb / q
-        for j in range(k):
-            s = base + j
-            h = 0 if j < 2 * q else 1
-            w = 1.0 / (pdf[s] * k)
-            y = sh_basis(dirs[s, 0], dirs[s, 1], dirs[s, 2])
-            for c in range(cols):
-                v = (radiance[s, c] - beta[h, c]) * w
-                for m in range(9):
-                    out[t, m, c] += y[m] * v
-        _add_hemisphere_integral(out, t, normals, beta)
-    return out
-
-
-def _add_hemisphere_integral(out, t, normals, beta):
-    """Adds to out[t] (9, C) the mean of beta's two rows (2, C) times ∫Y over the hemisphere of
-    normals[t]: band 0 2π·Y00, band 1 π·C1·n, band 2 zero (`project_hemisphere`)."""
-    nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
-    band0 = _TWO_PI * _Y00
-    band1 = _C1 * math.pi
-    for c in range(out.shape[2]):
-        b = 0.5 * (beta[0, c] + beta[1, c])
-        out[t, 0, c] += band0 * b
-        out[t, 1, c] += -band1 * ny * b
-        out[t, 2, c] += band1 * nz * b
-        out[t, 3, c] += -band1 * nx * b
+    return _project_control_variate(dirs, radiance, pdf, normals, k, k // 4, k // 4)
 
 
 def project_halves(dirs, radiance, pdf, normals, k):
     """`project_hemisphere` for samples in two independent halves of k/2 (`texel_hemisphere_rays`):
     each half subtracts β = the mean radiance of the *other* half and adds back β·∫Y."""
+    return _project_control_variate(dirs, radiance, pdf, normals, k, 0, k // 2)
+
+
+def _project_control_variate(dirs, radiance, pdf, normals, k, offset, count):
+    """`project_hemisphere`'s estimator with each half's β the mean radiance of the other
+    half's samples offset .. offset + count − 1 (counted from that half's start)."""
     n = normals.shape[0]
     half = k // 2
     cols = radiance.shape[1]
     out = np.zeros((n, 9, cols))
     beta = np.empty((2, cols))
+    band0 = _TWO_PI * _Y00
+    band1 = _C1 * math.pi
     for t in range(n):
         base = t * k
         for c in range(cols):
             sa = 0.0
             sb = 0.0
-            for i in range(half):
-                sa += radiance[base + half + i, c]  # half B: β for half A
-                sb += radiance[base + i, c]  # half A: β for half B
-            beta[0, c] = sa / half
-            beta[1, c] = sb / half
+            for i in range(count):
+                sa += radiance[base + half + offset + i, c]  # half B: β for half A
+                sb += radiance[base + offset + i, c]  # half A: β for half B
+            beta[0, c] = sa / count
+            beta[1, c] = sb / count
         for j in range(k):
             s = base + j
             h = 0 if j < half else 1
@@ -544,7 +513,13 @@ def project_halves(dirs, radiance, pdf, normals, k):
                 v = (radiance[s, c] - beta[h, c]) * w
                 for m in range(9):
                     out[t, m, c] += y[m] * v
-        _add_hemisphere_integral(out, t, normals, beta)
+        nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
+        for c in range(cols):
+            b = 0.5 * (beta[0, c] + beta[1, c])
+            out[t, 0, c] += band0 * b
+            out[t, 1, c] += -band1 * ny * b
+            out[t, 2, c] += band1 * nz * b
+            out[t, 3, c] += -band1 * nx * b
     return out
 
 
@@ -870,7 +845,7 @@ _HELPERS = (
     "stream_key",
     "sobol_pair",
     "mixture_cos",
-    "_add_hemisphere_integral",
+    "_project_control_variate",
     "sh_basis",
     "zonal_band1",
     "local_to_world",
