@@ -781,7 +781,9 @@ def _cluster_weights(x, normals, i, centre, radius2, power, w):
     """Into w (K,): each emitter cluster's power over max(distance², radius²) from x[i], times
     the largest cosine to normals[i] of a direction into the cluster's bounding sphere (0 for a
     cluster wholly below the horizon; 1 when normals has no rows); returns their sum. centre
-    (3, K): the clusters' centres, one row per axis, so the loops over clusters vectorise."""
+    (3, K): the clusters' centres, one row per axis, so the loops over clusters vectorise
+    (without fast-math: reassociating the sum would make its last bits depend on the arrays'
+    alignment, and a seed would no longer reproduce a bake bit for bit across processes)."""
     px, py, pz = x[i, 0], x[i, 1], x[i, 2]
     if normals.shape[0] == 0:
         return _distance_weights(px, py, pz, centre[0], centre[1], centre[2], radius2, power, w)
@@ -790,22 +792,28 @@ def _cluster_weights(x, normals, i, centre, radius2, power, w):
 
 
 def _distance_weights(px, py, pz, cx, cy, cz, radius2, power, w):
-    """`_cluster_weights` without normals (compiled with fastmath: vectorised over clusters)."""
-    total = 0.0
+    """`_cluster_weights` without normals: element-wise, so the loop vectorises (bit for bit
+    the scalar arithmetic), then summed in order."""
     for c in range(cx.shape[0]):
         dx, dy, dz = cx[c] - px, cy[c] - py, cz[c] - pz
-        v = power[c] / max(dx * dx + dy * dy + dz * dz, radius2[c])
-        w[c] = v
-        total += v
+        w[c] = power[c] / max(dx * dx + dy * dy + dz * dz, radius2[c])
+    return _ordered_sum(w)
+
+
+def _ordered_sum(w):
+    """Σ w in index order (the same bits whatever vectorises around it)."""
+    total = 0.0
+    for c in range(w.shape[0]):
+        total += w[c]
     return total
 
 
 def _horizon_weights(px, py, pz, nx, ny, nz, cx, cy, cz, radius2, power, w):
-    """`_cluster_weights` with the normal (nx, ny, nz) (compiled with fastmath: vectorised over
-    clusters, branch-free). With d the distance, r the radius and a = normal · (centre − x):
-    the normal lies inside the cone of directions into the sphere when a ≥ √(d² − r²), else
-    the nearest edge's cosine is (a √(d² − r²) + √(d² − a²) r) / d²; inside the sphere, 1."""
-    total = 0.0
+    """`_cluster_weights` with the normal (nx, ny, nz): element-wise and branch-free, so the
+    loop vectorises (bit for bit the scalar arithmetic), then summed in order. With d the
+    distance, r the radius and a = normal · (centre − x): the normal lies inside the cone of
+    directions into the sphere when a ≥ √(d² − r²), else the nearest edge's cosine is
+    (a √(d² − r²) + √(d² − a²) r) / d²; inside the sphere, 1."""
     for c in range(cx.shape[0]):
         dx, dy, dz = cx[c] - px, cy[c] - py, cz[c] - pz
         d2 = dx * dx + dy * dy + dz * dz
@@ -814,10 +822,8 @@ def _horizon_weights(px, py, pz, nx, ny, nz, cx, cy, cz, radius2, power, w):
         h2 = d2 - r2
         edge = (a * math.sqrt(max(h2, 0.0)) + math.sqrt(max(d2 - a * a, 0.0)) * math.sqrt(r2)) / d2
         outside = (h2 > 0.0) & ((a < 0.0) | (a * a < h2))
-        v = power[c] / max(d2, r2) * (max(edge, 0.0) if outside else 1.0)
-        w[c] = v
-        total += v
-    return total
+        w[c] = power[c] / max(d2, r2) * (max(edge, 0.0) if outside else 1.0)
+    return _ordered_sum(w)
 
 
 def _power_shares(power, share):
@@ -849,6 +855,7 @@ _HELPERS = (
     "sh_basis",
     "zonal_band1",
     "local_to_world",
+    "_ordered_sum",
     "_distance_weights",
     "_horizon_weights",
     "_cluster_weights",
@@ -877,10 +884,6 @@ _KERNELS = (
     "accumulate_grouped",
     "add_pass",
 )
-#: Helpers whose loops over clusters vectorise when their sums may be reassociated (no NaN or
-#: infinity assumptions: the flags keep IEEE semantics otherwise).
-_VECTORISED = ("_distance_weights", "_horizon_weights")
-_FASTMATH = {"reassoc", "nsz", "contract"}
 _compiled: SimpleNamespace | None = None
 _lock = threading.Lock()
 
@@ -894,8 +897,7 @@ def get() -> SimpleNamespace:
             numba = deps.require("numba")
             jit = numba.njit(nogil=True, cache=True, error_model="numpy")
             module = globals()
-            fast = numba.njit(nogil=True, cache=True, error_model="numpy", fastmath=_FASTMATH)
             for name in _HELPERS:  # rebinding the globals: kernels then call compiled helpers
-                module[name] = (fast if name in _VECTORISED else jit)(module[name])
+                module[name] = jit(module[name])
             _compiled = SimpleNamespace(**{name: jit(module[name]) for name in _KERNELS})
     return _compiled
