@@ -20,27 +20,44 @@ CHART_RINGS = 256
 
 
 def nearest_source(valid: np.ndarray, rings: int, through: np.ndarray | None = None) -> np.ndarray:
-    """For an `(H, W)` bool mask of source texels: `(H, W)` int flat index of the source each
+    """For an `(H, W)` bool mask of source texels: `(H, W)` int64 flat index of the source each
     texel takes its value from (itself for sources), -1 where none is within `rings`. With
-    `through` `(H, W)` bool, the growth only enters those texels (a chart's: the fill stays in it)."""
+    `through` `(H, W)` bool, the growth only enters those texels (a chart's: the fill stays in it).
+    Memory: two index images (int32 below 2³¹ texels) and a neighbour's masks at a time."""
+    return _nearest(valid, rings, through).astype(np.int64, copy=False)
+
+
+def _nearest(valid: np.ndarray, rings: int, through: np.ndarray | None = None) -> np.ndarray:
+    """`nearest_source` as int32 below 2³¹ texels (int64 beyond)."""
     h, w = valid.shape
-    index = np.where(valid, np.arange(h * w).reshape(h, w), -1)
+    dtype = np.int32 if h * w < 2**31 else np.int64
+    index = np.where(valid, np.arange(h * w, dtype=dtype).reshape(h, w), dtype(-1))
     for _ in range(rings):
-        empty = index < 0
-        if not empty.any():
+        if index.min(initial=0) >= 0:  # no texel left without a source
             break
-        padded = np.pad(index, 1, constant_values=-1)
         grown = index.copy()
         for dy, dx in _NEIGHBOURS:
-            neighbour = padded[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-            take = (grown < 0) & (neighbour >= 0)
+            to, of = _shifted(h, w, dy, dx)
+            target, neighbour = grown[to], index[of]
+            take = target < 0
+            take &= neighbour >= 0
             if through is not None:
-                take &= through
-            grown[take] = neighbour[take]
+                take &= through[to]
+            target[take] = neighbour[take]
+            del target, neighbour, take
         if np.array_equal(grown, index):
             break
         index = grown
+        del grown
     return index
+
+
+def _shifted(h: int, w: int, dy: int, dx: int) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
+    """The slices (rows, columns) of an `(H, W)` image whose texels have a neighbour at (dy, dx)
+    inside the image, and those neighbours' slices."""
+    to = (slice(max(-dy, 0), h - max(dy, 0)), slice(max(-dx, 0), w - max(dx, 0)))
+    of = (slice(max(dy, 0), h + min(dy, 0)), slice(max(dx, 0), w + min(dx, 0)))
+    return to, of
 
 
 class Fill:
@@ -50,30 +67,32 @@ class Fill:
     `chart` `(H, W)` bool (the texels of charts), a `black` texel first takes the nearest source
     of its own chart reachable through it (within CHART_RINGS) and only those reaching none stay
     black; the texels outside charts then fill from the sources and those filled texels alike.
-    `invalid`: the flat indices of `black`; `black`: those left black."""
+    `invalid`: the flat indices of `black`; `black`: those left black. Flat indices (`valid`,
+    `invalid`, `black`, `empty` and their `source`) are int32 below 2³¹ texels (memory)."""
 
     def __init__(
         self, valid: np.ndarray, rings: int = 16, black: np.ndarray | None = None, chart: np.ndarray | None = None
     ):
         self.shape = valid.shape
-        self.valid = np.flatnonzero(valid)
-        self.invalid = np.flatnonzero(black) if black is not None else np.zeros(0, np.int64)
+        dtype = np.int32 if valid.size < 2**31 else np.int64
+        self.valid = np.flatnonzero(valid).astype(dtype)
+        self.invalid = np.flatnonzero(black).astype(dtype) if black is not None else np.zeros(0, dtype)
         self.black = self.invalid
         if chart is not None and len(self.invalid):
             # seeded by the chart's own sources only: a source outside the charts (a stitched
             # gutter texel) must not reach into the invalid texels of a neighbouring chart
-            inside = nearest_source(valid & chart, CHART_RINGS, through=chart).reshape(-1)
+            inside = _nearest(valid & chart, CHART_RINGS, through=chart).reshape(-1)
             filled = np.zeros(valid.size, bool)
             filled[self.invalid] = inside[self.invalid] >= 0
-            source = nearest_source(valid | filled.reshape(valid.shape), rings).reshape(-1)
+            source = _nearest(valid | filled.reshape(valid.shape), rings).reshape(-1)
             via = source >= 0
             via[via] = filled[source[via]]
             source[via] = inside[source[via]]  # an invalid texel's own source, a valid one
             self.black = self.invalid[~filled[self.invalid]]
         else:
-            source = nearest_source(valid, rings).reshape(-1)
-        self.empty = np.flatnonzero(~valid.reshape(-1))
-        self.source = source[self.empty]  # -1: no source within `rings`
+            source = _nearest(valid, rings).reshape(-1)
+        self.empty = np.flatnonzero(~valid.reshape(-1)).astype(dtype)
+        self.source = source[self.empty].astype(dtype)  # -1: no source within `rings`
 
     def apply(self, image: np.ndarray, keep_black: bool = False, in_place: bool = False) -> np.ndarray:
         """Filled copy of `image` `(H, W, ...)` (same dtype): empty texels take their nearest

@@ -62,6 +62,38 @@ def test_dilation_fills_from_the_nearest_source_and_reaches_everything():
     assert np.isfinite(dilate.dilate(np.zeros((4, 4, 1)), np.zeros((4, 4), bool))).all()
 
 
+def nearest_source_by_loops(valid, rings, through=None):
+    """`dilate.nearest_source` spelled out texel by texel: ring by ring, a texel without a source
+    takes that of its first neighbour (edges before diagonals, `dilate._NEIGHBOURS`) that had one
+    after the previous ring, entering only `through` texels."""
+    h, w = valid.shape
+    index = [[y * w + x if valid[y, x] else -1 for x in range(w)] for y in range(h)]
+    for _ in range(rings):
+        grown = [row[:] for row in index]
+        for y in range(h):
+            for x in range(w):
+                if grown[y][x] >= 0 or (through is not None and not through[y, x]):
+                    continue
+                for dy, dx in dilate._NEIGHBOURS:
+                    if 0 <= y + dy < h and 0 <= x + dx < w and index[y + dy][x + dx] >= 0:
+                        grown[y][x] = index[y + dy][x + dx]
+                        break
+        index = grown
+    return np.array(index, np.int64).reshape(h, w)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_nearest_source_is_the_ring_by_ring_rule(seed):
+    rng = np.random.default_rng(seed)
+    h, w = (int(n) for n in rng.integers(1, 40, 2))
+    valid = rng.random((h, w)) < rng.uniform(0.005, 0.3)
+    through = rng.random((h, w)) < 0.7 if seed % 2 else None
+    rings = int(rng.integers(0, 25))
+    found = dilate.nearest_source(valid, rings, through)
+    assert found.dtype == np.int64
+    np.testing.assert_array_equal(found, nearest_source_by_loops(valid, rings, through))
+
+
 def plane_bake(tmp_path, sun=(3.0, 2.0, 1.0), resolution=256, encoder=bake.EncoderSettings()):
     v, f = meshes.plane(2.0)
     res = unwrap.unwrap([unwrap.UnwrapMesh("floor", v, f)], unwrap.UnwrapSettings(resolution=resolution))
