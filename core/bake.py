@@ -1,4 +1,4 @@
-"""The bake pipeline over atlases: bake points → trace → image → post stages → encode → write. No bpy.
+"""The bake pipeline over atlases: bake points → trace → image → raw files → post stages → encode → write. No bpy.
 
 `run` is what the Bake operator (modal or not) and the command line both call, after the bpy side
 has read the scene into plain data (`AtlasInput`, `BakeScene`). It never touches the scene: its
@@ -14,6 +14,7 @@ keep). The sidecar records the count under `bake` → `threads`; the files do no
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -21,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import bakepoints, encoding, exr, light_sets, lightmap_files, parallel, post, probes, seams, tracer
+from . import bakepoints, encoding, exr, light_sets, lightmap_files, parallel, post, probes, seams, stages, tracer
 from .bakepoints import BakePoints, SurfaceTriangles
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError
@@ -113,7 +114,9 @@ def points_of(atlas: AtlasInput, ray_scene: RayScene | None, threads: int = 0, c
         occluders=ray_scene,
         check=lambda: _check_cancel(cancel),
         threads=threads,
+        albedo=False,  # the tracer takes albedo from the scene's triangles
     )
+    stages.trim_heap()  # what the probe threads freed (memory)
     return check_points(atlas, points)
 
 
@@ -374,16 +377,30 @@ class Staged:
 
     def __init__(self, staging: exr.Staging, out_dir: Path):
         self.staging, self.out_dir = staging, Path(out_dir)
+        self._tables: dict[str, dict] = {}  # per atlas: the channel tables of its raw files
+
+    def _files(self, name: str, parent: str = "") -> lightmap_files.AtlasFiles:
+        return lightmap_files.AtlasFiles(self.out_dir, name, parent)
+
+    def raw(self, name: str, parent: str, images_of: dict) -> None:
+        """Stage the raw files of one atlas or light set now (`encoding.raw_files`'s images), before its
+        post stages; `atlas` adds their channel tables to its sidecar."""
+        self._tables[name] = lightmap_files.stage_files(self.staging, self._files(name, parent), images_of)
+
+    def traced_sh(self, name: str, parent: str) -> np.ndarray:
+        """The SH image `(H, W, 9, 3)` float32 of the raw SH file `raw` staged for `name`, read back
+        (a denoiser that failed half-way restores the traced SH from it)."""
+        files = self._files(name, parent)
+        return lightmap_files.read_sh(self.staging.staged(files.sh))
 
     def atlas(self, name: str, parent: str, encoded: encoding.EncodedAtlas, sidecar: dict) -> None:
         """Stage the files of one atlas or light set (`parent`: the atlas of a light set, else "")."""
-        lightmap_files.write_atlas(
-            self.staging, lightmap_files.AtlasFiles(self.out_dir, name, parent), encoded, sidecar
-        )
+        sidecar = {**sidecar, "channels": {**sidecar.get("channels", {}), **self._tables.pop(name, {})}}
+        lightmap_files.write_atlas(self.staging, self._files(name, parent), encoded, sidecar)
 
     def seams(self, name: str, atlas_seams: seams.Seams) -> None:
         """Stage the seams file of atlas `name`."""
-        lightmap_files.stage_seams(self.staging, lightmap_files.AtlasFiles(self.out_dir, name), atlas_seams)
+        lightmap_files.stage_seams(self.staging, self._files(name), atlas_seams)
 
 
 def _write(
@@ -420,9 +437,10 @@ def finish_atlas(
     recorded: tracer.BakeSettings | None = None,
     release: bool = False,
 ) -> dict:
-    """The last stages of one atlas: seams → image → post stages → encode, its files handed to
-    `out` (`Staged` here; a farm worker keeps them to return, `core.farm`): `out.atlas(name,
-    parent, encoded, sidecar)` per file set as soon as it is encoded, `out.seams(name, seams)`.
+    """The last stages of one atlas: seams → image → raw files → post stages → encode, its files
+    handed to `out` (`Staged` here; a farm worker keeps them to return, `core.farm`): `out.raw(name,
+    parent, images)` once imaged, `out.atlas(name, parent, encoded, sidecar)` per file set as soon
+    as it is encoded, `out.seams(name, seams)`.
     The raw SH file keeps the SH as traced; the seams file is written whether or not this bake
     stitches (a re-encode may). With light sets, the same stages then run for each set's SH
     into its own atlas files (`light_sets.set_atlas_name`), listed in the atlas's sidecar.
@@ -484,27 +502,54 @@ def _finish_files(
     release: bool = False,
     last: bool = False,
 ) -> list[str]:
-    """Image → post stages → encode of one atlas's SH (the atlas's own, or one light set's), handed
-    to `out.atlas`; adds the post stages' seconds to seconds["post"]; returns their warnings.
+    """Image → raw files (`out.raw`) → post stages → encode of one atlas's SH (the atlas's own, or
+    one light set's), handed to `out.atlas`; adds the post stages' seconds to seconds["post"]; returns their warnings.
     `release`: `traced.release_sh()` once imaged, and with `last` (no image of these bake points
     follows) `traced.release_points()`."""
     t = time.perf_counter()
     # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH);
     # the bake points go before the SH is imaged when nothing else needs them
     raw = encoding.TexelData.from_points(
-        traced.points, traced.sh, noise=traced.noise(), release=traced.release_points if release and last else None
+        traced.points,
+        traced.sh,
+        noise=traced.noise(),
+        release=traced.release_points if release and last else None,
+        release_sh=traced.release_sh_rows if release else None,
     )
     if release:
         traced.release_sh()
-    # post stages; the denoiser writes into `raw`'s SH, which the encoder restores before the raw SH file
-    data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams, in_place=True)
+    # the raw files first, as traced: then the post stages may write into `raw`'s SH (memory)
+    fill = raw.fill()
+    with encoding.raw_files(raw, fill) as images_of:
+        out.raw(name, parent, images_of)
+    del images_of
+    restore = functools.partial(_restore_sh, raw.sh, fill.valid, out, name, parent)
+    data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams, in_place=True, restore=restore)
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
-    # encode (the raw SH file's channels filled in `raw` itself: nothing reads its SH after this)
-    encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=raw, spend_raw=True)
+    del raw, restore  # `data` holds the SH now, denoised in place or as traced
+    data = replace(data, noise=None)  # in the texels file already; the encoder does not read it
+    stages.trim_heap()  # what the post stages' threads freed (memory)
+    encoded = encoding.encode_atlas(
+        data, encoding.for_settings(settings.encoder), raw=False, fill=_same_fill(fill, data), spend=True
+    )
     encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"], check)
-    del data, raw
+    del data, fill
     out.atlas(name, parent, encoded, sidecar)  # write (here) or keep (a farm worker)
     return post.warnings(sidecar["post"])
+
+
+def _restore_sh(sh: np.ndarray, valid: np.ndarray, out, name: str, parent: str) -> None:
+    """Put the traced SH of the baked texels (flat indices `valid`) back into `sh` `(H, W, 9, 3)`
+    from the raw SH file staged (or kept) in `out`: a denoiser that failed half-way through
+    writing it (the file's other texels are dilated; the denoiser writes baked texels only)."""
+    h, w = sh.shape[:2]
+    sh.reshape(h * w, -1)[valid] = out.traced_sh(name, parent).reshape(h * w, -1)[valid]
+
+
+def _same_fill(fill, data: encoding.TexelData):
+    """`fill` (the traced atlas's) if it is `data`'s too: no post stage gave texels outside the charts
+    a value of their own (seam stitching's `extra_sources`), else None (the encoder finds `data`'s)."""
+    return fill if data.extra_sources is None else None
 
 
 def reencode(

@@ -16,7 +16,7 @@ the tracer through `covers.shared_probe`, not through them).
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -141,8 +141,9 @@ def weld(positions: np.ndarray) -> np.ndarray:
 
 @dataclass
 class BakePoints:
-    """position, normal (n_v), face_normal, albedo: (P, 3) float64; coverage (P,) in (0, 1];
-    texel, triangle, object_index (P,) int; buried (P,) bool (invalid: the hemisphere is closed
+    """position, normal (n_v), face_normal, albedo: (P, 3) float64 (albedo None when `build` was
+    asked for none); coverage (P,) in (0, 1]; texel, triangle, object_index (P,) int (int32 from
+    `build`, int64 past 2³¹); buried (P,) bool (invalid: the hemisphere is closed
     by geometry, or the bake point stays under a coplanar face);
     near_cover (P,) bool (part of the texel may lie under a coplanar face: core.covers);
     crossed (P,) bool (geometry crosses the texel's footprint: `settle`; the tracer keeps only
@@ -155,7 +156,7 @@ class BakePoints:
     position: np.ndarray
     normal: np.ndarray
     face_normal: np.ndarray
-    albedo: np.ndarray
+    albedo: np.ndarray | None
     coverage: np.ndarray
     triangle: np.ndarray
     object_index: np.ndarray
@@ -169,6 +170,24 @@ class BakePoints:
     #: overlap first (-1: none), whose parts of the footprint its samples cover too (None: only
     #: the texel's own triangle, as before)
     others: np.ndarray | None = None
+
+    def for_files(self) -> BakePoints:
+        """These bake points as an atlas's files take them once it is traced (`tracer.bake(...,
+        compact=True)`): texel, normal, coverage, buried, object_index, mesh and the sizes, the
+        same arrays (no copy); the arrays only tracing reads (position, face normal, albedo,
+        texel size, triangle, near cover, crossed, others) empty (no rows). Memory: 41 bytes a
+        texel of the 139 of `build`'s (115 without albedo), once the caller drops the full ones."""
+        return replace(
+            self,
+            position=_none_of(self.position),
+            face_normal=_none_of(self.face_normal),
+            albedo=None if self.albedo is None else _none_of(self.albedo),
+            texel_size=_none_of(self.texel_size),
+            triangle=_none_of(self.triangle),
+            near_cover=_none_of(self.near_cover),
+            crossed=None if self.crossed is None else _none_of(self.crossed),
+            others=None if self.others is None else _none_of(self.others),
+        )
 
     def origins(self, rows=slice(None)) -> np.ndarray:
         """Ray origins `(P, 3)` (of the texels `rows`, if given): positions pushed off the
@@ -243,6 +262,11 @@ class BakePoints:
         return out.reshape((self.height, self.width) + values.shape[1:])
 
 
+def _none_of(a: np.ndarray) -> np.ndarray:
+    """An empty array (no rows) of `a`'s dtype and row shape."""
+    return np.empty((0,) + a.shape[1:], a.dtype)
+
+
 def build(
     surface: SurfaceTriangles,
     width: int,
@@ -251,6 +275,7 @@ def build(
     check=None,
     chunk: int = 1 << 18,
     threads: int = 0,
+    albedo: bool = True,
 ) -> BakePoints:
     """Bake points of every covered texel. `occluders` (all geometry that casts shadows, the
     receivers included) enables the buried-texel test; without it nothing is flagged.
@@ -258,7 +283,9 @@ def build(
     Per-texel quantities are computed `chunk` texels at a time, so the temporaries stay small
     next to the result (~170 bytes per texel). `threads`: workers of the probe passes (buried,
     near cover), 0 = every core (`parallel.resolve_threads`); the result does not depend on it.
-    The cover probe comes from `covers.shared_probe(occluders, ...)`, where the tracer finds it."""
+    The cover probe comes from `covers.shared_probe(occluders, ...)`, where the tracer finds it.
+    `albedo`: each bake point's albedo (`BakePoints.albedo`; None without it: neither the tracer
+    nor the files read it, and it is 24 bytes a texel)."""
     pos = np.asarray(surface.positions, dtype=np.float64)
     if not np.isfinite(pos).all() or not np.isfinite(surface.uv).all():
         raise BakeError("lightmap bake points: NaN or infinite positions or UVs in the input")
@@ -266,10 +293,14 @@ def build(
     mesh = SurfaceMesh.from_surface(surface, width, height)
     cov = raster.rasterise(uv, width, height, check, threads)
     chosen, coverage = raster.choose_per_texel(cov)
-    tri, texel, centroid = cov.triangle[chosen], cov.texel[chosen], cov.point[chosen]
+    # indices as int32 where they fit (memory: 4 bytes a texel each; the same values)
+    tri = cov.triangle[chosen].astype(_index_dtype(len(pos)), copy=False)
+    texel = cov.texel[chosen].astype(_index_dtype(width * height), copy=False)
+    centroid = cov.point[chosen]
     others = other_triangles(cov, chosen, _face_normals(pos), threads) if FOOTPRINT_TRIANGLES > 1 else None
     del cov
     n = len(tri)
+    objects = np.asarray(surface.object_index)
     points = BakePoints(
         width=width,
         height=height,
@@ -277,10 +308,10 @@ def build(
         position=np.empty((n, 3)),
         normal=np.empty((n, 3)),
         face_normal=np.empty((n, 3)),
-        albedo=np.empty((n, 3)),
+        albedo=np.empty((n, 3)) if albedo else None,
         coverage=coverage,
         triangle=tri,
-        object_index=np.asarray(surface.object_index)[tri],
+        object_index=objects[tri].astype(_index_dtype(int(objects.max(initial=0)) + 1), copy=False),
         texel_size=np.empty(n),
         offset=ray_offset(pos),
         buried=np.zeros(n, bool),
@@ -303,6 +334,11 @@ def build(
             rows = np.flatnonzero(points.near_cover & ~points.buried)
             points.buried[rows] = probe.covered(points.origins(rows), points.face_normal[rows])
     return points
+
+
+def _index_dtype(count: int) -> type:
+    """int32 for indices below `count` when they fit (every real atlas and mesh), else int64."""
+    return np.int32 if count <= np.iinfo(np.int32).max else np.int64
 
 
 def other_triangles(
@@ -369,7 +405,8 @@ def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, cen
         points.texel_size[rows],
         bary,
     )
-    points.albedo[rows] = _albedo(surface, tri, bary)
+    if points.albedo is not None:
+        points.albedo[rows] = _albedo(surface, tri, bary)
 
 
 def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:

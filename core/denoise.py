@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -51,7 +52,7 @@ import numpy as np
 
 from . import dilate
 from .colour import LUMINANCE
-from .encoding import Replaced, TexelData
+from .encoding import TexelData
 from .oidn import Denoiser, DenoiserError
 from .sh import IRRADZ_FROM_R10, hemisphere_irradz
 
@@ -91,6 +92,14 @@ BAND_OVERLAP = 96
 BAND_ALIGN = 16
 #: Texels of SH gathered at once for a banded page's inputScale (`_page_scales`).
 SCALE_CHUNK = 1 << 16
+#: The features (`_page_features`) each pass over a banded page builds: all (the fill's page
+#: mean), L0 and I_z (filtered as HDR colour), the rest (filtered in directional mode).
+ALL, HDR, DIRECTIONAL = slice(0, 14), slice(0, 6), slice(6, 14)
+#: Texels clamped to the noise and written (`_write`), or assembled (`_assemble`), at once.
+WRITE_CHUNK = 1 << 16
+#: Rows of a band's features built at once (`_denoise_banded`): bounds the SH image and the
+#: temporaries `_page_features` makes (several times the features' own 112 bytes a texel).
+FEATURE_ROWS = 32
 
 
 def label_charts(mask: np.ndarray) -> tuple[np.ndarray, int]:
@@ -235,22 +244,30 @@ class DenoiseReport:
 
 
 def denoise_texels(
-    data: TexelData, denoiser: Denoiser, check: Callable[[], None] | None = None, in_place: bool = False
+    data: TexelData,
+    denoiser: Denoiser,
+    check: Callable[[], None] | None = None,
+    in_place: bool = False,
+    restore: Callable[[], None] | None = None,
 ) -> tuple[TexelData, DenoiseReport]:
     """`data` with the SH of its baked texels denoised (the module's steps, the noise clamp
     where `data.noise` is known); everything else as it was. A baked texel with a non-finite coefficient is not
     used and gets the denoised value of its surroundings. `check()`, if given, runs between pages
     (it raises to cancel). Raises DenoiserError if OIDN fails.
 
-    `in_place`: the denoised SH is written into `data.sh` itself (no copy of the atlas's SH:
-    memory) and the SH it replaced is kept compact (116 bytes a denoised texel, index included)
-    in the result's `replaced` (`encoding.Replaced`: the encoder writes it back before the raw
-    SH file is filled);
-    on any error or cancellation `data.sh` is restored before the exception leaves."""
+    `in_place` (memory, for a caller that has written the raw SH file already, as a bake has):
+    the denoised SH is written into `data.sh` itself, and nothing of the SH it replaces is kept
+    (no copy of the atlas's SH, nor of a page's: `_denoise_banded`). On an error or cancellation
+    after some texel was written, `restore()` is called (the caller's way to put the traced SH
+    back, e.g. from the raw file) before the exception leaves (an exception of `restore` itself
+    leaves instead, chained to the first); without `restore`, `data.sh` is then left partly
+    denoised. Before any texel is written, `restore` is not called."""
     t0 = time.perf_counter()
     h, w = data.coverage.shape
     labels, n = label_charts(data.coverage != 0.0)
     labels = np.where(data.baked, labels, -1)  # buried texels: masked like other charts' texels
+    if n < 2**31:  # int32 while the pages are denoised (memory: 4 bytes an atlas texel)
+        labels = labels.astype(np.int32)
     finite = _finite_texels(data.sh).reshape(-1)
     # the SH is read per page, a non-finite texel's as 0 (no atlas-wide copy: memory)
     sh = data.sh.reshape(h * w, 9, 3)
@@ -263,34 +280,31 @@ def denoise_texels(
     noise = None if data.noise is None else data.noise.reshape(h * w)
     report = DenoiseReport()
     out = sh if in_place else data.sh.copy().reshape(h * w, 9, 3)
-    replaced = Replaced(out)
-    written = np.zeros(h * w, bool)
+    written = np.zeros(h * w, bool)  # texels written (set before they are: `restore`)
+    clamping = False
     try:
         for page in layout(labels, n, brightness):
             if check is not None:
                 check()
             band = _band_rows(page.shape)
             if band:
-                index, traced = _denoise_banded(page, labels, sh, normal, noise, finite, out, denoiser, band, check)
+                _denoise_banded(page, labels, sh, normal, noise, finite, out, denoiser, band, check, written)
             else:
-                index, traced = _denoise_page(page, labels, sh, normal, noise, finite, out, denoiser)
-            written[index] = True
-            if in_place:  # what the page's texels held (the raw SH file's bits)
-                replaced.parts.append((index, traced))
-            del index, traced
+                _denoise_page(page, labels, sh, normal, noise, finite, out, denoiser, written)
             report.charts += len(page.charts)
             report.pages += 1
             report.page_texels += page.shape[0] * page.shape[1]
+        del labels, flat, finite
+        if data.noise is not None:  # the clamp of the texels no page changed (traced + 0: as `clamp_to_noise`)
+            clamping = True
+            _clamp_unwritten(out.reshape(data.sh.shape), data.noise, written)
     except BaseException:
-        if in_place:
-            replaced.restore()
+        if in_place and restore is not None and (clamping or written.any()):
+            restore()
         raise
-    del labels, flat, finite
-    if data.noise is not None:  # the clamp of the texels no page changed (traced + 0: as `clamp_to_noise`)
-        _clamp_unwritten(out.reshape(data.sh.shape), data.noise, written.reshape(h, w), replaced if in_place else None)
     del written
     report.seconds = time.perf_counter() - t0
-    return replace(data, sh=out.reshape(data.sh.shape), replaced=replaced if in_place else None), report
+    return replace(data, sh=out.reshape(data.sh.shape)), report
 
 
 def _denoise_page(
@@ -302,9 +316,12 @@ def _denoise_page(
     finite: np.ndarray,
     out: np.ndarray,
     denoiser: Denoiser,
-) -> tuple[np.ndarray, np.ndarray]:
+    written: np.ndarray,
+) -> None:
     """One page denoised whole, its chart texels written into `out` `(H·W, 9, 3)` (clamped to
-    the noise if `noise` (H·W,) is given). Returns their flat indices and their SH as it was."""
+    the noise if `noise` (H·W,) is given) and marked in `written` (H·W,) first. It reads a copy
+    of the page's texels' SH (`out` may be `sh`), no larger than one band of a banded page,
+    whose window is taller than this page."""
     rows, cols, atlas_index = _page_texels(page, labels)
     traced = sh[atlas_index]
     ok = finite[atlas_index]
@@ -319,37 +336,47 @@ def _denoise_page(
     del chart_sh, ok
     features, unit_normals = _page_features(values, normals)
     del values, normals
-    clean = _denoise_features(features, unit_normals, source, denoiser, scales)
+    clean = _denoise_features(features, unit_normals, source, denoiser, scales, (rows, cols))
     del features, unit_normals, source
-    _write(out, atlas_index, clean[rows, cols], traced, noise)
-    return atlas_index, traced
+    written[atlas_index] = True
+    _write(out, atlas_index, clean, traced, noise)
 
 
-def _write(out: np.ndarray, index: np.ndarray, clean: np.ndarray, traced: np.ndarray, noise: np.ndarray | None) -> None:
+def _write(
+    out: np.ndarray,
+    index: np.ndarray,
+    clean: np.ndarray,
+    traced: np.ndarray | None,
+    noise: np.ndarray | None,
+    gather: bool = False,
+) -> None:
     """Denoised SH `clean` `(T, 9, 3)` of the texels `index` into `out`, clamped to the noise
-    around their `traced` SH where `noise` (H·W,) is given (`clamp_to_noise`'s bits)."""
-    if noise is not None:
-        clean = _clamp_rows(clean[None], traced[None], noise[index][None])[0]
-    out[index] = clean
+    around their `traced` SH where `noise` (H·W,) is given (`clamp_to_noise`'s bits, per texel;
+    `traced` is then required), WRITE_CHUNK texels at a time (the clamp's temporaries: memory).
+    `gather`: `traced` is the `(H·W, 9, 3)` SH to read them at `index` from (it may be `out`:
+    each chunk is read before it is written)."""
+    if noise is None:
+        out[index] = clean
+        return
+    assert traced is not None
+    for s in range(0, len(index), WRITE_CHUNK):
+        part = index[s : s + WRITE_CHUNK]
+        before = traced[part] if gather else traced[s : s + WRITE_CHUNK]
+        out[part] = _clamp_rows(clean[None, s : s + WRITE_CHUNK], before[None], noise[part][None])[0]
 
 
-def _clamp_unwritten(sh: np.ndarray, noise: np.ndarray, written: np.ndarray, replaced: Replaced | None = None) -> None:
-    """`clamp_to_noise` of the texels of `sh` `(H, W, 9, 3)` no page wrote (denoised = traced:
-    traced + 0, which only turns -0 into +0), in place, ROWS_PER_STEP rows at a time; the few
-    texels whose bits that changes added to `replaced`, if given."""
-    w = sh.shape[1]
+def _clamp_unwritten(sh: np.ndarray, noise: np.ndarray, written: np.ndarray) -> None:
+    """`clamp_to_noise` of the texels of `sh` `(H, W, 9, 3)` no page wrote (`written` (H·W,)
+    False; denoised = traced: traced + 0, which only turns -0 into +0), in place, ROWS_PER_STEP
+    rows at a time."""
+    written = written.reshape(sh.shape[:2])
     for y in range(0, sh.shape[0], ROWS_PER_STEP):
         rows = slice(y, y + ROWS_PER_STEP)
         keep = ~written[rows]
         if not keep.any():
             continue
         block = sh[rows][keep]
-        clamped = _clamp_rows(block[None], block[None], noise[rows][keep][None])[0]
-        if replaced is not None:
-            changed = (clamped.view(np.uint32) != block.view(np.uint32)).any(axis=(1, 2))
-            if changed.any():
-                replaced.parts.append((y * w + np.flatnonzero(keep)[changed], block[changed]))
-        sh[rows][keep] = clamped
+        sh[rows][keep] = _clamp_rows(block[None], block[None], noise[rows][keep][None])[0]
 
 
 def _band_rows(shape: tuple[int, int]) -> int:
@@ -371,7 +398,8 @@ def _denoise_banded(
     denoiser: Denoiser,
     band: int,
     check: Callable[[], None] | None,
-) -> tuple[np.ndarray, np.ndarray]:
+    written: np.ndarray,
+) -> None:
     """One page denoised in horizontal bands of `band` rows, its chart texels written into `out`
     `(H·W, 9, 3)` as `_denoise_page` writes them (and returned as it does): the same values as the whole page gives, with the page's buffers one band at a
     time. Each band is filtered with BAND_OVERLAP rows of context on each side (OIDN tiles a
@@ -380,7 +408,18 @@ def _denoise_banded(
     above's (`_box_sum`'s `seed`). What the page shares is found first: the inputScales
     (`_page_scales`), the page mean of the fill where some texel is beyond its reach; then L0 and
     I_z are filtered band by band (kept for the page, 24 bytes a texel) and their energy sums
-    added up, in the page's order; then, band by band again, the rest (`_assemble`)."""
+    added up, in the page's order; then, band by band again, the rest (`_assemble`).
+
+    No copy of the page's SH is made (`out` may be `sh`): the bands read `sh` itself. The first
+    two passes write nothing, and the last holds each texel's output back until no later band's
+    rows (built from BAND_OVERLAP + FILL_BLUR + FILL_RINGS rows above its core) reach its row
+    (at the defaults, bands being taller than that, the top rows of one band until the next is
+    built), reading the traced SH its noise clamp needs from `sh` just before writing. Texels
+    are marked in `written` (H·W,) before they are written.
+
+    The features each pass builds are the channels it uses (ALL, HDR, DIRECTIONAL), and the
+    last pass drops them before its filter runs (`_ratios`); the directional SH is assembled at
+    the chart texels of the core only (`_assemble`'s `at`)."""
     ph, pw = page.shape
     rows, cols, index = _page_texels(page, labels)
     ok = finite[index]
@@ -388,7 +427,6 @@ def _denoise_banded(
     order = np.argsort(rows, kind="stable")  # bands select their texels by row
     rows, cols, index, ok = rows[order].astype(np.int32), cols[order].astype(np.int32), index[order], ok[order]
     del order
-    traced = sh[index]  # the page's SH as traced: the bands read it here, `out` may be `sh`
     halo = FILL_BLUR + FILL_RINGS
     cores = [(y, min(y + band, ph)) for y in range(0, ph, band)]
     windows = []  # per band: its core, the rows filtered and the rows built (page rows)
@@ -396,24 +434,40 @@ def _denoise_banded(
         fa, fb = max(y0 - BAND_OVERLAP, 0), min(y1 + BAND_OVERLAP, ph)
         windows.append(((y0, y1), (fa, fb), (max(fa - halo, 0), min(fb + halo, ph))))
 
-    def built(i: int, seed: np.ndarray | None, mean: np.ndarray | None, fill: bool = True):
-        """Band i's rows built: filled features, unit n_v, chart texels, the next band's seed."""
+    def built(i: int, seed, mean, channels: slice = ALL, fill: bool = True, with_normals: bool = False):
+        """Band i's rows built: filled features (only `channels`: the smooth fill is per
+        channel, so they have the bits of all of them), unit n_v (`with_normals`, else None),
+        chart texels, the next band's seed (of those channels), the texels near a chart one."""
         _, _, (wa, wb) = windows[i]
         keep = windows[i + 1][2][0] - 1 - wa if i + 1 < len(windows) else None
         lo, hi = np.searchsorted(rows, (wa, wb))
-        r, c, idx, good = rows[lo:hi] - wa, cols[lo:hi], index[lo:hi], ok[lo:hi]
-        chart_sh = np.where(good[:, None, None], traced[lo:hi], np.float32(0.0))
-        values = np.zeros((wb - wa, pw, 9, 3), np.float32)
-        values[r, c] = chart_sh
-        del chart_sh
-        normals = np.zeros((wb - wa, pw, 3), np.float32)
-        normals[r, c] = normal[idx]
         source = np.zeros((wb - wa, pw), bool)
-        source[r, c] = good
-        features, unit_normals = _page_features(values, normals)
-        del values, normals
+        source[rows[lo:hi] - wa, cols[lo:hi]] = ok[lo:hi]
+        features = np.empty((wb - wa, pw, len(range(14)[channels])), np.float64)
+        unit_normals = np.empty((wb - wa, pw, 3), np.float64) if with_normals else None
+        # FEATURE_ROWS rows at a time: `_page_features` is per texel, so they get the band's bits
+        for y in range(wa, wb, FEATURE_ROWS):
+            y1 = min(y + FEATURE_ROWS, wb)
+            a, b = np.searchsorted(rows, (y, y1), side="left")
+            r, c, idx, good = rows[a:b] - y, cols[a:b], index[a:b], ok[a:b]
+            values = np.zeros((y1 - y, pw, 9, 3), np.float32)
+            # the rows still hold the traced SH (the last pass writes behind them); the others stay +0
+            values[r[good], c[good]] = sh[idx[good]]
+            normals = np.zeros((y1 - y, pw, 3), np.float32)
+            normals[r, c] = normal[idx]
+            part, unit = _page_features(values, normals)
+            del values, normals
+            features[y - wa : y1 - wa] = part[..., channels]
+            if unit_normals is not None:
+                unit_normals[y - wa : y1 - wa] = unit
+            del part, unit
         features, kept, near = _smooth_fill(
-            features, source, seed, keep if keep is not None and keep >= 0 else None, mean, fill
+            features,
+            source,
+            seed,
+            keep if keep is not None and keep >= 0 else None,
+            None if mean is None else mean[channels],
+            fill,
         )
         return features, unit_normals, source, kept, near
 
@@ -431,7 +485,7 @@ def _denoise_banded(
         count, seed = 0, None
         for i in passes():
             (y0, y1), _, (wa, _) = windows[i]
-            features, _, _, seed, near = built(i, seed, None, fill=False)
+            features, _, _, seed, near = built(i, seed, None, ALL, fill=False)
             core = features[y0 - wa : y1 - wa][near[y0 - wa : y1 - wa]]
             total = _carried_sum(total, core)
             count += len(core)
@@ -444,7 +498,7 @@ def _denoise_banded(
     seed = None
     for i in passes():
         (y0, y1), (fa, fb), (wa, _) = windows[i]
-        features, _, source, seed, _ = built(i, seed, mean)
+        features, _, source, seed, _ = built(i, seed, mean, HDR)
         core = slice(y0 - wa, y1 - wa)
         for k, image, scale in ((0, l0, scales[0]), (2, iz, scales[1])):
             colour = features[fa - wa : fb - wa, :, 3 * k // 2 : 3 * k // 2 + 3]
@@ -459,15 +513,34 @@ def _denoise_banded(
         image *= _energy_ratio(sums[k], sums[k + 1])
     # the rest, band by band, into `out`
     seed = None
+    pending: deque[tuple[int, int, np.ndarray]] = deque()  # texels not written yet: [lo, hi) in page order, SH
+    done = 0  # the page rows below this one are written
     for i in passes():
         (y0, y1), (fa, fb), (wa, _) = windows[i]
-        features, unit_normals, _, seed, _ = built(i, seed, mean)
-        clean = _assemble(features[fa - wa : fb - wa], unit_normals[fa - wa : fb - wa], l0[fa:fb], iz[fa:fb], denoiser)
-        del features, unit_normals
+        assert wa >= done, "a band would read rows of `sh` already denoised"
+        features, unit_normals, _, seed, _ = built(i, seed, mean, DIRECTIONAL, with_normals=True)
+        assert unit_normals is not None
+        l0_lum = l0[fa:fb] @ LUMINANCE
+        ratios = _ratios(features[fa - wa : fb - wa], l0_lum)
+        n = unit_normals[y0 - wa : y1 - wa].copy()
+        del features, unit_normals  # before the filter runs (memory)
         lo, hi = np.searchsorted(rows, (y0, y1))
-        _write(out, index[lo:hi], clean[rows[lo:hi] - fa, cols[lo:hi]], traced[lo:hi], noise)
+        core = slice(y0 - fa, y1 - fa)
+        clean = _assemble(ratios, n, l0[fa:fb], iz[fa:fb], l0_lum, denoiser, core, (rows[lo:hi] - y0, cols[lo:hi]))
+        del ratios, n, l0_lum
+        pending.append((lo, hi, clean))
         del clean
-    return index, traced
+        # write the texels on rows no later band reads (all of them after the last band)
+        done = windows[i + 1][2][0] if i + 1 < len(windows) else ph
+        upto = int(np.searchsorted(rows, done))
+        while pending and pending[0][0] < upto:
+            lo, hi, values = pending.popleft()
+            m = min(hi, upto)
+            written[index[lo:m]] = True
+            _write(out, index[lo:m], values[: m - lo], sh, noise, gather=True)
+            if m < hi:  # the rows the next band reads: kept (a copy, the rest of the band's SH goes)
+                pending.appendleft((m, hi, values[m - lo :].copy()))
+            del values
 
 
 def _carried_sum(total: np.ndarray | None, values: np.ndarray) -> np.ndarray:
@@ -587,37 +660,82 @@ def _page_features(values: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, 
 
 
 def _denoise_features(
-    features: np.ndarray, n: np.ndarray, source: np.ndarray, denoiser: Denoiser, scales: tuple[float, float]
+    features: np.ndarray,
+    n: np.ndarray,
+    source: np.ndarray,
+    denoiser: Denoiser,
+    scales: tuple[float, float],
+    at: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """One page denoised from its `_page_features` (consumed: filled in place), meaningful at its
     chart texels `source`: they are filled smoothly elsewhere (`_smooth_fill`), then L0 and I_z
     are denoised as HDR colour (`scales`: their inputScale) and the rest in directional mode over
-    the denoised L0 (module docstring). Returns `(h, w, 9, 3)` float32."""
+    the denoised L0 (module docstring). Returns `(h, w, 9, 3)` float32, or `(T, 9, 3)` at the
+    texels `at` (rows, columns) only."""
     features = _smooth_fill(features, source)[0]
     l0 = _hdr(features[..., 0:3], source, scales[0], denoiser)
     iz = _hdr(features[..., 3:6], source, scales[1], denoiser)
-    return _assemble(features, n, l0, iz, denoiser)
-
-
-def _assemble(features: np.ndarray, n: np.ndarray, l0: np.ndarray, iz: np.ndarray, denoiser: Denoiser) -> np.ndarray:
-    """The SH `(h, w, 9, 3)` float32 of a page (or band) from its filled features, unit n_v and
-    its denoised, energy-corrected L0 and I_z `(h, w, 3)` (`_hdr`): band 1 across n_v and band 2
-    denoised in directional mode over the denoised luminance L0, scaled by each colour's L0."""
-    # the rest in luminance over luminance L0 (one direction for all colours, as HHD keeps), scaled by each colour's L0
     l0_lum = l0 @ LUMINANCE
-    across = _directional(features[..., 6:9], l0_lum, BAND1_BOUND, denoiser)
-    across -= n * np.einsum("hwa,hwa->hw", n, across)[..., None]
-    band2 = _directional(features[..., 9:14], l0_lum, BAND2_BOUND, denoiser)
+    ratios = _ratios(features[..., DIRECTIONAL], l0_lum)
     del features
-    colour = l0 / np.where(l0_lum > 0.0, l0_lum, 1.0)[..., None]  # (h, w, 3): L0 of each colour / luminance L0
+    return _assemble(ratios, n, l0, iz, l0_lum, denoiser, at=at)
+
+
+def _ratios(directional: np.ndarray, l0_lum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The directional filter's inputs (`_ratio`) from a page's (or band's) filled features
+    DIRECTIONAL `(h, w, 8)` (band 1 across n_v, band 2) and its denoised luminance L0 `(h, w)`."""
+    return _ratio(directional[..., 0:3], l0_lum, BAND1_BOUND), _ratio(directional[..., 3:8], l0_lum, BAND2_BOUND)
+
+
+def _assemble(
+    ratios: tuple[np.ndarray, np.ndarray],
+    n: np.ndarray,
+    l0: np.ndarray,
+    iz: np.ndarray,
+    l0_lum: np.ndarray,
+    denoiser: Denoiser,
+    core: slice | None = None,
+    at: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """The SH `(h, w, 9, 3)` float32 of a page (or band) from its `_ratios`, its denoised,
+    energy-corrected L0 and I_z `(h, w, 3)` (`_hdr`) and luminance L0 `(h, w)`: band 1 across
+    n_v and band 2 denoised in directional mode over the denoised luminance L0, scaled by each
+    colour's L0. `core`: only these rows (a band's; the filter still sees every row); `n`: the
+    unit n_v of the rows returned; `at` (rows, columns) (in `core`'s rows): only these texels,
+    `(T, 9, 3)` (memory: no SH image), WRITE_CHUNK at a time. What follows the filter is per
+    texel, so they have the bits the whole image gives them."""
+    # the rest in luminance over luminance L0 (one direction for all colours, as HHD keeps), scaled by each colour's L0
+    across = _directional(ratios[0], l0_lum, BAND1_BOUND, denoiser, core)
+    band2 = _directional(ratios[1], l0_lum, BAND2_BOUND, denoiser, core)
+    if core is not None:
+        l0, iz, l0_lum = l0[core], iz[core], l0_lum[core]
+    across -= n * np.einsum("hwa,hwa->hw", n, across)[..., None]
+    images = (across, band2, n, l0, iz, l0_lum)
+    if at is None:
+        return _sh_of(*images)
+    # per texel from here: the texels asked for only, WRITE_CHUNK at a time (memory)
+    out = np.empty((len(at[0]), 9, 3), np.float32)
+    for s in range(0, len(out), WRITE_CHUNK):
+        part = (at[0][s : s + WRITE_CHUNK], at[1][s : s + WRITE_CHUNK])
+        out[s : s + WRITE_CHUNK] = _sh_of(*(image[part] for image in images))
+    return out
+
+
+def _sh_of(
+    across: np.ndarray, band2: np.ndarray, n: np.ndarray, l0: np.ndarray, iz: np.ndarray, l0_lum: np.ndarray
+) -> np.ndarray:
+    """`_assemble`'s SH `(..., 9, 3)` float32 from its parts `(..., c)` (per texel): the denoised
+    band 1 across n_v (3 axes, luminance) and band 2 (5, luminance), unit n_v, L0 and I_z (RGB),
+    luminance L0."""
+    colour = l0 / np.where(l0_lum > 0.0, l0_lum, 1.0)[..., None]  # (..., 3): L0 of each colour / luminance L0
     scaled_iz = iz / IRRADZ_FROM_R10
-    out = np.empty(l0.shape[:2] + (9, 3), np.float32)
-    out[:, :, 0, :] = l0
+    out = np.empty(l0.shape[:-1] + (9, 3), np.float32)
+    out[..., 0, :] = l0
     # v = across ⊗ colour + n ⊗ I_z / IRRADZ_FROM_R10 (3 axes × 3 colours), one axis at a time (memory)
     for k, (axis, sign) in zip((1, 2, 3), ((1, -1.0), (2, 1.0), (0, -1.0))):
         v = across[..., axis, None] * colour + n[..., axis, None] * scaled_iz
-        out[:, :, k, :] = -v if sign < 0 else v
-    out[:, :, 4:, :] = band2[..., None] * colour[:, :, None, :]
+        out[..., k, :] = -v if sign < 0 else v
+    out[..., 4:, :] = band2[..., None] * colour[..., None, :]
     return out
 
 
@@ -728,14 +846,29 @@ def _band1_vector(sh: np.ndarray) -> np.ndarray:
     return np.stack([-sh[..., 3, :], -sh[..., 1, :], sh[..., 2, :]], axis=-2)
 
 
-def _directional(coefficients: np.ndarray, l0: np.ndarray, bound: float, denoiser: Denoiser) -> np.ndarray:
-    """Luminance coefficients `(h, w, m)` denoised in OIDN's directional mode, three at a time:
-    divided by the denoised luminance L0 `(h, w)` and by `bound` (their largest |c / c_0| for
-    radiance ≥ 0) times DIRECTIONAL_RANGE, clipped to [-1, 1], denoised, scaled back; 0 where L0 is."""
+def _ratio(coefficients: np.ndarray, l0: np.ndarray, bound: float) -> np.ndarray:
+    """`_directional`'s input: luminance coefficients `(h, w, m)` divided by the denoised
+    luminance L0 `(h, w)` and by `bound` (their largest |c / c_0| for radiance ≥ 0) times
+    DIRECTIONAL_RANGE, clipped to [-1, 1]; 0 where L0 is. float32, FEATURE_ROWS rows at a time
+    (per texel; memory)."""
     to_unit = DIRECTIONAL_RANGE / bound
-    lit = (l0 > 0.0)[..., None]
-    ratio = np.where(lit, coefficients / np.where(lit, l0[..., None], 1.0) * to_unit, 0.0)
-    ratio = np.clip(ratio, -1.0, 1.0).astype(np.float32)
+    ratio = np.empty(coefficients.shape, np.float32)
+    for y in range(0, len(ratio), FEATURE_ROWS):
+        rows = slice(y, y + FEATURE_ROWS)
+        lit = (l0[rows] > 0.0)[..., None]
+        part = np.where(lit, coefficients[rows] / np.where(lit, l0[rows, :, None], 1.0) * to_unit, 0.0)
+        ratio[rows] = np.clip(part, -1.0, 1.0)
+        del part
+    return ratio
+
+
+def _directional(
+    ratio: np.ndarray, l0: np.ndarray, bound: float, denoiser: Denoiser, core: slice | None = None
+) -> np.ndarray:
+    """Luminance coefficients, as their `_ratio` `(h, w, m)`, denoised in OIDN's directional
+    mode, three at a time, and scaled back by L0 `(h, w)` and `bound`; `core`: only these rows
+    are scaled back and returned."""
+    to_unit = DIRECTIONAL_RANGE / bound
     clean = np.concatenate(
         [
             denoiser.denoise(ratio[..., k : k + 3], directional=True, input_scale=1.0)
@@ -743,6 +876,8 @@ def _directional(coefficients: np.ndarray, l0: np.ndarray, bound: float, denoise
         ],
         axis=-1,
     )
+    if core is not None:
+        clean, l0 = clean[core], l0[core]
     return clean / to_unit * l0[..., None]
 
 

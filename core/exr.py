@@ -137,6 +137,14 @@ class Staging:
     def write_text(self, path, text: str) -> None:
         self.stage(path).write_text(text, encoding="utf-8")
 
+    def staged(self, path) -> Path:
+        """The temporary file staged for `path` (the latest), to read back before the commit."""
+        path = Path(path)
+        for tmp, target in reversed(self._staged):
+            if target == path:
+                return tmp
+        raise KeyError(f"{path} is not staged")
+
     def commit(self) -> list[Path]:
         targets = []
         for tmp, path in self._staged:

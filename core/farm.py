@@ -72,6 +72,7 @@ from typing import Any
 
 import numpy as np
 
+from .encoding import SH_FILE
 from .errors import BakeCancelled, BakeError, DependencyMissing
 from .tracer import scheduler, shipping
 from .tracer.scheduler import Outcome, WorkUnit
@@ -371,6 +372,20 @@ class _Kept:
 
     def __init__(self):
         self.calls: list[tuple[str, tuple]] = []
+
+    def raw(self, name: str, parent: str, images_of: dict) -> None:
+        # copies: the images are views of the SH the post stages then write into
+        kept = {key: (spec, {n: np.array(a) for n, a in images.items()}) for key, (spec, images) in images_of.items()}
+        self.calls.append(("raw", (name, parent, plain(kept))))
+
+    def traced_sh(self, name: str, parent: str) -> np.ndarray:
+        """The SH image `(H, W, 9, 3)` of the raw SH file kept for `name` (as `bake.Staged`'s)."""
+        for method, (kept, _, images_of) in reversed(self.calls):
+            if method == "raw" and kept == name:
+                images = images_of[SH_FILE.key][1]
+                sh = np.stack([images[n] for n in SH_FILE.exr_names], axis=-1)
+                return sh.reshape(sh.shape[:2] + (9, 3))
+        raise KeyError(f"no raw SH file kept for {name!r}")
 
     def atlas(self, name: str, parent: str, encoded, sidecar: dict) -> None:
         self.calls.append(("atlas", (name, parent, plain(encoded), copy.deepcopy(sidecar))))

@@ -154,17 +154,11 @@ def channel_table(spec: FileSpec, channels: dict[str, np.ndarray]) -> dict:
 def write_atlas(staging: exr.Staging, files: AtlasFiles, encoded: EncodedAtlas, sidecar: dict) -> None:
     """Stage every file of `encoded` (nothing is replaced until `staging.commit()`): its EXRs,
     their preview images and the sidecar. `sidecar` carries the bake's settings/objects/timings
-    (after a re-encode, the previous sidecar: channel tables of files not written now are kept);
-    format, files, channel tables, conventions, encoder settings and statistics are added here.
-    Consumes `encoded`'s images; memory: one file's EXR channels at a time."""
-    attributes = {"hhdFormat": FORMAT, "hhdFormatVersion": FORMAT_VERSION, "hhdAtlas": files.name}
-    tables = {}
-    for key, (spec, images) in encoded.files.items():
-        channels = exr_channels(spec, images)
-        exr.write_file(staging.stage(files.path(spec)), channels, attributes)
-        tables[key] = channel_table(spec, channels)
-        stage_preview(staging, files, spec, channels)
-        del channels
+    and the channel tables of files staged before (`stage_files`: a bake's raw files) or not
+    written now (after a re-encode, the previous sidecar's); format, files, channel tables,
+    conventions, encoder settings and statistics are added here. Consumes `encoded`'s images;
+    memory: one file's EXR channels at a time."""
+    tables = stage_files(staging, files, encoded.files)
     tables.update({k: v for k, v in sidecar.get("channels", {}).items() if k not in tables})
     doc = dict(sidecar)
     doc.update(
@@ -182,6 +176,21 @@ def write_atlas(staging: exr.Staging, files: AtlasFiles, encoded: EncodedAtlas, 
         }
     )
     staging.write_text(files.sidecar, json.dumps(doc, indent=2, ensure_ascii=False))
+
+
+def stage_files(staging: exr.Staging, files: AtlasFiles, images_of: dict) -> dict:
+    """Stage the EXRs of `images_of` ({sidecar key: (FileSpec, {EXR channel name: `(H, W)`
+    image, rows bottom-up})}, as `EncodedAtlas.files`) and their preview images, one file's
+    channels at a time (consumed); returns their channel tables for the sidecar."""
+    attributes = {"hhdFormat": FORMAT, "hhdFormatVersion": FORMAT_VERSION, "hhdAtlas": files.name}
+    tables = {}
+    for key, (spec, images) in images_of.items():
+        channels = exr_channels(spec, images)
+        exr.write_file(staging.stage(files.path(spec)), channels, attributes)
+        tables[key] = channel_table(spec, channels)
+        stage_preview(staging, files, spec, channels)
+        del channels
+    return tables
 
 
 def _rgb(channels: list[np.ndarray]) -> dict:
@@ -241,13 +250,9 @@ def read_sidecar(path) -> dict:
 
 def read_texel_data(files: AtlasFiles) -> TexelData:
     """The SH and texel EXRs of a finished bake, as the encoder's input."""
-    sh_ch, _ = exr.read(files.sh)
-    tx_ch, _ = exr.read(files.texels)
-    missing = [n for n in SH_CHANNELS if n not in sh_ch]
-    if missing:
-        raise BakeError(f"{files.sh} lacks SH channels {missing[:3]}…")
-    sh = np.stack([exr.from_exr_rows(sh_ch[n]) for n in SH_CHANNELS], axis=-1).astype(np.float32, copy=False)
+    sh = read_sh(files.sh)
     h, w = sh.shape[:2]
+    tx_ch, _ = exr.read(files.texels)
     normal_layer, coverage_layer, noise_layer = TEXELS_FILE.channels
     normal = np.stack([exr.from_exr_rows(tx_ch[n]) for n in normal_layer.exr_names], axis=-1).astype(
         np.float32, copy=False
@@ -255,7 +260,17 @@ def read_texel_data(files: AtlasFiles) -> TexelData:
     coverage = exr.from_exr_rows(tx_ch[coverage_layer.exr_names[0]]).astype(np.float32, copy=False)
     noise_name = noise_layer.exr_names[0]  # absent from bakes made before it was kept
     noise = exr.from_exr_rows(tx_ch[noise_name]).astype(np.float32, copy=False) if noise_name in tx_ch else None
-    return TexelData(sh=sh.reshape(h, w, 9, 3), normal=normal, coverage=coverage, noise=noise)
+    return TexelData(sh=sh, normal=normal, coverage=coverage, noise=noise)
+
+
+def read_sh(path: Path) -> np.ndarray:
+    """The SH image `(H, W, 9, 3)` float32 (rows bottom-up) of a raw SH file."""
+    sh_ch, _ = exr.read(path)
+    missing = [n for n in SH_CHANNELS if n not in sh_ch]
+    if missing:
+        raise BakeError(f"{path} lacks SH channels {missing[:3]}…")
+    sh = np.stack([exr.from_exr_rows(sh_ch.pop(n)) for n in SH_CHANNELS], axis=-1).astype(np.float32, copy=False)
+    return sh.reshape(sh.shape[:2] + (9, 3))
 
 
 def object_rects(points: BakePoints, names: list[str]) -> list[dict]:

@@ -56,7 +56,7 @@ LIBRARY_NAMES = {
 #: OIDN's scratch-memory cap per filter (its `maxMemoryMB`): beyond it OIDN tiles the image
 #: itself, output bit-identical to the untiled one (its default, -1, takes memory in proportion
 #: to the page at once; the trade in memory and CPU is measured in bench/results/memory.md).
-MAX_MEMORY_MB = 512
+MAX_MEMORY_MB = 256
 _DEVICE_TYPE_CPU = 1
 _FORMAT_FLOAT = 1  # FLOAT2 = 2, FLOAT3 = 3: _FORMAT_FLOAT - 1 + channels
 _ERRORS = {

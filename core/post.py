@@ -40,16 +40,18 @@ def denoise_stage(library: str, threads: int) -> PostStage:
     """Open Image Denoise's lightmap filter on the SH (`core.denoise`), through the OIDN library at
     `library` ("" = none found). Where it cannot run (no library, no weights, OIDN failing) the
     SH passes through undenoised and the record says why: a bake never fails for its denoiser.
-    The stage takes `in_place=True` too (`apply`'s): the SH is denoised into the TexelData's own
-    image, what it held kept compact for the encoder to restore (`denoise.denoise_texels`'s
-    `in_place`; memory)."""
+    The stage takes `in_place=True, restore=...` too (`apply`'s): the SH is denoised into the
+    TexelData's own image and nothing of the traced SH is kept (memory: a bake has written its raw
+    files before); OIDN failing half-way calls `restore()` to put the traced SH back."""
 
-    def denoise(data: TexelData, check: Callable[[], None], in_place: bool = False) -> tuple[TexelData, dict]:
+    def denoise(
+        data: TexelData, check: Callable[[], None], in_place: bool = False, restore: Callable[[], None] | None = None
+    ) -> tuple[TexelData, dict]:
         from . import denoise as _denoise  # loads numpy-only code; the OIDN library loads on first use
 
         try:
             denoiser = _denoise.denoiser_for(library, threads)
-            out, report = _denoise.denoise_texels(data, denoiser, check, in_place=in_place)
+            out, report = _denoise.denoise_texels(data, denoiser, check, in_place=in_place, restore=restore)
         except _denoise.DenoiserError as e:
             return data, {"enabled": True, "applied": False, "warning": f"not denoised: {e}"}
         return out, {"enabled": True, "applied": True, "oidn_version": denoiser.version, **report.sidecar()}
@@ -129,17 +131,18 @@ def apply(
     check: Callable[[], None] | None = None,
     seams: Seams | None = None,
     in_place: bool = False,
+    restore: Callable[[], None] | None = None,
 ) -> tuple[TexelData, dict]:
     """`data` after every post stage of `settings`, in order, and the sidecar's `post` section:
     per stage its record ({"enabled": False} for the known stages that are off). `seams`: the
     atlas's seam sample pairs (`core.seams.Seams`; None: unknown, stitching is then skipped with
-    a warning). `in_place`: the denoiser may write into `data.sh` (the result's `replaced` then
-    holds what it overwrote, which `encoding.encode_atlas` restores once the result is encoded:
-    `data` must not be read before that)."""
+    a warning). `in_place`: the denoiser writes into `data.sh` and keeps nothing of what it
+    overwrote (a bake, whose raw files are written: `data` is spent), calling `restore()` (which
+    must put the traced SH back into `data.sh`) if it fails half-way."""
     records = {"denoise": {"enabled": False}, "stitch": {"enabled": False}}
     for name, stage in stages_for(settings, seams):
-        if in_place and name == "denoise":  # `denoise_stage`'s, which takes it
-            data, records[name] = stage(data, check or (lambda: None), in_place=True)  # type: ignore[call-arg]
+        if in_place and name == "denoise":  # `denoise_stage`'s, which takes them
+            data, records[name] = stage(data, check or (lambda: None), in_place=True, restore=restore)  # type: ignore[call-arg]
         else:
             data, records[name] = stage(data, check or (lambda: None))
     return data, records

@@ -9,6 +9,10 @@ work on the texel images, so a re-encode from the raw SH file can run them too.
 
 from __future__ import annotations
 
+import ctypes
+import functools
+import mmap
+import sys
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -23,6 +27,89 @@ if TYPE_CHECKING:  # bakepoints imports the compiled kernels; the data types nee
 #: Passes before a texel's spread counts as its noise (`TracedAtlas.noise`): the spread of fewer
 #: is too often a small fraction of the true error (tracer.settings.MIN_ADAPTIVE_PASSES has the figures).
 NOISE_PASSES = 4
+
+
+def releasable_zeros(shape: tuple[int, ...], dtype) -> np.ndarray:
+    """np.zeros(shape, dtype), its memory a private anonymous mapping of its own where the
+    platform has one (POSIX), so that `release_rows` can give whole pages of it back to the
+    system while it is alive (np.zeros elsewhere: `release_rows` then does nothing). Pages are
+    resident only once written, as np.zeros'."""
+    nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+    private, anonymous = getattr(mmap, "MAP_PRIVATE", None), getattr(mmap, "MAP_ANONYMOUS", None)
+    if nbytes < mmap.PAGESIZE or private is None or anonymous is None or not hasattr(mmap.mmap, "madvise"):
+        return np.zeros(shape, dtype)
+    memory = mmap.mmap(-1, nbytes, flags=private | anonymous, prot=mmap.PROT_READ | mmap.PROT_WRITE)
+    return np.frombuffer(memory, dtype, count=nbytes // np.dtype(dtype).itemsize).reshape(shape)
+
+
+def release_rows(a: np.ndarray, stop: int) -> None:
+    """Give the system back the pages that lie wholly within rows 0..stop of `a` (made by
+    `releasable_zeros`; anything else is left alone): those rows are spent, their values read
+    0 afterwards (or anything: they must not be read again). Memory only; the array keeps its shape."""
+    mapping = _mapping(a)
+    if mapping is None or stop <= 0 or a.size == 0:
+        return
+    memory, start = mapping
+    end = start + min(stop, len(a)) * (a.nbytes // len(a))
+    first = -(-start // mmap.PAGESIZE) * mmap.PAGESIZE
+    last = end // mmap.PAGESIZE * mmap.PAGESIZE
+    if last > first:
+        memory.madvise(mmap.MADV_DONTNEED, first, last - first)
+
+
+def release_zero_pages(a: np.ndarray, chunk: int = 1 << 26) -> None:
+    """Give the system back the pages of `a` (made by `releasable_zeros`) whose bytes are all
+    zero, on Linux only, where a private anonymous page given back reads as zeros again: `a`'s
+    values do not change, only what is resident (e.g. the SH image's texels outside the charts
+    once the raw files' dilation is undone, `encoding.raw_files`). Elsewhere nothing. Scans
+    `chunk` bytes at a time."""
+    mapping = _mapping(a)
+    if mapping is None or not sys.platform.startswith("linux") or a.size == 0:
+        return
+    memory, start = mapping
+    page = mmap.PAGESIZE
+    first = -(-start // page) * page  # whole pages of `a` only
+    last = (start + a.nbytes) // page * page
+    whole = np.frombuffer(memory, np.uint64, count=(last - first) // 8, offset=first).reshape(-1, page // 8)
+    rows = max(chunk // page, 1)
+    for s in range(0, len(whole), rows):
+        zero = ~whole[s : s + rows].any(axis=1)
+        edges = np.flatnonzero(np.diff(np.concatenate([[False], zero, [False]]).astype(np.int8)))
+        for run_start, run_end in zip(edges[::2], edges[1::2]):
+            memory.madvise(mmap.MADV_DONTNEED, first + (s + run_start) * page, (run_end - run_start) * page)
+
+
+def trim_heap() -> None:
+    """Give the C heap's free memory back to the system (glibc's `malloc_trim(0)`; nothing where
+    the C library has none). Called between stages: the bake points' and the tracer's worker
+    threads free many arrays of a few MB into glibc's per-thread arenas, which keep them (0.1 to
+    0.2 GB at 4096², varying run to run) unless trimmed, as Dask's workers trim theirs."""
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
+@functools.cache
+def _malloc_trim():
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        return ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):  # not glibc (musl has none)
+        return None
+
+
+def _mapping(a: np.ndarray) -> tuple[mmap.mmap, int] | None:
+    """The mapping of a C-contiguous array made by `releasable_zeros` (or a view of one) and the
+    offset of `a`'s first byte in it; None for any other array."""
+    memory, root = a.base, a
+    while isinstance(memory, np.ndarray):
+        root, memory = memory, memory.base
+    if isinstance(memory, memoryview):  # np.frombuffer's
+        memory = memory.obj
+    if not isinstance(memory, mmap.mmap) or not a.flags.c_contiguous:
+        return None
+    return memory, a.ctypes.data - root.ctypes.data
 
 
 @dataclass
@@ -80,6 +167,13 @@ class TracedAtlas:
         largest arrays, freed before the post stages unless another reference holds them."""
         self.sh = np.zeros((0, 9, 3))
         self.sh_error = np.zeros((0, 9, 3), np.float32)
+
+    def release_sh_rows(self, stop: int) -> None:
+        """The SH and standard error of texels 0..stop are imaged and needed no more (their
+        memory goes back to the system where the compact trace made them, `releasable_zeros`;
+        `release_sh` drops the rest): `TexelData.from_points`' `release_sh`, as it images them."""
+        release_rows(self.sh, stop)
+        release_rows(self.sh_error, stop)
 
     def release_points(self) -> None:
         """Drop `points` (None from then on) once the atlas's last image is made (`bake.finish_atlas`

@@ -9,7 +9,15 @@ import OpenEXR
 import pytest
 
 from hhd_lightmapper.core import dilate, exr
-from hhd_lightmapper.core.encoding import SH_FILE, TexelData
+from hhd_lightmapper.core.encoding import (
+    SH_FILE,
+    TEXELS_FILE,
+    EncoderSettings,
+    TexelData,
+    encode_atlas,
+    for_settings,
+    raw_files,
+)
 from hhd_lightmapper.core.encoding.stage import DILATE_RINGS, fill_in_place, raw_images
 
 
@@ -108,3 +116,40 @@ def test_packing_a_layer_in_chunks_gives_the_whole_layers_values(monkeypatch):
     for name in whole:
         assert whole[name].dtype == chunked[name].dtype
         assert whole[name].tobytes() == chunked[name].tobytes()
+
+
+def test_raw_files_are_the_encoders_raw_files_and_leave_the_sh_bit_for_bit():
+    """`encoding.raw_files` (a bake writes its raw files before the post stages) gives the images
+    `encode_atlas(raw=True)` gives, filled in the SH itself, and puts back every bit it filled:
+    -0.0, NaN and values in buried texels, +0.0 elsewhere."""
+    data = texel_data(seed=3)
+    buried = np.flatnonzero((data.coverage < 0).reshape(-1))
+    flat = data.sh.reshape(-1, 27)
+    flat[buried[:4]] = -0.0
+    flat[buried[4:8], 5] = np.nan
+    outside = np.flatnonzero((data.coverage == 0).reshape(-1))
+    flat[outside] = 0.0  # as `TexelData.from_points` leaves texels no point images
+    flat[outside[:3]] = -0.0
+    before = data.sh.copy()
+    expected = encode_atlas(data, for_settings(EncoderSettings())).files
+    fill = data.fill()
+    with raw_files(data, fill) as files:
+        assert files.keys() == {SH_FILE.key, TEXELS_FILE.key}
+        for key, (spec, images) in files.items():
+            assert spec == expected[key][0]
+            assert images.keys() == expected[key][1].keys()
+            for name, image in images.items():
+                assert image.tobytes() == expected[key][1][name].tobytes(), name
+                if key == SH_FILE.key:
+                    assert np.shares_memory(image, data.sh)  # views: no copy of the atlas's SH
+        assert data.sh.tobytes() != before.tobytes()  # filled while the block runs
+    assert data.sh.view(np.uint32).tobytes() == before.view(np.uint32).tobytes()
+
+
+def test_raw_files_put_the_sh_back_when_the_block_raises():
+    data = texel_data(seed=4)
+    before = data.sh.copy()
+    with pytest.raises(RuntimeError, match="disk full"):
+        with raw_files(data, data.fill()):
+            raise RuntimeError("disk full")
+    assert data.sh.view(np.uint32).tobytes() == before.view(np.uint32).tobytes()

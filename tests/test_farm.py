@@ -422,3 +422,31 @@ def test_what_a_worker_returns_names_no_module_of_the_package():
     back = farm.unplain(pickle.loads(sent))
     assert back["file"] == spec
     assert back["file"].channels[-1].pack is octahedral.encode
+
+
+def test_a_finishing_task_keeps_copies_of_the_raw_files_and_gives_the_traced_sh_back():
+    """A worker's `_Kept` stands in for `bake.Staged`: the raw files it is handed before the post
+    stages are views of the SH the denoiser then writes into, so it keeps copies, and a denoiser
+    failing half-way reads the traced SH back from them (`traced_sh`, as `Staged` reads the file)."""
+    from hhd_lightmapper.core import encoding
+
+    rng = np.random.default_rng(5)
+    coverage = np.zeros((12, 10), np.float32)
+    coverage[2:9, 1:7] = 1.0
+    sh = np.zeros((12, 10, 9, 3), np.float32)
+    sh[2:9, 1:7] = rng.normal(size=(7, 6, 9, 3))
+    data = encoding.TexelData(sh=sh, normal=np.zeros((12, 10, 3), np.float32), coverage=coverage)
+    traced = data.sh.copy()
+    kept = farm._Kept()
+    with encoding.raw_files(data, data.fill()) as images_of:
+        kept.raw("Lightmap", "", images_of)
+    data.sh[...] = 7.0  # a post stage writing in place
+    ((method, (name, parent, plain_files)),) = kept.calls
+    assert (method, name, parent) == ("raw", "Lightmap", "")
+    back = kept.traced_sh("Lightmap", "")
+    assert back.shape == traced.shape
+    baked = coverage > 0
+    np.testing.assert_array_equal(back[baked], traced[baked])
+    assert (back[~baked] != 7.0).all()  # the kept images are the files' (dilated), not views
+    with pytest.raises(KeyError):
+        kept.traced_sh("Other", "")

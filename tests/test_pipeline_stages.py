@@ -5,10 +5,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, exr, lightmap_files, post, seams, unwrap
+from hhd_lightmapper.core import bake, bakepoints, denoise, encoding, exr, lightmap_files, post, seams, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
 from scenekit import meshes
+from test_oidn import bpy_library_dirs, denoiser, library  # noqa: F401  (fixtures)
 
 RES = 256
 
@@ -155,3 +156,43 @@ def test_a_stitched_bake_keeps_the_traced_files_and_reencodes_to_the_same_bytes(
     on.files.seams.unlink()  # a bake from before seams files: encoded unstitched, with a warning
     _, warnings = bake.reencode(on.files, bake.EncoderSettings(), threads=1)
     assert warnings == [f"atlas 'Lightmap', stitch: {post.NO_SEAMS}"] and on.files.hhd.read_bytes() == unstitched
+
+
+class FailingDenoiser:
+    """Blender's OIDN, raising DenoiserError at its `fail_at`-th directional call (the pass that
+    writes a banded page into the SH), noting whether the SH had been written by then."""
+
+    def __init__(self, real, fail_at: int):
+        self.real, self.fail_at, self.calls = real, fail_at, 0
+
+    def __getattr__(self, name):
+        return getattr(self.real, name)
+
+    def denoise(self, image, directional=False, input_scale=None):
+        if directional:
+            self.calls += 1
+            if self.calls == self.fail_at:
+                raise denoise.DenoiserError("injected failure")
+        return self.real.denoise(image, directional=directional, input_scale=input_scale)
+
+
+def test_a_denoiser_failing_half_way_gives_the_undenoised_bake(tmp_path, monkeypatch, library, denoiser):  # noqa: F811
+    """The bake denoises in place with nothing of the traced SH kept (its raw files are written
+    first); OIDN failing after part of the atlas is written puts the traced SH back from the
+    raw SH file, so the atlas is encoded exactly as an undenoised bake, with a warning."""
+    surface, scene = plane()
+    trace = BakeSettings(samples=8, pass_samples=4, bounces=1, seed=3)
+    atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
+    (plain,) = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "plain")
+    monkeypatch.setattr(denoise, "BAND_TEXELS", 32 * RES)  # 16-row bands of the 260-row page, written 114 rows behind
+    restored = []
+    real_restore = bake._restore_sh
+    monkeypatch.setattr(bake, "_restore_sh", lambda *a: (restored.append(1), real_restore(*a))[1])
+    real_for = denoise.denoiser_for
+    monkeypatch.setattr(denoise, "denoiser_for", lambda lib, threads: FailingDenoiser(real_for(lib, threads), 37))
+    settings = bake.PipelineSettings(trace=trace, denoise=True, denoiser_library=str(library))
+    (failed,) = bake.run([atlas], scene, settings, tmp_path / "failed")
+    assert restored == [1], "the failure came before any texel was written: no restore to test"
+    assert any("not denoised: injected failure" in w for w in failed.warnings)
+    for path in ("hhd", "sh", "texels"):
+        assert getattr(failed.files, path).read_bytes() == getattr(plain.files, path).read_bytes(), path

@@ -20,7 +20,7 @@ from .raw import SH_FILE, TEXELS_FILE
 from .registry import ENCODINGS, MODELS, documented_files, for_settings
 from .settings import AMBIENTS, DIRECTIONS, EncoderSettings
 from .spec import DILATE, DILATE_BURIED_BLACK, FLOAT, HALF, HALF_OR_FLOAT, NO_FILL, Channel, Encoded, Encoding, FileSpec
-from .stage import DILATE_RINGS, ENCODE_CHUNK, EncodedAtlas, Replaced, TexelData, encode_atlas
+from .stage import DILATE_RINGS, ENCODE_CHUNK, EncodedAtlas, TexelData, encode_atlas, raw_files
 
 __all__ = [
     "CONVENTIONS",
@@ -38,7 +38,6 @@ __all__ = [
     "HALF_OR_FLOAT",
     "MODELS",
     "NO_FILL",
-    "Replaced",
     "SH_FILE",
     "TEXELS_FILE",
     "Channel",
@@ -51,4 +50,5 @@ __all__ = [
     "documented_files",
     "encode_atlas",
     "for_settings",
+    "raw_files",
 ]

@@ -14,13 +14,15 @@ time (memory: one channel's copy).
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .. import dilate as _dilate
+from ..stages import releasable_zeros, release_zero_pages
 from .raw import SH_FILE, TEXELS_FILE
 from .spec import DILATE_BURIED_BLACK, NO_FILL, Channel, Encoding, FileSpec
 
@@ -36,21 +38,6 @@ ENCODE_CHUNK = 1 << 17
 
 
 @dataclass
-class Replaced:
-    """The SH a post stage overwrote in place (`core.denoise`'s `in_place`), kept compact:
-    `target` the `(H·W, 9, 3)` view of the SH image written, `parts` per page (flat texel indices,
-    their SH `(T, 9, 3)` as it was). `restore()` writes them back and drops them."""
-
-    target: np.ndarray
-    parts: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-
-    def restore(self) -> None:
-        while self.parts:
-            index, values = self.parts.pop()
-            self.target[index] = values
-
-
-@dataclass
 class TexelData:
     """An atlas's per-texel inputs to the encoder, as float32 images `(H, W, ...)` (rows
     bottom-up): sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried);
@@ -59,10 +46,7 @@ class TexelData:
     of their own (seam stitching's gutter texels, `core.seams`): encoded and dilated from like
     baked texels instead of being filled; noise `(H, W)`, optional: the standard error of each
     texel's luminance L0 (radiance) as traced, NaN where unknown (`TracedAtlas.noise`), as
-    the texels file keeps it (the denoiser's noise clamp reads it); replaced, optional: the SH as
-    it was where a post stage wrote `sh` in place over another TexelData's (`Replaced`: the
-    encoder restores it once `sh` is encoded, before that TexelData's raw files). float32 as in
-    the files, so encoding a fresh bake and re-encoding its files agree exactly."""
+    the texels file keeps it (the denoiser's noise clamp reads it). float32 as in the files, so encoding a fresh bake and re-encoding its files agree exactly."""
 
     sh: np.ndarray
     normal: np.ndarray
@@ -70,7 +54,6 @@ class TexelData:
     sh_error: np.ndarray | None = None
     extra_sources: np.ndarray | None = None
     noise: np.ndarray | None = None
-    replaced: Replaced | None = None
 
     @property
     def baked(self) -> np.ndarray:
@@ -87,23 +70,41 @@ class TexelData:
         sh_error: np.ndarray | None = None,
         noise: np.ndarray | None = None,
         release: Callable[[], None] | None = None,
+        release_sh: Callable[[int], None] | None = None,
     ) -> TexelData:
         """Images of per-point `sh` `(P, 9, 3)` (and optionally its standard error and the
         `noise` (P,) of `TracedAtlas.noise`) at `points`; noise is NaN outside the charts.
-        `release()`, if given, is called once nothing but the SH is left to image, before it is:
-        the caller may drop the bake points there (as large as the SH image), this call keeps
-        only their texel indices."""
+        `release()`, if given, is called before any image is made, once the normals and the
+        coverage are taken out of the bake points (as float32, the images' values): the caller
+        may drop the bake points there (as large as the SH image), this call keeps only their
+        texel indices. `release_sh(n)`, if given, is called as the SH is imaged, a part at a
+        time, once its first n rows are (`TracedAtlas.release_sh_rows`: the caller may free
+        them, so that the compact SH and its image are not both whole at once)."""
+        texel, h, w = points.texel, points.height, points.width
         coverage = np.where(points.buried, -1.0, points.coverage)
         error = None if sh_error is None else points.image(sh_error, dtype=np.float32)
-        normal = points.image(points.normal, dtype=np.float32)
-        coverage = points.image(coverage, dtype=np.float32)
-        noise = None if noise is None else points.image(noise, fill=np.nan, dtype=np.float32)
-        texel, h, w = points.texel, points.height, points.width
-        if release is not None:
+        normal = points.normal
+        if release is not None:  # float32 casts of what is left to image: the values the images take
+            coverage, normal = coverage.astype(np.float32), normal.astype(np.float32)
             del points
             release()
-        image = np.zeros((h * w,) + sh.shape[1:], np.float32)  # as `BakePoints.image`
-        image[texel] = sh
+
+        def image_of(values: np.ndarray, fill: float = 0.0) -> np.ndarray:  # as `BakePoints.image`
+            out = np.full((h * w,) + values.shape[1:], fill, np.float32)
+            out[texel] = values
+            return out.reshape((h, w) + values.shape[1:])
+
+        normal, coverage = image_of(normal), image_of(coverage)
+        noise = None if noise is None else image_of(noise, fill=np.nan)
+        # as `BakePoints.image`; its pages outside the charts can go back once written (`raw_files`)
+        image = releasable_zeros((h * w,) + sh.shape[1:], np.float32)
+        if release_sh is None:
+            image[texel] = sh
+        else:  # a part at a time, each released once imaged
+            part = 1 << 18
+            for s in range(0, len(texel), part):
+                image[texel[s : s + part]] = sh[s : s + part]
+                release_sh(min(s + part, len(texel)))
         return cls(
             sh=image.reshape((h, w) + sh.shape[1:]),
             normal=normal,
@@ -145,36 +146,68 @@ class EncodedAtlas:
 
 
 def encode_atlas(
-    data: TexelData, encoding: Encoding, raw: bool | TexelData = True, spend_raw: bool = False
+    data: TexelData,
+    encoding: Encoding,
+    raw: bool = True,
+    fill: _dilate.Fill | None = None,
+    spend: bool = False,
 ) -> EncodedAtlas:
     """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
-    files' images: of `data` (True), of another TexelData of the same atlas (the SH as traced,
-    when post stages changed `data`), or none (False: a re-encode keeps the files it read).
-    `data.replaced` (a post stage's SH written in place over the traced one) is restored once
-    `data` is encoded: `data.sh` is then no longer its own.
-    `spend_raw`: the caller no longer needs that TexelData's SH (nor `data`'s, when it is the
-    same), so the SH file's channels are filled in it in place and are views of it (no copy of
-    the atlas's SH; the same values)."""
+    files' images of `data` (False: a bake that wrote them before its post stages, `raw_files`,
+    or a re-encode, which keeps the files it read). `fill`: `data.fill()`, if the caller has it. `spend` (only without `raw`): the caller no longer needs `data.sh`, which
+    is dropped once the texels are encoded, before the layers are filled (memory: the atlas's SH
+    is the largest image)."""
     h, w = data.coverage.shape
-    fill = data.fill()
-    images, summary = encode_images(data, encoding, fill)
-    if data.replaced is not None:  # the SH a post stage wrote in place, back (the raw SH file's)
-        data.replaced.restore()
+    fill = data.fill() if fill is None else fill
+    images, summary = encode_images(data, encoding, fill, spend=spend and not raw)
     files = {encoding.file.key: (encoding.file, images)}
-    if raw is not False:
-        source = data if raw is True else raw
-        # the raw files are filled as the traced atlas's own texels say, not as a post stage's
-        # extra sources (seam stitching's gutter texels): a re-encode starts from what was traced
-        raw_fill = fill if source.extra_sources is data.extra_sources else source.fill()
-        layers = source.layers()
+    if raw:
+        layers = data.layers()
         for spec in (SH_FILE, TEXELS_FILE):
-            files[spec.key] = (spec, raw_images(spec, layers, raw_fill, in_place=spend_raw))
+            files[spec.key] = (spec, raw_images(spec, layers, fill))
     stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.invalid)), **summary}
     return EncodedAtlas(w, h, files, encoding.file, dict(encoding.settings), stats)
 
 
-def encode_images(data: TexelData, encoding: Encoding, fill: _dilate.Fill) -> tuple[dict, dict]:
-    """The encoding's channel images `(H, W)` (filled, packed) and its summary statistics."""
+@contextmanager
+def raw_files(data: TexelData, fill: _dilate.Fill) -> Iterator[dict[str, tuple[FileSpec, dict[str, np.ndarray]]]]:
+    """The raw files' images of `data` (as `EncodedAtlas.files`: {sidecar key: (FileSpec, {EXR
+    channel name: `(H, W)` image})}) for the duration of the block, which writes them: the SH
+    channels are filled in `data.sh` itself (views of it, no copy of the atlas's SH), and on
+    leaving every texel the fill wrote (`fill.empty`) holds its bits from before again, so the
+    post stages and the encoder read `data` as if nothing had happened. The texels file's
+    channels are unfilled views. `fill`: `data.fill()`."""
+    h, w = data.coverage.shape
+    flat = data.sh.reshape(h * w, -1)
+    if not np.shares_memory(flat, data.sh):
+        raise ValueError("raw_files needs a contiguous SH image")
+    index, values = _nonzero_rows(flat, fill.empty)  # all others are +0.0 in every channel
+    try:
+        layers = data.layers()
+        yield {spec.key: (spec, raw_images(spec, layers, fill, in_place=True)) for spec in (SH_FILE, TEXELS_FILE)}
+    finally:
+        for s in range(0, len(fill.empty), ENCODE_CHUNK):
+            flat[fill.empty[s : s + ENCODE_CHUNK]] = 0.0
+        flat[index] = values
+        release_zero_pages(data.sh)  # the pages the dilation made resident, zero again (memory)
+
+
+def _nonzero_rows(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Of `flat`'s rows `rows`, those with any bit set (-0.0 and NaN included): their indices and
+    values (a copy), gathered ENCODE_CHUNK rows at a time."""
+    index, values = [np.zeros(0, np.int64)], [np.zeros((0, flat.shape[1]), flat.dtype)]
+    for s in range(0, len(rows), ENCODE_CHUNK):
+        part = rows[s : s + ENCODE_CHUNK]
+        v = flat[part]
+        keep = v.view(np.uint32).any(axis=1)
+        index.append(part[keep])
+        values.append(v[keep])
+    return np.concatenate(index), np.concatenate(values)
+
+
+def encode_images(data: TexelData, encoding: Encoding, fill: _dilate.Fill, spend: bool = False) -> tuple[dict, dict]:
+    """The encoding's channel images `(H, W)` (filled, packed) and its summary statistics.
+    `spend`: drop `data.sh` once the texels are encoded (`encode_atlas`)."""
     h, w = data.coverage.shape
     baked = fill.valid
     sh, normal = data.sh.reshape(h * w, 9, -1), data.normal.reshape(h * w, 3)
@@ -187,6 +220,9 @@ def encode_images(data: TexelData, encoding: Encoding, fill: _dilate.Fill) -> tu
         for name, v in out.values.items():
             values[name][rows] = v
         stats.append(out.stats)
+    if spend:
+        del sh
+        data.sh = np.zeros((0, 0) + data.sh.shape[2:], np.float32)
     images = {}
     for ch in channels:
         images.update(layer_images(ch, values.pop(ch.name).reshape(h, w, ch.value_width), fill))

@@ -33,7 +33,7 @@ from ..bakepoints import BakePoints
 from ..errors import BakeCancelled, BakeError
 from ..rays import RayScene
 from ..scene import BakeScene
-from ..stages import TracedAtlas
+from ..stages import TracedAtlas, trim_heap
 from . import scheduler
 from .hemisphere import TexelEstimator
 from .paths import RR_MAX_SURVIVAL, RR_START, TraceScene
@@ -86,7 +86,10 @@ def bake(
     `bake.run` does. Without a noise target, a time budget or a `runner`, each chunk's passes then
     run together (`scheduler.run_streamed`) and the trace never holds running statistics for
     the whole atlas (348 → 120 bytes per texel); otherwise they are reduced once traced. The
-    files are the same either way."""
+    files are the same either way. The TracedAtlas then holds the bake points as the files take
+    them (`BakePoints.for_files`: 41 of their 139 bytes a texel, once the caller drops `points`),
+    and its SH and standard error can be freed a part at a time as they are imaged
+    (`TracedAtlas.release_sh_rows`)."""
     if settings.pass_samples < 4 or settings.pass_samples % 4:
         raise BakeError(f"samples per pass must be a multiple of 4, got {settings.pass_samples}")
     if settings.noise_target < 0 or settings.time_budget < 0 or not np.isfinite(settings.noise_target):
@@ -98,14 +101,15 @@ def bake(
     if compact and runner is None and scheduler.streams(settings):
         reduced = Reduced(points.normal, channels, points.buried, bool(sets))
         outcome = scheduler.run_streamed(estimator, reduced, settings, start, progress, cancel, executor)
-        return traced_atlas(points, sets, reduced, settings, outcome, time.perf_counter() - start)
+        trim_heap()  # what the tracer's threads freed (memory)
+        return traced_atlas(points.for_files(), sets, reduced, settings, outcome, time.perf_counter() - start)
     stats = Statistics(len(points.texel), points.normal, channels)
     outcome = (runner or scheduler.run)(estimator, stats, settings, start, progress, cancel, executor)
     if compact:
         reduced = Reduced(points.normal, channels, points.buried, bool(sets))
         reduced.take_all(stats)
         del stats
-        return traced_atlas(points, sets, reduced, settings, outcome, time.perf_counter() - start)
+        return traced_atlas(points.for_files(), sets, reduced, settings, outcome, time.perf_counter() - start)
     return traced_atlas(points, sets, stats, settings, outcome, time.perf_counter() - start)
 
 

@@ -7,6 +7,7 @@ import numpy as np
 
 from .. import kernels as _kernels
 from ..colour import LUMINANCE
+from ..stages import releasable_zeros
 from .settings import NOISE_FLOOR
 
 
@@ -108,20 +109,21 @@ class Reduced:
     a part at a time (`take`) so that full statistics need exist only for that part: per texel
     the SH mean as float32 (sh (N, 9, 3); the files hold float32 of the float64 mean, so these are
     their bits), the standard error of band 0 only (sh_error (N, 1, 3) float32: the luminance
-    L0's, `TracedAtlas.noise`, is all the files and the denoiser read) and the passes; with light
-    sets the same per set (set_sh (K, N, 9, 3), set_sh_error (K, N, 1, 3)). 120 bytes per texel
-    without sets, against the 348 of `Statistics`. normals (N, 3), channels, buried (N,) bool:
+    L0's, `TracedAtlas.noise`, is all the files and the denoiser read) and the passes (int32); with
+    light sets the same per set (set_sh (K, N, 9, 3), set_sh_error (K, N, 1, 3)). 124 bytes per
+    texel without sets, against the 348 of `Statistics`. normals (N, 3), channels, buried (N,) bool:
     as `Statistics` and `finished` take them."""
 
     def __init__(self, normals: np.ndarray, channels: int, buried: np.ndarray, sets: bool):
         n = len(normals)
         self.normals, self.channels, self.buried, self.sets = normals, channels, buried, sets
-        self.sh = np.zeros((n, 9, 3), np.float32)
-        self.sh_error = np.zeros((n, 1, 3), np.float32)
+        # the atlas's SH and error freed a part at a time as they are imaged (`TracedAtlas.release_sh_rows`)
+        self.sh = releasable_zeros((n, 9, 3), np.float32)
+        self.sh_error = releasable_zeros((n, 1, 3), np.float32)
         k = channels // 3
         self.set_sh = np.zeros((k, n, 9, 3), np.float32) if sets else None
         self.set_sh_error = np.zeros((k, n, 1, 3), np.float32) if sets else None
-        self.passes = np.zeros(n, dtype=np.int64)
+        self.passes = np.zeros(n, dtype=np.int32)  # the files' texel samples: 4 bytes are plenty
         self.texel_passes = 0
 
     def statistics(self, first: int, end: int) -> Statistics:

@@ -1,0 +1,91 @@
+"""What lets a 4096² bake fit in 3 GB without changing a bit (issue 23, bench/memory.py): arrays
+whose pages go back to the system once spent (`stages.releasable_zeros`, `release_rows`,
+`release_zero_pages`), the SH imaged a part at a time as its compact copy goes
+(`TexelData.from_points`' `release_sh`) and the bake points a compact trace keeps
+(`BakePoints.for_files`). No Blender."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hhd_lightmapper.core import bakepoints, encoding, stages, tracer
+from hhd_lightmapper.core.scene import BakeScene, SunLight
+from scenekit import meshes
+
+linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="resident memory read from /proc")
+
+
+def resident_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS")
+
+
+@linux
+def test_spent_rows_go_back_and_the_rest_keep_their_values():
+    rows = 1 << 21  # 216 MB of (rows, 9, 3) float32
+    a = stages.releasable_zeros((rows, 9, 3), np.float32)
+    a[:] = np.arange(27, dtype=np.float32).reshape(9, 3) + 1.0
+    kept = a[rows // 2 :].copy()
+    before = resident_mb()
+    stages.release_rows(a, rows // 2)
+    assert before - resident_mb() > 0.9 * a.nbytes / 2 / 2**20
+    np.testing.assert_array_equal(a[rows // 2 + 1 :], kept[1:])  # rows past the first partial page
+    plain = np.ones((1000, 9, 3), np.float32)
+    stages.release_rows(plain, 1000)  # not a releasable array: left alone
+    assert (plain == 1.0).all()
+
+
+@linux
+def test_zero_pages_go_back_and_every_value_stays():
+    a = stages.releasable_zeros((1 << 24,), np.float32)  # 64 MB
+    a[:] = 0.0
+    a[: 1 << 20] = 2.0
+    a[(1 << 23) + 5] = -0.0  # a sign bit: not a zero page
+    a[-3] = np.nan
+    expected = a.copy()
+    before = resident_mb()
+    stages.release_zero_pages(a)
+    assert before - resident_mb() > 0.8 * (a.nbytes - (1 << 22)) / 2**20
+    assert a.view(np.uint32).tobytes() == expected.view(np.uint32).tobytes()
+
+
+def sheet_points(albedo=True):
+    v, f = meshes.plane(2.0)
+    uv = (v[f][..., :2] + 1.0) / 2.2 + 0.02
+    normals = np.tile([0, 0, 1.0], (len(f), 3, 1))
+    surface = bakepoints.SurfaceTriangles(v[f], normals, uv, np.zeros(len(f), int), np.full((len(f), 3), 0.5))
+    scene = BakeScene(v[f], np.full((len(f), 3), 0.5), lights=[SunLight(np.array([0.3, 0.2, 0.93]), np.ones(3))])
+    return bakepoints.build(surface, 64, 64, albedo=albedo), scene
+
+
+def test_the_sh_imaged_a_part_at_a_time_is_the_sh_imaged_whole(monkeypatch):
+    points, scene = sheet_points()
+    traced = tracer.bake(points, scene, tracer.BakeSettings(samples=4, pass_samples=4, bounces=0), compact=True)
+    whole = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise())
+    released = []
+    monkeypatch.setattr(stages, "release_rows", lambda a, stop: released.append(stop))
+    parts = encoding.TexelData.from_points(
+        traced.points, traced.sh, noise=traced.noise(), release_sh=traced.release_sh_rows
+    )
+    assert released and released[-1] == len(traced.points.texel)
+    for name in ("sh", "normal", "coverage", "noise"):
+        assert getattr(parts, name).tobytes() == getattr(whole, name).tobytes(), name
+
+
+def test_a_compact_trace_keeps_what_the_files_take_and_the_same_sh():
+    points, scene = sheet_points()
+    lean, _ = sheet_points(albedo=False)
+    assert lean.albedo is None and points.albedo is not None
+    assert points.texel.dtype == np.int32 and points.triangle.dtype == np.int32
+    settings = tracer.BakeSettings(samples=4, pass_samples=4, bounces=1, seed=2)
+    full = tracer.bake(points, scene, settings)
+    compact = tracer.bake(lean, scene, settings, compact=True)
+    np.testing.assert_array_equal(compact.sh, full.sh.astype(np.float32))
+    kept = compact.points
+    for name in ("texel", "normal", "coverage", "buried", "object_index"):
+        np.testing.assert_array_equal(getattr(kept, name), getattr(points, name))
+    assert len(kept.position) == 0 and len(kept.face_normal) == 0 and len(kept.triangle) == 0
