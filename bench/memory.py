@@ -19,6 +19,7 @@ bench/results/memory.json and memory.md hold the before → after of issue 23's 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import tempfile
@@ -27,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, lightmap_files, post, presets, seams, tracer
+from hhd_lightmapper.core import bake, bakepoints, encoding, lightmap_files, oidn, post, presets, seams, tracer
 from hhd_lightmapper.core import stages as stages_module
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 
@@ -78,6 +79,20 @@ def _wrap(stages: Stages, module, attr: str, name: str, after: str) -> None:
     setattr(owner, key, staticmethod(timed) if isinstance(owner, type) else timed)
 
 
+def _wrap_method(stages: Stages, cls: type, attr: str, name: str, after: str) -> None:
+    """Time method `cls.attr` as stage `name`, as `_wrap` times a function."""
+    f = getattr(cls, attr)
+
+    def timed(self, *args, **kwargs):
+        stages.mark(name)
+        try:
+            return f(self, *args, **kwargs)
+        finally:
+            stages.mark(after)
+
+    setattr(cls, attr, timed)
+
+
 def _mark_at(stages: Stages, owner, attr: str, name: str) -> None:
     """Start stage `name` when `owner.attr` (a method the pipeline looks up at call time) is
     called, without ending it there: unlike `_wrap`, no frame of ours holds the call's arguments,
@@ -102,12 +117,15 @@ def sheet(n=200, size=20.0):
 
 
 def _denoiser_library() -> str:
-    try:
-        from hhd_lightmapper.bridge.denoiser import oidn_library
-
-        return oidn_library()
-    except ImportError:  # no bpy
+    """Blender's OIDN library from the bpy module's folders (`bridge.denoiser.install_dirs`),
+    found without importing bpy: loading Blender adds ~0.28 GB that a bake inside Blender has
+    anyway and that the runs without post stages do not load."""
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or not spec.origin:
         return ""
+    module = Path(spec.origin).parent
+    path = oidn.find_library([module / "lib", module])
+    return "" if path is None else str(path)
 
 
 def main() -> int:
@@ -161,6 +179,7 @@ def main() -> int:
         (lightmap_files, "write_atlas", "write"),
     ):
         _wrap(stages, module, attr, name, "files_other")
+    _wrap_method(stages, bake.Staged, "raw", "write_raw", "files_other")  # the raw files, before the post stages
     start_rss = _status("VmRSS")
     stages.mark("ray_scene")
     ray_scene = bake.ray_scene_of(scene)
