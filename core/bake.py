@@ -1,4 +1,5 @@
-"""The bake pipeline over atlases: bake points → trace → image → raw files → post stages → encode → write. No bpy.
+"""The bake pipeline over atlases: bake points → trace → image → raw files → post stages → encode →
+write. No bpy.
 
 `run` is what the Bake operator (modal or not) and the command line both call, after the bpy side
 has read the scene into plain data (`AtlasInput`, `BakeScene`). It never touches the scene: its
@@ -503,7 +504,8 @@ def _finish_files(
     last: bool = False,
 ) -> list[str]:
     """Image → raw files (`out.raw`) → post stages → encode of one atlas's SH (the atlas's own, or
-    one light set's), handed to `out.atlas`; adds the post stages' seconds to seconds["post"]; returns their warnings.
+    one light set's), handed to `out.atlas`; adds the post stages' seconds to seconds["post"];
+    returns their warnings.
     `release`: `traced.release_sh()` once imaged, and with `last` (no image of these bake points
     follows) `traced.release_points()`."""
     t = time.perf_counter()

@@ -401,9 +401,9 @@ def _denoise_banded(
     written: np.ndarray,
 ) -> None:
     """One page denoised in horizontal bands of `band` rows, its chart texels written into `out`
-    `(H·W, 9, 3)` as `_denoise_page` writes them (and returned as it does): the same values as the whole page gives, with the page's buffers one band at a
-    time. Each band is filtered with BAND_OVERLAP rows of context on each side (OIDN tiles a
-    large image the same way: its bits), and its features are built and smoothly filled with
+    `(H·W, 9, 3)` as `_denoise_page` writes them: the same values as the whole page gives, with
+    the page's buffers one band at a time. Each band is filtered with BAND_OVERLAP rows of context
+    on each side (OIDN tiles a large image the same way: its bits), and its features are built and smoothly filled with
     FILL_BLUR + FILL_RINGS rows more (the fill's reach), the box sums continuing the rows
     above's (`_box_sum`'s `seed`). What the page shares is found first: the inputScales
     (`_page_scales`), the page mean of the fill where some texel is beyond its reach; then L0 and

@@ -46,7 +46,8 @@ class TexelData:
     of their own (seam stitching's gutter texels, `core.seams`): encoded and dilated from like
     baked texels instead of being filled; noise `(H, W)`, optional: the standard error of each
     texel's luminance L0 (radiance) as traced, NaN where unknown (`TracedAtlas.noise`), as
-    the texels file keeps it (the denoiser's noise clamp reads it). float32 as in the files, so encoding a fresh bake and re-encoding its files agree exactly."""
+    the texels file keeps it (the denoiser's noise clamp reads it). float32 as in the files, so
+    encoding a fresh bake and re-encoding its files agree exactly."""
 
     sh: np.ndarray
     normal: np.ndarray
