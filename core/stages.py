@@ -82,8 +82,8 @@ def release_zero_pages(a: np.ndarray, chunk: int = 1 << 26) -> None:
 def trim_heap() -> None:
     """Give the C heap's free memory back to the system (glibc's `malloc_trim(0)`; nothing where
     the C library has none). Called between stages: the bake points' and the tracer's worker
-    threads free many arrays of a few MB into glibc's per-thread arenas, which keep them (0.1 to
-    0.2 GB at 4096², varying run to run) unless trimmed, as Dask's workers trim theirs."""
+    threads free many arrays of a few MB into glibc's per-thread arenas, which keep them unless
+    trimmed (bench/results/memory.md), as Dask's workers trim theirs."""
     trim = _malloc_trim()
     if trim is not None:
         trim(0)
