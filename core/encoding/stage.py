@@ -33,6 +33,9 @@ if TYPE_CHECKING:
 #: empty texels take the atlas mean.
 DILATE_RINGS = 16
 
+#: Rows of a compact SH imaged before they are released (`TexelData.from_points`' `release_sh`).
+IMAGE_ROWS = 1 << 18
+
 #: Texels encoded per Encoding.encode call: bounds the float64 copies an encoding makes.
 ENCODE_CHUNK = 1 << 17
 
@@ -102,10 +105,9 @@ class TexelData:
         if release_sh is None:
             image[texel] = sh
         else:  # a part at a time, each released once imaged
-            part = 1 << 18
-            for s in range(0, len(texel), part):
-                image[texel[s : s + part]] = sh[s : s + part]
-                release_sh(min(s + part, len(texel)))
+            for s in range(0, len(texel), IMAGE_ROWS):
+                image[texel[s : s + IMAGE_ROWS]] = sh[s : s + IMAGE_ROWS]
+                release_sh(min(s + IMAGE_ROWS, len(texel)))
         return cls(
             sh=image.reshape((h, w) + sh.shape[1:]),
             normal=normal,
