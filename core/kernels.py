@@ -572,42 +572,32 @@ def _unit3(x, y, z):
     return x * inv, y * inv, z * inv
 
 
-def _unit_cross(a, b):
-    """The unit cross product of 3-tuples a × b."""
-    return _unit3(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _angle_between(v1, v2):
-    """The angle between unit 3-tuples, accurate near 0 and π (PBRT-v4's AngleBetween)."""
-    if v1[0] * v2[0] + v1[1] * v2[1] + v1[2] * v2[2] < 0.0:
-        sx, sy, sz = v1[0] + v2[0], v1[1] + v2[1], v1[2] + v2[2]
-        return math.pi - 2.0 * math.asin(min(math.sqrt(sx * sx + sy * sy + sz * sz) / 2.0, 1.0))
-    dx, dy, dz = v2[0] - v1[0], v2[1] - v1[1], v2[2] - v1[2]
-    return 2.0 * math.asin(min(math.sqrt(dx * dx + dy * dy + dz * dz) / 2.0, 1.0))
-
-
 def _spherical(x, i, triangles, t):
     """Seen from x[i] (of (R, 3)), triangle triangles[t] (T, 3, 3): unit directions a, b, c
-    (3-tuples) to its corners, the angle at a and the solid angle (NaN when degenerate):
-    `lights.spherical_triangles`, one row."""
+    (3-tuples) to its corners, the cosine and sine of the angle at a and the solid angle
+    (`lights.spherical_triangles`, one row; 0 seen edge-on, NaN from a corner)."""
     px, py, pz = x[i, 0], x[i, 1], x[i, 2]
     a = _unit3(triangles[t, 0, 0] - px, triangles[t, 0, 1] - py, triangles[t, 0, 2] - pz)
     b = _unit3(triangles[t, 1, 0] - px, triangles[t, 1, 1] - py, triangles[t, 1, 2] - pz)
     c = _unit3(triangles[t, 2, 0] - px, triangles[t, 2, 1] - py, triangles[t, 2, 2] - pz)
-    n_ab, n_bc, n_ca = _unit_cross(a, b), _unit_cross(b, c), _unit_cross(c, a)
-    alpha = _angle_between(n_ab, (-n_ca[0], -n_ca[1], -n_ca[2]))
-    beta = _angle_between(n_bc, (-n_ab[0], -n_ab[1], -n_ab[2]))
-    gamma = _angle_between(n_ca, (-n_bc[0], -n_bc[1], -n_bc[2]))
-    return a, b, c, alpha, alpha + beta + gamma - math.pi
+    ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    bc = b[0] * c[0] + b[1] * c[1] + b[2] * c[2]
+    ca = c[0] * a[0] + c[1] * a[1] + c[2] * a[2]
+    det = abs(
+        a[0] * (b[1] * c[2] - b[2] * c[1]) + a[1] * (b[2] * c[0] - b[0] * c[2]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+    )
+    y = bc - ab * ca  # ∝ the cosine of the angle at a, det ∝ its sine (same factor)
+    h = math.sqrt(det * det + y * y)
+    return a, b, c, y / h, det / h, 2.0 * math.atan2(det, 1.0 + ab + bc + ca)
 
 
-def _spherical_direction(a, b, c, alpha, area, u1, u2):
-    """A unit direction (3-tuple) uniform in the spherical triangle a, b, c (`_spherical`) for
-    uniform numbers u1, u2 (Arvo 1995, as `lights.sample_spherical_triangles`)."""
-    ap_pi = math.pi + u1 * area
-    cos_a, sin_a = math.cos(alpha), math.sin(alpha)
-    sin_phi = math.sin(ap_pi) * cos_a - math.cos(ap_pi) * sin_a
-    cos_phi = math.cos(ap_pi) * cos_a + math.sin(ap_pi) * sin_a
+def _spherical_direction(a, b, c, cos_a, sin_a, area, u1, u2):
+    """A unit direction (3-tuple) uniform in the spherical triangle a, b, c with angle at a of
+    cosine cos_a and sine sin_a and solid angle area (`_spherical`) for uniform numbers u1, u2
+    (Arvo 1995, as `lights.sample_spherical_triangles`)."""
+    s, q = -math.sin(u1 * area), -math.cos(u1 * area)  # sine and cosine of π + u1·area
+    sin_phi = s * cos_a - q * sin_a
+    cos_phi = q * cos_a + s * sin_a
     k1 = cos_phi + cos_a
     k2 = sin_phi - sin_a * (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
     cos_bp = (k2 + (k2 * cos_phi - k1 * sin_phi) * cos_a) / ((k2 * sin_phi + k1 * cos_phi) * sin_a)
@@ -665,11 +655,12 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
     pdf = np.empty(n)
     w = np.empty(k)
     floor, alone = _power_shares(power, share)
+    radius = np.sqrt(radius2)
     for i in range(n):
         cluster, chance = k - 1, 1.0
         if k > 1:
             scale, base = _cluster_chances(
-                _cluster_weights(x, normals, i, centre, radius2, power, w), share, floor, alone
+                _cluster_weights(x, normals, i, centre, radius2, radius, power, w), share, floor, alone
             )
             acc = 0.0
             for c in range(k):
@@ -692,9 +683,9 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
         nx, ny, nz = tri_normal[t, 0], tri_normal[t, 1], tri_normal[t, 2]
         omega = 0.0  # below the window: sampled by area (`_surely_small`)
         if not _surely_small(x, i, t, tri_area, bound, window[0]):
-            a, b, c3, alpha, omega = _spherical(x, i, triangles, t)
+            a, b, c3, cos_a, sin_a, omega = _spherical(x, i, triangles, t)
         if omega >= window[0] and omega <= window[1]:
-            d = _spherical_direction(a, b, c3, alpha, omega, u[2, i], u[3, i])
+            d = _spherical_direction(a, b, c3, cos_a, sin_a, omega, u[2, i], u[3, i])
             along = (
                 (triangles[t, 0, 0] - x[i, 0]) * nx
                 + (triangles[t, 0, 1] - x[i, 1]) * ny
@@ -727,6 +718,7 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
     k = centre.shape[1]
     w = np.empty(k)
     floor, alone = _power_shares(power, share)
+    radius = np.sqrt(radius2)
     out = np.empty(x.shape[0])
     for i in range(x.shape[0]):
         tri = prim[i]
@@ -736,11 +728,11 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
         chance = within[tri]
         if k > 1:
             scale, base = _cluster_chances(
-                _cluster_weights(x, normals, i, centre, radius2, power, w), share, floor, alone
+                _cluster_weights(x, normals, i, centre, radius2, radius, power, w), share, floor, alone
             )
             chance *= scale * w[cluster_of[tri]] + base[cluster_of[tri]]
         omega = (
-            0.0 if _surely_small(x, i, tri, tri_area, emitters[7], window[0]) else _spherical(x, i, triangles, tri)[4]
+            0.0 if _surely_small(x, i, tri, tri_area, emitters[7], window[0]) else _spherical(x, i, triangles, tri)[5]
         )
         cos = abs(d[i, 0] * tri_normal[tri, 0] + d[i, 1] * tri_normal[tri, 1] + d[i, 2] * tri_normal[tri, 2])
         out[i] = _emitter_density(chance, tri_area[tri], omega, cos, t[i], window[0], window[1])
@@ -777,8 +769,9 @@ def texel_sequence(texels, k, first, dim, seed):
     return out
 
 
-def _cluster_weights(x, normals, i, centre, radius2, power, w):
-    """Into w (K,): each emitter cluster's power over max(distance², radius²) from x[i], times
+def _cluster_weights(x, normals, i, centre, radius2, radius, power, w):
+    """Into w (K,): each emitter cluster's power over max(distance², radius²) (radius (K,) =
+    √radius2) from x[i], times
     the largest cosine to normals[i] of a direction into the cluster's bounding sphere (0 for a
     cluster wholly below the horizon; 1 when normals has no rows); returns their sum. centre
     (3, K): the clusters' centres, one row per axis, so the loops over clusters vectorise
@@ -788,7 +781,7 @@ def _cluster_weights(x, normals, i, centre, radius2, power, w):
     if normals.shape[0] == 0:
         return _distance_weights(px, py, pz, centre[0], centre[1], centre[2], radius2, power, w)
     nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-    return _horizon_weights(px, py, pz, nx, ny, nz, centre[0], centre[1], centre[2], radius2, power, w)
+    return _horizon_weights(px, py, pz, nx, ny, nz, centre[0], centre[1], centre[2], radius2, radius, power, w)
 
 
 def _distance_weights(px, py, pz, cx, cy, cz, radius2, power, w):
@@ -808,7 +801,7 @@ def _ordered_sum(w):
     return total
 
 
-def _horizon_weights(px, py, pz, nx, ny, nz, cx, cy, cz, radius2, power, w):
+def _horizon_weights(px, py, pz, nx, ny, nz, cx, cy, cz, radius2, radius, power, w):
     """`_cluster_weights` with the normal (nx, ny, nz): element-wise and branch-free, so the
     loop vectorises (bit for bit the scalar arithmetic), then summed in order. With d the
     distance, r the radius and a = normal · (centre − x): the normal lies inside the cone of
@@ -820,9 +813,10 @@ def _horizon_weights(px, py, pz, nx, ny, nz, cx, cy, cz, radius2, power, w):
         r2 = radius2[c]
         a = nx * dx + ny * dy + nz * dz
         h2 = d2 - r2
-        edge = (a * math.sqrt(max(h2, 0.0)) + math.sqrt(max(d2 - a * a, 0.0)) * math.sqrt(r2)) / d2
+        edge = a * math.sqrt(max(h2, 0.0)) + math.sqrt(max(d2 - a * a, 0.0)) * radius[c]  # × d2
         outside = (h2 > 0.0) & ((a < 0.0) | (a * a < h2))
-        w[c] = power[c] / max(d2, r2) * (max(edge, 0.0) if outside else 1.0)
+        d2s = max(d2, 1e-300)
+        w[c] = power[c] * (max(edge, 0.0) if outside else d2s) / (max(d2, r2) * d2s)
     return _ordered_sum(w)
 
 
@@ -862,8 +856,6 @@ _HELPERS = (
     "_power_shares",
     "_cluster_chances",
     "_unit3",
-    "_unit_cross",
-    "_angle_between",
     "_spherical",
     "_spherical_direction",
     "_emitter_density",

@@ -221,11 +221,18 @@ def test_directions_sampled_in_a_spherical_triangle_hit_it_uniformly():
     x = np.zeros((200_000, 3))
     tris = np.broadcast_to(tri, (len(x), 3, 3))
     w = lights.sample_spherical_triangles(x, tris, rng.random(len(x)), rng.random(len(x)))
-    solid_angle = lights.spherical_triangles(x[:1], tris[:1])[-1][0]
-    # Van Oosterom–Strackee's formula agrees on the solid angle
+    _, _, _, cos_a, sin_a, solid_angle = (v[0] for v in lights.spherical_triangles(x[:1], tris[:1]))
+    # Girard's theorem agrees on the solid angle (the angles' excess over π, each angle between
+    # the planes of the great circles through its corner), and on the angle at a
     a, b, c = (v / np.linalg.norm(v) for v in tri)
-    exact = 2 * np.arctan2(abs(a @ np.cross(b, c)), 1 + a @ b + b @ c + c @ a)
-    assert solid_angle == pytest.approx(exact, rel=1e-12)
+
+    def corner(p, q, r):  # the angle at p between the great circles p–q and p–r
+        u, v = np.cross(p, q), np.cross(p, r)
+        return np.arccos(np.clip(u @ v / np.linalg.norm(u) / np.linalg.norm(v), -1, 1))
+
+    angles = corner(a, b, c), corner(b, c, a), corner(c, a, b)
+    assert solid_angle == pytest.approx(sum(angles) - np.pi, rel=1e-12)
+    assert (cos_a, sin_a) == pytest.approx((np.cos(angles[0]), np.sin(angles[0])), abs=1e-12)
     # every direction hits the triangle (barycentrics of the ray's hit in its plane are >= 0)
     e1, e2 = tri[1] - tri[0], tri[2] - tri[0]
     p = np.cross(w, e2)

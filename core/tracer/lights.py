@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -102,6 +102,11 @@ class Light(ABC):
         `pdf` (R,), bring from this light (ending at distance t on triangle prim, where that
         applies), MIS-weighted against `sample`; 0 for a light rays never reach."""
         return np.zeros((len(d), 3))
+
+    def reached(self, prim: np.ndarray) -> np.ndarray:
+        """The rows (int64) of the rays ending on triangles prim (R,) (−1: a miss) that reached
+        this light by hitting it: none, but for emitting triangles."""
+        return np.zeros(0, np.int64)
 
     @property
     @abstractmethod
@@ -275,6 +280,9 @@ class EmissiveTriangles(Light):
         power = self.area * np.maximum(self.emission @ LUMINANCE, 0.0)
         self.index = np.nonzero(power > 0.0)[0]
         self.normal = cross / np.maximum(2.0 * self.area, 1e-300)[:, None]
+        # (T + 1,): does triangle t emit; the last entry, False, is what prim −1 (a miss) reads
+        self.emits = np.zeros(len(self.triangles) + 1, bool)
+        self.emits[self.index] = True
         # each emitter's bounding sphere (T, 4): centroid, farthest corner (kernels._surely_small)
         self.bound = np.zeros((len(self.triangles), 4))
         corners = self.triangles[self.index]
@@ -395,6 +403,11 @@ class EmissiveTriangles(Light):
             SOLID_ANGLE_RANGE,
         )
 
+    def reached(self, prim: np.ndarray) -> np.ndarray:
+        """The rows (int64) of the rays, ending on triangles prim (R,) (−1: a miss), that reached
+        one of these emitters: the only ones `evaluate` gives light."""
+        return np.flatnonzero(self.emits[prim])
+
     def evaluate(self, d, t, prim, pdf, origins=None, normals=None) -> np.ndarray:
         p_light = self.pdf(d, t.astype(np.float64), prim, origins, normals)
         weight = pdf * pdf / np.maximum(pdf * pdf + p_light * p_light, 1e-300)
@@ -423,36 +436,30 @@ def _unit(v: np.ndarray) -> np.ndarray:
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _angle_between(v1: np.ndarray, v2: np.ndarray) -> np.ndarray:
-    """Angles (R,) between unit vectors (R, 3), accurate near 0 and π (PBRT-v4's AngleBetween)."""
-    dot = np.einsum("ri,ri->r", v1, v2)
-    small = 2.0 * np.arcsin(np.minimum(np.linalg.norm(v2 - v1, axis=1) / 2.0, 1.0))
-    large = np.pi - 2.0 * np.arcsin(np.minimum(np.linalg.norm(v1 + v2, axis=1) / 2.0, 1.0))
-    return np.where(dot < 0.0, large, small)
-
-
 def spherical_triangles(x: np.ndarray, tri: np.ndarray):
     """(numpy: the spec of the compiled `kernels._spherical`, the tests compare them.)
     The spherical triangles triangles tri (R, 3, 3) make seen from points x (R, 3): unit
-    directions a, b, c (R, 3) to their corners, the angle at a (R,) and the solid angle (R,) in
-    steradians (NaN where degenerate: seen edge-on or from a corner)."""
+    directions a, b, c (R, 3) to their corners, the cosine and sine of the angle at a (R,) and
+    the solid angle (R,) in steradians (0 seen edge-on, NaN from a corner). With D = |a·(b×c)|:
+    the solid angle is 2·atan2(D, 1 + a·b + b·c + c·a) (Van Oosterom & Strackee 1983) and the
+    angle at a is atan2(D, b·c − (a·b)(c·a)) (the spherical laws of cosines and sines)."""
     a, b, c = (_unit(tri[:, i] - x) for i in range(3))
-    n_ab, n_bc, n_ca = _unit(np.cross(a, b)), _unit(np.cross(b, c)), _unit(np.cross(c, a))
-    alpha = _angle_between(n_ab, -n_ca)
-    beta = _angle_between(n_bc, -n_ab)
-    gamma = _angle_between(n_ca, -n_bc)
-    return a, b, c, alpha, alpha + beta + gamma - np.pi
+    ab, bc, ca = (np.einsum("ri,ri->r", p, q) for p, q in ((a, b), (b, c), (c, a)))
+    det = np.abs(np.einsum("ri,ri->r", a, np.cross(b, c)))
+    y = bc - ab * ca
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = np.sqrt(det * det + y * y)
+        return a, b, c, y / h, det / h, 2.0 * np.arctan2(det, 1.0 + ab + bc + ca)
 
 
 def sample_spherical_triangles(x: np.ndarray, tri: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     """Unit directions (R, 3) from x (R, 3) uniform in the solid angle of triangles tri (R, 3, 3)
     for uniform numbers u1, u2 (R,) (Arvo 1995, in PBRT-v4's SampleSphericalTriangle form).
     numpy: the spec of the compiled `kernels._spherical_direction`, the tests compare them."""
-    a, b, c, alpha, area = spherical_triangles(x, tri)
-    ap_pi = np.pi + u1 * area  # the sampled sub-triangle's area + π
-    cos_a, sin_a = np.cos(alpha), np.sin(alpha)
-    sin_phi = np.sin(ap_pi) * cos_a - np.cos(ap_pi) * sin_a
-    cos_phi = np.cos(ap_pi) * cos_a + np.sin(ap_pi) * sin_a
+    a, b, c, cos_a, sin_a, area = spherical_triangles(x, tri)
+    s, q = -np.sin(u1 * area), -np.cos(u1 * area)  # sine and cosine of π + the sub-triangle's area
+    sin_phi = s * cos_a - q * sin_a
+    cos_phi = q * cos_a + s * sin_a
     k1 = cos_phi + cos_a
     k2 = sin_phi - sin_a * np.einsum("ri,ri->r", a, b)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -561,12 +568,15 @@ class RowStream:
     first: int
     seed: int
     stream: int
+    _pair: tuple[int, np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     def uniforms(self, dim: int) -> np.ndarray:
-        rows = np.ascontiguousarray(self.rows, np.int64)
-        texels = np.ascontiguousarray(self.texels, np.int64)
-        pair = _kernels.get().row_sequence(rows, texels, self.k, self.first, self.seed, self.stream + dim // 2)
-        return pair[dim % 2]
+        stream = self.stream + dim // 2
+        if self._pair is None or self._pair[0] != stream:  # dims 2j and 2j + 1 share one pair
+            rows = np.ascontiguousarray(self.rows, np.int64)
+            texels = np.ascontiguousarray(self.texels, np.int64)
+            self._pair = (stream, _kernels.get().row_sequence(rows, texels, self.k, self.first, self.seed, stream))
+        return self._pair[1][dim % 2]
 
 
 #: `Light.sample`'s strata: a group size (int), a TexelStream or a RowStream.

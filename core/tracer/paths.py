@@ -157,13 +157,11 @@ class Paths:
         throughput = np.ones((len(live), 3))
         for bounce in range(ts.bounces + 1):
             t, prim, ng, bu, bv = self.intersect(o, d, barycentrics=True)
-            if ts.surface_lights:
-                hit = np.flatnonzero(prim >= 0)
-                for light in ts.surface_lights:
-                    c = light.column
-                    acc[hit, c : c + 3] += throughput[hit] * light.evaluate(
-                        d[hit], t[hit], prim[hit], pdf[hit], o[hit], None if nrm is None else nrm[hit]
-                    )
+            for light in ts.surface_lights:
+                hit, c = light.reached(prim), light.column  # (the others bring nothing)
+                acc[hit, c : c + 3] += throughput[hit] * light.evaluate(
+                    d[hit], t[hit], prim[hit], pdf[hit], o[hit], None if nrm is None else nrm[hit]
+                )
             sky = self._sky(prim, d, pdf)
             if bounce == ts.bounces:
                 hit, miss = prim >= 0, prim < 0
