@@ -770,10 +770,10 @@ def texel_sequence(texels, k, first, dim, seed):
 
 
 def _cluster_weights(x, normals, i, centre, radius2, radius, power, w):
-    """Into w (K,): each emitter cluster's power over max(distance², radius²) (radius (K,) =
-    √radius2) from x[i], times
+    """Into w (K,): each emitter cluster's power over max(distance², radius²) from x[i], times
     the largest cosine to normals[i] of a direction into the cluster's bounding sphere (0 for a
-    cluster wholly below the horizon; 1 when normals has no rows); returns their sum. centre
+    cluster wholly below the horizon; 1 when normals has no rows); returns their sum. radius
+    (K,): √radius2. centre
     (3, K): the clusters' centres, one row per axis, so the loops over clusters vectorise
     (without fast-math: reassociating the sum would make its last bits depend on the arrays'
     alignment, and a seed would no longer reproduce a bake bit for bit across processes)."""
