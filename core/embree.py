@@ -24,6 +24,7 @@ from __future__ import annotations
 import ctypes
 import importlib
 import importlib.metadata
+import math
 import os
 import re
 import threading
@@ -42,6 +43,7 @@ _GEOMETRY_TRIANGLE = 0
 _BUFFER_INDEX, _BUFFER_VERTEX = 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
 _RAY_WORDS = 32  # RTCRayHit is 80–96 bytes by build options; 128 is enough
+_UNBOUNDED = float(np.float32(3e38))  # the length of a shadow ray towards a direction
 
 _HANDLE = ctypes.c_size_t  # Embree handles and pointers, passed as integers
 _ERRORS = {
@@ -205,6 +207,40 @@ def occluded_rays(scene, origins, directions, tmax, out):
         out[i] = f[b + 8] == -np.inf
 
 
+def shadow_rays(scene, origins, directions, dist, normals, offset, allowed, scale, cosine, out):
+    """Next-event estimation's shadow rays, one per row i of origins (R, 3) towards a light
+    along directions[i] at distance dist[i] (inf: a direction): a row whose direction lies
+    above its normal (c = directions[i]·normals[i] > 0) and that `allowed` (R,) bool permits
+    (no rows: every row) is traced up to dist·(1 − 1e-4) − offset (at least 0; unbounded for
+    inf) with Embree's any-hit query; out[i] = scale·(c if cosine else 1) where nothing is hit,
+    else 0. Returns how many rows were traced."""
+    w, f, b, address = _ray_scratch()
+    traced = 0
+    for i in range(origins.shape[0]):
+        c = directions[i, 0] * normals[i, 0] + directions[i, 1] * normals[i, 1] + directions[i, 2] * normals[i, 2]
+        out[i] = 0.0
+        if not c > 0.0 or (allowed.shape[0] > 0 and not allowed[i]):
+            continue
+        reach = dist[i] * (1.0 - 1e-4) - offset if math.isfinite(dist[i]) else _UNBOUNDED
+        f[b + 0] = origins[i, 0]
+        f[b + 1] = origins[i, 1]
+        f[b + 2] = origins[i, 2]
+        f[b + 3] = 0.0
+        f[b + 4] = directions[i, 0]
+        f[b + 5] = directions[i, 1]
+        f[b + 6] = directions[i, 2]
+        f[b + 7] = 0.0
+        f[b + 8] = 0.0 if reach < 0.0 else reach
+        w[b + 9] = _INVALID
+        w[b + 10] = 0
+        w[b + 11] = 0
+        rtc_occluded1(scene, address, 0)
+        traced += 1
+        if f[b + 8] != -np.inf:
+            out[i] = scale * c if cosine else scale
+    return traced
+
+
 def _compile(lib) -> SimpleNamespace:
     numba = deps.require("numba")
     from llvmlite import binding as llvm
@@ -217,7 +253,9 @@ def _compile(lib) -> SimpleNamespace:
     jit = numba.njit(nogil=True, cache=True)
     for name in ("_ray_scratch", "_set_ray"):
         module[name] = jit(module[name])
-    return SimpleNamespace(intersect_rays=jit(intersect_rays), occluded_rays=jit(occluded_rays))
+    return SimpleNamespace(
+        intersect_rays=jit(intersect_rays), occluded_rays=jit(occluded_rays), shadow_rays=jit(shadow_rays)
+    )
 
 
 # ---- scenes -----------------------------------------------------------------------------------
@@ -282,6 +320,16 @@ class Scene:
         out = np.empty(len(origins), np.bool_)
         self._lib.kernels.occluded_rays(self.handle, origins, directions, tmax, out)
         return out
+
+    def shadow(self, origins, directions, dist, normals, offset, allowed, scale, cosine) -> tuple[np.ndarray, int]:
+        """Next-event estimation's shadow weights (R,) float64 and how many rays were traced
+        (`shadow_rays`; float64 rows, `allowed` bool (R,) or no rows)."""
+        self.wait()
+        out = np.empty(len(origins))
+        traced = self._lib.kernels.shadow_rays(
+            self.handle, origins, directions, dist, normals, float(offset), allowed, float(scale), bool(cosine), out
+        )
+        return out, int(traced)
 
     def __del__(self):
         handle, self.handle = getattr(self, "handle", 0), 0

@@ -61,24 +61,39 @@ def radical_inverse(i):
 _M32 = np.uint64(0xFFFFFFFF)
 
 
+def _sobol_second_bytes() -> np.ndarray:
+    """(4, 256) uint64: row p, entry x, the XOR of the direction numbers of Sobol's second
+    dimension (v_0 = 2^31, v_{j+1} = v_j ^ (v_j >> 1)) of the bits j = 8p + q set in x."""
+    v = [1 << 31]
+    for _ in range(31):
+        v.append(v[-1] ^ (v[-1] >> 1))
+    table = np.zeros((4, 256), np.uint64)
+    for p in range(4):
+        for x in range(256):
+            acc = 0
+            for q in range(8):
+                if x >> q & 1:
+                    acc ^= v[8 * p + q]
+            table[p, x] = acc
+    return table
+
+
+_SOBOL_SECOND = _sobol_second_bytes()
+
+
 def sobol_02(i):
-    """Point i of the (0,2)-sequence of Sobol's first two dimensions, as two 32-bit integers
-    (uint64) in [0, 2^32): i's bits reversed, and Sobol's second dimension (direction numbers
-    v ^= v >> 1). Every prefix of 2^m points holds one point in each elementary interval of
-    area 2^-m (Kollig & Keller 2002; PBRT's Sobol02)."""
-    a = np.uint64(0)
-    b = np.uint64(0)
-    v = np.uint64(1) << np.uint64(31)
-    bit = np.uint64(1) << np.uint64(31)
+    """Point i (< 2^32) of the (0,2)-sequence of Sobol's first two dimensions, as two 32-bit
+    integers (uint64) in [0, 2^32): i's bits reversed, and Sobol's second dimension (the XOR
+    of its direction numbers over i's set bits, a byte at a time from `_SOBOL_SECOND`). Every
+    prefix of 2^m points holds one point in each elementary interval of area 2^-m (Kollig &
+    Keller 2002; PBRT's Sobol02)."""
     n = np.uint64(i)
-    while n > np.uint64(0):
-        if n & np.uint64(1):
-            a ^= bit
-            b ^= v
-        n >>= np.uint64(1)
-        bit >>= np.uint64(1)
-        v ^= v >> np.uint64(1)
-    return a, b
+    b = _SOBOL_SECOND[0, n & np.uint64(255)] ^ _SOBOL_SECOND[1, (n >> np.uint64(8)) & np.uint64(255)]
+    b ^= (
+        _SOBOL_SECOND[2, (n >> np.uint64(16)) & np.uint64(255)]
+        ^ _SOBOL_SECOND[3, (n >> np.uint64(24)) & np.uint64(255)]
+    )
+    return reverse_bits32(n), b
 
 
 def reverse_bits32(x):
@@ -839,8 +854,8 @@ def _cluster_chances(total, share, floor, alone):
 _HELPERS = (
     "uniform",
     "radical_inverse",
-    "sobol_02",
     "reverse_bits32",
+    "sobol_02",
     "owen_scramble",
     "stream_key",
     "sobol_pair",

@@ -61,6 +61,33 @@ class RayScene:
         o, d = _rays(origins), _rays(directions)
         return self._scene.occluded(o, d, _reach(tmax, len(o)))
 
+    def shadow(
+        self,
+        origins: np.ndarray,
+        directions: np.ndarray,
+        dist: np.ndarray,
+        normals: np.ndarray,
+        offset: float,
+        scale: float = 1.0,
+        cosine: bool = True,
+        allowed: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, int]:
+        """Next-event estimation's shadow rays in one pass: for the rows (R,) whose direction
+        (R, 3) lies above their normal (R, 3) (c = direction · normal > 0) and that `allowed`
+        (R,) bool permits (None: all), an any-hit query from the origin (R, 3) towards the
+        light at distance dist (R,) (inf: a direction), stopping `offset` (scene units) and
+        1e-4 of the way short of it. Returns the weights (R,) float64, scale·c (`cosine`) or
+        scale where nothing is in the way, else 0, and how many rays were traced."""
+        rows = np.zeros(0, bool) if allowed is None else np.ascontiguousarray(allowed, bool)
+        return self._scene.shadow(
+            _float64(origins), _float64(directions), _float64(dist), _float64(normals), offset, rows, scale, cosine
+        )
+
+
+def _float64(a: np.ndarray) -> np.ndarray:
+    """a as float64 (no copy when it is already; broadcast views stay views)."""
+    return np.asarray(a, np.float64)
+
 
 def _rays(a: np.ndarray) -> np.ndarray:
     """(R, 3) origins or directions, C-contiguous float64 or float32 as given (the query

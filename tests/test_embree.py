@@ -75,6 +75,36 @@ def test_occlusion_agrees_with_the_closest_hit_and_dtypes_agree(scene):
     np.testing.assert_array_equal(scalar, rs.occluded(origins, dirs, np.full(len(origins), 0.5)))
 
 
+def test_shadow_rays_are_the_occlusion_query_above_the_horizon(scene):
+    """`RayScene.shadow` (next-event estimation's fused query) against its spelling in numpy
+    queries: rows below the normal's horizon or not allowed are not traced and weigh 0; the
+    others weigh scale·cosθ (or scale) unless something lies short of the light (stopping
+    offset and 1e-4 of the way before it; a light at infinity: unbounded)."""
+    tri, origins, dirs, tmax = scene
+    rs = rays.RayScene(tri)
+    rng = np.random.default_rng(4)
+    normals = rng.normal(size=origins.shape)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    dist = np.where(rng.random(len(origins)) < 0.5, rng.uniform(0.0, 2.0, len(origins)), np.inf)
+    allowed = rng.random(len(origins)) < 0.8
+    offset = 1e-3
+    cos = (dirs * normals).sum(axis=1)
+    reach = np.maximum(np.where(np.isfinite(dist), dist * (1 - 1e-4) - offset, 3e38), 0.0)
+    seen = ~rs.occluded(origins, dirs, reach)
+    for scale, cosine, rows in ((1.0, True, None), (0.25, False, allowed)):
+        weight, traced = rs.shadow(origins, dirs, dist, normals, offset, scale, cosine, rows)
+        traced_rows = (cos > 0) & (True if rows is None else rows)
+        assert traced == traced_rows.sum()
+        want = np.where(traced_rows & seen, scale * cos if cosine else scale, 0.0)
+        np.testing.assert_array_equal(weight, want)
+        assert (weight[traced_rows] == 0).sum() > 200 and (weight[traced_rows] > 0).sum() > 200  # both ways
+    # a sun's directions may be one row broadcast to every point
+    sun = np.broadcast_to(dirs[:1], dirs.shape)
+    weight, _ = rs.shadow(origins, sun, np.full(len(origins), np.inf), normals, offset)
+    want = np.where(normals @ dirs[0] > 0, ~rs.occluded(origins, np.ascontiguousarray(sun), 3e38), False)
+    np.testing.assert_array_equal(weight > 0, want)
+
+
 def test_agrees_with_embreex_own_api(scene):
     """The same Embree library through embreex's classes (copying) and ours (shared buffers)."""
     from embreex import rtcore_scene

@@ -44,7 +44,7 @@ from .. import covers as _covers
 from ..bakepoints import BakePoints
 from ..covers import CoverProbe
 from . import lights, shipping
-from .paths import Paths, TexelSamples, TraceScene, seed, take_rows
+from .paths import Paths, TexelSamples, TraceScene, seed
 from .scheduler import UnitResult, WorkUnit
 
 #: Each texel's hemisphere directions from its own scrambled (0,2)-sequences, stratified
@@ -183,14 +183,9 @@ class TexelEstimator(shipping.Shipped):
 
         samples = paths.light_samples(rng, origins, mixture_pdf, strata=1 if stream is None else stream, normals=normal)
         for light, (dirs, value, dist) in zip(self.scene.lights, samples):
-            above = np.einsum("ri,ri->r", dirs, normal) > 0.0
-            if uncovered is not None:
-                above &= uncovered
-            rows = np.flatnonzero(above)
-            if len(rows) == 0:
+            weight, traced = paths.shadow(origins, dirs, dist, normal, 1.0 / k, cosine=False, allowed=uncovered)
+            if not traced:
                 continue
-            weight = np.zeros(len(origins))
-            weight[rows] = paths.unoccluded(take_rows(origins, rows), take_rows(dirs, rows), dist[rows]) * (1.0 / k)
             paths.kernels.accumulate_grouped(dirs, value, weight, k, out[:, :, light.column : light.column + 3])
         return out
 

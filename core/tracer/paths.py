@@ -251,20 +251,21 @@ class Paths:
         cosine_pdf = lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi
         samples = self.light_samples(rng, x, cosine_pdf, strata, normals=n)
         for light, (dirs, value, dist) in zip(self.scene.lights, samples):
-            cos = np.einsum("ri,ri->r", dirs, n)
-            facing = np.flatnonzero(cos > 0.0)
-            if len(facing) == len(x):
-                weight = self.unoccluded(x, dirs, dist) * cos
-            elif len(facing):
-                weight = np.zeros(len(x))
-                weight[facing] = (
-                    self.unoccluded(take_rows(x, facing), take_rows(dirs, facing), dist[facing]) * cos[facing]
-                )
-            else:
+            weight, traced = self.shadow(x, dirs, dist, n)  # cosθ where the light is seen, else 0
+            if not traced:  # every sample below the horizon
                 continue
             c = light.column
             total[:, c : c + 3] += weight[:, None] * value
         return total * (1.0 / np.pi)
+
+    def shadow(self, x, dirs, dist, n, scale=1.0, cosine=True, allowed=None) -> tuple[np.ndarray, int]:
+        """Light samples at points x (R, 3) with normals n along dirs (R, 3) at distances dist
+        (R,) (inf: a direction) through one shadow ray each, those above the horizon (and
+        `allowed`): weights (R,), scale·cosθ (`cosine`) or scale where the light is seen, else
+        0, and how many rays that traced (`rays.RayScene.shadow`; counted)."""
+        weight, traced = self._rays.shadow(x, dirs, dist, n, self.scene.offset, scale, cosine, allowed)
+        self.count(traced)
+        return weight, traced
 
     def unoccluded(self, o: np.ndarray, d: np.ndarray, dist: np.ndarray) -> np.ndarray:
         """(R,) 1.0 where nothing lies between o and the light at distance dist (inf: a direction)."""
