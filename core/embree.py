@@ -251,8 +251,10 @@ def _compile(lib) -> SimpleNamespace:
         llvm.add_symbol(symbol, ctypes.cast(getattr(lib, symbol), ctypes.c_void_p).value)
         module[name] = types.ExternalFunction(symbol, types.void(types.uintp, types.uintp, types.uintp))
     jit = numba.njit(nogil=True, cache=True)
-    for name in ("_ray_scratch", "_set_ray"):
-        module[name] = jit(module[name])
+    module["_ray_scratch"] = jit(_ray_scratch)
+    # called per ray: compiled without reference counting (it makes no array), else each call
+    # counts the five arrays it is passed up and down atomically (`core.kernels.get`)
+    module["_set_ray"] = numba.njit(nogil=True, cache=True, _nrt=False)(_set_ray)
     return SimpleNamespace(
         intersect_rays=jit(intersect_rays), occluded_rays=jit(occluded_rays), shadow_rays=jit(shadow_rays)
     )

@@ -657,33 +657,33 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
     row at a time): the cluster by `u[0]` (`_cluster_weights` with normals (R, 3) or no rows),
     the triangle of the cluster by `u[1]` (the first of its rows of `key` above cluster + u),
     then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
-    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (centre (3, K),
-    radius2 (K,), cluster power (K,), key (E,), order (E,), first (K,), last (K,), each
-    triangle's bounding sphere (T, 4): centre, radius).
+    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (6,
+    K): rows centre x, y, z, radius², radius, power (`_cluster_weights`); key (E,), order (E,),
+    first (K,), last (K,), each triangle's bounding sphere (T, 4): centre, radius).
     Returns directions (R, 3), distances (R,), triangles (R,) int64 and densities (R,)."""
-    centre, radius2, power, key, order, first, last, bound = emitters
+    clusters, key, order, first, last, bound = emitters
     n = x.shape[0]
-    k = centre.shape[1]
+    k = clusters.shape[1]
+    horizon = normals.shape[0] > 0
     dirs = np.empty((n, 3))
     dist = np.empty(n)
     pick = np.empty(n, np.int64)
     pdf = np.empty(n)
     w = np.empty(k)
-    floor, alone = _power_shares(power, share)
-    radius = np.sqrt(radius2)
+    alone = clusters[5] / clusters[5].sum()
     for i in range(n):
         cluster, chance = k - 1, 1.0
         if k > 1:
-            scale, base = _cluster_chances(
-                _cluster_weights(x, normals, i, centre, radius2, radius, power, w), share, floor, alone
-            )
+            nx, ny, nz = _normal(normals, i)
+            total = _cluster_weights(x[i, 0], x[i, 1], x[i, 2], nx, ny, nz, horizon, clusters, w)
+            scale, mix = _cluster_chances(total, share)
             acc = 0.0
             for c in range(k):
-                acc += scale * w[c] + base[c]
+                acc += scale * w[c] + mix * alone[c]
                 if u[0, i] < acc:
                     cluster = c
                     break
-            chance = scale * w[cluster] + base[cluster]
+            chance = scale * w[cluster] + mix * alone[cluster]
         lo, hi = first[cluster], last[cluster]  # the first row whose key exceeds cluster + u
         v = cluster + u[1, i]
         while lo < hi:
@@ -729,11 +729,11 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
     """(R,): the density per steradian with which `sample_emitters` at x (R, 3) (normals (R, 3)
     or no rows) picks the point at distance t (R,) along d (R, 3) on triangle prim (R,) (0 for
     triangles that do not emit)."""
-    centre, radius2, power = emitters[0], emitters[1], emitters[2]
-    k = centre.shape[1]
+    clusters, bound = emitters[0], emitters[5]
+    k = clusters.shape[1]
+    horizon = normals.shape[0] > 0
     w = np.empty(k)
-    floor, alone = _power_shares(power, share)
-    radius = np.sqrt(radius2)
+    alone = clusters[5] / clusters[5].sum()
     out = np.empty(x.shape[0])
     for i in range(x.shape[0]):
         tri = prim[i]
@@ -742,13 +742,12 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
             continue
         chance = within[tri]
         if k > 1:
-            scale, base = _cluster_chances(
-                _cluster_weights(x, normals, i, centre, radius2, radius, power, w), share, floor, alone
-            )
-            chance *= scale * w[cluster_of[tri]] + base[cluster_of[tri]]
-        omega = (
-            0.0 if _surely_small(x, i, tri, tri_area, emitters[7], window[0]) else _spherical(x, i, triangles, tri)[5]
-        )
+            nx, ny, nz = _normal(normals, i)
+            total = _cluster_weights(x[i, 0], x[i, 1], x[i, 2], nx, ny, nz, horizon, clusters, w)
+            scale, mix = _cluster_chances(total, share)
+            c = cluster_of[tri]
+            chance *= scale * w[c] + mix * alone[c]
+        omega = 0.0 if _surely_small(x, i, tri, tri_area, bound, window[0]) else _spherical(x, i, triangles, tri)[5]
         cos = abs(d[i, 0] * tri_normal[tri, 0] + d[i, 1] * tri_normal[tri, 1] + d[i, 2] * tri_normal[tri, 2])
         out[i] = _emitter_density(chance, tri_area[tri], omega, cos, t[i], window[0], window[1])
     return out
@@ -784,71 +783,55 @@ def texel_sequence(texels, k, first, dim, seed):
     return out
 
 
-def _cluster_weights(x, normals, i, centre, radius2, radius, power, w):
-    """Into w (K,): each emitter cluster's power over max(distance², radius²) from x[i], times
-    the largest cosine to normals[i] of a direction into the cluster's bounding sphere (0 for a
-    cluster wholly below the horizon; 1 when normals has no rows); returns their sum. radius
-    (K,): √radius2. centre
-    (3, K): the clusters' centres, one row per axis, so the loops over clusters vectorise
-    (without fast-math: reassociating the sum would make its last bits depend on the arrays'
-    alignment, and a seed would no longer reproduce a bake bit for bit across processes)."""
-    px, py, pz = x[i, 0], x[i, 1], x[i, 2]
-    if normals.shape[0] == 0:
-        return _distance_weights(px, py, pz, centre[0], centre[1], centre[2], radius2, power, w)
-    nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-    return _horizon_weights(px, py, pz, nx, ny, nz, centre[0], centre[1], centre[2], radius2, radius, power, w)
-
-
-def _distance_weights(px, py, pz, cx, cy, cz, radius2, power, w):
-    """`_cluster_weights` without normals: element-wise, so the loop vectorises (bit for bit
-    the scalar arithmetic), then summed in order."""
-    for c in range(cx.shape[0]):
-        dx, dy, dz = cx[c] - px, cy[c] - py, cz[c] - pz
-        w[c] = power[c] / max(dx * dx + dy * dy + dz * dz, radius2[c])
-    return _ordered_sum(w)
-
-
-def _ordered_sum(w):
-    """Σ w in index order (the same bits whatever vectorises around it)."""
+def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, w):
+    """Into w (K,): each emitter cluster's power over max(distance², radius²) from the point
+    (px, py, pz), times (if `horizon`) the largest cosine to the unit normal (nx, ny, nz) of a
+    direction into the cluster's bounding sphere (0 for a cluster wholly below the horizon);
+    returns their sum, in index order. clusters (6, K): rows centre x, y, z, radius², radius,
+    power. Element-wise and branch-free, so the loops vectorise (bit for bit the scalar
+    arithmetic; without fast-math, which would reassociate the sum and make its last bits
+    depend on the arrays' alignment: a seed would no longer reproduce a bake bit for bit
+    across processes). Scalars and two arrays: a call's cost grows with its arguments.
+    With d the distance, r the radius and a = normal · (centre − x): the normal lies inside
+    the cone of directions into the sphere when a ≥ √(d² − r²), else the nearest edge's
+    cosine is (a √(d² − r²) + √(d² − a²) r) / d²; inside the sphere, 1."""
+    k = w.shape[0]
+    if horizon:
+        for c in range(k):
+            dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            r2 = clusters[3, c]
+            a = nx * dx + ny * dy + nz * dz
+            h2 = d2 - r2
+            edge = a * math.sqrt(max(h2, 0.0)) + math.sqrt(max(d2 - a * a, 0.0)) * clusters[4, c]  # × d2
+            outside = (h2 > 0.0) & ((a < 0.0) | (a * a < h2))
+            d2s = max(d2, 1e-300)
+            w[c] = clusters[5, c] * (max(edge, 0.0) if outside else d2s) / (max(d2, r2) * d2s)
+    else:
+        for c in range(k):
+            dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
+            w[c] = clusters[5, c] / max(dx * dx + dy * dy + dz * dz, clusters[3, c])
     total = 0.0
-    for c in range(w.shape[0]):
+    for c in range(k):
         total += w[c]
     return total
 
 
-def _horizon_weights(px, py, pz, nx, ny, nz, cx, cy, cz, radius2, radius, power, w):
-    """`_cluster_weights` with the normal (nx, ny, nz): element-wise and branch-free, so the
-    loop vectorises (bit for bit the scalar arithmetic), then summed in order. With d the
-    distance, r the radius and a = normal · (centre − x): the normal lies inside the cone of
-    directions into the sphere when a ≥ √(d² − r²), else the nearest edge's cosine is
-    (a √(d² − r²) + √(d² − a²) r) / d²; inside the sphere, 1."""
-    for c in range(cx.shape[0]):
-        dx, dy, dz = cx[c] - px, cy[c] - py, cz[c] - pz
-        d2 = dx * dx + dy * dy + dz * dz
-        r2 = radius2[c]
-        a = nx * dx + ny * dy + nz * dz
-        h2 = d2 - r2
-        edge = a * math.sqrt(max(h2, 0.0)) + math.sqrt(max(d2 - a * a, 0.0)) * radius[c]  # × d2
-        outside = (h2 > 0.0) & ((a < 0.0) | (a * a < h2))
-        d2s = max(d2, 1e-300)
-        w[c] = power[c] * (max(edge, 0.0) if outside else d2s) / (max(d2, r2) * d2s)
-    return _ordered_sum(w)
+def _normal(normals, i):
+    """normals[i] as a 3-tuple, or zeros when normals has no rows."""
+    if normals.shape[0] == 0:
+        return 0.0, 0.0, 0.0
+    return normals[i, 0], normals[i, 1], normals[i, 2]
 
 
-def _power_shares(power, share):
-    """Per cluster (K,) its power share times `share` (the part of its chance power alone
-    gives), and its power share alone (its chance where every weight is 0)."""
-    alone = power / power.sum()
-    return share * alone, alone
-
-
-def _cluster_chances(total, share, floor, alone):
-    """(scale, base): cluster c's probability is scale·w_c + base_c, i.e. (1 − share)·w_c / Σw
-    + share·power_c / Σpower, or power alone where every w is 0 (all below the horizon);
-    total = Σw, floor and alone from `_power_shares`."""
+def _cluster_chances(total, share):
+    """(scale, mix): cluster c's probability is scale·w_c + mix·power_c / Σpower, i.e.
+    (1 − share)·w_c / Σw + share·power_c / Σpower, or power alone where every w is 0 (all
+    below the horizon); total = Σw. Scalars: an array returned per row would cost atomic
+    reference counts."""
     if total <= 0.0:
-        return 0.0, alone
-    return (1.0 - share) / total, floor
+        return 0.0, 1.0
+    return (1.0 - share) / total, share
 
 
 _HELPERS = (
@@ -864,11 +847,8 @@ _HELPERS = (
     "sh_basis",
     "zonal_band1",
     "local_to_world",
-    "_ordered_sum",
-    "_distance_weights",
-    "_horizon_weights",
     "_cluster_weights",
-    "_power_shares",
+    "_normal",
     "_cluster_chances",
     "_unit3",
     "_spherical",
@@ -876,6 +856,7 @@ _HELPERS = (
     "_emitter_density",
     "_surely_small",
 )
+_ALLOCATING = ("_project_control_variate",)  # helpers that make arrays (need reference counts)
 _KERNELS = (
     "sample_emitters",
     "emitter_pdf",
@@ -903,8 +884,12 @@ def get() -> SimpleNamespace:
         if _compiled is None:
             numba = deps.require("numba")
             jit = numba.njit(nogil=True, cache=True, error_model="numpy")
+            # helpers that allocate no array are compiled without reference counting: otherwise
+            # every call (per sample) counts each array it is passed up and down, atomically,
+            # which cost more than the emitters' sampling arithmetic (and contends across threads)
+            borrow = numba.njit(nogil=True, cache=True, error_model="numpy", _nrt=False)
             module = globals()
             for name in _HELPERS:  # rebinding the globals: kernels then call compiled helpers
-                module[name] = jit(module[name])
+                module[name] = (jit if name in _ALLOCATING else borrow)(module[name])
             _compiled = SimpleNamespace(**{name: jit(module[name]) for name in _KERNELS})
     return _compiled

@@ -379,8 +379,9 @@ class EmissiveTriangles(Light):
 
     def _emitters(self) -> tuple:
         """The cluster arrays the kernels take (`kernels.sample_emitters`)."""
-        centre = np.ascontiguousarray(self.centre.T)  # (3, K): one row per axis
-        return (centre, self.radius2, self.cluster_power, self.key, self.order, self.first, self.last, self.bound)
+        radius2 = self.radius2
+        clusters = np.ascontiguousarray(np.vstack([self.centre.T, radius2, np.sqrt(radius2), self.cluster_power]))
+        return (clusters, self.key, self.order, self.first, self.last, self.bound)
 
     def pdf(self, d, t=None, prim=None, origins=None, normals=None) -> np.ndarray:
         """Density per steradian of sampling, from `origins` (R, 3) with `normals` (R, 3) or
