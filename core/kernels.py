@@ -884,9 +884,8 @@ def get() -> SimpleNamespace:
         if _compiled is None:
             numba = deps.require("numba")
             jit = numba.njit(nogil=True, cache=True, error_model="numpy")
-            # helpers that allocate no array are compiled without reference counting: otherwise
-            # every call (per sample) counts each array it is passed up and down, atomically,
-            # which cost more than the emitters' sampling arithmetic (and contends across threads)
+            # helpers that make no array are compiled without reference counting: otherwise every
+            # call (per sample) counts each array it is passed up and down, atomically
             borrow = numba.njit(nogil=True, cache=True, error_model="numpy", _nrt=False)
             module = globals()
             for name in _HELPERS:  # rebinding the globals: kernels then call compiled helpers
