@@ -79,6 +79,25 @@ def test_pages_hold_every_lit_chart_once_without_overlap_and_within_a_brightness
         assert used.max() == 1  # rectangles (margins included) never overlap
 
 
+def test_texels_beside_a_chart_take_it_mirrored_through_its_border():
+    """Reflect padding (`_mirror`): beside a straight border, the first masked column takes the
+    chart's second-to-last column and the next one the third-to-last (2·nearest − itself); farther
+    than MIRROR_RINGS, and where the mirror image falls outside the chart (a one-texel-wide
+    chart), the fill already there stays."""
+    rng = np.random.default_rng(3)
+    source = np.zeros((6, 10), bool)
+    source[:, :4] = True  # chart: columns 0-3
+    source[2, 8] = True  # a lone texel: its mirror images are not chart texels
+    image = rng.random((6, 10, 2))
+    before = image.copy()
+    out = denoise._mirror(image, source)
+    assert out is image and denoise.MIRROR_RINGS == 2
+    np.testing.assert_array_equal(out[:, 4], before[:, 2])
+    np.testing.assert_array_equal(out[:, 5], before[:, 1])
+    np.testing.assert_array_equal(out[:, :4], before[:, :4])  # chart texels are never written
+    np.testing.assert_array_equal(out[:, 6:], before[:, 6:])  # beside the lone texel: nothing to mirror
+
+
 def atlas_data(charts: list[tuple[slice, slice, float]], size=128, noise=0.3, seed=0) -> encoding.TexelData:
     """A synthetic atlas: per chart (rows, cols, radiance), uniform sky-like radiance with the
     band-1 vector along +z (normals +z), multiplicative noise on every coefficient."""
