@@ -820,7 +820,7 @@ def _mirror(image: np.ndarray, source: np.ndarray) -> np.ndarray:
     MIRROR_RINGS of a chart texel `source` `(h, w)` takes the value of the texel mirrored through
     its nearest chart texel (point reflection: 2·nearest − itself), if that one is a chart texel.
     Next to a chart the filter then sees the chart's own noise continued, not a smooth band it
-    keeps as an edge (README, Denoising). It reads only texels within MIRROR_RINGS rows, so a
+    keeps as an edge (bench/denoise_fill.py). It reads only texels within MIRROR_RINGS rows, so a
     band's rows get the whole page's bits."""
     h, w = source.shape
     nearest = dilate.nearest_source(source, MIRROR_RINGS).reshape(-1)
