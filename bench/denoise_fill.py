@@ -85,7 +85,7 @@ def measure(name: str, args, bench, denoiser) -> dict:
     }
     shipped = denoise.MIRROR_RINGS
     for samples in args.samples:
-        traced, seconds = bench.our_bake(atlas, samples, 0)
+        traced, _ = bench.our_bake(atlas, samples, 0)
         row = {"samples": samples, "raw": errors(reference, iz(traced.sh), subsets)}
         for label, rings in (("smooth", 0), ("mirrored", shipped)):
             denoise.MIRROR_RINGS = rings
