@@ -107,22 +107,17 @@ def measure(name: str, args, bench, denoiser) -> dict:
 
 def chart_rings(points) -> np.ndarray:
     """(P,) int: each baked texel's chessboard distance to the nearest texel outside the charts
-    (1 on a chart's edge), by repeated 3 × 3 erosion of the atlas's covered texels."""
+    or the atlas (1 on a chart's edge): `core.dilate.nearest_source` grown from those texels."""
+    from hhd_lightmapper.core import dilate
+
     covered = np.zeros(points.width * points.height, bool)
     covered[points.texel] = True
-    inside = covered.reshape(points.height, points.width)
-    ring = np.zeros(inside.shape, np.int32)
-    k = 0
-    while inside.any():
-        k += 1
-        ring[inside] = k
-        padded = np.pad(inside, 1)
-        eroded = np.ones_like(inside)
-        for dy in range(3):
-            for dx in range(3):
-                eroded &= padded[dy : dy + inside.shape[0], dx : dx + inside.shape[1]]
-        inside = eroded
-    return ring.reshape(-1)[points.texel]
+    outside = np.pad(~covered.reshape(points.height, points.width), 1, constant_values=True)
+    h, w = outside.shape
+    nearest = dilate.nearest_source(outside, max(h, w)).reshape(h, w)[1:-1, 1:-1].reshape(-1)[points.texel]
+    y, x = np.divmod(points.texel, points.width)
+    ny, nx = np.divmod(nearest, w)
+    return np.maximum(np.abs(ny - 1 - y), np.abs(nx - 1 - x))
 
 
 def errors(reference, x: np.ndarray, subsets: dict) -> dict:
