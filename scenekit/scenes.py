@@ -185,6 +185,43 @@ def classroom(folder: Path = CLASSROOM) -> list:
     return sorted(room, key=lambda o: sum(p.area for p in o.data.polygons))[-6:]
 
 
+def emissive_room() -> list:
+    """`emissive` (a room lit by a ceiling light box and a glow strip, no sky); returns the
+    receivers: every mesh but the two emitters."""
+    import bpy
+
+    emissive()
+    return [o for o in bpy.data.objects if o.type == "MESH" and o.name not in ("Ceiling Light", "Glow Strip")]
+
+
+def door_room() -> list:
+    """A closed white room (6 × 5 × 3 m, walls 0.2 m thick) with a table, lit only through a
+    1 × 2.2 m door gap in its -y wall by a sun that shines in onto the floor and a sky colour
+    over a grey ground: nearly all its light is indirect. Returns the receivers: the room's
+    meshes (not the ground)."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    box, material = blender.box_between, blender.material
+    white = material("Plaster", (0.8, 0.8, 0.78))
+    sx, sy, sz, t = 6.0, 5.0, 3.0, 0.2
+    room = [
+        box("Floor", (-sx / 2, -sy / 2, -t), (sx / 2, sy / 2, 0), white),
+        box("Ceiling", (-sx / 2, -sy / 2, sz), (sx / 2, sy / 2, sz + t), white),
+        box("Wall -X", (-sx / 2 - t, -sy / 2, 0), (-sx / 2, sy / 2, sz), white),
+        box("Wall +X", (sx / 2, -sy / 2, 0), (sx / 2 + t, sy / 2, sz), white),
+        box("Wall +Y", (-sx / 2, sy / 2, 0), (sx / 2, sy / 2 + t, sz), white),
+        box("Wall -Y Left", (-sx / 2, -sy / 2 - t, 0), (-0.5, -sy / 2, sz), white),
+        box("Wall -Y Right", (0.5, -sy / 2 - t, 0), (sx / 2, -sy / 2, sz), white),
+        box("Lintel", (-0.5, -sy / 2 - t, 2.2), (0.5, -sy / 2, sz), white),
+        box("Table", (-0.8, -0.6, 0.0), (0.8, 0.6, 0.75), white),
+    ]
+    box("Ground", (-20, -20, -0.5), (20, 20, -t - 0.01), material("Ground", (0.3, 0.3, 0.3)))
+    blender.sun(35.0, 280.0, 4.0, 0.0)
+    blender.world((0.5, 0.7, 1.0), 1.0)
+    return room
+
+
 def field(n_triangles: int = 1_000_000) -> list:
     """`sphere_field(n_triangles)` as one mesh "Field" on a ground plane 1.2× its extent, one
     default diffuse material, sun + sky; returns the receivers: [the ground]."""
