@@ -38,6 +38,9 @@ no geometry crosses (`BakePoints.crossed`): where a wall or a lamp's base crosse
 average the part of it the bake point sees and Cycles the whole texel (bench/leaks.py), so
 there the engines bake different quantities; next to an emitter those texels are also the
 heaviest-tailed ones, which on `bedroom` swamp every other texel's error.
+`--bounces` (both engines) and `--uniform-share` (our hemisphere mixture's α) are for
+diagnosis; an entry run with them, or at another `--resolution`, is stored under the scene's
+name with them in brackets, e.g. `door-room (256², 0 bounces, α 0.1)`.
 Per-sample variance: at each sample count both engines ran, (corrected error)² × samples, ours
 over Cycles' (< 1: our samples are worth more); time to error ≈ the texel-sample rate ratio over
 that variance ratio. The peak RSS of this run is recorded; a 4096² atlas's peak memory is
@@ -84,6 +87,10 @@ def main() -> int:
         action="store_true",
         help="compare only texels no geometry crosses (BakePoints.crossed), stored as '<scene> (uncrossed)'",
     )
+    ap.add_argument("--bounces", type=int, default=3, help="both engines' bounces (0: direct light only)")
+    ap.add_argument(
+        "--uniform-share", type=float, default=None, help="our hemisphere mixture's α (hemisphere.UNIFORM_SHARE)"
+    )
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
     sys.path.insert(0, str(ROOT / "bench"))  # denoise (the .blend scenes' receivers)
@@ -93,12 +100,22 @@ def main() -> int:
     import hhd_lightmapper
 
     hhd_lightmapper.register()
+    globals()["BOUNCES"] = args.bounces  # our_bake's and cycles_bake's
+    variant = [f"{args.resolution}²"] if args.resolution != 512 else []
+    variant += [f"{args.bounces} bounces"] if args.bounces != 3 else []
+    if args.uniform_share is not None:
+        from hhd_lightmapper.core.tracer import hemisphere
+
+        hemisphere.UNIFORM_SHARE = args.uniform_share
+        variant.append(f"α {args.uniform_share:g}")
+    if args.uncrossed:
+        variant.append("uncrossed")
     out = RESULTS / "time_to_error.json"
     results = json.loads(out.read_text()) if out.exists() else {}
     # an entry without "floor" is from before the two-half reference (kept as it was measured)
     for name in args.scenes:
         receivers = load_scene(name)
-        key = f"{name} (uncrossed)" if args.uncrossed else name
+        key = f"{name} ({', '.join(variant)})" if variant else name
         results[key] = measure(receivers, args)
         results[key]["load_average"] = os.getloadavg()
         print_table(key, results[key], args.levels)
