@@ -8,7 +8,7 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
    rectangle are masked out and refilled from its own: next to the chart its texels mirrored
    through its border (`_mirror`, a CNN's reflect padding), farther a local mean of its texels
    (`_smooth_fill`; copying the nearest texel repeats its noise in streaks the filter keeps).
-2. **Pages**: each chart's rectangle plus MARGIN texels goes into a page image (shelf packing,
+2. **Pages**: each chart's rectangle plus MARGIN texels goes into a page image (skyline packing,
    `layout`). Every OIDN call has a fixed cost whatever the size, and real atlases hold thousands of
    charts a few texels wide, so charts share pages; a chart then sees its neighbours in the page
    2·MARGIN texels away at the closest. To keep that from bleeding light, a page only holds charts
@@ -67,8 +67,10 @@ FILL_RINGS = 16
 #: their nearest one (`_mirror`), where there is one, instead of the smooth fill.
 MIRROR_RINGS = 2
 #: Page width in texels (at most the atlas's; a wider chart gets a page as wide as it) and the
-#: height a page is closed at (its last shelf may pass it).
+#: height at or above which no chart starts in a page (its top may pass it).
 PAGE_SIZE = 512
+#: A brightness band's pages are square for this many times its charts' rectangles' area (`_page_width`).
+PACKING_SLACK = 1.1
 #: Charts sharing a page differ in mean luminance by at most this factor.
 BRIGHTNESS_BAND = 4.0
 #: Mean L0 luminance below which a chart counts as black and is left alone.
@@ -170,7 +172,7 @@ class Page:
 
 def layout(labels: np.ndarray, n: int, brightness: np.ndarray) -> list[Page]:
     """Pages holding every chart whose `brightness` (n,) exceeds BLACK: charts grouped into
-    brightness bands of factor BRIGHTNESS_BAND, then shelf-packed by decreasing height."""
+    brightness bands of factor BRIGHTNESS_BAND, then packed by decreasing height (`_skyline`)."""
     h, w = labels.shape
     ys, xs = np.nonzero(labels >= 0)
     lab = labels[ys, xs]
@@ -189,29 +191,43 @@ def layout(labels: np.ndarray, n: int, brightness: np.ndarray) -> list[Page]:
     for b in np.unique(band):
         members = lit[band == b]
         members = members[np.lexsort((-rw[members], -rh[members]))]
-        pages += _shelves(members, rh, rw, y0 - MARGIN, x0 - MARGIN, min(PAGE_SIZE, w))
+        pages += _skyline(members, rh, rw, y0 - MARGIN, x0 - MARGIN, min(PAGE_SIZE, w))
     return pages
 
 
-def _shelves(charts: np.ndarray, rh, rw, ry, rx, width: int) -> list[Page]:
-    """Shelf packing of `charts` (sorted by decreasing height) into pages at most `width` wide
-    (or as wide as the widest chart) and no wider than their charts, closed at PAGE_SIZE high."""
-    width = max(width, int(rw[charts].max()))
+def _skyline(charts: np.ndarray, rh, rw, ry, rx, width: int) -> list[Page]:
+    """Skyline packing of `charts` (sorted by decreasing height) into pages `_page_width` wide:
+    each chart goes where it lands lowest on the skyline of the charts placed before it
+    (leftmost of equals), so small charts stack beside a tall one, in the space a shelf of its
+    height would leave empty. A chart that would land at or above PAGE_SIZE begins a new page
+    (a page's top may pass it)."""
+    width = _page_width(rh[charts], rw[charts], width)
     pages: list[Page] = []
-    page, x, y, shelf = None, 0, 0, 0
+    page, sky = None, np.zeros(width, np.int64)
     for c in charts.tolist():
-        if page is None or x + rw[c] > width:
-            y, x = y + shelf, 0
-            shelf = int(rh[c])
-            if page is None or y >= PAGE_SIZE:
-                page, y = Page((0, 0)), 0
-                pages.append(page)
+        h, w = int(rh[c]), int(rw[c])
+        tops = np.lib.stride_tricks.sliding_window_view(sky, w).max(axis=1)
+        x = int(np.argmin(tops))
+        y = int(tops[x])
+        if page is None or y >= PAGE_SIZE:
+            page, y, x = Page((0, 0)), 0, 0
+            sky[:] = 0
+            pages.append(page)
+        sky[x : x + w] = y + h
         page.charts.append(c)
-        page.rects.append((int(ry[c]), int(rx[c]), int(rh[c]), int(rw[c])))
+        page.rects.append((int(ry[c]), int(rx[c]), h, w))
         page.corners.append((y, x))
-        x += int(rw[c])
-        page.shape = (max(page.shape[0], y + shelf), max(page.shape[1], x))
+        page.shape = (max(page.shape[0], y + h), max(page.shape[1], x + w))
     return pages
+
+
+def _page_width(rh: np.ndarray, rw: np.ndarray, width: int) -> int:
+    """Width of the pages of rectangles `rh` × `rw`: about square for their area (OIDN's cost is
+    its image's area, padded to BAND_ALIGN, and a fixed cost per image), rounded up to
+    BAND_ALIGN, at most `width` but at least the widest rectangle."""
+    area = float(np.sum(rh * rw))
+    square = -(-math.ceil(math.sqrt(PACKING_SLACK * area)) // BAND_ALIGN) * BAND_ALIGN
+    return max(min(width, square), int(rw.max()))
 
 
 def input_scale(colour: np.ndarray) -> float:

@@ -360,3 +360,19 @@ def test_a_cancelled_denoise_in_place_restores_the_traced_sh(denoiser):  # noqa:
         denoise.denoise_texels(data, denoiser, check, in_place=True, restore=restore)
     assert restored == [True]  # called once, after the first page was written
     np.testing.assert_array_equal(data.sh.view(np.uint32), traced.view(np.uint32))
+
+
+def test_small_charts_fill_the_space_beside_a_tall_one():
+    """One tall chart and fifty 5×5 ones: stacked in the space beside the tall chart, the page
+    is within half again their rectangles' area (one shelf as tall as the tall chart, holding
+    them all in a row, would be 8.8 times it)."""
+    mask = np.zeros((400, 400), bool)
+    mask[10:110, 10:20] = True  # 100 × 10
+    for k in range(50):
+        y, x = 150 + 10 * (k // 20), 10 + 10 * (k % 20)
+        mask[y : y + 5, x : x + 5] = True
+    labels, n = denoise.label_charts(mask)
+    (page,) = denoise.layout(labels, n, np.ones(n))
+    rects = sum(rh * rw for _, _, rh, rw in page.rects)
+    assert len(page.charts) == 51
+    assert page.shape[0] * page.shape[1] <= 1.5 * rects
