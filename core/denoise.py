@@ -35,7 +35,10 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
    to its colour). A filter also changes what is not noise: it bleeds light into contact
    shadows and blurs edges, and at high sample counts that is all it changes. The clamp lets it
    remove noise where there is noise and keeps converged texels (a black corner every pass
-   agreed on) as traced, so a denoised bake converges to the same image as a raw one.
+   agreed on) as traced, so a denoised bake converges to the same image as a raw one. On a chart
+   of fewer than SMALL_CHART texels the bound shrinks with the square root of its texel count:
+   the filter has few texels there to tell the signal from the noise, and smooths over the
+   chart's shading instead (`_chart_noise`).
 
 Charts darker than BLACK (mean L0 luminance) are left as they are: nothing to denoise.
 """
@@ -84,6 +87,8 @@ BAND1_BOUND, BAND2_BOUND = math.sqrt(3.0), math.sqrt(5.0)
 ENERGY_CLAMP = 1.5
 #: Most standard errors (of the traced value, `TexelData.noise`) the denoiser may move a coefficient.
 NOISE_CLAMP = 2.5
+#: Baked texels of a chart below which its NOISE_CLAMP bound shrinks (`_chart_noise`).
+SMALL_CHART = 256
 #: OIDN's auto-exposure key value (its `autoexposure` op): inputScale = KEY / geometric-mean luminance.
 KEY = 0.18
 #: A page larger than this many texels per band goes through the filter in horizontal bands
@@ -297,7 +302,7 @@ def denoise_texels(
     brightness = np.bincount(flat[texels], lum, minlength=n) / np.maximum(np.bincount(flat[texels], minlength=n), 1)
     del texels, lum
     normal = data.normal.reshape(h * w, 3)
-    noise = None if data.noise is None else data.noise.reshape(h * w)
+    noise = None if data.noise is None else _chart_noise(data.noise.reshape(h * w), flat, n)
     report = DenoiseReport()
     out = sh if in_place else data.sh.copy().reshape(h * w, 9, 3)
     written = np.zeros(h * w, bool)  # texels written (set before they are: `restore`)
@@ -325,6 +330,15 @@ def denoise_texels(
     del written
     report.seconds = time.perf_counter() - t0
     return replace(data, sh=out.reshape(data.sh.shape)), report
+
+
+def _chart_noise(noise: np.ndarray, flat: np.ndarray, n: int) -> np.ndarray:
+    """The standard errors the noise clamp scales: `noise` (H·W,) float32 times min(1, √(baked
+    texels of its chart / SMALL_CHART)) at each chart texel (`flat` (H·W,) chart labels 0..n-1,
+    -1 elsewhere), as it is elsewhere."""
+    size = np.bincount(flat[flat >= 0], minlength=n)
+    factor = np.minimum(1.0, np.sqrt(size / SMALL_CHART)).astype(np.float32)
+    return np.where(flat >= 0, noise * factor[np.maximum(flat, 0)], noise)
 
 
 def _denoise_page(

@@ -376,3 +376,23 @@ def test_small_charts_fill_the_space_beside_a_tall_one():
     rects = sum(rh * rw for _, _, rh, rw in page.rects)
     assert len(page.charts) == 51
     assert page.shape[0] * page.shape[1] <= 1.5 * rects
+
+
+def test_the_clamp_tightens_on_a_chart_smaller_than_small_chart(denoiser):  # noqa: F811
+    """An 8×8 chart (64 texels) may move each coefficient only √(64 / SMALL_CHART) of the
+    NOISE_CLAMP bound from its traced value; a 20×20 one (400 texels) the whole bound. Unclamped,
+    the filter moves texels of both charts further than that."""
+    small, large = (slice(10, 18), slice(10, 18)), (slice(40, 60), slice(40, 60))
+    data = atlas_data([(*small, 1.0), (*large, 1.0)], noise=0.3)
+    sigma = 0.3 * np.sqrt(np.pi)  # standard error of L0's luminance: 30% of uniform radiance 1
+    noise = np.where(data.coverage > 0, sigma, np.nan).astype(np.float32)
+    free, _ = denoise.denoise_texels(data, denoiser)
+    clamped, _ = denoise.denoise_texels(replace(data, noise=noise), denoiser)
+    bound = np.full(data.sh.shape, denoise.NOISE_CLAMP * sigma)  # grey: each colour's share of L0 is 1
+    shrink = np.sqrt(64 / denoise.SMALL_CHART)
+    assert shrink < 1.0
+    for region, factor in ((small, shrink), (large, 1.0)):
+        moved = np.abs(clamped.sh[region] - data.sh[region])
+        assert (moved <= factor * bound[region] * (1 + 1e-5) + 1e-6).all()
+        assert (np.abs(free.sh[region] - data.sh[region]) > factor * bound[region]).any()
+    assert (np.abs(clamped.sh[large] - data.sh[large]) > shrink * bound[large] * 1.01).any()
