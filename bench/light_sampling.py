@@ -14,7 +14,11 @@ from the emitters only). Our rows turn the parts of the emitter sampling on one 
   random numbers per sample (the sampling before 2026-12-02);
 - `+ clusters`: spatial clusters picked by power, distance and horizon per shading point;
 - `+ stratified`: a texel's light samples from its own sequence, stratified across its passes;
-- `+ solid angle`: triangles that subtend more than SOLID_ANGLE_RANGE[0] sampled by direction.
+- `+ solid angle`: triangles that subtend more than SOLID_ANGLE_RANGE[0] sampled by direction,
+  and so are Blender's area lights (spherical rectangles; before it, a uniform point on the lamp).
+
+`area-lamp-room` (scenekit's `area_lamp_room`, on request): lit by Blender area lights a few
+centimetres off the ceiling and a wall, no emissive mesh: only the last row changes its sampling.
 
 Per row: relative I_z RMSE (luminance, over fully covered unburied texels, relative to the
 reference's mean), with the floor removed; per-sample variance (error² × samples) over Cycles' at
@@ -37,12 +41,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 SCENES = ("staircase2", "bedroom")
+#: on request (`--scenes`): Blender area lights beside the receivers, not emissive meshes
+EXTRA_SCENES = ("area-lamp-room",)
 VARIANTS = ("power, area", "+ clusters", "+ stratified", "+ solid angle")
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES))
+    ap.add_argument("--scenes", nargs="+", choices=SCENES + EXTRA_SCENES, default=list(SCENES))
     ap.add_argument("--resolution", type=int, default=256)
     ap.add_argument("--reference", type=int, default=512, help="Cycles' reference samples, both halves")
     ap.add_argument("--samples", type=int, nargs="+", default=[16, 64])

@@ -11,8 +11,9 @@ scenekit/scenes.py), and the two interiors of ../shared/scenes lit by emissive m
 `staircase2` (8 emitters) and `bedroom` (receivers as bench/denoise.py picks them: the largest
 meshes by area that are not emitters or glass). On request (`--scenes`), two rooms like the
 held-out ones of issue 23: `emissive-room` (scenekit's `emissive` scene: a ceiling light box and
-a glow strip, no sky) and `door-room` (a closed room lit only through a door gap by a sun and a
-sky colour: nearly all indirect). For each: (a) raw embreex closest-hit rays/s
+a glow strip, no sky), `door-room` (a closed room lit only through a door gap by a sun and a
+sky colour: nearly all indirect) and `area-lamp-room` (Blender area lights a few centimetres off
+a ceiling and a wall). For each: (a) raw embreex closest-hit rays/s
 (embreex's own TriangleMesh + run(); incoherent, 2 threads, median of 5, same run; and the same
 for our binding of the same Embree library, core.embree), (b) our bake's rays/s (all rays, shadow
 rays included) and texel-samples/s, (c) I_z error against a long Cycles Diffuse bake (Direct +
@@ -67,7 +68,7 @@ LAYER = "HHD_Lightmap"
 BOUNCES = 3
 SCENES = ("classroom", "field", "staircase2", "bedroom")
 #: Scenes measured on request (`--scenes`): rooms like the held-out ones issue 23 reports.
-EXTRA_SCENES = ("emissive-room", "door-room")
+EXTRA_SCENES = ("emissive-room", "door-room", "area-lamp-room")
 #: Cycles seeds of the reference's two halves (the rows use seed 0: Cycles' samples for one seed
 #: are nested, so a row must not share its samples with the reference)
 REFERENCE_SEEDS = (9173, 9174)
@@ -136,6 +137,8 @@ def load_scene(name: str) -> list:
         return scenes.emissive_room()
     if name == "door-room":
         return scenes.door_room()
+    if name == "area-lamp-room":
+        return scenes.area_lamp_room()
     import denoise
 
     return denoise.load_scene(name)

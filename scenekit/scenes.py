@@ -222,6 +222,34 @@ def door_room() -> list:
     return room
 
 
+def area_lamp_room() -> list:
+    """A closed white room (5 × 4 × 2.8 m, walls 0.2 m thick) with a table, lit only by Blender
+    area lights close to its surfaces: a 1.2 × 0.6 m ceiling panel 2 cm below the ceiling, facing
+    down, and a 0.4 m disk 5 cm off the +x wall, facing into the room. The texels beside them
+    are where a uniform point on a lamp's surface spikes (1/d²). Returns the receivers: every
+    mesh of the room."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    box, material = blender.box_between, blender.material
+    white = material("Plaster", (0.8, 0.8, 0.78))
+    sx, sy, sz, t = 5.0, 4.0, 2.8, 0.2
+    room = [
+        box("Floor", (-sx / 2, -sy / 2, -t), (sx / 2, sy / 2, 0), white),
+        box("Ceiling", (-sx / 2, -sy / 2, sz), (sx / 2, sy / 2, sz + t), white),
+        box("Wall -X", (-sx / 2 - t, -sy / 2, 0), (-sx / 2, sy / 2, sz), white),
+        box("Wall +X", (sx / 2, -sy / 2, 0), (sx / 2 + t, sy / 2, sz), white),
+        box("Wall -Y", (-sx / 2, -sy / 2 - t, 0), (sx / 2, -sy / 2, sz), white),
+        box("Wall +Y", (-sx / 2, sy / 2, 0), (sx / 2, sy / 2 + t, sz), white),
+        box("Table", (-0.8, -0.5, 0.0), (0.8, 0.5, 0.75), white),
+    ]
+    blender.world((0.0, 0.0, 0.0), 0.0)
+    blender.light("AREA", (0.5, 0.3, sz - 0.02), energy=300.0, name="Panel", shape="RECTANGLE", size=1.2, size_y=0.6)
+    facing_in = blender.rotation_pointing((-1.0, 0.0, 0.0))
+    blender.light("AREA", (sx / 2 - 0.05, -0.8, 1.6), facing_in, energy=60.0, name="Sconce", shape="DISK", size=0.4)
+    return room
+
+
 def field(n_triangles: int = 1_000_000) -> list:
     """`sphere_field(n_triangles)` as one mesh "Field" on a ground plane 1.2× its extent, one
     default diffuse material, sun + sky; returns the receivers: [the ground]."""

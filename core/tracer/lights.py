@@ -189,7 +189,11 @@ class Spot(Point):
 
 class Area(Light):
     """A one-sided Lambertian rectangle, square, disk or ellipse (core.scene.AreaLight) of
-    radiance P / (π A), sampled by a uniform point on its surface."""
+    radiance P / (π A). Sampled by a uniform direction in the solid angle of its rectangle
+    (`sample_spherical_rectangles`: no 1/d² spikes beside the lamp), a disk or ellipse counted
+    where that direction meets it (its bounding rectangle's solid angle × inside: unbiased, and
+    bounded by 2π × the radiance); where the rectangle subtends less than SOLID_ANGLE_RANGE's
+    least, by a uniform point on its surface (the two agree there)."""
 
     def __init__(self, light: AreaLight):
         self.position, self.axis_u, self.axis_v = light.position, light.axis_u, light.axis_v
@@ -197,24 +201,41 @@ class Area(Light):
         self.area, self.group = light.area, light.group
 
     def sample(self, rng, x, ray_pdf=None, strata=1, normals=None) -> Sample:
-        p = self.sample_points(rng, len(x), strata)
+        u1, u2 = uniforms(rng, len(x), strata, 2), uniforms(rng, len(x), strata, 3)
+        corner = self.position - self.axis_u - self.axis_v
+        p, solid_angle = sample_spherical_rectangles(x, corner, 2.0 * self.axis_u, 2.0 * self.axis_v, u1, u2)
+        by_direction = (solid_angle >= SOLID_ANGLE_RANGE[0]) & np.isfinite(p).all(axis=1)
+        p = np.where(by_direction[:, None], p, self._surface_points(u1, u2))
         to = p - x
         dist = np.maximum(np.linalg.norm(to, axis=1), 1e-30)
         dirs = to / dist[:, None]
         cos_l = np.maximum(-(dirs @ self.normal), 0.0)
+        if self.shape in ("DISK", "ELLIPSE"):
+            solid_angle = solid_angle * self._inside(p)
+        # radiance × the solid angle the sample stands for (of the area element: A cos_l / d²)
+        weight = np.where(by_direction, np.where(cos_l > 0.0, solid_angle, 0.0), self.area * cos_l / dist**2)
         radiance = self.rgb_power / (np.pi * self.area)
-        # radiance × (solid angle of the sampled area element = A cos_l / d²)
-        return dirs, radiance[None, :] * (self.area * cos_l / dist**2)[:, None], dist
+        return dirs, radiance[None, :] * weight[:, None], dist
 
     def sample_points(self, rng: np.random.Generator, n: int, strata: Strata = 1) -> np.ndarray:
         """n points (n, 3) uniform over the light's surface (`strata`: `uniforms`)."""
-        u1, u2 = uniforms(rng, n, strata, 2), uniforms(rng, n, strata, 3)
+        return self._surface_points(uniforms(rng, n, strata, 2), uniforms(rng, n, strata, 3))
+
+    def _surface_points(self, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+        """Points (n, 3) on the light's surface, uniform for uniform numbers u1, u2 (n,)."""
         if self.shape in ("DISK", "ELLIPSE"):
             r, phi = np.sqrt(u1), 2.0 * np.pi * u2
             a, b = r * np.cos(phi), r * np.sin(phi)
         else:
             a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
         return self.position + a[:, None] * self.axis_u + b[:, None] * self.axis_v
+
+    def _inside(self, p: np.ndarray) -> np.ndarray:
+        """(n,) 1.0 where points p (n, 3) of the light's plane lie in its disk or ellipse, else 0."""
+        rel = p - self.position
+        a = rel @ self.axis_u / (self.axis_u @ self.axis_u)
+        b = rel @ self.axis_v / (self.axis_v @ self.axis_v)
+        return (a * a + b * b <= 1.0).astype(np.float64)
 
     @property
     def power(self) -> float:
@@ -470,6 +491,49 @@ def sample_spherical_triangles(x: np.ndarray, tri: np.ndarray, u1: np.ndarray, u
     cos_t = 1.0 - u2 * (1.0 - np.einsum("ri,ri->r", cp, b))
     sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
     return _unit(cos_t[:, None] * b + sin_t[:, None] * _unit(cp - np.einsum("ri,ri->r", cp, b)[:, None] * b))
+
+
+def sample_spherical_rectangles(
+    x: np.ndarray, corner: np.ndarray, ex: np.ndarray, ey: np.ndarray, u1: np.ndarray, u2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points (R, 3) on the rectangle corner + s·ex + t·ey (corner, ex, ey (3,); ex ⟂ ey; s, t in
+    [0, 1]) whose directions from x (R, 3) are uniform in the solid angle it subtends there, for
+    uniform numbers u1, u2 (R,), and that solid angle (R,) in steradians (0 from its plane; NaN
+    where it cannot be found). Ureña, Fajardo & King 2013, in PBRT-v4's SampleSphericalRectangle
+    form: in a frame with z away from the rectangle, the solid angle is the sum of the angles
+    between the planes through x and its edges, less 2π; u1 picks the x of the point by the
+    solid angle left of it, u2 its y, uniformly in the sine of the elevation."""
+    exl, eyl = float(np.linalg.norm(ex)), float(np.linalg.norm(ey))
+    ax, ay = ex / exl, ey / eyl
+    az = np.cross(ax, ay)
+    d = corner - x
+    x0, y0, z = d @ ax, d @ ay, d @ az
+    z0 = -np.abs(z)  # the local z axis points away from the rectangle
+    x1, y1 = x0 + exl, y0 + eyl
+    corners = [np.stack([cx, cy, z0], axis=1) for cx, cy in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))]
+    n = [_unit(np.cross(corners[i], corners[(i + 1) % 4])) for i in range(4)]
+    g = [_angle_between(-n[i], n[(i + 1) % 4]) for i in range(4)]
+    solid_angle = g[0] + g[1] + g[2] + g[3] - 2.0 * np.pi
+    b0, b1 = n[0][:, 2], n[2][:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        au = u1 * (g[0] + g[1] - 2.0 * np.pi) + (u1 - 1.0) * (g[2] + g[3])
+        fu = (np.cos(au) * b0 - b1) / np.sin(au)
+        cu = np.clip(np.copysign(1.0 / np.sqrt(fu * fu + b0 * b0), fu), -1.0 + 1e-12, 1.0 - 1e-12)
+        xu = np.clip(-(cu * z0) / np.sqrt(1.0 - cu * cu), x0, x1)
+        dd = np.sqrt(xu * xu + z0 * z0)
+        h0, h1 = y0 / np.sqrt(dd * dd + y0 * y0), y1 / np.sqrt(dd * dd + y1 * y1)
+        hv = h0 + u2 * (h1 - h0)
+        yv = np.where(hv * hv < 1.0 - 1e-12, hv * dd / np.sqrt(np.maximum(1.0 - hv * hv, 1e-300)), y1)
+    points = x + xu[:, None] * ax + yv[:, None] * ay + z[:, None] * az
+    return points, np.where(z == 0.0, 0.0, solid_angle)
+
+
+def _angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angles (R,) between unit vectors a, b (R, 3), accurate near 0 and π (PBRT-v4's AngleBetween)."""
+    dot = np.einsum("ri,ri->r", a, b)
+    near = 2.0 * np.arcsin(np.clip(np.linalg.norm(b - a, axis=1) / 2.0, 0.0, 1.0))
+    far = np.pi - 2.0 * np.arcsin(np.clip(np.linalg.norm(a + b, axis=1) / 2.0, 0.0, 1.0))
+    return np.where(dot < 0.0, far, near)
 
 
 def _rows(a: np.ndarray | None) -> np.ndarray:
