@@ -38,7 +38,7 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
    agreed on) as traced, so a denoised bake converges to the same image as a raw one. On a chart
    of fewer than SMALL_CHART texels the bound shrinks with the square root of its texel count:
    the filter has few texels there to tell the signal from the noise, and smooths over the
-   chart's shading instead (`_chart_noise`).
+   chart's shading instead (`_ChartNoise`).
 
 Charts darker than BLACK (mean L0 luminance) are left as they are: nothing to denoise.
 """
@@ -87,7 +87,7 @@ BAND1_BOUND, BAND2_BOUND = math.sqrt(3.0), math.sqrt(5.0)
 ENERGY_CLAMP = 1.5
 #: Most standard errors (of the traced value, `TexelData.noise`) the denoiser may move a coefficient.
 NOISE_CLAMP = 2.5
-#: Baked texels of a chart below which its NOISE_CLAMP bound shrinks (`_chart_noise`).
+#: Baked texels of a chart below which its NOISE_CLAMP bound shrinks (`_ChartNoise`).
 SMALL_CHART = 256
 #: OIDN's auto-exposure key value (its `autoexposure` op): inputScale = KEY / geometric-mean luminance.
 KEY = 0.18
@@ -302,7 +302,7 @@ def denoise_texels(
     brightness = np.bincount(flat[texels], lum, minlength=n) / np.maximum(np.bincount(flat[texels], minlength=n), 1)
     del texels, lum
     normal = data.normal.reshape(h * w, 3)
-    noise = None if data.noise is None else _chart_noise(data.noise.reshape(h * w), flat, n)
+    noise = None if data.noise is None else _ChartNoise(data.noise.reshape(h * w), flat, n)
     report = DenoiseReport()
     out = sh if in_place else data.sh.copy().reshape(h * w, 9, 3)
     written = np.zeros(h * w, bool)  # texels written (set before they are: `restore`)
@@ -319,7 +319,7 @@ def denoise_texels(
             report.charts += len(page.charts)
             report.pages += 1
             report.page_texels += page.shape[0] * page.shape[1]
-        del labels, flat, finite
+        del labels, flat, finite, noise
         if data.noise is not None:  # the clamp of the texels no page changed (traced + 0: as `clamp_to_noise`)
             clamping = True
             _clamp_unwritten(out.reshape(data.sh.shape), data.noise, written)
@@ -332,13 +332,20 @@ def denoise_texels(
     return replace(data, sh=out.reshape(data.sh.shape)), report
 
 
-def _chart_noise(noise: np.ndarray, flat: np.ndarray, n: int) -> np.ndarray:
-    """The standard errors the noise clamp scales: `noise` (H·W,) float32 times min(1, √(baked
-    texels of its chart / SMALL_CHART)) at each chart texel (`flat` (H·W,) chart labels 0..n-1,
-    -1 elsewhere), as it is elsewhere."""
-    size = np.bincount(flat[flat >= 0], minlength=n)
-    factor = np.minimum(1.0, np.sqrt(size / SMALL_CHART)).astype(np.float32)
-    return np.where(flat >= 0, noise * factor[np.maximum(flat, 0)], noise)
+class _ChartNoise:
+    """The standard errors the noise clamp scales, read per texel: the traced `noise` (H·W,)
+    float32 times min(1, √(baked texels of the texel's chart / SMALL_CHART)) (`flat` (H·W,)
+    chart labels 0..n-1, -1 elsewhere, where the factor is 1). Indexing gathers only the texels
+    asked for: no atlas-wide copy (memory)."""
+
+    def __init__(self, noise: np.ndarray, flat: np.ndarray, n: int):
+        size = np.bincount(flat[flat >= 0], minlength=n)
+        self.noise, self.flat = noise, flat
+        self.factor = np.minimum(1.0, np.sqrt(size / SMALL_CHART)).astype(np.float32)
+
+    def __getitem__(self, index) -> np.ndarray:
+        label = self.flat[index]
+        return self.noise[index] * np.where(label >= 0, self.factor[np.maximum(label, 0)], np.float32(1.0))
 
 
 def _denoise_page(
@@ -346,14 +353,14 @@ def _denoise_page(
     labels: np.ndarray,
     sh: np.ndarray,
     normal: np.ndarray,
-    noise: np.ndarray | None,
+    noise: _ChartNoise | None,
     finite: np.ndarray,
     out: np.ndarray,
     denoiser: Denoiser,
     written: np.ndarray,
 ) -> None:
     """One page denoised whole, its chart texels written into `out` `(H·W, 9, 3)` (clamped to
-    the noise if `noise` (H·W,) is given) and marked in `written` (H·W,) first. It reads a copy
+    the noise if `noise` (`_ChartNoise`) is given) and marked in `written` (H·W,) first. It reads a copy
     of the page's texels' SH (`out` may be `sh`), no larger than one band of a banded page,
     whose window is taller than this page."""
     rows, cols, atlas_index = _page_texels(page, labels)
@@ -381,11 +388,11 @@ def _write(
     index: np.ndarray,
     clean: np.ndarray,
     traced: np.ndarray | None,
-    noise: np.ndarray | None,
+    noise: _ChartNoise | None,
     gather: bool = False,
 ) -> None:
     """Denoised SH `clean` `(T, 9, 3)` of the texels `index` into `out`, clamped to the noise
-    around their `traced` SH where `noise` (H·W,) is given (`clamp_to_noise`'s bits, per texel;
+    around their `traced` SH where `noise` (`_ChartNoise`) is given (`clamp_to_noise`'s bits, per texel;
     `traced` is then required), WRITE_CHUNK texels at a time (the clamp's temporaries: memory).
     `gather`: `traced` is the `(H·W, 9, 3)` SH to read them at `index` from (it may be `out`:
     each chunk is read before it is written)."""
@@ -426,7 +433,7 @@ def _denoise_banded(
     labels: np.ndarray,
     sh: np.ndarray,
     normal: np.ndarray,
-    noise: np.ndarray | None,
+    noise: _ChartNoise | None,
     finite: np.ndarray,
     out: np.ndarray,
     denoiser: Denoiser,
