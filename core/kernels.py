@@ -757,6 +757,112 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
 _PRIMES = np.array([2, 3, 5, 7, 11, 13, 17, 19], np.int64)
 
 
+def _cross_unit(a, b):
+    """a × b (3-tuples), normalised."""
+    return _unit3(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _angle_between(a, b):
+    """The angle between unit 3-tuples a and b, accurate near 0 and π (PBRT-v4's AngleBetween)."""
+    if a[0] * b[0] + a[1] * b[1] + a[2] * b[2] < 0.0:
+        s = math.sqrt((a[0] + b[0]) ** 2 + (a[1] + b[1]) ** 2 + (a[2] + b[2]) ** 2)
+        return math.pi - 2.0 * math.asin(min(s / 2.0, 1.0))
+    s = math.sqrt((b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2 + (b[2] - a[2]) ** 2)
+    return 2.0 * math.asin(min(s / 2.0, 1.0))
+
+
+def _spherical_rectangle(px, py, pz, rect, u1, u2):
+    """Seen from (px, py, pz), the rectangle rect (4, 3) (its corner, unit edges ax and ay and
+    az = ax × ay) with edge lengths (exl, eyl) in rect[3, 0:2]: a point on it (3-tuple) whose
+    direction is uniform in its solid angle for uniform numbers u1, u2, and that solid angle
+    (0 from its plane). `lights.sample_spherical_rectangles`, one row."""
+    dx, dy, dz = rect[0, 0] - px, rect[0, 1] - py, rect[0, 2] - pz
+    exl, eyl = rect[3, 0], rect[3, 1]
+    ax, ay = (rect[1, 0], rect[1, 1], rect[1, 2]), (rect[2, 0], rect[2, 1], rect[2, 2])
+    az = (ax[1] * ay[2] - ax[2] * ay[1], ax[2] * ay[0] - ax[0] * ay[2], ax[0] * ay[1] - ax[1] * ay[0])
+    x0 = dx * ax[0] + dy * ax[1] + dz * ax[2]
+    y0 = dx * ay[0] + dy * ay[1] + dz * ay[2]
+    z = dx * az[0] + dy * az[1] + dz * az[2]
+    if z == 0.0:
+        return (px, py, pz), 0.0
+    z0 = -abs(z)
+    x1, y1 = x0 + exl, y0 + eyl
+    n0 = _cross_unit((x0, y0, z0), (x1, y0, z0))
+    n1 = _cross_unit((x1, y0, z0), (x1, y1, z0))
+    n2 = _cross_unit((x1, y1, z0), (x0, y1, z0))
+    n3 = _cross_unit((x0, y1, z0), (x0, y0, z0))
+    g0 = _angle_between((-n0[0], -n0[1], -n0[2]), n1)
+    g1 = _angle_between((-n1[0], -n1[1], -n1[2]), n2)
+    g2 = _angle_between((-n2[0], -n2[1], -n2[2]), n3)
+    g3 = _angle_between((-n3[0], -n3[1], -n3[2]), n0)
+    solid_angle = g0 + g1 + g2 + g3 - _TWO_PI
+    b0, b1 = n0[2], n2[2]
+    au = u1 * (g0 + g1 - _TWO_PI) + (u1 - 1.0) * (g2 + g3)
+    fu = (math.cos(au) * b0 - b1) / math.sin(au)
+    cu = math.copysign(1.0 / math.sqrt(fu * fu + b0 * b0), fu)
+    cu = min(max(cu, -1.0 + 1e-12), 1.0 - 1e-12)
+    xu = min(max(-(cu * z0) / math.sqrt(1.0 - cu * cu), x0), x1)
+    dd = math.sqrt(xu * xu + z0 * z0)
+    h0, h1 = y0 / math.sqrt(dd * dd + y0 * y0), y1 / math.sqrt(dd * dd + y1 * y1)
+    hv = h0 + u2 * (h1 - h0)
+    yv = hv * dd / math.sqrt(max(1.0 - hv * hv, 1e-300)) if hv * hv < 1.0 - 1e-12 else y1
+    point = (
+        px + xu * ax[0] + yv * ay[0] + z * az[0],
+        py + xu * ax[1] + yv * ay[1] + z * az[1],
+        pz + xu * ax[2] + yv * ay[2] + z * az[2],
+    )
+    return point, solid_angle
+
+
+def sample_area_light(x, u1, u2, rect, light, disk, lo):
+    """One sample per point x (R, 3) of an area light (`lights.Area.sample`, one row at a time):
+    a point uniform in the solid angle of its rectangle rect (`_spherical_rectangle`) by u1, u2
+    (R,) where that solid angle is at least lo (a disk or ellipse counted where the point lies
+    in it), else a uniform point on its surface. light (4, 3): its centre, half-extent vectors
+    axis_u and axis_v, unit normal (the side it emits to); disk: a disk or ellipse. Returns unit
+    directions (R, 3), the solid angle each sample stands for (R,) (0 behind the light or off a
+    disk) and the distances (R,) to the points."""
+    n = x.shape[0]
+    dirs = np.empty((n, 3))
+    weight = np.empty(n)
+    dist = np.empty(n)
+    uu = light[1, 0] ** 2 + light[1, 1] ** 2 + light[1, 2] ** 2
+    vv = light[2, 0] ** 2 + light[2, 1] ** 2 + light[2, 2] ** 2
+    area = 4.0 * math.sqrt(uu * vv) * (0.25 * math.pi if disk else 1.0)
+    for i in range(n):
+        px, py, pz = x[i, 0], x[i, 1], x[i, 2]
+        p, solid_angle = _spherical_rectangle(px, py, pz, rect, u1[i], u2[i])
+        by_direction = solid_angle >= lo and math.isfinite(p[0] + p[1] + p[2])
+        if not by_direction:
+            if disk:
+                r, phi = math.sqrt(u1[i]), _TWO_PI * u2[i]
+                a, b = r * math.cos(phi), r * math.sin(phi)
+            else:
+                a, b = 2.0 * u1[i] - 1.0, 2.0 * u2[i] - 1.0
+            p = (
+                light[0, 0] + a * light[1, 0] + b * light[2, 0],
+                light[0, 1] + a * light[1, 1] + b * light[2, 1],
+                light[0, 2] + a * light[1, 2] + b * light[2, 2],
+            )
+        tx, ty, tz = p[0] - px, p[1] - py, p[2] - pz
+        d = max(math.sqrt(tx * tx + ty * ty + tz * tz), 1e-30)
+        wx, wy, wz = tx / d, ty / d, tz / d
+        cos_l = max(-(wx * light[3, 0] + wy * light[3, 1] + wz * light[3, 2]), 0.0)
+        if by_direction:
+            w = solid_angle if cos_l > 0.0 else 0.0
+            if disk:
+                rx, ry, rz = p[0] - light[0, 0], p[1] - light[0, 1], p[2] - light[0, 2]
+                a = (rx * light[1, 0] + ry * light[1, 1] + rz * light[1, 2]) / uu
+                b = (rx * light[2, 0] + ry * light[2, 1] + rz * light[2, 2]) / vv
+                if a * a + b * b > 1.0:
+                    w = 0.0
+        else:
+            w = area * cos_l / (d * d)
+        dirs[i, 0], dirs[i, 1], dirs[i, 2] = wx, wy, wz
+        weight[i], dist[i] = w, d
+    return dirs, weight, dist
+
+
 def texel_sequence(texels, k, first, dim, seed):
     """(n·k,) numbers in [0, 1): for each texel of texels (n,) (global ids) its samples first ..
     first + k − 1 of dimension dim of a Halton sequence (radical inverse in base _PRIMES[dim])
@@ -855,10 +961,14 @@ _HELPERS = (
     "_spherical_direction",
     "_emitter_density",
     "_surely_small",
+    "_cross_unit",
+    "_angle_between",
+    "_spherical_rectangle",
 )
 _ALLOCATING = ("_project_control_variate",)  # helpers that make arrays (need reference counts)
 _KERNELS = (
     "sample_emitters",
+    "sample_area_light",
     "emitter_pdf",
     "texel_sequence",
     "hemisphere_rays",

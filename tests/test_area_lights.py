@@ -117,3 +117,17 @@ def test_a_far_lamp_falls_back_to_surface_points_and_stays_unbiased():
     exact = polygon_irradiance(x, n, outline("RECTANGLE"), POWER / (np.pi * light.area))
     terms = value * np.maximum(dirs @ n, 0.0)[:, None]
     np.testing.assert_allclose(terms.mean(axis=0), exact, rtol=1e-6)
+
+
+@pytest.mark.parametrize("shape", ["RECTANGLE", "ELLIPSE"])
+def test_the_compiled_samples_are_the_numpy_spec(shape):
+    """`kernels.sample_area_light` against `Area.sample_numpy` on the same numbers, from points
+    far, near, beside, behind and on the lamp's plane."""
+    light = lamp(shape)
+    rng = np.random.default_rng(11)
+    x = np.concatenate([CENTRE + rng.normal(0.0, s, (2000, 3)) for s in (0.02, 0.3, 3.0, 100.0)])
+    x[:5] = CENTRE + 0.3 * AXIS_U  # in the lamp's plane
+    got = light.sample(np.random.default_rng(2), x)
+    spec = light.sample_numpy(np.random.default_rng(2), x)
+    for a, b in zip(got, spec):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)

@@ -190,7 +190,8 @@ class Spot(Point):
 class Area(Light):
     """A one-sided Lambertian rectangle, square, disk or ellipse (core.scene.AreaLight) of
     radiance P / (π A). Sampled by a uniform direction in the solid angle of its rectangle
-    (`sample_spherical_rectangles`: no 1/d² spikes beside the lamp), a disk or ellipse counted
+    (`sample_spherical_rectangles`; compiled: `kernels.sample_area_light`, whose numpy spec is
+    `sample_numpy`): no 1/d² spikes beside the lamp. A disk or ellipse is counted
     where that direction meets it (its bounding rectangle's solid angle × inside: unbiased, and
     bounded by 2π × the radiance); where the rectangle subtends less than SOLID_ANGLE_RANGE's
     least, by a uniform point on its surface (the two agree there)."""
@@ -201,6 +202,22 @@ class Area(Light):
         self.area, self.group = light.area, light.group
 
     def sample(self, rng, x, ray_pdf=None, strata=1, normals=None) -> Sample:
+        u1, u2 = uniforms(rng, len(x), strata, 2), uniforms(rng, len(x), strata, 3)
+        dirs, solid_angle, dist = _kernels.get().sample_area_light(
+            _rows(x),
+            np.ascontiguousarray(u1, np.float64),
+            np.ascontiguousarray(u2, np.float64),
+            self._rect,
+            self._light,
+            self.shape in ("DISK", "ELLIPSE"),
+            SOLID_ANGLE_RANGE[0],
+        )
+        radiance = self.rgb_power / (np.pi * self.area)
+        return dirs, radiance[None, :] * solid_angle[:, None], dist
+
+    def sample_numpy(self, rng, x, strata=1) -> Sample:
+        """`sample` in numpy: the spec of the compiled `kernels.sample_area_light`, the tests
+        compare them."""
         u1, u2 = uniforms(rng, len(x), strata, 2), uniforms(rng, len(x), strata, 3)
         corner = self.position - self.axis_u - self.axis_v
         p, solid_angle = sample_spherical_rectangles(x, corner, 2.0 * self.axis_u, 2.0 * self.axis_v, u1, u2)
@@ -216,6 +233,18 @@ class Area(Light):
         weight = np.where(by_direction, np.where(cos_l > 0.0, solid_angle, 0.0), self.area * cos_l / dist**2)
         radiance = self.rgb_power / (np.pi * self.area)
         return dirs, radiance[None, :] * weight[:, None], dist
+
+    @property
+    def _rect(self) -> np.ndarray:
+        """(4, 3) for the kernel: the rectangle's corner, unit edges, (edge lengths, 0)."""
+        eu, ev = 2.0 * self.axis_u, 2.0 * self.axis_v
+        lu, lv = float(np.linalg.norm(eu)), float(np.linalg.norm(ev))
+        return np.array([self.position - self.axis_u - self.axis_v, eu / lu, ev / lv, [lu, lv, 0.0]], np.float64)
+
+    @property
+    def _light(self) -> np.ndarray:
+        """(4, 3) for the kernel: centre, axis_u, axis_v, unit normal."""
+        return np.array([self.position, self.axis_u, self.axis_v, self.normal], np.float64)
 
     def sample_points(self, rng: np.random.Generator, n: int, strata: Strata = 1) -> np.ndarray:
         """n points (n, 3) uniform over the light's surface (`strata`: `uniforms`)."""
