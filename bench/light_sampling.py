@@ -17,8 +17,9 @@ from the emitters only). Our rows turn the parts of the emitter sampling on one 
 - `+ solid angle`: triangles that subtend more than SOLID_ANGLE_RANGE[0] sampled by direction,
   and so are Blender's area lights (spherical rectangles; before it, a uniform point on the lamp).
 
-`area-lamp-room` (scenekit's `area_lamp_room`, on request): lit by Blender area lights a few
-centimetres off the ceiling and a wall, no emissive mesh: only the last row changes its sampling.
+`area-lamp-room` (scenekit's `area_lamp_room`, on request): lit by Blender area lights, two of
+them facing the ceiling and a wall a few centimetres away, no emissive mesh: only the last row
+changes its sampling.
 
 Per row: relative I_z RMSE (luminance, over fully covered unburied texels, relative to the
 reference's mean), with the floor removed; per-sample variance (error² × samples) over Cycles' at

@@ -12,8 +12,8 @@ scenekit/scenes.py), and the two interiors of ../shared/scenes lit by emissive m
 meshes by area that are not emitters or glass). On request (`--scenes`), two rooms like the
 held-out ones of issue 23: `emissive-room` (scenekit's `emissive` scene: a ceiling light box and
 a glow strip, no sky), `door-room` (a closed room lit only through a door gap by a sun and a
-sky colour: nearly all indirect) and `area-lamp-room` (Blender area lights a few centimetres off
-a ceiling and a wall). For each: (a) raw embreex closest-hit rays/s
+sky colour: nearly all indirect) and `area-lamp-room` (Blender area lights, two of them facing the
+ceiling and a wall a few centimetres away). For each: (a) raw embreex closest-hit rays/s
 (embreex's own TriangleMesh + run(); incoherent, 2 threads, median of 5, same run; and the same
 for our binding of the same Embree library, core.embree), (b) our bake's rays/s (all rays, shadow
 rays included) and texel-samples/s, (c) I_z error against a long Cycles Diffuse bake (Direct +

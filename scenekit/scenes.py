@@ -224,8 +224,9 @@ def door_room() -> list:
 
 def area_lamp_room() -> list:
     """A closed white room (5 × 4 × 2.8 m, walls 0.2 m thick) with a table, lit only by Blender
-    area lights close to its surfaces: a 1.2 × 0.6 m ceiling panel 2 cm below the ceiling, facing
-    down, and a 0.4 m disk 5 cm off the +x wall, facing into the room. The texels beside them
+    area lights, two of them facing a surface a few centimetres away: a 1.2 × 0.6 m ceiling panel
+    facing down, a 3 × 0.1 m cove strip 8 cm below the ceiling along the -y wall facing up, and a
+    0.4 m disk 5 cm off the +x wall facing it (a wall washer). The texels in front of the last two
     are where a uniform point on a lamp's surface spikes (1/d²). Returns the receivers: every
     mesh of the room."""
     import bpy
@@ -244,9 +245,13 @@ def area_lamp_room() -> list:
         box("Table", (-0.8, -0.5, 0.0), (0.8, 0.5, 0.75), white),
     ]
     blender.world((0.0, 0.0, 0.0), 0.0)
-    blender.light("AREA", (0.5, 0.3, sz - 0.02), energy=300.0, name="Panel", shape="RECTANGLE", size=1.2, size_y=0.6)
-    facing_in = blender.rotation_pointing((-1.0, 0.0, 0.0))
-    blender.light("AREA", (sx / 2 - 0.05, -0.8, 1.6), facing_in, energy=60.0, name="Sconce", shape="DISK", size=0.4)
+    blender.light("AREA", (0.5, 0.3, sz - 0.02), energy=200.0, name="Panel", shape="RECTANGLE", size=1.2, size_y=0.6)
+    up = blender.rotation_pointing((0.0, 0.0, 1.0))
+    blender.light(
+        "AREA", (0.0, -sy / 2 + 0.15, sz - 0.08), up, energy=150.0, name="Cove", shape="RECTANGLE", size=3.0, size_y=0.1
+    )
+    at_wall = blender.rotation_pointing((1.0, 0.0, 0.0))
+    blender.light("AREA", (sx / 2 - 0.05, -0.8, 1.6), at_wall, energy=60.0, name="Washer", shape="DISK", size=0.4)
     return room
 
 
