@@ -38,7 +38,10 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
    agreed on) as traced, so a denoised bake converges to the same image as a raw one. On a chart
    of fewer than SMALL_CHART texels the bound shrinks with the square root of its texel count:
    the filter has few texels there to tell the signal from the noise, and smooths over the
-   chart's shading instead (`_ChartNoise`).
+   chart's shading instead; within EDGE_RINGS texels of a chart's edge it is EDGE_CLAMP times
+   as wide: there the filter sees the chart on one side only, and a chart's edge is where
+   geometry meets (a wall's corner, an object's contact shadow), the shading steepest
+   (`_ChartNoise`).
 
 Charts darker than BLACK (mean L0 luminance) are left as they are: nothing to denoise.
 """
@@ -89,6 +92,9 @@ ENERGY_CLAMP = 1.5
 NOISE_CLAMP = 2.5
 #: Baked texels of a chart below which its NOISE_CLAMP bound shrinks (`_ChartNoise`).
 SMALL_CHART = 256
+#: The NOISE_CLAMP bound of a texel within EDGE_RINGS (chessboard distance) of a texel that is
+#: not of its chart is EDGE_CLAMP times as wide (`_ChartNoise`).
+EDGE_RINGS, EDGE_CLAMP = 2, 0.6
 #: OIDN's auto-exposure key value (its `autoexposure` op): inputScale = KEY / geometric-mean luminance.
 KEY = 0.18
 #: A page larger than this many texels per band goes through the filter in horizontal bands
@@ -302,7 +308,7 @@ def denoise_texels(
     brightness = np.bincount(flat[texels], lum, minlength=n) / np.maximum(np.bincount(flat[texels], minlength=n), 1)
     del texels, lum
     normal = data.normal.reshape(h * w, 3)
-    noise = None if data.noise is None else _ChartNoise(data.noise.reshape(h * w), flat, n)
+    noise = None if data.noise is None else _ChartNoise(data.noise.reshape(h * w), labels, n)
     report = DenoiseReport()
     out = sh if in_place else data.sh.copy().reshape(h * w, 9, 3)
     written = np.zeros(h * w, bool)  # texels written (set before they are: `restore`)
@@ -334,18 +340,50 @@ def denoise_texels(
 
 class _ChartNoise:
     """The standard errors the noise clamp scales, read per texel: the traced `noise` (H·W,)
-    float32 times min(1, √(baked texels of the texel's chart / SMALL_CHART)) (`flat` (H·W,)
-    chart labels 0..n-1, -1 elsewhere, where the factor is 1). Indexing gathers only the texels
-    asked for: no atlas-wide copy (memory)."""
+    float32 times min(1, √(baked texels of the texel's chart / SMALL_CHART)), and times
+    EDGE_CLAMP within EDGE_RINGS of the chart's edge (`labels` (H, W) chart labels 0..n-1, -1
+    elsewhere, where both factors are 1). Indexing gathers only the texels asked for: no
+    atlas-wide copy of the noise (memory: one byte an atlas texel for the edge)."""
 
-    def __init__(self, noise: np.ndarray, flat: np.ndarray, n: int):
-        size = np.bincount(flat[flat >= 0], minlength=n)
-        self.noise, self.flat = noise, flat
+    def __init__(self, noise: np.ndarray, labels: np.ndarray, n: int):
+        self.noise, self.flat = noise, labels.reshape(-1)
+        size = np.bincount(self.flat[self.flat >= 0], minlength=n)
         self.factor = np.minimum(1.0, np.sqrt(size / SMALL_CHART)).astype(np.float32)
+        self.edge = chart_edge(labels, EDGE_RINGS).reshape(-1)
 
     def __getitem__(self, index) -> np.ndarray:
         label = self.flat[index]
-        return self.noise[index] * np.where(label >= 0, self.factor[np.maximum(label, 0)], np.float32(1.0))
+        chart = np.where(label >= 0, self.factor[np.maximum(label, 0)], np.float32(1.0))
+        edge = np.where(self.edge[index] & (label >= 0), np.float32(EDGE_CLAMP), np.float32(1.0))
+        return self.noise[index] * chart * edge
+
+
+def chart_edge(labels: np.ndarray, rings: int) -> np.ndarray:
+    """`(H, W)` bool: the texels with a texel of another label (or outside the atlas) within
+    `rings` texels (chessboard distance) of them, from `labels` `(H, W)`. A texel's whole
+    (2·rings + 1)² window has its label iff every row of the window does: each row's run of
+    2·rings + 1 texels is checked once (`same_row`), then `rings` rows up and down;
+    ROWS_PER_STEP rows at a time (memory)."""
+    h, w = labels.shape
+    edge = np.empty((h, w), bool)
+    for y0 in range(0, h, ROWS_PER_STEP):
+        y1 = min(y0 + ROWS_PER_STEP, h)
+        lo, hi = max(y0 - rings, 0), min(y1 + rings, h)
+        block = labels[lo:hi]
+        padded = np.pad(block, ((0, 0), (rings, rings)), constant_values=-2)
+        same_row = np.ones(block.shape, bool)  # the row's run around each texel has its label
+        for dx in range(-rings, rings + 1):
+            if dx:
+                same_row &= padded[:, rings + dx : rings + dx + w] == block
+        inner = np.ones((y1 - y0, w), bool)
+        centre = labels[y0:y1]
+        for dy in range(-rings, rings + 1):
+            ys = np.arange(y0, y1) + dy
+            inside = (ys >= 0) & (ys < h)
+            rows = np.clip(ys, 0, h - 1) - lo
+            inner &= inside[:, None] & same_row[rows] & (block[rows] == centre)
+        edge[y0:y1] = ~inner
+    return edge
 
 
 def _denoise_page(

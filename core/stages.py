@@ -25,7 +25,8 @@ if TYPE_CHECKING:  # bakepoints imports the compiled kernels; the data types nee
 
 
 #: Passes before a texel's spread counts as its noise (`TracedAtlas.noise`): the spread of fewer
-#: is too often a small fraction of the true error (tracer.settings.MIN_ADAPTIVE_PASSES has the figures).
+#: is too often a small fraction of the true error (tracer.settings.MIN_ADAPTIVE_PASSES has the figures);
+#: at least 4: `TracedAtlas.noise` widens the spread by √(ν / (ν − 2)), ν = passes − 1.
 NOISE_PASSES = 4
 
 
@@ -157,10 +158,17 @@ class TracedAtlas:
     def noise(self) -> np.ndarray:
         """(P,) float32: the standard error of each texel's luminance L0 (radiance), the colours'
         standard errors summed with the luminance weights (as if fully correlated: they share
-        their paths); NaN for texels of fewer than NOISE_PASSES passes."""
+        their paths), widened for the uncertainty of its own estimate: the spread of a texel's
+        p passes estimates it with ν = p − 1 degrees of freedom, the traced value's error over
+        that estimate is Student-t distributed, and its standard deviation is √(ν / (ν − 2))
+        times the estimate (1.73 at NOISE_PASSES passes, 1.07 at 16). NaN for texels of fewer
+        than NOISE_PASSES passes."""
         per_pass = self.samples // self.passes if self.passes else 1
         error = self.sh_error[:, 0, :].astype(np.float64) @ LUMINANCE
-        return np.where(self.texel_samples >= NOISE_PASSES * per_pass, error, np.nan).astype(np.float32)
+        dof = self.texel_samples // max(per_pass, 1) - 1.0
+        known = dof >= NOISE_PASSES - 1
+        widen = np.sqrt(np.where(known, dof, 3.0) / (np.where(known, dof, 3.0) - 2.0))
+        return np.where(known, error * widen, np.nan).astype(np.float32)
 
     def release_sh(self) -> None:
         """Drop `sh` and `sh_error` (they become empty `(0, 9, 3)` arrays) once imaged: a bake's

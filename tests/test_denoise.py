@@ -391,8 +391,65 @@ def test_the_clamp_tightens_on_a_chart_smaller_than_small_chart(denoiser):  # no
     bound = np.full(data.sh.shape, denoise.NOISE_CLAMP * sigma)  # grey: each colour's share of L0 is 1
     shrink = np.sqrt(64 / denoise.SMALL_CHART)
     assert shrink < 1.0
-    for region, factor in ((small, shrink), (large, 1.0)):
+    inner = (slice(42, 58), slice(42, 58))  # the large chart's texels beyond EDGE_RINGS of its edge
+    for region, factor in ((small, shrink), (large, 1.0), (inner, 1.0)):
         moved = np.abs(clamped.sh[region] - data.sh[region])
         assert (moved <= factor * bound[region] * (1 + 1e-5) + 1e-6).all()
         assert (np.abs(free.sh[region] - data.sh[region]) > factor * bound[region]).any()
-    assert (np.abs(clamped.sh[large] - data.sh[large]) > shrink * bound[large] * 1.01).any()
+    assert (np.abs(clamped.sh[inner] - data.sh[inner]) > shrink * bound[inner] * 1.01).any()
+
+
+def test_the_clamp_tightens_within_edge_rings_of_a_charts_edge(denoiser):  # noqa: F811
+    """A 40×40 chart: its texels within EDGE_RINGS of its edge may move only EDGE_CLAMP of the
+    NOISE_CLAMP bound, the others the whole bound (and some do move further than the edge's)."""
+    chart = (slice(20, 60), slice(20, 60))
+    data = atlas_data([(*chart, 1.0)], noise=0.3)
+    sigma = 0.3 * np.sqrt(np.pi)
+    noise = np.where(data.coverage > 0, sigma, np.nan).astype(np.float32)
+    clamped, _ = denoise.denoise_texels(replace(data, noise=noise), denoiser)
+    bound = denoise.NOISE_CLAMP * sigma
+    moved = np.abs(clamped.sh - data.sh).max(axis=(2, 3))
+    r = denoise.EDGE_RINGS
+    edge = data.coverage > 0
+    edge[20 + r : 60 - r, 20 + r : 60 - r] = False
+    assert edge.sum() == 40 * 40 - (40 - 2 * r) ** 2
+    assert (moved[edge] <= denoise.EDGE_CLAMP * bound * (1 + 1e-5) + 1e-6).all()
+    inner = moved[20 + r : 60 - r, 20 + r : 60 - r]
+    assert (inner <= bound * (1 + 1e-5) + 1e-6).all()
+    assert (inner > denoise.EDGE_CLAMP * bound * 1.01).any()
+
+
+@pytest.mark.parametrize("rings", [1, 2, 3])
+def test_chart_edge_is_a_texel_with_another_label_within_rings(rings):
+    """`chart_edge` against the window itself, on labels with holes (-1), many charts, and
+    charts touching the atlas's border, over more rows than one step."""
+    rng = np.random.default_rng(rings)
+    labels = rng.integers(0, 3, (15, 10)).repeat(10, axis=0).repeat(10, axis=1)
+    labels = np.where(rng.uniform(size=labels.shape) < 0.002, -1, labels)
+    edge = denoise.chart_edge(labels, rings)
+    padded = np.pad(labels, rings, constant_values=-2)
+    h, w = labels.shape
+    window = np.lib.stride_tricks.sliding_window_view(padded, (2 * rings + 1, 2 * rings + 1))
+    expected = (window != labels[:, :, None, None]).any(axis=(2, 3))
+    assert window.shape[:2] == (h, w) and expected.any() and not expected.all()
+    np.testing.assert_array_equal(edge, expected)
+
+
+def test_noise_is_the_spread_widened_for_its_own_degrees_of_freedom():
+    """`TracedAtlas.noise`: the luminance L0 standard error × √(ν / (ν − 2)), ν = passes − 1;
+    NaN below NOISE_PASSES passes."""
+    from hhd_lightmapper.core.stages import TracedAtlas
+
+    error = np.zeros((3, 9, 3), np.float32)
+    error[:, 0, :] = 0.5
+    traced = TracedAtlas(
+        points=None,  # type: ignore[arg-type]  # noise reads the statistics only
+        sh=np.zeros((3, 9, 3)),
+        sh_error=error,
+        texel_samples=np.array([3, 4, 16]) * 8,
+        samples=16 * 8,
+        passes=16,
+    )
+    noise = traced.noise()
+    assert np.isnan(noise[0])
+    np.testing.assert_allclose(noise[1:], 0.5 * np.sqrt([3.0 / 1.0, 15.0 / 13.0]), rtol=1e-6)
