@@ -1,18 +1,22 @@
-"""How the denoiser packs charts into pages, and how far it may move a small chart's texels.
+"""How the denoiser packs charts into pages, and how far its noise clamp lets it move a texel.
 
-    flock /tmp/bench.lock .venv/bin/python bench/denoise_pages.py        # classroom, staircase2 (≈ 12 min on 2 cores)
+    flock /tmp/bench.lock .venv/bin/python bench/denoise_pages.py        # classroom, staircase2 (≈ 15 min on 2 cores)
     .venv/bin/python bench/denoise_pages.py --scenes classroom --samples 64 --seeds 0
 
 Per scene (bench/denoise.py's scenes, receivers and 512² atlas): our reference as two halves of
 `--reference` samples with their own seeds (its noise, the floor, removed in quadrature), then our
 raw bake at each `--samples` and `--seeds` (the noise the tracer measured kept for the clamp, as a
-bake runs it), denoised by `core.denoise.denoise_texels` three ways (VARIANTS):
+bake runs it), denoised by `core.denoise.denoise_texels` in each of VARIANTS, each one change on
+the one before it, but the last two, which each leave one of `shipped`'s changes out:
 
 - `shelves`: charts shelf-packed (rows as tall as their first, tallest chart, 512 texels wide; the
-  packing until 2026-12-03, `shelves` below) and the noise clamp the same on every chart;
-- `skyline`: charts skyline-packed into square pages (`denoise._skyline`, as shipped), the clamp
-  the same on every chart (`SMALL_CHART` 1);
-- `shipped`: skyline pages, and the clamp tightened on charts under `SMALL_CHART` baked texels.
+  packing until 2026-12-03, `shelves` below) and the noise clamp the same on every texel, its
+  standard error the spread between passes as measured (`spread`);
+- `skyline`: charts skyline-packed into square pages (`denoise._skyline`, as shipped);
+- `small-chart`: and the clamp tightened on charts under `SMALL_CHART` baked texels;
+- `shipped`: and the clamp EDGE_CLAMP as wide within EDGE_RINGS of a chart's edge, and the standard
+  error widened for its own degrees of freedom (`TracedAtlas.noise`);
+- `no-edge`: shipped but the edge; `no-widening`: shipped but the widening.
 
 Errors as bench/denoise.py measures them (relative RMSE of luminance I_z over fully covered,
 unburied texels, each over max(reference, FLOOR × its mean), the reference's noise removed), per
@@ -36,7 +40,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
-VARIANTS = ("shelves", "skyline", "shipped")
+VARIANTS = ("shelves", "skyline", "small-chart", "shipped", "no-edge", "no-widening")
 
 
 def main() -> int:
@@ -60,7 +64,13 @@ def main() -> int:
 
     hhd_lightmapper.register()
     denoiser = denoise.denoiser_for(bridge_denoiser.oidn_library(), parallel.resolve_threads(0))
-    results = {"settings": vars(args), "small_chart": denoise.SMALL_CHART, "scenes": {}}
+    results = {
+        "settings": vars(args),
+        "small_chart": denoise.SMALL_CHART,
+        "edge_rings": denoise.EDGE_RINGS,
+        "edge_clamp": denoise.EDGE_CLAMP,
+        "scenes": {},
+    }
     for name in args.scenes:
         results["scenes"][name] = measure(name, args, denoise_bench, denoiser)
         RESULTS.mkdir(parents=True, exist_ok=True)
@@ -110,20 +120,36 @@ class variant:
         self.name = name
 
     def __enter__(self):
-        from hhd_lightmapper.core import denoise
+        from hhd_lightmapper.core import denoise, stages
 
-        self.saved = (denoise._skyline, denoise.SMALL_CHART)
+        self.saved = (denoise._skyline, denoise.SMALL_CHART, denoise.EDGE_CLAMP, stages.TracedAtlas.noise)
         if self.name == "shelves":
             denoise._skyline = shelves
         if self.name in ("shelves", "skyline"):
             denoise.SMALL_CHART = 1
+        if self.name in ("shelves", "skyline", "small-chart", "no-edge"):
+            denoise.EDGE_CLAMP = 1.0
+        if self.name in ("shelves", "skyline", "small-chart", "no-widening"):
+            stages.TracedAtlas.noise = spread
         return self
 
     def __exit__(self, *exc):
-        from hhd_lightmapper.core import denoise
+        from hhd_lightmapper.core import denoise, stages
 
-        denoise._skyline, denoise.SMALL_CHART = self.saved
+        denoise._skyline, denoise.SMALL_CHART, denoise.EDGE_CLAMP, stages.TracedAtlas.noise = self.saved
         return False
+
+
+def spread(traced) -> np.ndarray:
+    """`TracedAtlas.noise` until 2026-12-03 (pm): the standard error of the luminance L0 as the
+    spread between passes measures it, not widened; NaN below NOISE_PASSES passes."""
+    from hhd_lightmapper.core import stages
+    from hhd_lightmapper.core.colour import LUMINANCE
+
+    per_pass = traced.samples // traced.passes if traced.passes else 1
+    error = traced.sh_error[:, 0, :].astype(np.float64) @ LUMINANCE
+    known = traced.texel_samples >= stages.NOISE_PASSES * per_pass
+    return np.where(known, error, np.nan).astype(np.float32)
 
 
 def shelves(charts: np.ndarray, rh, rw, ry, rx, width: int) -> list:
@@ -155,9 +181,13 @@ def markdown(results: dict) -> str:
         "# The denoiser's pages and its clamp on small charts (`bench/denoise_pages.py`)",
         "",
         "Shelves: rows as tall as their tallest chart (the packing until 2026-12-03), the noise clamp alike on "
-        "every chart; skyline: square pages, each chart where it lands lowest; shipped: skyline, and the clamp "
-        f"tightened by √(texels / {results['small_chart']}) on smaller charts. Relative I_z RMSE, %, with the "
-        "reference's noise removed, per seed (their mean in bold); denoise seconds: median over the seeds.",
+        "every texel, its standard error the spread between passes; skyline: square pages, each chart where it "
+        f"lands lowest; small-chart: and the clamp tightened by √(texels / {results['small_chart']}) on smaller "
+        f"charts; shipped: and the clamp {results.get('edge_clamp', 1.0)}× as wide within "
+        f"{results.get('edge_rings', 0)} texels of a chart's edge, the standard error widened by √(ν / (ν − 2)) "
+        "for its ν = passes − 1 degrees of freedom; no-edge / no-widening: shipped without one of the two. "
+        "Relative I_z RMSE, %, with the reference's noise removed, per seed (their mean in bold); denoise "
+        "seconds: median over the seeds.",
     ]
     for name, r in results["scenes"].items():
         lines += [
