@@ -34,7 +34,8 @@ NOISE = Channel(
     ("V",),
     FLOAT,
     "standard error of the texel's luminance SH0 (radiance) from the spread between the tracer's "
-    "passes; NaN where unknown (fewer than 4 passes) and outside charts",
+    "p passes, widened by sqrt(nu / (nu - 2)), nu = p - 1, for the uncertainty of that estimate; "
+    "NaN where unknown (fewer than 4 passes) and outside charts",
     fill=NO_FILL,
 )
 TEXELS_FILE = FileSpec("texels", "_texels.exr", (NORMAL, COVERAGE, NOISE))
