@@ -178,7 +178,7 @@ def shelves(charts: np.ndarray, rh, rw, ry, rx, width: int) -> list:
 
 def markdown(results: dict) -> str:
     lines = [
-        "# The denoiser's pages and its clamp on small charts (`bench/denoise_pages.py`)",
+        "# The denoiser's pages and its noise clamp (`bench/denoise_pages.py`)",
         "",
         "Shelves: rows as tall as their tallest chart (the packing until 2026-12-03), the noise clamp alike on "
         "every texel, its standard error the spread between passes; skyline: square pages, each chart where it "
