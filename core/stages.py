@@ -167,8 +167,8 @@ class TracedAtlas:
         error = self.sh_error[:, 0, :].astype(np.float64) @ LUMINANCE
         dof = self.texel_samples // max(per_pass, 1) - 1.0
         known = dof >= NOISE_PASSES - 1
-        widen = np.sqrt(np.where(known, dof, 3.0) / (np.where(known, dof, 3.0) - 2.0))
-        return np.where(known, error * widen, np.nan).astype(np.float32)
+        nu = np.maximum(dof, NOISE_PASSES - 1.0)  # > 2 (the unknown texels' value is not used)
+        return np.where(known, error * np.sqrt(nu / (nu - 2.0)), np.nan).astype(np.float32)
 
     def release_sh(self) -> None:
         """Drop `sh` and `sh_error` (they become empty `(0, 9, 3)` arrays) once imaged: a bake's
