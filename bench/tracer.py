@@ -6,8 +6,10 @@ Scene: a field of displaced spheres on a ground plane (scenekit/meshes.py `spher
 a sun and a constant sky, 2 bounces. Prints (a) raw embreex closest-hit rays/s for incoherent
 rays in batches of 1M, on 1 and 2 threads (embreex's own API; and our binding of its Embree,
 core.embree, on 2 threads); (b) the bake's rays/s (every ray it traces, shadow
-rays included) and texel-samples/s on 2 threads, and its ratio to raw Embree.
-Writes bench/results/tracer.json.
+rays included) and texel-samples/s on 2 threads, and its ratio to raw Embree; (c) the same
+bake with one ray per Embree query (`core.embree.PACKETS` off) against 8-ray packets, the two
+alternated, median of `--rounds` each (the bakes are the same but for rays grazing a triangle
+within float rounding). Writes bench/results/tracer.json.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hhd_lightmapper.core import bakepoints, rays, tracer, unwrap
+from hhd_lightmapper.core import bakepoints, embree, rays, tracer, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from time_to_error import EmbreexRays
 
@@ -53,6 +55,7 @@ def main():
     ap.add_argument("--triangles", type=int, default=100_000)
     ap.add_argument("--samples", type=int, default=32)
     ap.add_argument("--resolution", type=int, default=1024)
+    ap.add_argument("--rounds", type=int, default=3, help="bakes per query mode (c)")
     args = ap.parse_args()
     v, f = sphere_field(args.triangles)
     ground = np.array([[-5, -5, -1.2], [200, -5, -1.2], [200, 200, -1.2], [-5, 200, -1.2]], float)
@@ -75,11 +78,17 @@ def main():
     theirs = EmbreexRays(tris)
     raw1, raw2 = raw_rate(theirs, tris, 1, dtype=np.float32), raw_rate(theirs, tris, 2, dtype=np.float32)
     ours2 = raw_rate(ray_scene, tris, 2)
-    result = tracer.bake(
-        points, scene, tracer.BakeSettings(samples=args.samples, bounces=2, threads=2), ray_scene=ray_scene
-    )
-    bake_rate = result.rays / result.seconds
-    texel_samples = len(points.texel) * result.samples / result.seconds
+    settings = tracer.BakeSettings(samples=args.samples, bounces=2, threads=2)
+    seconds = {True: [], False: []}
+    for _ in range(args.rounds):
+        for packets in (False, True):
+            embree.PACKETS = packets
+            result = tracer.bake(points, scene, settings, ray_scene=ray_scene)
+            seconds[packets].append(result.seconds)
+    embree.PACKETS = True
+    single, packet = float(np.median(seconds[False])), float(np.median(seconds[True]))
+    bake_rate = result.rays / packet
+    texel_samples = len(points.texel) * result.samples / packet
     row = {
         "triangles": len(f),
         "texels": len(points.texel),
@@ -90,7 +99,10 @@ def main():
         "bake_rays_per_s": bake_rate,
         "bake_texel_samples_per_s": texel_samples,
         "bake_over_raw_2_threads": bake_rate / raw2,
-        "bake_seconds": result.seconds,
+        "bake_seconds": packet,
+        "bake_seconds_one_ray_per_query": single,
+        "bake_rays_per_s_one_ray_per_query": result.rays / single,
+        "packets_speedup": single / packet,
         "rays": result.rays,
     }
     for k, val in row.items():

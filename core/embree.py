@@ -7,8 +7,14 @@ README has the figures) and be called per ray from compiled code. So:
 - the scene is built through ctypes (`Scene`), sharing a padded float32 vertex array and a
   uint32 index array with Embree; ctypes releases the GIL, so Embree's own threads build the
   BVH while Python does other work;
-- queries are numba kernels (`nogil`, cached like `core.kernels`) calling `rtcIntersect1` /
-  `rtcOccluded1` once per ray on an `RTCRayHit` in a small aligned scratch buffer.
+- queries are numba kernels (`nogil`, cached like `core.kernels`) calling `rtcIntersect8` /
+  `rtcOccluded8` once per 8 consecutive rays (a packet, `PACKET`) on an `RTCRayHit8` in a small
+  aligned scratch buffer: callers put rays that start near each other next to each other (a
+  texel's samples, a bake point's spokes), and Embree traverses the BVH once for the packet.
+  The answers are one ray at a time's, bit for bit, but for rays that start on or graze a
+  triangle within float rounding, where the packet's arithmetic may decide otherwise
+  (tests/test_embree.py; bench/tracer.py measures the gain). Where the library was built
+  without ray packets, `rtcIntersect1` / `rtcOccluded1` once per ray.
 The library is found among embreex's installed files (`find_library`: `libembree4*.so*` on
 Linux, `libembree4*.dylib` on macOS, `embree4*.dll` on Windows), after importing embreex so
 that the platform's loader has already placed Embree and TBB in the process.
@@ -16,7 +22,8 @@ that the platform's loader has already placed Embree and TBB in the process.
 Ray layout (Embree 4 `RTCRayHit`, 32-bit words, 16-byte aligned): org 0–2, tnear 3, dir 4–6,
 time 7, tfar 8, mask 9, id 10, flags 11; hit: Ng 12–14 (unnormalised, CCW winding), u 15, v 16,
 primID 17, geomID 18, instID 19. `rtcOccluded1` reads the first 12 words and sets tfar to -inf
-on a hit.
+on a hit. A packet (`RTCRayHit8`, 32-byte aligned) holds the same fields as arrays of 8 (word
+8·f + j is field f of ray j), with an int32 mask (-1: lane valid, 0: not) beside it.
 """
 
 from __future__ import annotations
@@ -44,6 +51,11 @@ _BUFFER_INDEX, _BUFFER_VERTEX = 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
 _RAY_WORDS = 32  # RTCRayHit is 80–96 bytes by build options; 128 is enough
 _UNBOUNDED = float(np.float32(3e38))  # the length of a shadow ray towards a direction
+#: Rays per packet query of the compiled kernels (`rtcIntersect8` / `rtcOccluded8`), used where
+#: the library answers them (`library().packets`) and PACKETS is True (False: one ray per query,
+#: as before packets; bench/tracer.py compares the two).
+PACKET = 8
+PACKETS = True
 
 _HANDLE = ctypes.c_size_t  # Embree handles and pointers, passed as integers
 _ERRORS = {
@@ -136,7 +148,8 @@ def _load() -> SimpleNamespace:
     if not device:
         _check(c, 0, "start")
         raise BakeError("Embree could not start.")
-    return SimpleNamespace(c=c, device=device, kernels=_compile(lib))
+    kernels = _compile(lib)
+    return SimpleNamespace(c=c, device=device, kernels=kernels, packets=_answers_packets(c, device, kernels))
 
 
 # ---- query kernels (numba) ----------------------------------------------------------------------
@@ -241,23 +254,188 @@ def shadow_rays(scene, origins, directions, dist, normals, offset, allowed, scal
     return traced
 
 
+# A packet: RTCRayHit8's 20 fields of 8 words (instance ids and what a build may add after them
+# fit in 24), then the int32 valid mask; 24·8 words keep the mask 64-byte aligned as well.
+rtc_intersect8: Any = None
+rtc_occluded8: Any = None
+_PACKET_WORDS = 24 * PACKET
+
+
+def _packet_scratch():
+    """An RTCRayHit8 and its valid mask: the uint32 words, their float32 and int32 views, the
+    word offsets of the (64-byte aligned) packet and of its mask, and their addresses."""
+    words = np.zeros(_PACKET_WORDS + PACKET + 16, np.uint32)
+    b = ((64 - words.ctypes.data % 64) % 64) // 4
+    m = b + _PACKET_WORDS
+    return (
+        words,
+        words.view(np.float32),
+        words.view(np.int32),
+        b,
+        m,
+        words.ctypes.data + 4 * b,
+        words.ctypes.data + 4 * m,
+    )
+
+
+def _set_lane(f, w, b, j, origins, directions, i, tmax):
+    """Ray i of origins / directions (R, 3), reaching tmax, into lane j of the packet at word b."""
+    f[b + j] = origins[i, 0]
+    f[b + PACKET + j] = origins[i, 1]
+    f[b + 2 * PACKET + j] = origins[i, 2]
+    f[b + 3 * PACKET + j] = 0.0  # tnear: callers offset origins themselves
+    f[b + 4 * PACKET + j] = directions[i, 0]
+    f[b + 5 * PACKET + j] = directions[i, 1]
+    f[b + 6 * PACKET + j] = directions[i, 2]
+    f[b + 7 * PACKET + j] = 0.0
+    f[b + 8 * PACKET + j] = tmax
+    w[b + 9 * PACKET + j] = _INVALID  # mask: every geometry
+    w[b + 10 * PACKET + j] = 0
+    w[b + 11 * PACKET + j] = 0
+
+
+def _set_valid(mask, m, lanes):
+    """The first `lanes` lanes of the packet valid, the others not."""
+    for j in range(PACKET):
+        mask[m + j] = -1 if j < lanes else 0
+
+
+def intersect_packets(scene, origins, directions, tmax, t, prim, ng, u, v):
+    """`intersect_rays`, 8 consecutive rays per query."""
+    w, f, mask, b, m, address, valid = _packet_scratch()
+    n = origins.shape[0]
+    for s in range(0, n, PACKET):
+        lanes = min(PACKET, n - s)
+        for j in range(lanes):
+            _set_lane(f, w, b, j, origins, directions, s + j, tmax[s + j])
+            w[b + 17 * PACKET + j] = _INVALID
+            w[b + 18 * PACKET + j] = _INVALID
+        _set_valid(mask, m, lanes)
+        rtc_intersect8(valid, scene, address, 0)
+        for j in range(lanes):
+            i = s + j
+            if w[b + 18 * PACKET + j] != _INVALID:
+                t[i] = f[b + 8 * PACKET + j]
+                prim[i] = w[b + 17 * PACKET + j]
+                ng[i, 0] = f[b + 12 * PACKET + j]
+                ng[i, 1] = f[b + 13 * PACKET + j]
+                ng[i, 2] = f[b + 14 * PACKET + j]
+                u[i] = f[b + 15 * PACKET + j]
+                v[i] = f[b + 16 * PACKET + j]
+            else:
+                t[i] = np.inf
+                prim[i] = -1
+                ng[i, 0] = 0.0
+                ng[i, 1] = 0.0
+                ng[i, 2] = 0.0
+                u[i] = 0.0
+                v[i] = 0.0
+
+
+def occluded_packets(scene, origins, directions, tmax, out):
+    """`occluded_rays`, 8 consecutive rays per query."""
+    w, f, mask, b, m, address, valid = _packet_scratch()
+    n = origins.shape[0]
+    for s in range(0, n, PACKET):
+        lanes = min(PACKET, n - s)
+        for j in range(lanes):
+            _set_lane(f, w, b, j, origins, directions, s + j, tmax[s + j])
+        _set_valid(mask, m, lanes)
+        rtc_occluded8(valid, scene, address, 0)
+        for j in range(lanes):
+            out[s + j] = f[b + 8 * PACKET + j] == -np.inf
+
+
+def shadow_packets(scene, origins, directions, dist, normals, offset, allowed, scale, cosine, out):
+    """`shadow_rays`, the traced rows gathered 8 per query (in order)."""
+    w, f, mask, b, m, address, valid = _packet_scratch()
+    rows = np.empty(PACKET, np.int64)
+    cosines = np.empty(PACKET)
+    lanes = 0
+    traced = 0
+    n = origins.shape[0]
+    for i in range(n):
+        c = directions[i, 0] * normals[i, 0] + directions[i, 1] * normals[i, 1] + directions[i, 2] * normals[i, 2]
+        out[i] = 0.0
+        if not c > 0.0 or (allowed.shape[0] > 0 and not allowed[i]):
+            continue
+        reach = dist[i] * (1.0 - 1e-4) - offset if math.isfinite(dist[i]) else _UNBOUNDED
+        _set_lane(f, w, b, lanes, origins, directions, i, 0.0 if reach < 0.0 else reach)
+        rows[lanes] = i
+        cosines[lanes] = c
+        lanes += 1
+        if lanes == PACKET:
+            _shadow_packet(f, mask, b, m, address, valid, scene, lanes, rows, cosines, scale, cosine, out)
+            traced += lanes
+            lanes = 0
+    if lanes:
+        _shadow_packet(f, mask, b, m, address, valid, scene, lanes, rows, cosines, scale, cosine, out)
+        traced += lanes
+    return traced
+
+
+def _shadow_packet(f, mask, b, m, address, valid, scene, lanes, rows, cosines, scale, cosine, out):
+    """Traces the packet's first `lanes` shadow rays; out[rows[j]] = scale·(cosines[j] or 1)
+    for those that reach their light."""
+    _set_valid(mask, m, lanes)
+    rtc_occluded8(valid, scene, address, 0)
+    for j in range(lanes):
+        if f[b + 8 * PACKET + j] != -np.inf:
+            out[rows[j]] = scale * cosines[j] if cosine else scale
+
+
 def _compile(lib) -> SimpleNamespace:
     numba = deps.require("numba")
     from llvmlite import binding as llvm
     from numba import types
 
     module = globals()
-    for symbol, name in (("rtcIntersect1", "rtc_intersect1"), ("rtcOccluded1", "rtc_occluded1")):
+    for symbol, name, arguments in (
+        ("rtcIntersect1", "rtc_intersect1", 3),
+        ("rtcOccluded1", "rtc_occluded1", 3),
+        ("rtcIntersect8", "rtc_intersect8", 4),
+        ("rtcOccluded8", "rtc_occluded8", 4),
+    ):
         llvm.add_symbol(symbol, ctypes.cast(getattr(lib, symbol), ctypes.c_void_p).value)
-        module[name] = types.ExternalFunction(symbol, types.void(types.uintp, types.uintp, types.uintp))
+        module[name] = types.ExternalFunction(symbol, types.void(*[types.uintp] * arguments))
     jit = numba.njit(nogil=True, cache=True)
     module["_ray_scratch"] = jit(_ray_scratch)
-    # called per ray: compiled without reference counting (it makes no array), else each call
-    # counts the five arrays it is passed up and down atomically (`core.kernels.get`)
-    module["_set_ray"] = numba.njit(nogil=True, cache=True, _nrt=False)(_set_ray)
+    module["_packet_scratch"] = jit(_packet_scratch)
+    # called per ray or packet: compiled without reference counting (they make no array), else
+    # each call counts the arrays it is passed up and down atomically (`core.kernels.get`)
+    for helper in (_set_ray, _set_lane, _set_valid, _shadow_packet):
+        module[helper.__name__] = numba.njit(nogil=True, cache=True, _nrt=False)(helper)
     return SimpleNamespace(
-        intersect_rays=jit(intersect_rays), occluded_rays=jit(occluded_rays), shadow_rays=jit(shadow_rays)
+        intersect_rays=jit(intersect_rays),
+        occluded_rays=jit(occluded_rays),
+        shadow_rays=jit(shadow_rays),
+        intersect_packets=jit(intersect_packets),
+        occluded_packets=jit(occluded_packets),
+        shadow_packets=jit(shadow_packets),
     )
+
+
+def _answers_packets(c, device, kernels) -> bool:
+    """Whether the library answers packet queries (Embree built with ray packets): a ray traced
+    as a packet at a one-triangle scene hits it, with no error reported."""
+    _check(c, device, "start")  # clear
+    vertices = np.array([0, 0, 0, 1, 0, 0, 0, 1, 0, 0], np.float32)  # + Embree's padding float
+    indices = np.arange(3, dtype=np.uint32)
+    scene = c.rtcNewScene(device)
+    geometry = c.rtcNewGeometry(device, _GEOMETRY_TRIANGLE)
+    c.rtcSetSharedGeometryBuffer(geometry, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3, vertices.ctypes.data, 0, 12, 3)
+    c.rtcSetSharedGeometryBuffer(geometry, _BUFFER_INDEX, 0, _FORMAT_UINT3, indices.ctypes.data, 0, 12, 1)
+    c.rtcCommitGeometry(geometry)
+    c.rtcAttachGeometry(scene, geometry)
+    c.rtcReleaseGeometry(geometry)
+    c.rtcCommitScene(scene)
+    try:
+        out = np.zeros(1, np.bool_)
+        origin, direction = np.array([[0.2, 0.2, 1.0]]), np.array([[0.0, 0.0, -1.0]])
+        kernels.occluded_packets(scene, origin, direction, np.array([2.0]), out)
+        return bool(out[0]) and c.rtcGetDeviceError(device) == 0
+    finally:
+        c.rtcReleaseScene(scene)
 
 
 # ---- scenes -----------------------------------------------------------------------------------
@@ -313,14 +491,14 @@ class Scene:
         ng = np.empty((r, 3), np.float32)
         u = np.empty(r, np.float32)
         v = np.empty(r, np.float32)
-        self._lib.kernels.intersect_rays(self.handle, origins, directions, tmax, t, prim, ng, u, v)
+        self._kernel("intersect")(self.handle, origins, directions, tmax, t, prim, ng, u, v)
         return t, prim, ng, u, v
 
     def occluded(self, origins, directions, tmax) -> np.ndarray:
         """(R,) bool: anything within tmax along each ray."""
         self.wait()
         out = np.empty(len(origins), np.bool_)
-        self._lib.kernels.occluded_rays(self.handle, origins, directions, tmax, out)
+        self._kernel("occluded")(self.handle, origins, directions, tmax, out)
         return out
 
     def shadow(self, origins, directions, dist, normals, offset, allowed, scale, cosine) -> tuple[np.ndarray, int]:
@@ -328,10 +506,15 @@ class Scene:
         (`shadow_rays`; float64 rows, `allowed` bool (R,) or no rows)."""
         self.wait()
         out = np.empty(len(origins))
-        traced = self._lib.kernels.shadow_rays(
+        traced = self._kernel("shadow")(
             self.handle, origins, directions, dist, normals, float(offset), allowed, float(scale), bool(cosine), out
         )
         return out, int(traced)
+
+    def _kernel(self, query: str):
+        """The compiled kernel of `query`: packets where the library answers them (and PACKETS)."""
+        packets = PACKETS and self._lib.packets
+        return getattr(self._lib.kernels, f"{query}_packets" if packets else f"{query}_rays")
 
     def __del__(self):
         handle, self.handle = getattr(self, "handle", 0), 0

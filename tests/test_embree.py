@@ -105,6 +105,47 @@ def test_shadow_rays_are_the_occlusion_query_above_the_horizon(scene):
     np.testing.assert_array_equal(weight > 0, want)
 
 
+@pytest.mark.parametrize("count", [0, 1, 7, 9, 3997])
+def test_packets_answer_exactly_as_single_rays(scene, count, monkeypatch):
+    """Packet queries (8 consecutive rays per rtcIntersect8 / rtcOccluded8, the shadow rays'
+    traced rows gathered) return bit for bit what one ray per query returns, for any number of
+    rays (a partial last packet, shadow rows skipped mid-packet)."""
+    tri, origins, dirs, tmax = scene
+    origins, dirs, tmax = origins[:count], dirs[:count], tmax[:count]
+    rs = rays.RayScene(tri)
+    assert embree.library().packets  # this build of Embree answers packets
+    rng = np.random.default_rng(5)
+    normals = rng.normal(size=origins.shape)
+    dist = np.where(rng.random(count) < 0.5, rng.uniform(0.0, 2.0, count), np.inf)
+    allowed = rng.random(count) < 0.7
+    reach = np.where(np.isinf(tmax), 0.8, tmax)
+
+    def queries():
+        return (
+            *rs.intersect(origins, dirs, tmax, barycentrics=True),
+            rs.occluded(origins, dirs, reach),
+            *rs.shadow(origins, dirs, dist, normals, 1e-3, 0.5, True, allowed),
+        )
+
+    packets = queries()
+    monkeypatch.setattr(embree, "PACKETS", False)
+    single = queries()
+    for a, b in zip(packets, single):
+        np.testing.assert_array_equal(a, b)
+    if count > 1000:
+        assert (packets[1] >= 0).sum() > 1000 and packets[5].sum() > 100 and (packets[6] > 0).sum() > 100
+
+
+def test_a_library_without_packets_is_queried_one_ray_at_a_time(scene, monkeypatch):
+    tri, origins, dirs, tmax = scene
+    rs = rays.RayScene(tri)
+    expected = rs.intersect(origins, dirs, tmax)
+    monkeypatch.setattr(embree.library(), "packets", False)
+    assert rs._scene._kernel("intersect") is embree.library().kernels.intersect_rays
+    for a, b in zip(rs.intersect(origins, dirs, tmax), expected):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_agrees_with_embreex_own_api(scene):
     """The same Embree library through embreex's classes (copying) and ours (shared buffers)."""
     from embreex import rtcore_scene
