@@ -314,8 +314,8 @@ POWER_SHARE = 0.1
 
 class EmissiveTriangles(Light):
     """The emitting triangles of one light group. triangles (T, 3, 3) world space (all of the
-    scene's: primitive ids index them); emission (T, 3) radiance, zero for triangles that do not
-    emit or belong to another group. Empty (`len` 0) when nothing emits. Sampling: the module
+    scene's: primitive ids index them; kept for the emitting ones only, the others' rows zero);
+    emission (T, 3) radiance, zero for triangles that do not emit or belong to another group. Empty (`len` 0) when nothing emits. Sampling: the module
     docstring (a cluster, a triangle ∝ power, then a uniform point on it or a uniform direction
     in its solid angle)."""
 
@@ -323,13 +323,22 @@ class EmissiveTriangles(Light):
 
     def __init__(self, triangles: np.ndarray, emission: np.ndarray, group: str = ""):
         self.group = group
-        self.triangles = np.asarray(triangles, np.float64)
         self.emission = np.asarray(emission, np.float64)
-        cross = np.cross(self.triangles[:, 1] - self.triangles[:, 0], self.triangles[:, 2] - self.triangles[:, 0])
-        self.area = 0.5 * np.linalg.norm(cross, axis=1)
-        power = self.area * np.maximum(self.emission @ LUMINANCE, 0.0)
-        self.index = np.nonzero(power > 0.0)[0]
-        self.normal = cross / np.maximum(2.0 * self.area, 1e-300)[:, None]
+        # per triangle (T rows: primitive ids index them), filled for those with emission only:
+        # nothing reads the others', and a scene has far more triangles than emitters
+        n = len(self.emission)
+        lit = np.flatnonzero(self.emission @ LUMINANCE > 0.0)
+        self.triangles = np.zeros((n, 3, 3))
+        self.triangles[lit] = np.asarray(triangles)[lit]
+        corners = self.triangles[lit]
+        cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        self.area = np.zeros(n)
+        self.area[lit] = 0.5 * np.linalg.norm(cross, axis=1)
+        power = np.zeros(n)
+        power[lit] = self.area[lit] * (self.emission[lit] @ LUMINANCE)
+        self.index = np.flatnonzero(power > 0.0)
+        self.normal = np.zeros((n, 3))
+        self.normal[lit] = cross / np.maximum(2.0 * self.area[lit], 1e-300)[:, None]
         # (T + 1,): does triangle t emit; the last entry, False, is what prim −1 (a miss) reads
         self.emits = np.zeros(len(self.triangles) + 1, bool)
         self.emits[self.index] = True
