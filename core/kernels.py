@@ -658,7 +658,7 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
     the triangle of the cluster by `u[1]` (the first of its rows of `key` above cluster + u),
     then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
     (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (6,
-    K): rows centre x, y, z, radius², radius, power (`_cluster_weights`); key (E,), order (E,),
+    K): rows as `_cluster_weights` takes them; key (E,), order (E,),
     first (K,), last (K,), each triangle's bounding sphere (T, 4): centre, radius).
     Returns directions (R, 3), distances (R,), triangles (R,) int64 and densities (R,)."""
     clusters, key, order, first, last, bound = emitters
@@ -675,7 +675,7 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
         cluster, chance = k - 1, 1.0
         if k > 1:
             nx, ny, nz = _normal(normals, i)
-            total = _cluster_weights(x[i, 0], x[i, 1], x[i, 2], nx, ny, nz, horizon, clusters, w)
+            total = _cluster_weights(x[i, 0], x[i, 1], x[i, 2], nx, ny, nz, horizon, clusters, triangles, w)
             scale, mix = _cluster_chances(total, share)
             acc = 0.0
             for c in range(k):
@@ -743,7 +743,7 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
         chance = within[tri]
         if k > 1:
             nx, ny, nz = _normal(normals, i)
-            total = _cluster_weights(x[i, 0], x[i, 1], x[i, 2], nx, ny, nz, horizon, clusters, w)
+            total = _cluster_weights(x[i, 0], x[i, 1], x[i, 2], nx, ny, nz, horizon, clusters, triangles, w)
             scale, mix = _cluster_chances(total, share)
             c = cluster_of[tri]
             chance *= scale * w[c] + mix * alone[c]
@@ -889,12 +889,32 @@ def texel_sequence(texels, k, first, dim, seed):
     return out
 
 
-def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, w):
+def _solid_angle(px, py, pz, triangles, t):
+    """The solid angle triangles[t] subtends from (px, py, pz): 2·atan2(|a·(b×c)|, 1 + a·b + b·c
+    + c·a) over unit directions to its corners (`_spherical`'s; 0 edge-on, NaN from a corner)."""
+    a = _unit3(triangles[t, 0, 0] - px, triangles[t, 0, 1] - py, triangles[t, 0, 2] - pz)
+    b = _unit3(triangles[t, 1, 0] - px, triangles[t, 1, 1] - py, triangles[t, 1, 2] - pz)
+    c = _unit3(triangles[t, 2, 0] - px, triangles[t, 2, 1] - py, triangles[t, 2, 2] - pz)
+    det = abs(
+        a[0] * (b[1] * c[2] - b[2] * c[1]) + a[1] * (b[2] * c[0] - b[0] * c[2]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+    )
+    ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    bc = b[0] * c[0] + b[1] * c[1] + b[2] * c[2]
+    ca = c[0] * a[0] + c[1] * a[1] + c[2] * a[2]
+    return 2.0 * math.atan2(det, 1.0 + ab + bc + ca)
+
+
+def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w):
     """Into w (K,): each emitter cluster's power over max(distance², radius²) from the point
     (px, py, pz), times (if `horizon`) the largest cosine to the unit normal (nx, ny, nz) of a
     direction into the cluster's bounding sphere (0 for a cluster wholly below the horizon);
-    returns their sum, in index order. clusters (6, K): rows centre x, y, z, radius², radius,
-    power. Element-wise and branch-free, so the loops vectorise (bit for bit the scalar
+    returns their sum, in index order. A cluster of one triangle that x lies near (distance² below
+    its row 8) weighs its emitted luminance (row 7) times the solid angle the triangle subtends
+    from x instead of power over distance²: beside a lamp's quad, the triangle the point sits by
+    subtends far more than its twin, which power over distance² cannot tell apart (the horizon
+    factor is kept). clusters (9, K): rows centre x, y, z, radius², radius, power, the lone
+    triangle's id in triangles (T, 3, 3) (−1: several), its luminance, the near distance².
+    Element-wise and branch-free, so the first loops vectorise (bit for bit the scalar
     arithmetic; without fast-math, which would reassociate the sum and make its last bits
     depend on the arrays' alignment: a seed would no longer reproduce a bake bit for bit
     across processes). Scalars and two arrays: a call's cost grows with its arguments.
@@ -902,10 +922,12 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, w):
     the cone of directions into the sphere when a ≥ √(d² − r²), else the nearest edge's
     cosine is (a √(d² − r²) + √(d² − a²) r) / d²; inside the sphere, 1."""
     k = w.shape[0]
+    near = 0
     if horizon:
         for c in range(k):
             dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
             d2 = dx * dx + dy * dy + dz * dz
+            near += d2 < clusters[8, c]
             r2 = clusters[3, c]
             a = nx * dx + ny * dy + nz * dz
             h2 = d2 - r2
@@ -916,7 +938,18 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, w):
     else:
         for c in range(k):
             dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
-            w[c] = clusters[5, c] / max(dx * dx + dy * dy + dz * dz, clusters[3, c])
+            d2 = dx * dx + dy * dy + dz * dz
+            near += d2 < clusters[8, c]
+            w[c] = clusters[5, c] / max(d2, clusters[3, c])
+    for c in range(k if near else 0):  # lone triangles near x: by solid angle
+        if clusters[6, c] < 0.0 or w[c] <= 0.0:
+            continue
+        dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 < clusters[8, c]:
+            omega = _solid_angle(px, py, pz, triangles, int(clusters[6, c]))
+            if math.isfinite(omega):  # NaN from a corner: keep the distance's weight
+                w[c] *= clusters[7, c] * omega * max(d2, clusters[3, c]) / clusters[5, c]
     total = 0.0
     for c in range(k):
         total += w[c]
@@ -953,6 +986,7 @@ _HELPERS = (
     "sh_basis",
     "zonal_band1",
     "local_to_world",
+    "_solid_angle",
     "_cluster_weights",
     "_normal",
     "_cluster_chances",

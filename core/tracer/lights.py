@@ -17,7 +17,9 @@ Weights sum to one per direction, so every SH coefficient stays unbiased.
 
 Emissive triangles are grouped into at most CLUSTERS spatial clusters (median splits of their
 centroids along the longest axis). At each shading point x a cluster is picked with probability
-∝ its power over max(distance², radius²) to x (mixed with POWER_SHARE of power alone), then a
+∝ its power over max(distance², radius²) to x (mixed with POWER_SHARE of power alone; a cluster
+of one triangle with x inside its bounding sphere: ∝ its luminance × the solid angle it
+subtends, NEAR_RADII), then a
 triangle of the cluster ∝ its power (area × emitted luminance; emission is two-sided, so both
 sides count alike), then a uniform point on the triangle or, where the triangle subtends a solid
 angle within SOLID_ANGLE_RANGE, a uniform direction in that solid angle (Arvo 1995: no 1/d²
@@ -310,6 +312,12 @@ CLUSTERS = 32
 #: Share of the cluster choice made by power alone, whatever the distance: the distance bound
 #: knows nothing of occlusion, so a bright emitter behind a wall keeps some samples.
 POWER_SHARE = 0.1
+#: A cluster of one triangle is weighed by the solid angle the triangle subtends (times its
+#: luminance) instead of power over distance² at points within this many of its bounding radii:
+#: power over distance² sees the two triangles of a lamp's quad alike from a point beside one of
+#: them, though that one subtends nearly all the quad. 1: inside the bounding sphere, where
+#: distance² says least (README, "Speed and accuracy against Cycles"); 0: never.
+NEAR_RADII = 1.0
 
 
 class EmissiveTriangles(Light):
@@ -362,7 +370,8 @@ class EmissiveTriangles(Light):
             self.cluster_power = np.zeros(0)
             self.centre, self.radius2 = np.zeros((0, 3)), np.zeros(0)
             self.order, self.key = self.index, np.zeros(0)
-            self.first = self.last = np.zeros(0, np.int64)
+            self.first = self.last = self.lone = np.zeros(0, np.int64)
+            self.luminance = np.zeros(0)
             return
         cluster = cluster_splits(self.triangles[self.index].mean(axis=1), CLUSTERS)
         k = int(cluster.max()) + 1
@@ -385,6 +394,9 @@ class EmissiveTriangles(Light):
         last = np.append(first[1:], len(c)) - 1
         self.key[last] = np.arange(k) + 1.0  # each cluster's segment ends exactly at c + 1
         self.first, self.last = first, last
+        # a cluster of one triangle: its id and emitted luminance (`cluster_probability`)
+        self.lone = np.where(first == last, self.order[first], -1)
+        self.luminance = np.where(self.lone >= 0, self.cluster_power / np.maximum(self.area[self.lone], 1e-300), 0.0)
 
     def __len__(self) -> int:
         return len(self.index)
@@ -394,7 +406,9 @@ class EmissiveTriangles(Light):
         over max(distance², radius²) to its bounding box's centre, times (given the points'
         `normals` (R, 3)) the largest cosine of a direction into the box's bounding sphere (0
         below the horizon), mixed with POWER_SHARE ∝ power alone (power alone where every
-        cluster is below the horizon); rows sum to 1. numpy: the spec of the compiled choice
+        cluster is below the horizon); rows sum to 1. A cluster of one triangle seen from within
+        NEAR_RADII of its radius weighs its luminance × the triangle's solid angle instead of
+        power over distance² (where that is finite). numpy: the spec of the compiled choice
         (`kernels.sample_emitters`, `kernels.emitter_pdf`), the tests compare them."""
         phi = self.cluster_power
         if len(phi) == 1:
@@ -409,6 +423,11 @@ class EmissiveTriangles(Light):
             cos_a = np.sqrt(1.0 - sin_a * sin_a)
             edge = np.maximum(cos_t * cos_a + np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0)) * sin_a, 0.0)
             w *= np.where((d2 > self.radius2) & (cos_t < cos_a), edge, 1.0)
+        for c in np.flatnonzero(self.lone >= 0):
+            omega = spherical_triangles(x, np.broadcast_to(self.triangles[self.lone[c]], (len(x), 3, 3)))[-1]
+            near = (d2[:, c] < NEAR_RADII**2 * self.radius2[c]) & np.isfinite(omega) & (w[:, c] > 0.0)
+            by_angle = w[:, c] * (self.luminance[c] * omega * np.maximum(d2[:, c], self.radius2[c]) / phi[c])
+            w[:, c] = np.where(near, by_angle, w[:, c])
         total = w.sum(axis=1, keepdims=True)
         power_only = np.broadcast_to(phi / phi.sum(), w.shape)
         mixed = (1.0 - POWER_SHARE) * w / np.where(total > 0.0, total, 1.0) + POWER_SHARE * power_only
@@ -439,7 +458,8 @@ class EmissiveTriangles(Light):
     def _emitters(self) -> tuple:
         """The cluster arrays the kernels take (`kernels.sample_emitters`)."""
         radius2 = self.radius2
-        clusters = np.ascontiguousarray(np.vstack([self.centre.T, radius2, np.sqrt(radius2), self.cluster_power]))
+        rows = [self.centre.T, radius2, np.sqrt(radius2), self.cluster_power, self.lone, self.luminance]
+        clusters = np.ascontiguousarray(np.vstack(rows + [NEAR_RADII**2 * radius2]), np.float64)
         return (clusters, self.key, self.order, self.first, self.last, self.bound)
 
     def pdf(self, d, t=None, prim=None, origins=None, normals=None) -> np.ndarray:
