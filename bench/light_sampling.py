@@ -15,7 +15,9 @@ from the emitters only). Our rows turn the parts of the emitter sampling on one 
 - `+ clusters`: spatial clusters picked by power, distance and horizon per shading point;
 - `+ stratified`: a texel's light samples from its own sequence, stratified across its passes;
 - `+ solid angle`: triangles that subtend more than SOLID_ANGLE_RANGE[0] sampled by direction,
-  and so are Blender's area lights (spherical rectangles; before it, a uniform point on the lamp).
+  and so are Blender's area lights (spherical rectangles; before it, a uniform point on the lamp);
+- `+ near solid angle`: a cluster of one triangle picked by the solid angle it subtends from
+  points inside its bounding sphere (`lights.NEAR_RADII`), not by power over distance².
 
 `area-lamp-room` (scenekit's `area_lamp_room`, on request): lit by Blender area lights, two of
 them facing the ceiling and a wall a few centimetres away, no emissive mesh: only the last row
@@ -44,7 +46,7 @@ RESULTS = ROOT / "bench" / "results"
 SCENES = ("staircase2", "bedroom")
 #: on request (`--scenes`): Blender area lights beside the receivers, not emissive meshes
 EXTRA_SCENES = ("area-lamp-room",)
-VARIANTS = ("power, area", "+ clusters", "+ stratified", "+ solid angle")
+VARIANTS = ("power, area", "+ clusters", "+ stratified", "+ solid angle", "+ near solid angle")
 
 
 def main() -> int:
@@ -86,6 +88,7 @@ def variant(name: str) -> None:
     lights.CLUSTERS = 32 if level >= 1 else 1
     hemisphere.STRATIFIED_LIGHTS = level >= 2
     lights.SOLID_ANGLE_RANGE = (3e-4, 6.22) if level >= 3 else (math.inf, math.inf)
+    lights.NEAR_RADII = 1.0 if level >= 4 else 0.0
 
 
 def measure(tte, name: str, args) -> dict:
