@@ -657,7 +657,7 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
     row at a time): the cluster by `u[0]` (`_cluster_weights` with normals (R, 3) or no rows),
     the triangle of the cluster by `u[1]` (the first of its rows of `key` above cluster + u),
     then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
-    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (6,
+    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (9,
     K): rows as `_cluster_weights` takes them; key (E,), order (E,),
     first (K,), last (K,), each triangle's bounding sphere (T, 4): centre, radius).
     Returns directions (R, 3), distances (R,), triangles (R,) int64 and densities (R,)."""
@@ -917,7 +917,7 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w):
     Element-wise and branch-free, so the first loops vectorise (bit for bit the scalar
     arithmetic; without fast-math, which would reassociate the sum and make its last bits
     depend on the arrays' alignment: a seed would no longer reproduce a bake bit for bit
-    across processes). Scalars and two arrays: a call's cost grows with its arguments.
+    across processes). Scalars and three arrays: a call's cost grows with its arguments.
     With d the distance, r the radius and a = normal · (centre − x): the normal lies inside
     the cone of directions into the sphere when a ≥ √(d² − r²), else the nearest edge's
     cosine is (a √(d² − r²) + √(d² − a²) r) / d²; inside the sphere, 1."""
