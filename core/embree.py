@@ -167,20 +167,45 @@ def _ray_scratch():
     return words, words.view(np.float32), base, words.ctypes.data + 4 * base
 
 
-def _set_ray(f, w, b, origins, directions, tmax, i):
-    """Ray i into the scratch RTCRay at word b (f, w: its float32 and uint32 views)."""
-    f[b + 0] = origins[i, 0]
-    f[b + 1] = origins[i, 1]
-    f[b + 2] = origins[i, 2]
-    f[b + 3] = 0.0  # tnear: callers offset origins themselves
-    f[b + 4] = directions[i, 0]
-    f[b + 5] = directions[i, 1]
-    f[b + 6] = directions[i, 2]
-    f[b + 7] = 0.0
-    f[b + 8] = tmax[i]
-    w[b + 9] = _INVALID  # mask: every geometry
-    w[b + 10] = 0
-    w[b + 11] = 0
+def _set_ray(f, w, b, s, origins, directions, i, tmax):
+    """Ray i of origins / directions (R, 3), reaching tmax, into the scratch at word b, field k
+    at word b + k·s (f, w: the scratch's float32 and uint32 views): s = 1 for an RTCRay,
+    s = PACKET for lane j of a packet at b + j."""
+    f[b] = origins[i, 0]
+    f[b + s] = origins[i, 1]
+    f[b + 2 * s] = origins[i, 2]
+    f[b + 3 * s] = 0.0  # tnear: callers offset origins themselves
+    f[b + 4 * s] = directions[i, 0]
+    f[b + 5 * s] = directions[i, 1]
+    f[b + 6 * s] = directions[i, 2]
+    f[b + 7 * s] = 0.0
+    f[b + 8 * s] = tmax
+    w[b + 9 * s] = _INVALID  # mask: every geometry
+    w[b + 10 * s] = 0
+    w[b + 11 * s] = 0
+    w[b + 17 * s] = _INVALID  # primID, geomID (a closest-hit query's "no hit")
+    w[b + 18 * s] = _INVALID
+
+
+def _store_hit(f, w, b, s, i, t, prim, ng, u, v):
+    """Row i of the closest-hit outputs from the hit at word b (fields at b + k·s, `_set_ray`):
+    t (inf on a miss), prim (-1), ng (zeros), u, v."""
+    if w[b + 18 * s] != _INVALID:
+        t[i] = f[b + 8 * s]
+        prim[i] = w[b + 17 * s]
+        ng[i, 0] = f[b + 12 * s]
+        ng[i, 1] = f[b + 13 * s]
+        ng[i, 2] = f[b + 14 * s]
+        u[i] = f[b + 15 * s]
+        v[i] = f[b + 16 * s]
+    else:
+        t[i] = np.inf
+        prim[i] = -1
+        ng[i, 0] = 0.0
+        ng[i, 1] = 0.0
+        ng[i, 2] = 0.0
+        u[i] = 0.0
+        v[i] = 0.0
 
 
 def intersect_rays(scene, origins, directions, tmax, t, prim, ng, u, v):
@@ -188,34 +213,16 @@ def intersect_rays(scene, origins, directions, tmax, t, prim, ng, u, v):
     (zeros), u, v (hit = (1-u-v)·p0 + u·p1 + v·p2)."""
     w, f, b, address = _ray_scratch()
     for i in range(origins.shape[0]):
-        _set_ray(f, w, b, origins, directions, tmax, i)
-        w[b + 17] = _INVALID
-        w[b + 18] = _INVALID
-        w[b + 19] = _INVALID
+        _set_ray(f, w, b, 1, origins, directions, i, tmax[i])
         rtc_intersect1(scene, address, 0)
-        if w[b + 18] != _INVALID:
-            t[i] = f[b + 8]
-            prim[i] = w[b + 17]
-            ng[i, 0] = f[b + 12]
-            ng[i, 1] = f[b + 13]
-            ng[i, 2] = f[b + 14]
-            u[i] = f[b + 15]
-            v[i] = f[b + 16]
-        else:
-            t[i] = np.inf
-            prim[i] = -1
-            ng[i, 0] = 0.0
-            ng[i, 1] = 0.0
-            ng[i, 2] = 0.0
-            u[i] = 0.0
-            v[i] = 0.0
+        _store_hit(f, w, b, 1, i, t, prim, ng, u, v)
 
 
 def occluded_rays(scene, origins, directions, tmax, out):
     """Whether anything lies within [0, tmax] along each ray (Embree's any-hit query)."""
     w, f, b, address = _ray_scratch()
     for i in range(origins.shape[0]):
-        _set_ray(f, w, b, origins, directions, tmax, i)
+        _set_ray(f, w, b, 1, origins, directions, i, tmax[i])
         rtc_occluded1(scene, address, 0)
         out[i] = f[b + 8] == -np.inf
 
@@ -235,18 +242,7 @@ def shadow_rays(scene, origins, directions, dist, normals, offset, allowed, scal
         if not c > 0.0 or (allowed.shape[0] > 0 and not allowed[i]):
             continue
         reach = dist[i] * (1.0 - 1e-4) - offset if math.isfinite(dist[i]) else _UNBOUNDED
-        f[b + 0] = origins[i, 0]
-        f[b + 1] = origins[i, 1]
-        f[b + 2] = origins[i, 2]
-        f[b + 3] = 0.0
-        f[b + 4] = directions[i, 0]
-        f[b + 5] = directions[i, 1]
-        f[b + 6] = directions[i, 2]
-        f[b + 7] = 0.0
-        f[b + 8] = 0.0 if reach < 0.0 else reach
-        w[b + 9] = _INVALID
-        w[b + 10] = 0
-        w[b + 11] = 0
+        _set_ray(f, w, b, 1, origins, directions, i, 0.0 if reach < 0.0 else reach)
         rtc_occluded1(scene, address, 0)
         traced += 1
         if f[b + 8] != -np.inf:
@@ -278,22 +274,6 @@ def _packet_scratch():
     )
 
 
-def _set_lane(f, w, b, j, origins, directions, i, tmax):
-    """Ray i of origins / directions (R, 3), reaching tmax, into lane j of the packet at word b."""
-    f[b + j] = origins[i, 0]
-    f[b + PACKET + j] = origins[i, 1]
-    f[b + 2 * PACKET + j] = origins[i, 2]
-    f[b + 3 * PACKET + j] = 0.0  # tnear: callers offset origins themselves
-    f[b + 4 * PACKET + j] = directions[i, 0]
-    f[b + 5 * PACKET + j] = directions[i, 1]
-    f[b + 6 * PACKET + j] = directions[i, 2]
-    f[b + 7 * PACKET + j] = 0.0
-    f[b + 8 * PACKET + j] = tmax
-    w[b + 9 * PACKET + j] = _INVALID  # mask: every geometry
-    w[b + 10 * PACKET + j] = 0
-    w[b + 11 * PACKET + j] = 0
-
-
 def _set_valid(mask, m, lanes):
     """The first `lanes` lanes of the packet valid, the others not."""
     for j in range(PACKET):
@@ -307,29 +287,11 @@ def intersect_packets(scene, origins, directions, tmax, t, prim, ng, u, v):
     for s in range(0, n, PACKET):
         lanes = min(PACKET, n - s)
         for j in range(lanes):
-            _set_lane(f, w, b, j, origins, directions, s + j, tmax[s + j])
-            w[b + 17 * PACKET + j] = _INVALID
-            w[b + 18 * PACKET + j] = _INVALID
+            _set_ray(f, w, b + j, PACKET, origins, directions, s + j, tmax[s + j])
         _set_valid(mask, m, lanes)
         rtc_intersect8(valid, scene, address, 0)
         for j in range(lanes):
-            i = s + j
-            if w[b + 18 * PACKET + j] != _INVALID:
-                t[i] = f[b + 8 * PACKET + j]
-                prim[i] = w[b + 17 * PACKET + j]
-                ng[i, 0] = f[b + 12 * PACKET + j]
-                ng[i, 1] = f[b + 13 * PACKET + j]
-                ng[i, 2] = f[b + 14 * PACKET + j]
-                u[i] = f[b + 15 * PACKET + j]
-                v[i] = f[b + 16 * PACKET + j]
-            else:
-                t[i] = np.inf
-                prim[i] = -1
-                ng[i, 0] = 0.0
-                ng[i, 1] = 0.0
-                ng[i, 2] = 0.0
-                u[i] = 0.0
-                v[i] = 0.0
+            _store_hit(f, w, b + j, PACKET, s + j, t, prim, ng, u, v)
 
 
 def occluded_packets(scene, origins, directions, tmax, out):
@@ -339,7 +301,7 @@ def occluded_packets(scene, origins, directions, tmax, out):
     for s in range(0, n, PACKET):
         lanes = min(PACKET, n - s)
         for j in range(lanes):
-            _set_lane(f, w, b, j, origins, directions, s + j, tmax[s + j])
+            _set_ray(f, w, b + j, PACKET, origins, directions, s + j, tmax[s + j])
         _set_valid(mask, m, lanes)
         rtc_occluded8(valid, scene, address, 0)
         for j in range(lanes):
@@ -360,7 +322,7 @@ def shadow_packets(scene, origins, directions, dist, normals, offset, allowed, s
         if not c > 0.0 or (allowed.shape[0] > 0 and not allowed[i]):
             continue
         reach = dist[i] * (1.0 - 1e-4) - offset if math.isfinite(dist[i]) else _UNBOUNDED
-        _set_lane(f, w, b, lanes, origins, directions, i, 0.0 if reach < 0.0 else reach)
+        _set_ray(f, w, b + lanes, PACKET, origins, directions, i, 0.0 if reach < 0.0 else reach)
         rows[lanes] = i
         cosines[lanes] = c
         lanes += 1
@@ -403,7 +365,7 @@ def _compile(lib) -> SimpleNamespace:
     module["_packet_scratch"] = jit(_packet_scratch)
     # called per ray or packet: compiled without reference counting (they make no array), else
     # each call counts the arrays it is passed up and down atomically (`core.kernels.get`)
-    for helper in (_set_ray, _set_lane, _set_valid, _shadow_packet):
+    for helper in (_set_ray, _store_hit, _set_valid, _shadow_packet):
         module[helper.__name__] = numba.njit(nogil=True, cache=True, _nrt=False)(helper)
     return SimpleNamespace(
         intersect_rays=jit(intersect_rays),
