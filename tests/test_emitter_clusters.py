@@ -155,7 +155,6 @@ def test_beside_one_triangle_of_a_quad_that_triangle_is_picked_by_its_solid_angl
     (inside each triangle's bounding sphere, NEAR_RADII), the near one takes most samples and
     next-event estimation's variance falls, both ways unbiased against Lambert's formula."""
     tris, emission = lamps([(0.0, 0.0, 0.01)], size=1.0)
-    light = lights.EmissiveTriangles(tris, emission)
     x, n = np.array([0.45, -0.3, 0.0]), np.array([0.0, 0.0, 1.0])
     exact = polygon_irradiance(x, n, quad((0.0, 0.0, 0.01), 1.0).reshape(-1, 3)[[0, 1, 2, 5]], emission[1])
     k = 200_000

@@ -316,16 +316,16 @@ POWER_SHARE = 0.1
 #: luminance) instead of power over distance² at points within this many of its bounding radii:
 #: power over distance² sees the two triangles of a lamp's quad alike from a point beside one of
 #: them, though that one subtends nearly all the quad. 1: inside the bounding sphere, where
-#: distance² says least (README, "Speed and accuracy against Cycles"); 0: never.
+#: distance² says least (README, "Speed vs accuracy"); 0: never.
 NEAR_RADII = 1.0
 
 
 class EmissiveTriangles(Light):
     """The emitting triangles of one light group. triangles (T, 3, 3) world space (all of the
     scene's: primitive ids index them; kept for the emitting ones only, the others' rows zero);
-    emission (T, 3) radiance, zero for triangles that do not emit or belong to another group. Empty (`len` 0) when nothing emits. Sampling: the module
-    docstring (a cluster, a triangle ∝ power, then a uniform point on it or a uniform direction
-    in its solid angle)."""
+    emission (T, 3) radiance, zero for triangles that do not emit or belong to another group.
+    Empty (`len` 0) when nothing emits. Sampling: the module docstring (a cluster, a triangle ∝
+    power, then a uniform point on it or a uniform direction in its solid angle)."""
 
     reachable = True
 
