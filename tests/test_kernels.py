@@ -262,7 +262,7 @@ def advance(rng, roulette=False, throughput=None, row_albedo=np.zeros((0, 3)), s
     radiance = np.full((2 * r, 3), -1.0)
     tri_albedo = np.array([[0.8, 0.6, 0.4]])
     out = K.advance_paths(
-        live, acc, tp, o, d, t, prim, ng, tri_albedo, row_albedo, sky, radiance, 1e-3, roulette, 0.95, 7
+        live, acc, tp, o, d, t, prim, ng, tri_albedo, row_albedo, sky, radiance, 1e-3, roulette, 0.95, 0.5, 7
     )
     return (o, d, t, prim, live, acc, tp, radiance), out
 
@@ -288,8 +288,9 @@ def test_advance_ends_misses_with_the_sky_and_continues_hits_from_the_facing_sid
 
 
 def test_advance_roulette_keeps_victims_for_their_light_and_reweights_survivors(rng):
-    """Per-row sky and albedo; survival p = max(throughput × albedo) = 0.3: survivors first with
-    weight 1/p, victims after them (the caller adds their vertex's light, then ends them)."""
+    """Per-row sky and albedo; survival p = √max(throughput × albedo) = √0.3 (power ½):
+    survivors first with weight 1/p, victims after them (the caller adds their vertex's light,
+    then ends them)."""
     r = 4000
     tp = np.full((r, 3), 0.3)
     albedo = np.tile([0.5, 1.0, 0.25], (r, 1))
@@ -301,7 +302,7 @@ def test_advance_roulette_keeps_victims_for_their_light_and_reweights_survivors(
     hit = np.flatnonzero(~miss)
     np.testing.assert_array_equal(np.sort(new_live // 2), hit)  # every hit, once
     assert (radiance[new_live] == -1.0).all()  # none written yet
-    survive = 0.3
+    survive = np.sqrt(0.3)
     assert abs(s / len(hit) - survive) < 4 * np.sqrt(survive * (1 - survive) / len(hit))
     np.testing.assert_allclose(weight, 1 / survive)
     np.testing.assert_allclose(new_tp, np.tile([0.15, 0.3, 0.075], (len(hit), 1)))

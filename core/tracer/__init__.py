@@ -36,7 +36,7 @@ from ..scene import BakeScene
 from ..stages import TracedAtlas, trim_heap
 from . import scheduler
 from .hemisphere import TexelEstimator
-from .paths import RR_MAX_SURVIVAL, RR_START, TraceScene
+from .paths import RR_MAX_SURVIVAL, RR_START, RR_SURVIVAL_POWER, TraceScene
 from .scheduler import WorkUnit
 from .settings import MIN_ADAPTIVE_PASSES, NOISE_FLOOR, BakeSettings
 from .statistics import Reduced, Statistics, finished
@@ -52,6 +52,7 @@ __all__ = [
     "NOISE_FLOOR",
     "RR_START",
     "RR_MAX_SURVIVAL",
+    "RR_SURVIVAL_POWER",
     "TexelEstimator",
     "TraceScene",
     "WorkUnit",

@@ -8,7 +8,8 @@ world, or the HDRI weighted by MIS), hits take the emission of the triangle they
 against emitter sampling), and every hit adds next-event estimation to every light
 (`irradiance_at`: one shadow ray per light and vertex), then continues diffusely (two-sided,
 cosine-distributed; with BACK_FACES_BLACK a path that reaches the back of a triangle ends
-there, carrying no more light) with Russian roulette from RR_START bounces on, at most `bounces`
+there, carrying no more light) with Russian roulette from RR_START bounces on (survival
+√throughput, RR_SURVIVAL_POWER), at most `bounces`
 reflections. The per-sample work between two Embree queries runs in `kernels.advance_paths`.
 
 Light sets (`core.light_sets`): with `TraceScene.sets` the radiance has 3 columns per set (RGB of
@@ -37,6 +38,10 @@ from . import shipping
 
 RR_START = 2  # bounces before Russian roulette may end a path
 RR_MAX_SURVIVAL = 0.95
+#: A path survives the roulette with probability min(max(throughput)^RR_SURVIVAL_POWER,
+#: RR_MAX_SURVIVAL), as Cycles' √throughput: with the throughput alone (power 1) bright scenes'
+#: paths ended too early for the rays they saved (bench/roulette.py; README, "Speed vs accuracy").
+RR_SURVIVAL_POWER = 0.5
 #: A path that hits the back of a triangle carries no light from there on (as Godot's and
 #: Unity's bakers do): it started inside a closed mesh or behind a wall's modelled side, where
 #: any light it finds has leaked through. Off by default: surfaces are two-sided, as in Cycles,
@@ -195,6 +200,7 @@ class Paths:
                 ts.offset,
                 bounce + 1 >= RR_START,
                 RR_MAX_SURVIVAL,
+                RR_SURVIVAL_POWER,
                 seed(rng),
                 ts.back_faces_black,
                 u_dir,
