@@ -189,6 +189,24 @@ def test_emissive_triangles_are_light_sampled_without_bias():
     assert np.median(relative_noise) < 0.05, np.median(relative_noise)
 
 
+@pytest.mark.parametrize("power", [0.5, 1.0])
+def test_roulette_keeps_a_glowing_closed_box_unbiased(monkeypatch, power):
+    """Inside a closed box whose every face emits radiance 1 and reflects 0.8, the radiance
+    arriving from any direction after at most 3 reflections is 1 + 0.8 + 0.8² + 0.8³, whatever
+    ends paths early: the roulette's survival √throughput (now) or the throughput (before)."""
+    from hhd_lightmapper.core.tracer import paths
+
+    monkeypatch.setattr(paths, "RR_SURVIVAL_POWER", power)
+    box_v, box_f = meshes.cube(3.0, centre=(1.0, 1.0, 1.0))  # around the floor (0..2, 0..2, 0)
+    points, tris = floor_points(box_v, box_f)
+    scene = BakeScene(tris, np.full((len(tris), 3), 0.8), emission=np.ones((len(tris), 3)))
+    result = tracer.bake(points, scene, tracer.BakeSettings(samples=16, bounces=3, seed=3))
+    iz = luminance_iz(result, points)
+    expected = 1.0 + 0.8 + 0.8**2 + 0.8**3
+    assert abs(iz.mean() - expected) < 4 * iz.std() / np.sqrt(len(iz)), (iz.mean(), expected)
+    assert iz.std() > 0.0  # the roulette did end some paths
+
+
 def occluded_floor_scene():
     """A floor half shadowed by a wall under a soft sun and a sky: texels differ in noise
     (open sky converges fast, the penumbra and the wall's foot slowly)."""
