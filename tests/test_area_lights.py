@@ -122,12 +122,17 @@ def test_a_far_lamp_falls_back_to_surface_points_and_stays_unbiased():
 @pytest.mark.parametrize("shape", ["RECTANGLE", "ELLIPSE"])
 def test_the_compiled_samples_are_the_numpy_spec(shape):
     """`kernels.sample_area_light` against `Area.sample_numpy` on the same numbers, from points
-    far, near, beside, behind and on the lamp's plane."""
+    far, near, beside, behind and on the lamp's plane. A point on the lamp can draw itself (a
+    sample at distance ~1e-17, carrying nothing): its direction is rounding noise, which the
+    CPU's fused multiply-adds decide, so directions are compared where the sample lies apart."""
     light = lamp(shape)
     rng = np.random.default_rng(11)
     x = np.concatenate([CENTRE + rng.normal(0.0, s, (2000, 3)) for s in (0.02, 0.3, 3.0, 100.0)])
-    x[:5] = CENTRE + 0.3 * AXIS_U  # in the lamp's plane
+    x[:5] = CENTRE + 0.3 * AXIS_U  # in the lamp's plane, on the lamp
     got = light.sample(np.random.default_rng(2), x)
     spec = light.sample_numpy(np.random.default_rng(2), x)
-    for a, b in zip(got, spec):
-        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+    apart = spec[2] > 1e-9
+    assert apart.sum() >= len(x) - 5
+    np.testing.assert_allclose(got[0][apart], spec[0][apart], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(got[1], spec[1], rtol=1e-9, atol=1e-12)  # every value, the degenerate ones 0
+    np.testing.assert_allclose(got[2], spec[2], rtol=1e-9, atol=1e-12)
