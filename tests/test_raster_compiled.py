@@ -170,7 +170,7 @@ def test_compiled_bake_points_are_the_numpy_bake_points_bit_for_bit(settle, monk
         )
 
 
-def test_texel_points_are_numpys_matmul_bit_for_bit():
+def test_texel_points_are_numpys_matmul_to_its_last_bits():
     """Points anywhere around the texel (clamped into its triangle), one or many per texel, any
     texels in any order, and triangles whose UVs have no area (the barycentric fallback). Bit for
     bit where numpy's matmul fuses its multiply-adds; its rounding is its BLAS kernel's, which
