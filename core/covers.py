@@ -27,6 +27,7 @@ import weakref
 
 import numpy as np
 
+from . import kernels as _kernels
 from .rays import RayScene, bounds
 
 #: How far every triangle is pushed back for the probe, as a fraction of the ray offset: far
@@ -91,10 +92,4 @@ def content_key(a: np.ndarray) -> str:
 def _near_box(tri: np.ndarray, points: np.ndarray, margin: float) -> np.ndarray:
     """(T,) bool: triangles whose bounding box overlaps that of `points` (..., 3) grown by `margin`."""
     lo, hi = bounds(points)
-    lo, hi = lo - margin, hi + margin
-    keep = np.ones(len(tri), bool)
-    for i in range(3):  # per axis: column reductions are much faster in numpy
-        c = tri[:, :, i]
-        keep &= np.minimum(np.minimum(c[:, 0], c[:, 1]), c[:, 2]) <= hi[i]
-        keep &= np.maximum(np.maximum(c[:, 0], c[:, 1]), c[:, 2]) >= lo[i]
-    return keep
+    return _kernels.get().near_box(np.ascontiguousarray(tri), lo - margin, hi + margin)

@@ -557,6 +557,22 @@ def accumulate_grouped(dirs, values, weights, k, out):
             out[t, m, 2] += y[m] * v2
 
 
+def near_box(tri, lo, hi):
+    """(T,) bool: the triangles tri (T, 3, 3) whose bounding box overlaps the box lo..hi (3,)
+    (`covers._near_box`: one pass over the triangles, where numpy made six over each column).
+    A triangle with a NaN coordinate overlaps nothing."""
+    out = np.empty(tri.shape[0], np.bool_)
+    for t in range(tri.shape[0]):
+        inside = True
+        for i in range(3):
+            a, b, c = tri[t, 0, i], tri[t, 1, i], tri[t, 2, i]
+            if a != a or b != b or c != c or not (min(a, b, c) <= hi[i] and max(a, b, c) >= lo[i]):
+                inside = False
+                break
+        out[t] = inside
+    return out
+
+
 def add_pass(idx, estimate, normals, luminance, total, m2, iz, iz_sq, passes):
     """One pass's SH estimate (len(idx), 9, C) into the running statistics of the texels idx
     (unique), in place: total += estimate; m2 (float32) += (x - mean before)·(x - mean after)
@@ -1017,6 +1033,7 @@ _KERNELS = (
     "project_halves",
     "accumulate_grouped",
     "add_pass",
+    "near_box",
 )
 _compiled: SimpleNamespace | None = None
 _lock = threading.Lock()

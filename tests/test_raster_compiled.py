@@ -282,3 +282,29 @@ def test_compiled_spoke_rays_are_numpys():
     for name, a, b in zip(("anchor", "origin", "direction", "length", "reach"), got, want):
         np.testing.assert_array_equal(a, b, err_msg=name, strict=True)
     assert (length == 0.0).sum() >= len(idx) // 7 and (length < reach).sum() > 1000
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_compiled_near_box_is_numpys(dtype):
+    """`covers._near_box` (the cover probe's filter, compiled) keeps exactly the triangles the
+    numpy per-axis reductions kept: boxes touching the receivers' box edge on, triangles
+    straddling it, far ones and NaN ones (never kept)."""
+    from hhd_lightmapper.core import covers
+
+    rng = np.random.default_rng(11)
+    tri = rng.uniform(-3.0, 3.0, (20000, 3, 3)).astype(dtype) * rng.uniform(0.01, 1.0, (20000, 1, 1)).astype(dtype)
+    tri[:50] += dtype(2.5)  # edge on: a vertex exactly on the grown box's face below
+    tri[:50, 0, 0] = dtype(0.5 + 0.25)
+    tri[50:60, 1, 2] = np.nan
+    receivers = np.array([[[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.25]]])
+    margin = 0.25
+    lo, hi = rays.bounds(receivers)
+    lo, hi = lo - margin, hi + margin
+    want = np.ones(len(tri), bool)  # the numpy code until 2026-12-03
+    for i in range(3):
+        c = tri[:, :, i]
+        want &= np.minimum(np.minimum(c[:, 0], c[:, 1]), c[:, 2]) <= hi[i]
+        want &= np.maximum(np.maximum(c[:, 0], c[:, 1]), c[:, 2]) >= lo[i]
+    got = covers._near_box(tri, receivers, margin)
+    np.testing.assert_array_equal(got, want, strict=True)
+    assert 0 < want.sum() < len(tri) and not got[50:60].any()
