@@ -4,8 +4,8 @@
     .venv/bin/python bench/roulette.py --scenes classroom bedroom --bounces 8
 
 The scenes and atlases of bench/time_to_error.py (512²). For each way of ending paths
-(`paths.RR_START`, `paths.RR_SURVIVAL_POWER`: a path survives from bounce RR_START on with
-probability min(max(throughput)^power, RR_MAX_SURVIVAL)), `--seeds` bakes of `--samples` spp on
+(`paths.RR_START`, `RR_SURVIVAL_POWER`, `RR_REFERENCE`, `RR_MAX_SURVIVAL`: a path survives from
+bounce RR_START on with probability min((max(throughput) / reference)^power, max survival)), `--seeds` bakes of `--samples` spp on
 every core, the ways interleaved seed by seed (this machine's speed drifts): the per-sample I_z
 variance (luminance, over fully covered unburied texels, relative to the mean²: the spread across
 seeds × samples), the rays traced and the trace seconds (median). Efficiency is variance × cost,
@@ -27,13 +27,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 SCENES = ("classroom", "field", "staircase2", "bedroom")
-#: (name, RR_START, RR_SURVIVAL_POWER): the first is the baseline the others are compared with.
+#: (name, RR_START, RR_SURVIVAL_POWER, RR_REFERENCE, RR_MAX_SURVIVAL): the first is the baseline
+#: the others are compared with.
 WAYS = (
-    ("throughput, from bounce 2 (until 2026-12-03)", 2, 1.0),
-    ("√throughput, from bounce 2 (Cycles' rule; now)", 2, 0.5),
-    ("√throughput, from bounce 3", 3, 0.5),
-    ("none (every path to the last bounce)", 1000, 1.0),
+    ("√throughput, from bounce 2 (Cycles' rule)", 2, 0.5, 1.0, 0.95),
+    ("√(throughput / ½), from bounce 2, none ended above ½", 2, 0.5, 0.5, 1.0),
+    ("√(throughput / ¼), from bounce 2, none ended above ¼", 2, 0.5, 0.25, 1.0),
+    ("√throughput, from bounce 3", 3, 0.5, 1.0, 0.95),
+    ("none (every path to the last bounce)", 1000, 1.0, 1.0, 1.0),
 )
+_KNOBS = ("RR_START", "RR_SURVIVAL_POWER", "RR_REFERENCE", "RR_MAX_SURVIVAL")
 
 
 def main() -> int:
@@ -77,14 +80,15 @@ def measure(surface, bake_scene, args) -> dict:
     objects = [str(k) for k in range(int(surface.object_index.max(initial=-1)) + 1)]
     points = bake.points_of(bake.AtlasInput("atlas", n, n, surface, objects), ray_scene)
     keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
-    iz = {way: [] for way, _, _ in WAYS}
-    traced = {way: [] for way, _, _ in WAYS}
-    seconds = {way: [] for way, _, _ in WAYS}
-    saved = paths.RR_START, paths.RR_SURVIVAL_POWER
+    iz = {way[0]: [] for way in WAYS}
+    traced = {way[0]: [] for way in WAYS}
+    seconds = {way[0]: [] for way in WAYS}
+    saved = [getattr(paths, knob) for knob in _KNOBS]
     try:
         for seed in range(-1, args.seeds):  # seed -1: untimed, compiles and warms
-            for way, start, power in WAYS:
-                paths.RR_START, paths.RR_SURVIVAL_POWER = start, power
+            for way, *values in WAYS:
+                for knob, value in zip(_KNOBS, values):
+                    setattr(paths, knob, value)
                 settings = tracer.BakeSettings(
                     samples=args.samples, pass_samples=min(16, args.samples), bounces=args.bounces, seed=100 + seed
                 )
@@ -95,14 +99,17 @@ def measure(surface, bake_scene, args) -> dict:
                 traced[way].append(result.rays)
                 seconds[way].append(result.seconds)
     finally:
-        paths.RR_START, paths.RR_SURVIVAL_POWER = saved
+        for knob, value in zip(_KNOBS, saved):
+            setattr(paths, knob, value)
     rows = {}
-    for way, start, power in WAYS:
+    for way, start, power, reference, max_survival in WAYS:
         a = np.array(iz[way])
         mean = float(a.mean())
         rows[way] = {
             "rr_start": start,
             "survival_power": power,
+            "survival_reference": reference,
+            "max_survival": max_survival,
             "mean_iz": mean,
             "variance": float(a.var(axis=0, ddof=1).mean() / mean**2 * args.samples),
             "rays": float(np.median(traced[way])),

@@ -369,6 +369,7 @@ def advance_paths(
     roulette,
     max_survival,
     survival_power,
+    survival_reference,
     seed,
     back_faces_black=False,
     u_dir=_NO_NUMBERS,
@@ -380,8 +381,9 @@ def advance_paths(
     path ends and writes acc into `radiance[live]` (R', C) (in place). At a hit: throughput × albedo (`row_albedo` (R, 3) if it has rows, else
     tri_albedo[prim]), the unit normal n facing the ray (surfaces are two-sided; ng (R, 3) is
     Embree's, not unit) and the next origin x = hit + offset·n; then, if `roulette`, the path
-    survives with probability p = min(max(throughput)^survival_power, max_survival) (throughput
-    ≤ 1: a power below 1 ends fewer paths than the throughput alone). A survivor gets a
+    survives with probability p = min((max(throughput) / survival_reference)^survival_power,
+    max_survival): a path whose throughput is at least the reference is kept (with max_survival
+    1), and a power below 1 ends fewer of the others than their throughput alone. A survivor gets a
     cosine-distributed direction around n (pdf cosθ/π) and the weight 1/p for what follows.
     With `back_faces_black`, a hit on the back of a triangle (ng · d > 0: the ray started inside
     a closed mesh or behind a wall's modelled side) ends the path like a miss without sky: the
@@ -416,7 +418,7 @@ def advance_paths(
             tp[i, c] = throughput[i, c] * albedo
         p = 1.0
         if roulette:
-            p = min(max(tp[i, 0], tp[i, 1], tp[i, 2]) ** survival_power, max_survival)
+            p = min((max(tp[i, 0], tp[i, 1], tp[i, 2]) / survival_reference) ** survival_power, max_survival)
             state, u = uniform(state)
             if u >= p:
                 p = -1.0

@@ -253,7 +253,9 @@ def hits(rng, r=4000):
     return o, d, t, prim, ng
 
 
-def advance(rng, roulette=False, throughput=None, row_albedo=np.zeros((0, 3)), sky=np.array([[0.2, 0.3, 0.4]])):
+def advance(
+    rng, roulette=False, throughput=None, row_albedo=np.zeros((0, 3)), sky=np.array([[0.2, 0.3, 0.4]]), reference=1.0
+):
     o, d, t, prim, ng = hits(rng)
     r = len(o)
     live = np.arange(r) * 2
@@ -262,7 +264,7 @@ def advance(rng, roulette=False, throughput=None, row_albedo=np.zeros((0, 3)), s
     radiance = np.full((2 * r, 3), -1.0)
     tri_albedo = np.array([[0.8, 0.6, 0.4]])
     out = K.advance_paths(
-        live, acc, tp, o, d, t, prim, ng, tri_albedo, row_albedo, sky, radiance, 1e-3, roulette, 0.95, 0.5, 7
+        live, acc, tp, o, d, t, prim, ng, tri_albedo, row_albedo, sky, radiance, 1e-3, roulette, 0.95, 0.5, reference, 7
     )
     return (o, d, t, prim, live, acc, tp, radiance), out
 
@@ -287,22 +289,23 @@ def test_advance_ends_misses_with_the_sky_and_continues_hits_from_the_facing_sid
     assert abs(cos.mean() - 2 / 3) < 0.02  # cosine-distributed
 
 
-def test_advance_roulette_keeps_victims_for_their_light_and_reweights_survivors(rng):
-    """Per-row sky and albedo; survival p = √max(throughput × albedo) = √0.3 (power ½):
-    survivors first with weight 1/p, victims after them (the caller adds their vertex's light,
-    then ends them)."""
+@pytest.mark.parametrize("reference", [1.0, 0.5, 0.25])
+def test_advance_roulette_keeps_victims_for_their_light_and_reweights_survivors(rng, reference):
+    """Per-row sky and albedo; survival p = min(√(max(throughput × albedo) / reference), 0.95)
+    = √0.3, √0.6 or 0.95 (power ½, references 1, ½, ¼): survivors first with weight 1/p,
+    victims after them (the caller adds their vertex's light, then ends them)."""
     r = 4000
     tp = np.full((r, 3), 0.3)
     albedo = np.tile([0.5, 1.0, 0.25], (r, 1))
     sky = rng.random((r, 3))
-    (o, d, t, prim, live, acc, _, radiance), out = advance(rng, True, tp, albedo, sky)
+    (o, d, t, prim, live, acc, _, radiance), out = advance(rng, True, tp, albedo, sky, reference)
     new_live, new_acc, new_tp, x, n, nd, pdf, weight, s = out
     miss = prim < 0
     np.testing.assert_allclose(radiance[live[miss]], acc[miss] + 0.3 * sky[miss])
     hit = np.flatnonzero(~miss)
     np.testing.assert_array_equal(np.sort(new_live // 2), hit)  # every hit, once
     assert (radiance[new_live] == -1.0).all()  # none written yet
-    survive = np.sqrt(0.3)
+    survive = min(np.sqrt(0.3 / reference), 0.95)
     assert abs(s / len(hit) - survive) < 4 * np.sqrt(survive * (1 - survive) / len(hit))
     np.testing.assert_allclose(weight, 1 / survive)
     np.testing.assert_allclose(new_tp, np.tile([0.15, 0.3, 0.075], (len(hit), 1)))

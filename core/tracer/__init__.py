@@ -36,7 +36,7 @@ from ..scene import BakeScene
 from ..stages import TracedAtlas, trim_heap
 from . import scheduler
 from .hemisphere import TexelEstimator
-from .paths import RR_MAX_SURVIVAL, RR_START, RR_SURVIVAL_POWER, TraceScene
+from .paths import RR_MAX_SURVIVAL, RR_REFERENCE, RR_START, RR_SURVIVAL_POWER, TraceScene
 from .scheduler import WorkUnit
 from .settings import MIN_ADAPTIVE_PASSES, NOISE_FLOOR, BakeSettings
 from .statistics import Reduced, Statistics, finished
@@ -53,6 +53,7 @@ __all__ = [
     "RR_START",
     "RR_MAX_SURVIVAL",
     "RR_SURVIVAL_POWER",
+    "RR_REFERENCE",
     "TexelEstimator",
     "TraceScene",
     "WorkUnit",

@@ -9,7 +9,7 @@ against emitter sampling), and every hit adds next-event estimation to every lig
 (`irradiance_at`: one shadow ray per light and vertex), then continues diffusely (two-sided,
 cosine-distributed; with BACK_FACES_BLACK a path that reaches the back of a triangle ends
 there, carrying no more light) with Russian roulette from RR_START bounces on (survival
-√throughput, RR_SURVIVAL_POWER), at most `bounces`
+√(throughput / ½), none ended above ½: RR_SURVIVAL_POWER, RR_REFERENCE), at most `bounces`
 reflections. The per-sample work between two Embree queries runs in `kernels.advance_paths`.
 
 Light sets (`core.light_sets`): with `TraceScene.sets` the radiance has 3 columns per set (RGB of
@@ -37,11 +37,16 @@ from . import lights as _lights
 from . import shipping
 
 RR_START = 2  # bounces before Russian roulette may end a path
-RR_MAX_SURVIVAL = 0.95
-#: A path survives the roulette with probability min(max(throughput)^RR_SURVIVAL_POWER,
-#: RR_MAX_SURVIVAL), as Cycles' √throughput: with the throughput alone (power 1) bright scenes'
-#: paths ended too early for the rays they saved (bench/roulette.py; README, "Speed vs accuracy").
+#: A path survives the roulette with probability min((max(throughput) / RR_REFERENCE)^
+#: RR_SURVIVAL_POWER, RR_MAX_SURVIVAL): the square root of Cycles' rule, measured against the
+#: throughput's own (bright scenes' paths ended too early for the rays they saved), and a path
+#: still carrying half its light or more is never ended (a weight window): under a sun and a
+#: sky the default 0.8 albedo keeps the throughput at 0.64 after two hits, and ending those
+#: paths cost more noise than their rays were worth (bench/roulette.py; README, "Speed vs
+#: accuracy"). The paths end at `bounces` whatever the roulette does, so survival may reach 1.
 RR_SURVIVAL_POWER = 0.5
+RR_REFERENCE = 0.5
+RR_MAX_SURVIVAL = 1.0
 #: A path that hits the back of a triangle carries no light from there on (as Godot's and
 #: Unity's bakers do): it started inside a closed mesh or behind a wall's modelled side, where
 #: any light it finds has leaked through. Off by default: surfaces are two-sided, as in Cycles,
@@ -201,6 +206,7 @@ class Paths:
                 bounce + 1 >= RR_START,
                 RR_MAX_SURVIVAL,
                 RR_SURVIVAL_POWER,
+                RR_REFERENCE,
                 seed(rng),
                 ts.back_faces_black,
                 u_dir,
