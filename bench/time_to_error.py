@@ -70,10 +70,10 @@ BOUNCES = 3
 SCENES = ("classroom", "field", "staircase2", "bedroom")
 #: Sample counts both engines bake at by default (`--ours`, `--cycles`).
 SAMPLES = [4, 8, 16, 32, 64, 256]
-#: Scenes measured on request (`--scenes`): rooms like the held-out ones issue 23 reports.
 #: A bake shorter than this many seconds is repeated (up to REPEATS times in all) and its median
-#: time kept, on both sides: single timings of 1–2 s bakes swing ±15% on this machine.
+#: time kept, on both sides: single timings of 1–2 s bakes swing by tens of percent.
 REPEAT_BELOW, REPEATS = 5.0, 5
+#: Scenes measured on request (`--scenes`): rooms like the held-out ones issue 23 reports.
 EXTRA_SCENES = ("emissive-room", "door-room", "area-lamp-room")
 #: Cycles seeds of the reference's two halves (the rows use seed 0: Cycles' samples for one seed
 #: are nested, so a row must not share its samples with the reference)
