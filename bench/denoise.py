@@ -4,6 +4,7 @@
     .venv/bin/python bench/denoise.py --quick                   # a smoke run: 256² atlases, few samples
     .venv/bin/python bench/denoise.py --replot                  # tables and error plot from the saved JSON
     .venv/bin/python bench/denoise.py --scenes bedroom --no-edge
+    .venv/bin/python bench/denoise.py --scenes bedroom --no-edge --reference 16384 --ours 4 16 64 256 1024 2048 4096
 
 Scenes: `classroom` (scenekit/scenes.py: sun + sky through the windows, its 6 receivers) and the
 two emissive-lit interiors of ../shared/scenes, `staircase2` and `bedroom`: their receivers are the
@@ -118,6 +119,8 @@ def main() -> int:
     ap.add_argument("--edge-reference", type=int, default=2048)
     ap.add_argument("--no-edge", action="store_true", help="skip the shadow-edge fixture")
     ap.add_argument("--figure-scene", default="staircase2", choices=SCENES)
+    ap.add_argument("--ours", type=int, nargs="+", help="our sample counts, for every scene run (default: PLAN's)")
+    ap.add_argument("--reference", type=int, help="our reference's samples (two halves), for every scene run")
     ap.add_argument("--quick", action="store_true", help="256² atlases, few samples, small references")
     ap.add_argument("--replot", action="store_true", help="denoise.md and denoise_error.png from the JSON")
     ap.add_argument("--out", type=Path, help="folder of the results (default bench/results; --quick: a temporary one)")
@@ -151,7 +154,7 @@ def main() -> int:
     out = RESULTS / "denoise.json"
     results = {
         "settings": {k: v for k, v in vars(args).items() if k not in ("replot", "out")},
-        "plan": {s: (QUICK_PLAN if args.quick else PLAN[s]) for s in args.scenes},
+        "plan": {s: plan_of(s, args) for s in args.scenes},
         "bounces": BOUNCES,
         "oidn": {"version": denoiser.version, "library": str(denoiser.library), "threads": threads},
         "load_average_start": os.getloadavg(),
@@ -171,6 +174,16 @@ def main() -> int:
     finish(results)
     print(f"wall time {results['wall_seconds'] / 60:.1f} min; results in {out}", flush=True)
     return 0
+
+
+def plan_of(name: str, args) -> dict:
+    """The scene's PLAN (QUICK_PLAN with --quick), with --ours and --reference in its place."""
+    plan = dict(QUICK_PLAN if args.quick else PLAN[name])
+    if args.ours:
+        plan["ours"] = sorted(args.ours)
+    if args.reference:
+        plan["reference"] = args.reference
+    return plan
 
 
 # ---- scenes ---------------------------------------------------------------------------------
@@ -363,7 +376,7 @@ class Reference:
 def measure_scene(name: str, args, denoiser) -> dict:
     from hhd_lightmapper.core import hhd, presets
 
-    plan = QUICK_PLAN if args.quick else PLAN[name]
+    plan = plan_of(name, args)
     t_scene = time.perf_counter()
     receivers = load_scene(name)
     atlas = Atlas(receivers, args.resolution, args.padding)
