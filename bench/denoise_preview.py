@@ -322,10 +322,7 @@ def markdown(results: dict) -> str:
         "camera sees a receiver, the Cycles reference's own noise removed in quadrature (measured in "
         "brackets); raw and denoised are the same bake, re-encoded without the denoiser.",
         "",
-        "| scene | reference noise | "
-        + " | ".join(f"{r['samples']} spp raw → denoised" for r in first_rows(results))
-        + " |",
-        "| --- | --- | " + " | ".join("---" for _ in first_rows(results)) + " |",
+        *table_head(results),
     ]
     for name, entry in results["scenes"].items():
         cells = [
@@ -340,10 +337,7 @@ def markdown(results: dict) -> str:
         "from Cycles (the same pixels in every column: geometry finer than a texel, which no sample count "
         "changes; the share of the squared error they carry there in brackets):",
         "",
-        "| scene | reference noise | "
-        + " | ".join(f"{r['samples']} spp raw → denoised" for r in first_rows(results))
-        + " |",
-        "| --- | --- | " + " | ".join("---" for _ in first_rows(results)) + " |",
+        *table_head(results),
     ]
     for name, entry in results["scenes"].items():
         w = entry["without_outliers"]
@@ -355,8 +349,13 @@ def markdown(results: dict) -> str:
     return "\n".join(lines)
 
 
-def first_rows(results: dict) -> list:
-    return next(iter(results["scenes"].values()))["rows"]
+def table_head(results: dict) -> list[str]:
+    """The two header lines of a table with a column per sample count (the first scene's)."""
+    rows = next(iter(results["scenes"].values()))["rows"]
+    return [
+        "| scene | reference noise | " + " | ".join(f"{r['samples']} spp raw → denoised" for r in rows) + " |",
+        "| --- | --- | " + " | ".join("---" for _ in rows) + " |",
+    ]
 
 
 def figure(figures: dict, png: Path) -> None:
