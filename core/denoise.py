@@ -16,7 +16,8 @@ Input and output are `encoding.TexelData` images (rows bottom-up): only the SH o
    its own `inputScale` (OIDN's auto-exposure rule over its charts' texels; a chart is never
    split between pages, so no chart sees two exposures).
 3. **Filter** (`Denoiser`, RTLightmap), per page: L0 and I_z (the irradiance along n_v, RGB: what
-   the HHD file stores first, and the part of band 1 along n_v) as HDR colour; the rest of band 1
+   the HHD file stores first, and the part of band 1 along n_v) as HDR colour, raised to
+   HDR_POWER (a compressed range) and back; the rest of band 1
    (across n_v) and band 2 in luminance, in directional mode, divided by the *denoised*
    luminance L0 and by the band's bound (|c_k / c_0| ≤ √3 in band 1, ≤ √5 in band 2 for any
    radiance ≥ 0) times DIRECTIONAL_RANGE, then scaled back by each colour's denoised L0 (one
@@ -86,6 +87,11 @@ BLACK = 1e-12
 DIRECTIONAL_RANGE = 0.5
 #: |c / c_0| bound of an SH coefficient for any radiance ≥ 0 (max |Y| / Y_00), per band.
 BAND1_BOUND, BAND2_BOUND = math.sqrt(3.0), math.sqrt(5.0)
+#: L0 and I_z go through the filter raised to this power (`_hdr_filtered`), and are raised back
+#: after: a compressed range, in which a chart's darkest texels next to its brightest ones (a
+#: sunlit strip beside a shadowed face, both a texel wide) take less of their light. The per-page
+#: energy correction restores the mean the power's curvature takes (bench/results).
+HDR_POWER = 0.7
 #: Bound of the per-page energy correction of the HDR channels (`_hdr`).
 ENERGY_CLAMP = 1.5
 #: Most standard errors (of the traced value, `TexelData.noise`) the denoiser may move a coefficient.
@@ -411,7 +417,10 @@ def _denoise_page(
     normals[rows, cols] = normal[atlas_index]
     source = np.zeros(page.shape, bool)
     source[rows, cols] = ok
-    scales = (input_scale(chart_sh[:, 0, :]), input_scale(hemisphere_irradz(chart_sh, normal[atlas_index])))
+    scales = (
+        _compressed_scale(chart_sh[:, 0, :]),
+        _compressed_scale(hemisphere_irradz(chart_sh, normal[atlas_index])),
+    )
     del chart_sh, ok
     features, unit_normals = _page_features(values, normals)
     del values, normals
@@ -632,15 +641,16 @@ def _carried_sum(total: np.ndarray | None, values: np.ndarray) -> np.ndarray:
 
 def _page_scales(sh: np.ndarray, normal: np.ndarray, index: np.ndarray, ok: np.ndarray) -> tuple[float, float]:
     """The inputScales of L0 and I_z of a page's texels (flat atlas `index`, in the page's order;
-    `ok`: finite, the others taken as 0), as the whole page's `input_scale`, SCALE_CHUNK texels'
-    SH at a time."""
+    `ok`: finite, the others taken as 0), as the whole page's `_compressed_scale`, SCALE_CHUNK
+    texels' SH at a time."""
     lum = np.empty((2, len(index)), np.float64)
     for s in range(0, len(index), SCALE_CHUNK):
         chart_sh = sh[index[s : s + SCALE_CHUNK]]
         chart_sh[~ok[s : s + SCALE_CHUNK]] = 0.0
-        lum[0, s : s + SCALE_CHUNK] = chart_sh[:, 0, :] @ LUMINANCE
+        compressed = np.power(np.maximum(chart_sh[:, 0, :], 0.0), HDR_POWER, dtype=np.float64)
+        lum[0, s : s + SCALE_CHUNK] = compressed @ LUMINANCE
         irradz = hemisphere_irradz(chart_sh, normal[index[s : s + SCALE_CHUNK]])
-        lum[1, s : s + SCALE_CHUNK] = irradz @ LUMINANCE
+        lum[1, s : s + SCALE_CHUNK] = np.power(np.maximum(irradz, 0.0), HDR_POWER, dtype=np.float64) @ LUMINANCE
     return _scale_of_luminance(lum[0]), _scale_of_luminance(lum[1])
 
 
@@ -831,8 +841,17 @@ def _hdr(colour: np.ndarray, source: np.ndarray, scale: float, denoiser: Denoise
 
 
 def _hdr_filtered(colour: np.ndarray, scale: float, denoiser: Denoiser) -> np.ndarray:
-    """`_hdr`'s filter, before its energy correction: float32, ≥ 0."""
-    return np.maximum(denoiser.denoise(colour.astype(np.float32), input_scale=scale), 0.0)
+    """`_hdr`'s filter, before its energy correction: the colour `(h, w, 3)` (≥ 0) raised to
+    HDR_POWER, denoised (inputScale `scale`: `_compressed_scale`'s), ≥ 0, raised back. float32."""
+    compressed = np.power(np.maximum(colour, 0.0), HDR_POWER, dtype=np.float64).astype(np.float32)
+    out = np.maximum(denoiser.denoise(compressed, input_scale=scale), 0.0)
+    return np.power(out, 1.0 / HDR_POWER, dtype=np.float64).astype(np.float32)
+
+
+def _compressed_scale(colour: np.ndarray) -> float:
+    """The inputScale of `_hdr_filtered` for HDR colours `(T, 3)` ≥ 0 (a page's chart texels):
+    OIDN's auto-exposure (`input_scale`) of the image it filters, the colours raised to HDR_POWER."""
+    return input_scale(np.power(np.maximum(colour, 0.0), HDR_POWER, dtype=np.float64))
 
 
 def _energy_ratio(before: np.ndarray, after: np.ndarray) -> np.ndarray:
