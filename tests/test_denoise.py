@@ -140,6 +140,31 @@ def test_a_dark_chart_beside_a_bright_one_is_denoised_as_if_alone(denoiser):  # 
         assert clean < 0.3 * raw, (radiance, clean / raw)
 
 
+def test_the_compressed_range_keeps_a_bright_strip_from_bleeding_into_the_dark_beside_it(
+    denoiser,  # noqa: F811
+    monkeypatch,
+):
+    """A chart whose edge rows are 100x brighter than the rest (a sunlit strip beside a shadowed
+    face): the filter bleeds the strip into the dark texels beside it. Filtered raised to
+    HDR_POWER, the dark rows beside the strip take less than 60% of the light they take
+    filtered linearly (no noise clamp here: the bake has no noise estimate)."""
+    data = atlas_data([(slice(20, 100), slice(20, 100), 0.02)], noise=0.1)
+    strip = atlas_data([(slice(20, 22), slice(20, 100), 2.0)], noise=0.1, seed=1)
+    data.sh[20:22, 20:100] = strip.sh[20:22, 20:100]
+    beside = (slice(22, 26), slice(24, 96))
+
+    def bleed() -> float:
+        out, _ = denoise.denoise_texels(data, denoiser)
+        return float(iz(out)[beside].mean() / iz(data)[beside].mean() - 1.0)
+
+    assert denoise.HDR_POWER < 1.0
+    compressed = bleed()
+    monkeypatch.setattr(denoise, "HDR_POWER", 1.0)
+    linear = bleed()
+    assert linear > 0.04, linear  # the fixture does show the bleed
+    assert compressed < 0.6 * linear, (compressed, linear)
+
+
 def test_charts_sharing_a_page_stay_within_one_percent(denoiser):  # noqa: F811
     """Two charts 2x apart in brightness share a page (MARGIN texels of their own values each):
     each one's mean I_z moves by less than 1% against denoising it alone."""
