@@ -842,10 +842,12 @@ def _hdr(colour: np.ndarray, source: np.ndarray, scale: float, denoiser: Denoise
 
 def _hdr_filtered(colour: np.ndarray, scale: float, denoiser: Denoiser) -> np.ndarray:
     """`_hdr`'s filter, before its energy correction: the colour `(h, w, 3)` (≥ 0) raised to
-    HDR_POWER, denoised (inputScale `scale`: `_compressed_scale`'s), ≥ 0, raised back. float32."""
+    HDR_POWER, denoised (inputScale `scale`: `_compressed_scale`'s), ≥ 0, raised back. float32,
+    finite (at most float32's largest value)."""
     compressed = np.power(np.maximum(colour, 0.0), HDR_POWER, dtype=np.float64).astype(np.float32)
     out = np.maximum(denoiser.denoise(compressed, input_scale=scale), 0.0)
-    return np.power(out, 1.0 / HDR_POWER, dtype=np.float64).astype(np.float32)
+    back = np.power(out, 1.0 / HDR_POWER, dtype=np.float64)
+    return np.minimum(back, np.finfo(np.float32).max).astype(np.float32)
 
 
 def _compressed_scale(colour: np.ndarray) -> float:

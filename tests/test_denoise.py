@@ -189,6 +189,20 @@ def test_black_huge_and_nan_texels_give_finite_output(denoiser):  # noqa: F811
     assert not out.sh[data.coverage == 0].any()  # outside the charts nothing is written
 
 
+@pytest.mark.parametrize("radiance", [1e-9, 1e20, 1e36])
+def test_the_denoised_chart_scales_with_its_radiance_from_dim_to_near_float32s_largest(
+    denoiser,  # noqa: F811
+    radiance,
+):
+    """The same noisy chart at radiance 1 and at `radiance`: the same denoised result, scaled
+    (the inputScale follows the compressed range), finite up to near float32's largest value.
+    Below BLACK a chart is left as traced."""
+    unit, _ = denoise.denoise_texels(atlas_data([(slice(50, 90), slice(10, 60), 1.0)]), denoiser)
+    out, _ = denoise.denoise_texels(atlas_data([(slice(50, 90), slice(10, 60), radiance)]), denoiser)
+    assert np.isfinite(out.sh).all()
+    np.testing.assert_allclose(iz(out)[50:90, 10:60] / radiance, iz(unit)[50:90, 10:60], rtol=1e-3, atol=1e-6)
+
+
 def test_buried_and_empty_texels_are_neither_used_nor_changed(denoiser):  # noqa: F811
     data = atlas_data([(slice(10, 60), slice(10, 60), 1.0)])
     data.coverage[30:35, 30:35] = -1.0  # buried: black in the files
