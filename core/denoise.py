@@ -647,10 +647,9 @@ def _page_scales(sh: np.ndarray, normal: np.ndarray, index: np.ndarray, ok: np.n
     for s in range(0, len(index), SCALE_CHUNK):
         chart_sh = sh[index[s : s + SCALE_CHUNK]]
         chart_sh[~ok[s : s + SCALE_CHUNK]] = 0.0
-        compressed = np.power(np.maximum(chart_sh[:, 0, :], 0.0), HDR_POWER, dtype=np.float64)
-        lum[0, s : s + SCALE_CHUNK] = compressed @ LUMINANCE
+        lum[0, s : s + SCALE_CHUNK] = _compressed(chart_sh[:, 0, :]) @ LUMINANCE
         irradz = hemisphere_irradz(chart_sh, normal[index[s : s + SCALE_CHUNK]])
-        lum[1, s : s + SCALE_CHUNK] = np.power(np.maximum(irradz, 0.0), HDR_POWER, dtype=np.float64) @ LUMINANCE
+        lum[1, s : s + SCALE_CHUNK] = _compressed(irradz) @ LUMINANCE
     return _scale_of_luminance(lum[0]), _scale_of_luminance(lum[1])
 
 
@@ -844,8 +843,7 @@ def _hdr_filtered(colour: np.ndarray, scale: float, denoiser: Denoiser) -> np.nd
     """`_hdr`'s filter, before its energy correction: the colour `(h, w, 3)` (≥ 0) raised to
     HDR_POWER, denoised (inputScale `scale`: `_compressed_scale`'s), ≥ 0, raised back. float32,
     finite (at most float32's largest value)."""
-    compressed = np.power(np.maximum(colour, 0.0), HDR_POWER, dtype=np.float64).astype(np.float32)
-    out = np.maximum(denoiser.denoise(compressed, input_scale=scale), 0.0)
+    out = np.maximum(denoiser.denoise(_compressed(colour).astype(np.float32), input_scale=scale), 0.0)
     back = np.power(out, 1.0 / HDR_POWER, dtype=np.float64)
     return np.minimum(back, np.finfo(np.float32).max).astype(np.float32)
 
@@ -853,7 +851,12 @@ def _hdr_filtered(colour: np.ndarray, scale: float, denoiser: Denoiser) -> np.nd
 def _compressed_scale(colour: np.ndarray) -> float:
     """The inputScale of `_hdr_filtered` for HDR colours `(T, 3)` ≥ 0 (a page's chart texels):
     OIDN's auto-exposure (`input_scale`) of the image it filters, the colours raised to HDR_POWER."""
-    return input_scale(np.power(np.maximum(colour, 0.0), HDR_POWER, dtype=np.float64))
+    return input_scale(_compressed(colour))
+
+
+def _compressed(colour: np.ndarray) -> np.ndarray:
+    """HDR colours (any shape) ≥ 0 raised to HDR_POWER (negative values taken as 0), float64."""
+    return np.power(np.maximum(colour, 0.0), HDR_POWER, dtype=np.float64)
 
 
 def _energy_ratio(before: np.ndarray, after: np.ndarray) -> np.ndarray:
