@@ -196,7 +196,7 @@ def test_the_denoised_chart_scales_with_its_radiance_from_dim_to_near_float32s_l
 ):
     """The same noisy chart at radiance 1 and at `radiance`: the same denoised result, scaled
     (the inputScale follows the compressed range), finite up to near float32's largest value.
-    Below BLACK a chart is left as traced."""
+    The dimmest case stays above BLACK, below which a chart is left as traced."""
     unit, _ = denoise.denoise_texels(atlas_data([(slice(50, 90), slice(10, 60), 1.0)]), denoiser)
     out, _ = denoise.denoise_texels(atlas_data([(slice(50, 90), slice(10, 60), radiance)]), denoiser)
     assert np.isfinite(out.sh).all()
