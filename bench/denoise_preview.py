@@ -1,8 +1,9 @@
 """The denoiser as the artist sees it: the EEVEE preview against Cycles, raw and denoised, on the
 classroom, staircase2 and the bedroom.
 
-    flock /tmp/bench.lock .venv/bin/python bench/denoise_preview.py     # the three scenes (≈ 30 min on 2 cores)
+    flock /tmp/bench.lock .venv/bin/python bench/denoise_preview.py     # the three scenes (≈ 65 min on 2 cores)
     .venv/bin/python bench/denoise_preview.py --scenes bedroom --samples 16 256 --cycles-samples 256
+    ... --cycles-cache /tmp/hhd-cycles    # keep the Cycles renders (25 of ~65 min) for the next run
 
 Issue 21 asks for the EEVEE-preview image error against Cycles, raw vs denoised, at 4 … 1024
 samples on the trade-off scenes (bench/tradeoff.py measures those) and on the classroom,
@@ -89,6 +90,12 @@ def main() -> int:
     ap.add_argument("--figure-samples", type=int, default=64)
     ap.add_argument("--resolution", type=int, default=512)
     ap.add_argument("--out", type=Path, help="folder of the results (default bench/results)")
+    ap.add_argument(
+        "--cycles-cache",
+        type=Path,
+        help="folder keeping the Cycles renders per scene and samples (<scene>-<samples>spp/): read when "
+        "there, rendered into it when not; the views and settings must not have changed since",
+    )
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
     sys.path.insert(0, str(ROOT / "bench"))  # denoise, preview, tradeoff
@@ -101,7 +108,10 @@ def main() -> int:
     results_dir = args.out or RESULTS
     results_dir.mkdir(parents=True, exist_ok=True)
     t_run = time.perf_counter()
-    results = {"settings": {k: v for k, v in vars(args).items() if k != "out"}, "scenes": {}}
+    results = {
+        "settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items() if k != "out"},
+        "scenes": {},
+    }
     results["load_average_start"] = os.getloadavg()
     figures = {}
     for name in args.scenes:
@@ -137,12 +147,18 @@ def measure_scene(name: str, args) -> tuple[dict, dict]:
     select(receivers)
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
     t = time.perf_counter()
-    reference, floor, mask, halves = cycles_reference(scene, receivers, args.cycles_samples, folder)
+    cache = args.cycles_cache / f"{name}-{args.cycles_samples}spp" if args.cycles_cache else folder
+    reference, floor, mask, halves = cycles_reference(scene, receivers, args.cycles_samples, cache)
     entry = {
         "receivers": [o.name for o in receivers],
         "resolution": list(CAMERAS[name][4]),
         "compared_pixels": int(mask.sum()),
-        "reference": {"samples": args.cycles_samples, "floor": floor, "seconds": time.perf_counter() - t},
+        "reference": {
+            "samples": args.cycles_samples,
+            "floor": floor,
+            "seconds": time.perf_counter() - t,
+            "cached": bool(args.cycles_cache),
+        },
         "rows": [],
     }
     print(
@@ -223,33 +239,60 @@ def place_camera(scene, name: str) -> None:
 def cycles_reference(scene, receivers, samples: int, folder: Path):
     """(reference (H, W, 3), its noise floor in %, mask (H, W) of the pixels where the camera sees
     a receiver, the two halves (H, W, 3)). Diffuse only, BOUNCES bounces, two halves of samples / 2
-    with different seeds."""
+    with different seeds. The scene is set up for them either way (its materials made Lambertian,
+    which the EEVEE previews rely on too); the renders are read from `folder` when all three are
+    there."""
     import bpy
 
     import denoise
-    from preview import configure_output, diffuse_cycles, render
+    from preview import configure_output, diffuse_cycles
 
     diffuse_cycles(bpy, scene, samples // 2, denoise.BOUNCES)
     size = scene.render.resolution_x, scene.render.resolution_y
     configure_output(scene)
     scene.render.resolution_x, scene.render.resolution_y = size
-    scene.render.film_transparent = True
-    halves = []
-    for seed in (1, 2):
-        scene.cycles.seed = seed
-        halves.append(render(bpy, scene, folder / f"cycles_{seed}.exr", alpha=True))
-    others = [o for o in scene.objects if o.type == 'MESH' and o not in receivers]
-    for o in others:
-        o.is_holdout = True
-    scene.cycles.samples = 16
-    seen = render(bpy, scene, folder / "receiver_mask.exr", alpha=True)[..., 3]
-    for o in others:
-        o.is_holdout = False
-    scene.render.film_transparent = False
+    paths = [folder / "cycles_1.exr", folder / "cycles_2.exr", folder / "receiver_mask.exr"]
+    if all(p.exists() for p in paths):
+        images = [read_rgba(p) for p in paths]
+    else:
+        folder.mkdir(parents=True, exist_ok=True)
+        images = render_reference(scene, receivers, paths)
+    halves, seen = images[:2], images[2][..., 3]
     mask = (seen > 0.999) & (halves[0][..., 3] > 0.999) & (halves[1][..., 3] > 0.999)
     image = 0.5 * (halves[0][..., :3] + halves[1][..., :3])
     floor = 0.5 * image_error(halves[0][..., :3], halves[1][..., :3], mask)  # σ of the mean of the halves
     return image, floor, mask, (halves[0][..., :3], halves[1][..., :3])
+
+
+def read_rgba(path: Path) -> np.ndarray:
+    """(H, W, 4) float64 of an RGBA OpenEXR file, as bench/preview.py's `render` returns it."""
+    from hhd_lightmapper.core import exr
+
+    channels, _ = exr.read(path)
+    return np.stack([exr.from_exr_rows(channels[c]) for c in "RGBA"], -1).astype(np.float64)
+
+
+def render_reference(scene, receivers, paths: list[Path]) -> list[np.ndarray]:
+    """Render the two Cycles halves (seeds 1 and 2) and the receiver mask (every other mesh a
+    holdout) to `paths`, the scene set up by `cycles_reference`; returns them as (H, W, 4)."""
+    import bpy
+
+    from preview import render
+
+    scene.render.film_transparent = True
+    images = []
+    for seed, path in zip((1, 2), paths[:2]):
+        scene.cycles.seed = seed
+        images.append(render(bpy, scene, path, alpha=True))
+    others = [o for o in scene.objects if o.type == 'MESH' and o not in receivers]
+    for o in others:
+        o.is_holdout = True
+    scene.cycles.samples = 16
+    images.append(render(bpy, scene, paths[2], alpha=True))
+    for o in others:
+        o.is_holdout = False
+    scene.render.film_transparent = False
+    return images
 
 
 def bake_or_reencode(scene, folder: Path, samples: int, denoised: bool) -> None:
@@ -345,6 +388,11 @@ def markdown(results: dict) -> str:
         lines.append(
             f"| {name} ({100 * w['squared_error_share']:.0f}%) | {w['floor']:.1f}% | " + " | ".join(cells) + " |"
         )
+    if any(e["reference"].get("cached") for e in results["scenes"].values()):
+        lines += [
+            "",
+            f"The Cycles renders were read from `--cycles-cache` ({results['settings'].get('cycles_cache')}).",
+        ]
     lines += ["", f"Load average {results['load_average_start']} → {results.get('load_average_end')}.", ""]
     return "\n".join(lines)
 
