@@ -148,6 +148,7 @@ def measure_scene(name: str, args) -> tuple[dict, dict]:
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
     t = time.perf_counter()
     cache = args.cycles_cache / f"{name}-{args.cycles_samples}spp" if args.cycles_cache else folder
+    cached = all(p.exists() for p in reference_paths(cache))
     reference, floor, mask, halves = cycles_reference(scene, receivers, args.cycles_samples, cache)
     entry = {
         "receivers": [o.name for o in receivers],
@@ -157,7 +158,7 @@ def measure_scene(name: str, args) -> tuple[dict, dict]:
             "samples": args.cycles_samples,
             "floor": floor,
             "seconds": time.perf_counter() - t,
-            "cached": bool(args.cycles_cache),
+            "cached": cached,
         },
         "rows": [],
     }
@@ -251,7 +252,7 @@ def cycles_reference(scene, receivers, samples: int, folder: Path):
     size = scene.render.resolution_x, scene.render.resolution_y
     configure_output(scene)
     scene.render.resolution_x, scene.render.resolution_y = size
-    paths = [folder / "cycles_1.exr", folder / "cycles_2.exr", folder / "receiver_mask.exr"]
+    paths = reference_paths(folder)
     if all(p.exists() for p in paths):
         images = [read_rgba(p) for p in paths]
     else:
@@ -262,6 +263,11 @@ def cycles_reference(scene, receivers, samples: int, folder: Path):
     image = 0.5 * (halves[0][..., :3] + halves[1][..., :3])
     floor = 0.5 * image_error(halves[0][..., :3], halves[1][..., :3], mask)  # σ of the mean of the halves
     return image, floor, mask, (halves[0][..., :3], halves[1][..., :3])
+
+
+def reference_paths(folder: Path) -> list[Path]:
+    """The two Cycles halves and the receiver mask, as `cycles_reference` keeps them in `folder`."""
+    return [folder / "cycles_1.exr", folder / "cycles_2.exr", folder / "receiver_mask.exr"]
 
 
 def read_rgba(path: Path) -> np.ndarray:
