@@ -777,59 +777,53 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
 _PRIMES = np.array([2, 3, 5, 7, 11, 13, 17, 19], np.int64)
 
 
-def _cross_unit(a, b):
-    """a × b (3-tuples), normalised."""
-    return _unit3(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _angle_between(a, b):
-    """The angle between unit 3-tuples a and b, accurate near 0 and π (PBRT-v4's AngleBetween)."""
-    if a[0] * b[0] + a[1] * b[1] + a[2] * b[2] < 0.0:
-        s = math.sqrt((a[0] + b[0]) ** 2 + (a[1] + b[1]) ** 2 + (a[2] + b[2]) ** 2)
-        return math.pi - 2.0 * math.asin(min(s / 2.0, 1.0))
-    s = math.sqrt((b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2 + (b[2] - a[2]) ** 2)
-    return 2.0 * math.asin(min(s / 2.0, 1.0))
-
-
 def _spherical_rectangle(px, py, pz, rect, u1, u2):
     """Seen from (px, py, pz), the rectangle rect (4, 3) (its corner, unit edges ax and ay and
     az = ax × ay) with edge lengths (exl, eyl) in rect[3, 0:2]: a point on it (3-tuple) whose
     direction is uniform in its solid angle for uniform numbers u1, u2, and that solid angle
-    (0 from its plane). `lights.sample_spherical_rectangles`, one row."""
+    (0 from its plane). `lights.sample_spherical_rectangles`, one row: the four corner angles
+    as complex numbers multiplied together, one atan2 in all."""
     dx, dy, dz = rect[0, 0] - px, rect[0, 1] - py, rect[0, 2] - pz
-    exl, eyl = rect[3, 0], rect[3, 1]
-    ax, ay = (rect[1, 0], rect[1, 1], rect[1, 2]), (rect[2, 0], rect[2, 1], rect[2, 2])
-    az = (ax[1] * ay[2] - ax[2] * ay[1], ax[2] * ay[0] - ax[0] * ay[2], ax[0] * ay[1] - ax[1] * ay[0])
-    x0 = dx * ax[0] + dy * ax[1] + dz * ax[2]
-    y0 = dx * ay[0] + dy * ay[1] + dz * ay[2]
-    z = dx * az[0] + dy * az[1] + dz * az[2]
+    ax0, ax1, ax2 = rect[1, 0], rect[1, 1], rect[1, 2]
+    ay0, ay1, ay2 = rect[2, 0], rect[2, 1], rect[2, 2]
+    az0, az1, az2 = ax1 * ay2 - ax2 * ay1, ax2 * ay0 - ax0 * ay2, ax0 * ay1 - ax1 * ay0
+    x0 = dx * ax0 + dy * ax1 + dz * ax2
+    y0 = dx * ay0 + dy * ay1 + dz * ay2
+    z = dx * az0 + dy * az1 + dz * az2
     if z == 0.0:
         return (px, py, pz), 0.0
-    z0 = -abs(z)
-    x1, y1 = x0 + exl, y0 + eyl
-    n0 = _cross_unit((x0, y0, z0), (x1, y0, z0))
-    n1 = _cross_unit((x1, y0, z0), (x1, y1, z0))
-    n2 = _cross_unit((x1, y1, z0), (x0, y1, z0))
-    n3 = _cross_unit((x0, y1, z0), (x0, y0, z0))
-    g0 = _angle_between((-n0[0], -n0[1], -n0[2]), n1)
-    g1 = _angle_between((-n1[0], -n1[1], -n1[2]), n2)
-    g2 = _angle_between((-n2[0], -n2[1], -n2[2]), n3)
-    g3 = _angle_between((-n3[0], -n3[1], -n3[2]), n0)
-    solid_angle = g0 + g1 + g2 + g3 - _TWO_PI
-    b0, b1 = n0[2], n2[2]
-    au = u1 * (g0 + g1 - _TWO_PI) + (u1 - 1.0) * (g2 + g3)
-    fu = (math.cos(au) * b0 - b1) / math.sin(au)
+    x1, y1 = x0 + rect[3, 0], y0 + rect[3, 1]
+    zz = z * z
+    h = abs(z)
+    # corner angle g_i = arg(c_i + i·s_i); (g0 + g1) and (g2 + g3) as products, then their sum
+    c0, s0 = x1 * y0, h * math.sqrt(x1 * x1 + y0 * y0 + zz)
+    c1, s1 = -x1 * y1, h * math.sqrt(x1 * x1 + y1 * y1 + zz)
+    c2, s2 = x0 * y1, h * math.sqrt(x0 * x0 + y1 * y1 + zz)
+    c3, s3 = -x0 * y0, h * math.sqrt(x0 * x0 + y0 * y0 + zz)
+    ca, sa = c0 * c1 - s0 * s1, c0 * s1 + s0 * c1
+    cb, sb = c2 * c3 - s2 * s3, c2 * s3 + s2 * c3
+    solid_angle = math.atan2(ca * sb + sa * cb, ca * cb - sa * sb)  # Σg − 2π, modulo 2π
+    if solid_angle < 0.0:
+        solid_angle += _TWO_PI
+    inv = 1.0 / math.sqrt(cb * cb + sb * sb)  # cos, sin of g2 + g3
+    v = u1 * solid_angle
+    cos_v, sin_v = math.cos(v), math.sin(v)
+    cos_au = (cos_v * cb + sin_v * sb) * inv  # au = u1·solid angle − (g2 + g3)
+    sin_au = (sin_v * cb - cos_v * sb) * inv
+    b0, b1 = -y0 / math.sqrt(zz + y0 * y0), y1 / math.sqrt(zz + y1 * y1)
+    fu = (cos_au * b0 - b1) / sin_au
     cu = math.copysign(1.0 / math.sqrt(fu * fu + b0 * b0), fu)
     cu = min(max(cu, -1.0 + 1e-12), 1.0 - 1e-12)
-    xu = min(max(-(cu * z0) / math.sqrt(1.0 - cu * cu), x0), x1)
-    dd = math.sqrt(xu * xu + z0 * z0)
-    h0, h1 = y0 / math.sqrt(dd * dd + y0 * y0), y1 / math.sqrt(dd * dd + y1 * y1)
+    xu = min(max(h * cu / math.sqrt(1.0 - cu * cu), x0), x1)
+    dd2 = xu * xu + zz
+    dd = math.sqrt(dd2)
+    h0, h1 = y0 / math.sqrt(dd2 + y0 * y0), y1 / math.sqrt(dd2 + y1 * y1)
     hv = h0 + u2 * (h1 - h0)
     yv = hv * dd / math.sqrt(max(1.0 - hv * hv, 1e-300)) if hv * hv < 1.0 - 1e-12 else y1
     point = (
-        px + xu * ax[0] + yv * ay[0] + z * az[0],
-        py + xu * ax[1] + yv * ay[1] + z * az[1],
-        pz + xu * ax[2] + yv * ay[2] + z * az[2],
+        px + xu * ax0 + yv * ay0 + z * az0,
+        py + xu * ax1 + yv * ay1 + z * az1,
+        pz + xu * ax2 + yv * ay2 + z * az2,
     )
     return point, solid_angle
 
@@ -976,6 +970,77 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w):
     return total
 
 
+def _horizon_bound(a, d2, r2, r):
+    """The largest cosine to a unit normal of a direction into a sphere of radius r (r2 = r²)
+    whose centre lies at distance² d2 and at a = normal · (centre − point): 1 where the normal
+    points into the sphere or the point lies inside it, 0 wholly below the horizon
+    (`_cluster_weights`' formula)."""
+    h2 = d2 - r2
+    if h2 <= 0.0 or (a >= 0.0 and a * a >= h2):
+        return 1.0
+    edge = a * math.sqrt(h2) + math.sqrt(max(d2 - a * a, 0.0)) * r
+    return max(edge, 0.0) / max(d2, 1e-300)
+
+
+def choose_lights(x, normals, u, table, share):
+    """Which one light of `table` (L, 13) each point x (R, 3) samples (`lights.Choice`), by its
+    number u (R,): light l with probability (1 − share)·w_l / Σw + share·I_l / ΣI over the
+    lights with w_l > 0, w_l = I_l × b_l × h_l / max(d², r²): I its largest radiant intensity,
+    b its bound on the cosine at the light (one-sided lights, m ≠ 0: 0 where the point lies
+    behind or in its plane, else ≤ min(1, s / (d − r)) with s the point's height above it), h
+    the horizon bound at the point (`_horizon_bound`; 1 without normals (no rows)), and 0
+    outside a spot's cone widened by the angle its sphere subtends. Rows of table: centre x, y,
+    z, r², r, I, the unit normal m (zeros: lights all round), a spot's unit axis and cone
+    half-angle (π: not a spot).
+    Returns the lights (R,) int64 (−1 where no light can reach the point: none sampled) and
+    their probabilities (R,)."""
+    n = x.shape[0]
+    m = table.shape[0]
+    horizon = normals.shape[0] > 0
+    choice = np.empty(n, np.int64)
+    prob = np.zeros(n)
+    w = np.empty(m)
+    for i in range(n):
+        nx, ny, nz = _normal(normals, i)
+        total = 0.0
+        power = 0.0
+        able = 0
+        for k in range(m):
+            dx, dy, dz = table[k, 0] - x[i, 0], table[k, 1] - x[i, 1], table[k, 2] - x[i, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            bound = table[k, 5] / max(d2, table[k, 3])
+            if horizon:
+                bound *= _horizon_bound(nx * dx + ny * dy + nz * dz, d2, table[k, 3], table[k, 4])
+            s = -(dx * table[k, 6] + dy * table[k, 7] + dz * table[k, 8])
+            if table[k, 6] != 0.0 or table[k, 7] != 0.0 or table[k, 8] != 0.0:
+                gap = math.sqrt(d2) - table[k, 4]
+                bound = 0.0 if s <= 0.0 else (bound * min(1.0, s / gap) if gap > 0.0 else bound)
+            if table[k, 12] < math.pi and d2 > table[k, 3]:  # a spot: outside its cone, dark
+                d = math.sqrt(d2)
+                along = -(dx * table[k, 9] + dy * table[k, 10] + dz * table[k, 11]) / d
+                if math.acos(min(max(along, -1.0), 1.0)) > table[k, 12] + math.asin(table[k, 4] / d):
+                    bound = 0.0
+            w[k] = bound if bound > 0.0 and math.isfinite(bound) else 0.0
+            total += w[k]
+            if w[k] > 0.0:
+                power += table[k, 5]
+                able += 1
+        choice[i] = -1
+        if total <= 0.0:
+            continue
+        acc = 0.0
+        for k in range(m):
+            if w[k] <= 0.0:
+                continue
+            # (one light that can: probability 1 exactly, as without a choice)
+            p = (1.0 - share) * w[k] / total + share * table[k, 5] / power if able > 1 else 1.0
+            acc += p
+            choice[i], prob[i] = k, p
+            if u[i] < acc:
+                break
+    return choice, prob
+
+
 def _normal(normals, i):
     """normals[i] as a 3-tuple, or zeros when normals has no rows."""
     if normals.shape[0] == 0:
@@ -1010,19 +1075,19 @@ _HELPERS = (
     "_cluster_weights",
     "_normal",
     "_cluster_chances",
+    "_horizon_bound",
     "_unit3",
     "_spherical",
     "_spherical_direction",
     "_emitter_density",
     "_surely_small",
-    "_cross_unit",
-    "_angle_between",
     "_spherical_rectangle",
 )
 _ALLOCATING = ("_project_control_variate",)  # helpers that make arrays (need reference counts)
 _KERNELS = (
     "sample_emitters",
     "sample_area_light",
+    "choose_lights",
     "emitter_pdf",
     "texel_sequence",
     "hemisphere_rays",

@@ -171,7 +171,8 @@ class TexelEstimator(shipping.Shipped):
         return uncovered
 
     def _direct_sh(self, paths: Paths, rng, idx, origins, k, uncovered=None, stream=None) -> np.ndarray:
-        """Next-event estimation at the bake point: one shadow ray per light from each of the
+        """Next-event estimation at the bake point: one shadow ray per light sampled
+        (`Paths.light_samples`: one of the point, spot and area lights) from each of the
         pass's k origins (those `uncovered`, if given), projected to SH (len(idx), 9, C), each
         light into its set's columns; light arriving from below n_v's horizon is left out.
         Penumbrae average over the footprint."""
@@ -182,11 +183,12 @@ class TexelEstimator(shipping.Shipped):
             return _mixture_pdf(np.einsum("ri,ri->r", w, normal))
 
         samples = paths.light_samples(rng, origins, mixture_pdf, strata=1 if stream is None else stream, normals=normal)
-        for light, (dirs, value, dist) in zip(self.scene.lights, samples):
-            weight, traced = paths.shadow(origins, dirs, dist, normal, 1.0 / k, cosine=False, allowed=uncovered)
+        for (dirs, value, dist), rows, c in samples:
+            allowed = rows if uncovered is None else (uncovered if rows is None else uncovered & rows)
+            weight, traced = paths.shadow(origins, dirs, dist, normal, 1.0 / k, cosine=False, allowed=allowed)
             if not traced:
                 continue
-            paths.kernels.accumulate_grouped(dirs, value, weight, k, out[:, :, light.column : light.column + 3])
+            paths.kernels.accumulate_grouped(dirs, value, weight, k, out[:, :, c : c + 3])
         return out
 
 

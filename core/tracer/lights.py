@@ -15,6 +15,11 @@ Two kinds, told apart by `Light.reachable`:
     `evaluate` the MIS-weighted radiance a ray that reached the light brings.
 Weights sum to one per direction, so every SH coefficient stays unbiased.
 
+The point, spot and area lights (`Light.chosen`) are not each sampled at every shading point:
+the point picks one of them by its expected contribution (`Choice`: intensity, the cosine
+bounds at both ends, over distance²) and divides its sample by that probability. A point
+samples none where none can light it (behind every one-sided lamp, all below its horizon).
+
 Emissive triangles are grouped into at most CLUSTERS spatial clusters (median splits of their
 centroids along the longest axis). At each shading point x a cluster is picked with probability
 ∝ its power over max(distance², radius²) to x (mixed with POWER_SHARE of power alone; a cluster
@@ -62,6 +67,8 @@ class Light(ABC):
     column: int = 0
     reachable: bool = False
     at_infinity: bool = False
+    #: one of the lights a shading point picks from (`Choice`), rather than sampled at every point
+    chosen: bool = False
 
     @abstractmethod
     def sample(
@@ -110,6 +117,10 @@ class Light(ABC):
         this light by hitting it: none, but for emitting triangles."""
         return np.zeros(0, np.int64)
 
+    def choice_row(self) -> list[float]:
+        """A `chosen` light's row of `Choice.table` (`kernels.choose_lights`)."""
+        raise NotImplementedError(f"{type(self).__name__} is not one of the lights a point chooses from")
+
     @property
     @abstractmethod
     def power(self) -> float:
@@ -144,9 +155,16 @@ class Point(Light):
     radius r, radiance P/(4π² r²) over the cone it subtends, sampled uniformly: a disk facing the
     shaded point with soft falloff (Blender's default), else a sphere (Cycles' point_light_sample)."""
 
+    chosen = True
+
     def __init__(self, light: PointLight):
         self.position, self.rgb_power, self.radius = light.position, light.power, light.radius
         self.soft_falloff, self.is_delta, self.group = light.soft_falloff, light.is_delta, light.group
+
+    def choice_row(self) -> list[float]:
+        """Its row of `Choice.table`: its sphere, P/4π as the intensity, lit all round."""
+        r = float(self.radius)
+        return [*map(float, self.position), r * r, r, self.power / (4.0 * np.pi), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.pi]
 
     def sample(self, rng, x, ray_pdf=None, strata=1, normals=None) -> Sample:
         to = self.position - x
@@ -179,6 +197,10 @@ class Spot(Point):
         dirs, value, dist = super().sample(rng, x, ray_pdf, strata)
         return dirs, value * self.attenuation(-dirs)[:, None], dist
 
+    def choice_row(self) -> list[float]:
+        """The point light's row, with its cone: its axis and half-angle (dark outside)."""
+        return super().choice_row()[:9] + [*map(float, self.axis), 0.5 * float(self.size)]
+
     def attenuation(self, light_to_point: np.ndarray) -> np.ndarray:
         """(R,) in [0, 1] for unit directions (R, 3) from the light towards the shaded points."""
         cos_half = np.cos(0.5 * self.size)
@@ -198,10 +220,28 @@ class Area(Light):
     bounded by 2π × the radiance); where the rectangle subtends less than SOLID_ANGLE_RANGE's
     least, by a uniform point on its surface (the two agree there)."""
 
+    chosen = True
+
     def __init__(self, light: AreaLight):
         self.position, self.axis_u, self.axis_v = light.position, light.axis_u, light.axis_v
         self.normal, self.rgb_power, self.shape = light.normal, light.power, light.shape
         self.area, self.group = light.area, light.group
+
+    def choice_row(self) -> list[float]:
+        """Its row of `Choice.table`: the sphere through its corners, the intensity of a
+        Lambertian emitter of its power along its normal (P/π), one-sided along the normal."""
+        r2 = float(self.axis_u @ self.axis_u + self.axis_v @ self.axis_v)
+        return [
+            *map(float, self.position),
+            r2,
+            r2**0.5,
+            self.power / np.pi,
+            *map(float, self.normal),
+            0.0,
+            0.0,
+            0.0,
+            np.pi,
+        ]
 
     def sample(self, rng, x, ray_pdf=None, strata=1, normals=None) -> Sample:
         u1, u2 = uniforms(rng, len(x), strata, 2), uniforms(rng, len(x), strata, 3)
@@ -566,32 +606,34 @@ def sample_spherical_rectangles(
     az = np.cross(ax, ay)
     d = corner - x
     x0, y0, z = d @ ax, d @ ay, d @ az
-    z0 = -np.abs(z)  # the local z axis points away from the rectangle
+    h = np.abs(z)  # the local z axis points away from the rectangle: z0 = −h
     x1, y1 = x0 + exl, y0 + eyl
-    corners = [np.stack([cx, cy, z0], axis=1) for cx, cy in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))]
-    n = [_unit(np.cross(corners[i], corners[(i + 1) % 4])) for i in range(4)]
-    g = [_angle_between(-n[i], n[(i + 1) % 4]) for i in range(4)]
-    solid_angle = g[0] + g[1] + g[2] + g[3] - 2.0 * np.pi
-    b0, b1 = n[0][:, 2], n[2][:, 2]
+    zz = z * z
+    # corner angles g_i = arg(c_i + i·s_i) (between the planes through x and two edges), summed
+    # by multiplying: the solid angle Σg − 2π takes one arctan, and au needs only cos and sin of
+    # g2 + g3 (au = u1·solid angle − g2 − g3 ≡ Ureña's u1·S + 2π − g2 − g3)
+    c0, s0 = x1 * y0, h * np.sqrt(x1 * x1 + y0 * y0 + zz)
+    c1, s1 = -x1 * y1, h * np.sqrt(x1 * x1 + y1 * y1 + zz)
+    c2, s2 = x0 * y1, h * np.sqrt(x0 * x0 + y1 * y1 + zz)
+    c3, s3 = -x0 * y0, h * np.sqrt(x0 * x0 + y0 * y0 + zz)
+    ca, sa = c0 * c1 - s0 * s1, c0 * s1 + s0 * c1
+    cb, sb = c2 * c3 - s2 * s3, c2 * s3 + s2 * c3
+    solid_angle = np.mod(np.arctan2(ca * sb + sa * cb, ca * cb - sa * sb), 2.0 * np.pi)
     with np.errstate(divide="ignore", invalid="ignore"):
-        au = u1 * (g[0] + g[1] - 2.0 * np.pi) + (u1 - 1.0) * (g[2] + g[3])
-        fu = (np.cos(au) * b0 - b1) / np.sin(au)
+        inv = 1.0 / np.sqrt(cb * cb + sb * sb)
+        v = u1 * solid_angle
+        cos_au = (np.cos(v) * cb + np.sin(v) * sb) * inv
+        sin_au = (np.sin(v) * cb - np.cos(v) * sb) * inv
+        b0, b1 = -y0 / np.sqrt(zz + y0 * y0), y1 / np.sqrt(zz + y1 * y1)
+        fu = (cos_au * b0 - b1) / sin_au
         cu = np.clip(np.copysign(1.0 / np.sqrt(fu * fu + b0 * b0), fu), -1.0 + 1e-12, 1.0 - 1e-12)
-        xu = np.clip(-(cu * z0) / np.sqrt(1.0 - cu * cu), x0, x1)
-        dd = np.sqrt(xu * xu + z0 * z0)
+        xu = np.clip(h * cu / np.sqrt(1.0 - cu * cu), x0, x1)
+        dd = np.sqrt(xu * xu + zz)
         h0, h1 = y0 / np.sqrt(dd * dd + y0 * y0), y1 / np.sqrt(dd * dd + y1 * y1)
         hv = h0 + u2 * (h1 - h0)
         yv = np.where(hv * hv < 1.0 - 1e-12, hv * dd / np.sqrt(np.maximum(1.0 - hv * hv, 1e-300)), y1)
     points = x + xu[:, None] * ax + yv[:, None] * ay + z[:, None] * az
     return points, np.where(z == 0.0, 0.0, solid_angle)
-
-
-def _angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angles (R,) between unit vectors a, b (R, 3), accurate near 0 and π (PBRT-v4's AngleBetween)."""
-    dot = np.einsum("ri,ri->r", a, b)
-    near = 2.0 * np.arcsin(np.clip(np.linalg.norm(b - a, axis=1) / 2.0, 0.0, 1.0))
-    far = np.pi - 2.0 * np.arcsin(np.clip(np.linalg.norm(a + b, axis=1) / 2.0, 0.0, 1.0))
-    return np.where(dot < 0.0, far, near)
 
 
 def _rows(a: np.ndarray | None) -> np.ndarray:
@@ -659,6 +701,49 @@ def _emission_groups(emission: np.ndarray, groups: np.ndarray | None) -> list[tu
     return [(name, np.where((group == name)[:, None], emission, 0.0)) for name in names]
 
 
+#: Share of a shading point's choice among point, spot and area lights made by intensity alone
+#: (`Choice`), as POWER_SHARE is the emitter clusters': the bound knows nothing of occlusion.
+CHOICE_SHARE = POWER_SHARE
+#: The dimension of `uniforms` the choice draws its number from (the lights' own use 0–3).
+CHOICE_DIM = 4
+
+
+class Choice:
+    """Which one of the scene's point, spot and area lights (`Light.chosen`: lights rays never
+    reach, at a place) a shading point samples, instead of every one of them: light l with
+    probability ∝ its largest radiant intensity × a bound on the cosine at the light (0 behind
+    a one-sided area light's plane) × the horizon bound at the point, over max(d², r²), mixed
+    with CHOICE_SHARE of intensity alone among the lights that can light the point
+    (`kernels.choose_lights`). Its sample is divided by that probability: unbiased. A light that
+    cannot light a point (behind a one-sided lamp, outside a spot's cone, or wholly below the
+    point's horizon) is never picked there, and a point no light can light samples none (no
+    shadow ray)."""
+
+    def __init__(self, lights: list[Light]):
+        self.lights = lights
+        self.table = np.array([light.choice_row() for light in lights], np.float64).reshape(-1, 13)
+
+    def pick(self, rng, x: np.ndarray, normals: np.ndarray | None, strata: Strata) -> tuple[np.ndarray, np.ndarray]:
+        """(choice (R,) int64: an index into `lights` or −1 for none, probability (R,)) at the
+        points x (R, 3) with `normals` (R, 3) or None; the numbers from `uniforms` (strata)."""
+        u = np.ascontiguousarray(uniforms(rng, len(x), strata, CHOICE_DIM), np.float64)
+        return _kernels.get().choose_lights(_rows(x), _rows(normals), u, self.table, CHOICE_SHARE)
+
+
+@dataclass
+class Subset:
+    """The numbers of some rows (R',) of n points, each as `strata` gives it for all n: a light
+    sampled only at the points that chose it (`Choice`) draws what it would have drawn there."""
+
+    strata: Strata
+    n: int
+    rows: np.ndarray
+    rng: np.random.Generator
+
+    def uniforms(self, dim: int) -> np.ndarray:
+        return uniforms(self.rng, self.n, self.strata, dim)[self.rows]
+
+
 @dataclass(frozen=True)
 class TexelStream:
     """Where a pass's light samples come from when they are grouped by texel: the texels (n,)
@@ -702,8 +787,8 @@ class RowStream:
         return self._pair[1][dim % 2]
 
 
-#: `Light.sample`'s strata: a group size (int), a TexelStream or a RowStream.
-Strata = int | TexelStream | RowStream
+#: `Light.sample`'s strata: a group size (int), a TexelStream, a RowStream or a Subset of one.
+Strata = int | TexelStream | RowStream | Subset
 
 
 def uniforms(rng: np.random.Generator, n: int, strata: Strata = 1, dim: int = 0) -> np.ndarray:
@@ -713,7 +798,7 @@ def uniforms(rng: np.random.Generator, n: int, strata: Strata = 1, dim: int = 0)
     (j+1)/strata), in random order (a Latin hypercube when several dimensions are drawn so).
     Either way each number is still uniform, so estimates stay unbiased, while a texel's light
     samples cover the light evenly."""
-    if isinstance(strata, (TexelStream, RowStream)):
+    if isinstance(strata, (TexelStream, RowStream, Subset)):
         return strata.uniforms(dim)
     if strata <= 1 or n % strata:
         return rng.random(n)

@@ -5,8 +5,9 @@ points. No bpy.
 hemisphere, a probe's sphere, a camera's pixels: it knows nothing of texels). It is a wavefront
 over bounces on compacted live arrays: rays that escape take the world's radiance (the constant
 world, or the HDRI weighted by MIS), hits take the emission of the triangle they reach (MIS
-against emitter sampling), and every hit adds next-event estimation to every light
-(`irradiance_at`: one shadow ray per light and vertex), then continues diffusely (two-sided,
+against emitter sampling), and every hit adds next-event estimation (`irradiance_at`: one
+shadow ray per light and vertex, the point, spot and area lights being one light chosen per
+vertex: `lights.Choice`), then continues diffusely (two-sided,
 cosine-distributed; with BACK_FACES_BLACK a path that reaches the back of a triangle ends
 there, carrying no more light) with Russian roulette from RR_START bounces on (survival
 √(throughput / ½), none ended above ½: RR_SURVIVAL_POWER, RR_REFERENCE), at most `bounces`
@@ -57,6 +58,8 @@ BACK_FACES_BLACK = False
 _BLACK = np.zeros((1, 3))  # the sky of a scene without a world (kernels.advance_paths)
 _NO_ROWS = np.zeros((0, 3))  # no per-row albedo: the kernel takes the triangles' own
 _NO_NUMBERS = np.zeros((2, 0))  # no given numbers: advance_paths draws its own
+#: `Paths.light_samples`' entries: (sample, the rows that sampled it or None for all, column)
+LightSample = tuple[_lights.Sample, np.ndarray | None, int]
 
 
 class TraceScene:
@@ -92,6 +95,8 @@ class TraceScene:
         for light in self.lights:
             light.column = self.column(light.group)
         self.world_column = self.column(scene.world_group) if scene.world is not None else 0
+        chosen = [light for light in self.lights if light.chosen]
+        self.choice = _lights.Choice(chosen) if chosen else None
         self.surface_lights = [light for light in self.lights if light.reachable and not light.at_infinity]
         self.sky_lights = [light for light in self.lights if light.reachable and light.at_infinity]
 
@@ -245,29 +250,61 @@ class Paths:
         ray_pdf,
         strata: _lights.Strata = 1,
         normals: np.ndarray | None = None,
-    ) -> list:
-        """One sample (`lights.Sample`) per point x (R, 3) of every light, in sampling order (that
-        of `TraceScene.lights`); `ray_pdf(dirs)`: the density of the strategy sampling rays at x
-        (MIS); strata: x comes in groups of that many points of one texel (`lights.uniforms`);
-        normals (R, 3): x's normals (rays leaving x must be evaluated with the same)."""
-        return [light.sample(rng, x, ray_pdf, strata, normals) for light in self.scene.lights]
+    ) -> list[LightSample]:
+        """Light samples at the points x (R, 3), each entry (sample, rows, column): a `lights.Sample`
+        over all R points, the rows (R,) bool that sampled a light (None: all) and the first of
+        the 3 radiance columns it adds to. One entry per light that is not chosen, in sampling
+        order (that of `TraceScene.lights`), then one per light set of the point, spot and area
+        lights, which are one choice per point (`lights.Choice`): each sampled only at the points
+        that chose it, its value divided by the choice's probability, 0 elsewhere.
+        `ray_pdf(dirs)`: the density of the strategy sampling rays at x (MIS); strata: x comes
+        in groups of that many points of one texel (`lights.uniforms`); normals (R, 3): x's
+        normals (rays leaving x must be evaluated with the same)."""
+        ts = self.scene
+        out: list[LightSample] = [
+            (light.sample(rng, x, ray_pdf, strata, normals), None, light.column)
+            for light in ts.lights
+            if not light.chosen
+        ]
+        return out if ts.choice is None else out + self._chosen_samples(rng, x, ray_pdf, strata, normals)
+
+    def _chosen_samples(self, rng, x, ray_pdf, strata, normals) -> list[LightSample]:
+        """`light_samples`' entries of the chosen lights: one sample per point over all of them."""
+        choice = self.scene.choice
+        assert choice is not None
+        picked, probability = choice.pick(rng, x, normals, strata)
+        r = len(x)
+        dirs, value, dist = np.zeros((r, 3)), np.zeros((r, 3)), np.ones(r)
+        dirs[:, 2] = 1.0  # (unit, carrying nothing)
+        order = np.argsort(picked, kind="stable")  # each light's rows in a run, ascending
+        ends = np.cumsum(np.bincount(picked + 1, minlength=len(choice.lights) + 1))  # −1 first
+        for j, light in enumerate(choice.lights):
+            rows = order[ends[j] : ends[j + 1]]
+            if len(rows):
+                sub = _lights.Subset(strata, r, rows, rng)
+                d, v, t = light.sample(
+                    rng, take_rows(x, rows), ray_pdf, sub, None if normals is None else take_rows(normals, rows)
+                )
+                dirs[rows], dist[rows] = d, t
+                value[rows] = v / probability[rows, None]
+        columns = np.array([light.column for light in choice.lights])
+        column_of = np.where(picked >= 0, columns[np.maximum(picked, 0)], -1)
+        return [((dirs, value, dist), column_of == c, int(c)) for c in np.unique(columns)]
 
     def irradiance_at(
         self, rng: np.random.Generator, x: np.ndarray, n: np.ndarray, strata: _lights.Strata = 1
     ) -> np.ndarray:
         """Next-event estimate of the irradiance (R, C) (DESIGN units, E/π·π = outgoing radiance
         per unit albedo; C: 3 per light set) at surface points x (R, 3) with unit normals n (R, 3)
-        from every light, one shadow ray per light and point; MIS against cosine sampling at x.
-        strata: where the light samples' numbers come from (`lights.uniforms`)."""
+        from every light (one of the point, spot and area lights: `light_samples`), one shadow
+        ray per light sampled and point; MIS against cosine sampling at x. strata: where the
+        light samples' numbers come from (`lights.uniforms`)."""
         total = np.zeros((len(x), self.scene.channels))
         cosine_pdf = lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi
-        samples = self.light_samples(rng, x, cosine_pdf, strata, normals=n)
-        for light, (dirs, value, dist) in zip(self.scene.lights, samples):
-            weight, traced = self.shadow(x, dirs, dist, n)  # cosθ where the light is seen, else 0
-            if not traced:  # every sample below the horizon
-                continue
-            c = light.column
-            total[:, c : c + 3] += weight[:, None] * value
+        for (dirs, value, dist), rows, c in self.light_samples(rng, x, cosine_pdf, strata, normals=n):
+            weight, traced = self.shadow(x, dirs, dist, n, allowed=rows)  # cosθ where seen, else 0
+            if traced:  # (none: every sample below the horizon)
+                total[:, c : c + 3] += weight[:, None] * value
         return total * (1.0 / np.pi)
 
     def shadow(self, x, dirs, dist, n, scale=1.0, cosine=True, allowed=None) -> tuple[np.ndarray, int]:

@@ -67,12 +67,13 @@ class ProbeEstimator(shipping.Shipped):
         return UnitResult(out, paths.traced)
 
     def _direct(self, paths: Paths, rng, origins: np.ndarray, k: int, out: np.ndarray) -> None:
-        """Next-event estimation at the probes: one shadow ray per light from each sample's
-        origin, projected to SH over the whole sphere into `out` (n, 9, C), in place."""
+        """Next-event estimation at the probes: one shadow ray per light sampled
+        (`Paths.light_samples`: one of the point, spot and area lights) from each sample's origin, projected to SH over the whole sphere into `out` (n, 9, C), in place."""
         samples = paths.light_samples(rng, origins, lambda w: np.full(len(w), UNIFORM_SPHERE_PDF))
-        for light, (dirs, value, dist) in zip(self.scene.lights, samples):
-            weight = paths.unoccluded(origins, dirs, dist) * (1.0 / k)
-            c = light.column
+        for (dirs, value, dist), chose, c in samples:
+            weight = np.zeros(len(origins))
+            rows = slice(None) if chose is None else np.flatnonzero(chose)
+            weight[rows] = paths.unoccluded(origins[rows], dirs[rows], dist[rows]) * (1.0 / k)
             paths.kernels.accumulate_grouped(dirs, value, weight, k, out[:, :, c : c + 3])
 
 
