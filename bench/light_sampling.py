@@ -17,11 +17,15 @@ from the emitters only). Our rows turn the parts of the emitter sampling on one 
 - `+ solid angle`: triangles that subtend more than SOLID_ANGLE_RANGE[0] sampled by direction,
   and so are Blender's area lights (spherical rectangles; before it, a uniform point on the lamp);
 - `+ near solid angle`: a cluster of one triangle picked by the solid angle it subtends from
-  points inside its bounding sphere (`lights.NEAR_RADII`), not by power over distance².
+  points inside its bounding sphere (`lights.NEAR_RADII`), not by power over distance²;
+- `+ one lamp per point`: a shading point samples one of the point, spot and area lights,
+  picked by intensity, cosine bounds and distance (`lights.Choice`), not every one of them.
 
 `area-lamp-room` (scenekit's `area_lamp_room`, on request): lit by Blender area lights, two of
-them facing the ceiling and a wall a few centimetres away, no emissive mesh: only the last row
-changes its sampling.
+them facing the ceiling and a wall a few centimetres away, no emissive mesh: only the last two
+rows change its sampling; `lamp-grid-room` (`lamp_grid_room`): nine lamps (six ceiling panels,
+two point lights, a spot) that all light most of the room, where picking one lamp per point has
+the most to lose.
 
 Per row: relative I_z RMSE (luminance, over fully covered unburied texels, relative to the
 reference's mean), with the floor removed; per-sample variance (error² × samples) over Cycles' at
@@ -45,8 +49,8 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 SCENES = ("staircase2", "bedroom")
 #: on request (`--scenes`): Blender area lights beside the receivers, not emissive meshes
-EXTRA_SCENES = ("area-lamp-room",)
-VARIANTS = ("power, area", "+ clusters", "+ stratified", "+ solid angle", "+ near solid angle")
+EXTRA_SCENES = ("area-lamp-room", "lamp-grid-room")
+VARIANTS = ("power, area", "+ clusters", "+ stratified", "+ solid angle", "+ near solid angle", "+ one lamp per point")
 
 
 def main() -> int:
@@ -89,6 +93,7 @@ def variant(name: str) -> None:
     hemisphere.STRATIFIED_LIGHTS = level >= 2
     lights.SOLID_ANGLE_RANGE = (3e-4, 6.22) if level >= 3 else (math.inf, math.inf)
     lights.NEAR_RADII = 1.0 if level >= 4 else 0.0
+    lights.CHOOSE = level >= 5
 
 
 def measure(tte, name: str, args) -> dict:

@@ -13,7 +13,8 @@ meshes by area that are not emitters or glass). On request (`--scenes`), two roo
 held-out ones of issue 23: `emissive-room` (scenekit's `emissive` scene: a ceiling light box and
 a glow strip, no sky), `door-room` (a closed room lit only through a door gap by a sun and a
 sky colour: nearly all indirect) and `area-lamp-room` (Blender area lights, two of them facing the
-ceiling and a wall a few centimetres away). For each: (a) raw embreex closest-hit rays/s
+ceiling and a wall a few centimetres away) and `lamp-grid-room` (nine point, spot and area
+lamps that all light most of the room). For each: (a) raw embreex closest-hit rays/s
 (embreex's own TriangleMesh + run(); incoherent, 2 threads, median of 5, same run; and the same
 for our binding of the same Embree library, core.embree), (b) our bake's rays/s (all rays, shadow
 rays included) and texel-samples/s, (c) I_z error against a long Cycles Diffuse bake (Direct +
@@ -74,7 +75,7 @@ SAMPLES = [4, 8, 16, 32, 64, 256]
 #: time kept, on both sides: single timings of 1–2 s bakes swing by tens of percent.
 REPEAT_BELOW, REPEATS = 5.0, 5
 #: Scenes measured on request (`--scenes`): rooms like the held-out ones issue 23 reports.
-EXTRA_SCENES = ("emissive-room", "door-room", "area-lamp-room")
+EXTRA_SCENES = ("emissive-room", "door-room", "area-lamp-room", "lamp-grid-room")
 #: Cycles seeds of the reference's two halves (the rows use seed 0: Cycles' samples for one seed
 #: are nested, so a row must not share its samples with the reference)
 REFERENCE_SEEDS = (9173, 9174)
@@ -147,6 +148,8 @@ def load_scene(name: str) -> list:
         return scenes.door_room()
     if name == "area-lamp-room":
         return scenes.area_lamp_room()
+    if name == "lamp-grid-room":
+        return scenes.lamp_grid_room()
     import denoise
 
     return denoise.load_scene(name)

@@ -255,6 +255,39 @@ def area_lamp_room() -> list:
     return room
 
 
+def lamp_grid_room() -> list:
+    """`area_lamp_room`'s room and table lit by nine lamps that all light most of it: six
+    0.6 m square ceiling panels in a 3 × 2 grid facing down, two 0.1 m point lights on the ±x
+    walls at 1.8 m and a spot over the table: where a shading point picking one lamp
+    (`lights.Choice`) has the most to lose against sampling all nine. Returns the receivers."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    box, material = blender.box_between, blender.material
+    white = material("Plaster", (0.8, 0.8, 0.78))
+    sx, sy, sz, t = 5.0, 4.0, 2.8, 0.2
+    room = [
+        box("Floor", (-sx / 2, -sy / 2, -t), (sx / 2, sy / 2, 0), white),
+        box("Ceiling", (-sx / 2, -sy / 2, sz), (sx / 2, sy / 2, sz + t), white),
+        box("Wall -X", (-sx / 2 - t, -sy / 2, 0), (-sx / 2, sy / 2, sz), white),
+        box("Wall +X", (sx / 2, -sy / 2, 0), (sx / 2 + t, sy / 2, sz), white),
+        box("Wall -Y", (-sx / 2, -sy / 2 - t, 0), (sx / 2, -sy / 2, sz), white),
+        box("Wall +Y", (-sx / 2, sy / 2, 0), (sx / 2, sy / 2 + t, sz), white),
+        box("Table", (-0.8, -0.5, 0.0), (0.8, 0.5, 0.75), white),
+    ]
+    blender.world((0.0, 0.0, 0.0), 0.0)
+    for i, x in enumerate((-1.5, 0.0, 1.5)):
+        for j, y in enumerate((-0.9, 0.9)):
+            blender.light("AREA", (x, y, sz - 0.02), energy=60.0, name=f"Panel {i}{j}", shape="SQUARE", size=0.6)
+    for side in (-1.0, 1.0):
+        location = (side * (sx / 2 - 0.15), 0.0, 1.8)
+        blender.light("POINT", location, energy=40.0, name=f"Sconce {side:+.0f}", shadow_soft_size=0.1)
+    down = blender.rotation_pointing((0.0, 0.0, -1.0))
+    spot = dict(spot_size=0.9, spot_blend=0.3, shadow_soft_size=0.05)
+    blender.light("SPOT", (0.0, 0.0, 2.2), down, energy=80.0, name="Spot", **spot)
+    return room
+
+
 def field(n_triangles: int = 1_000_000) -> list:
     """`sphere_field(n_triangles)` as one mesh "Field" on a ground plane 1.2× its extent, one
     default diffuse material, sun + sky; returns the receivers: [the ground]."""

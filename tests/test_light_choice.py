@@ -177,3 +177,19 @@ def test_a_spot_is_never_picked_outside_its_cone_and_stays_unbiased_inside():
     )
     err = terms.std(axis=0) / np.sqrt(k)
     np.testing.assert_array_less(np.abs(terms.mean(axis=0) - own), 5 * err + 1e-3 * own)
+
+
+def test_sampling_every_lamp_instead_agrees_and_traces_a_ray_per_lamp(monkeypatch):
+    """`lights.CHOOSE` off (bench/light_sampling.py's earlier rows): every lamp sampled at every
+    point, one shadow ray each, the same irradiance within the noise of both."""
+    k = 100_000
+    x, n = np.tile(X, (k, 1)), np.tile(N, (k, 1))
+    chosen = Paths(trace_scene(LAMPS + [POINT]))
+    picked = chosen.irradiance_at(np.random.default_rng(8), x, n)
+    monkeypatch.setattr(lights, "CHOOSE", False)
+    every = Paths(trace_scene(LAMPS + [POINT]))
+    assert every.scene.choice is None
+    each = every.irradiance_at(np.random.default_rng(9), x, n)
+    assert every.traced == 4 * k and chosen.traced < 2 * k
+    err = np.sqrt(picked.var(axis=0) / k + each.var(axis=0) / k)
+    np.testing.assert_array_less(np.abs(picked.mean(axis=0) - each.mean(axis=0)), 5 * err)

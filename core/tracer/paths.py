@@ -95,7 +95,7 @@ class TraceScene:
         for light in self.lights:
             light.column = self.column(light.group)
         self.world_column = self.column(scene.world_group) if scene.world is not None else 0
-        chosen = [light for light in self.lights if light.chosen]
+        chosen = [light for light in self.lights if light.chosen] if _lights.CHOOSE else []
         self.choice = _lights.Choice(chosen) if chosen else None
         self.surface_lights = [light for light in self.lights if light.reachable and not light.at_infinity]
         self.sky_lights = [light for light in self.lights if light.reachable and light.at_infinity]
@@ -261,12 +261,13 @@ class Paths:
         in groups of that many points of one texel (`lights.uniforms`); normals (R, 3): x's
         normals (rays leaving x must be evaluated with the same)."""
         ts = self.scene
+        choice = ts.choice
         out: list[LightSample] = [
             (light.sample(rng, x, ray_pdf, strata, normals), None, light.column)
             for light in ts.lights
-            if not light.chosen
+            if choice is None or light not in choice.lights
         ]
-        return out if ts.choice is None else out + self._chosen_samples(rng, x, ray_pdf, strata, normals)
+        return out if choice is None else out + self._chosen_samples(rng, x, ray_pdf, strata, normals)
 
     def _chosen_samples(self, rng, x, ray_pdf, strata, normals) -> list[LightSample]:
         """`light_samples`' entries of the chosen lights: one sample per point over all of them."""
