@@ -736,15 +736,20 @@ class Choice:
 @dataclass
 class Subset:
     """The numbers of some rows (R',) of n points, each as `strata` gives it for all n: a light
-    sampled only at the points that chose it (`Choice`) draws what it would have drawn there."""
+    sampled only at the points that chose it (`Choice`) draws what it would have drawn there.
+    `drawn` (dimension → (n,) numbers) is shared by the lights of one choice, whose rows are
+    disjoint: each dimension is drawn once for all of them."""
 
     strata: Strata
     n: int
     rows: np.ndarray
     rng: np.random.Generator
+    drawn: dict[int, np.ndarray] = field(default_factory=dict)
 
     def uniforms(self, dim: int) -> np.ndarray:
-        return uniforms(self.rng, self.n, self.strata, dim)[self.rows]
+        if dim not in self.drawn:
+            self.drawn[dim] = uniforms(self.rng, self.n, self.strata, dim)
+        return self.drawn[dim][self.rows]
 
 
 @dataclass(frozen=True)

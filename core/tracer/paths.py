@@ -279,10 +279,11 @@ class Paths:
         dirs[:, 2] = 1.0  # (unit, carrying nothing)
         order = np.argsort(picked, kind="stable")  # each light's rows in a run, ascending
         ends = np.cumsum(np.bincount(picked + 1, minlength=len(choice.lights) + 1))  # −1 first
+        drawn: dict[int, np.ndarray] = {}  # the lights' numbers, each dimension drawn once
         for j, light in enumerate(choice.lights):
             rows = order[ends[j] : ends[j + 1]]
             if len(rows):
-                sub = _lights.Subset(strata, r, rows, rng)
+                sub = _lights.Subset(strata, r, rows, rng, drawn)
                 d, v, t = light.sample(
                     rng, take_rows(x, rows), ray_pdf, sub, None if normals is None else take_rows(normals, rows)
                 )
