@@ -222,19 +222,19 @@ def door_room() -> list:
     return room
 
 
-def area_lamp_room() -> list:
-    """A closed white room (5 × 4 × 2.8 m, walls 0.2 m thick) with a table, lit only by Blender
-    area lights, two of them facing a surface a few centimetres away: a 1.2 × 0.6 m ceiling panel
-    facing down, a 3 × 0.1 m cove strip 8 cm below the ceiling along the -y wall facing up, and a
-    0.4 m disk 5 cm off the +x wall facing it (a wall washer). The texels in front of the last two
-    are where a uniform point on a lamp's surface spikes (1/d²). Returns the receivers: every
-    mesh of the room."""
+#: The lamp rooms' size (x, y, height) and wall thickness, metres.
+LAMP_ROOM = (5.0, 4.0, 2.8, 0.2)
+
+
+def _lamp_room() -> list:
+    """A closed white room (LAMP_ROOM) with a table and a black world, in an empty file; its
+    meshes, the receivers."""
     import bpy
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     box, material = blender.box_between, blender.material
     white = material("Plaster", (0.8, 0.8, 0.78))
-    sx, sy, sz, t = 5.0, 4.0, 2.8, 0.2
+    sx, sy, sz, t = LAMP_ROOM
     room = [
         box("Floor", (-sx / 2, -sy / 2, -t), (sx / 2, sy / 2, 0), white),
         box("Ceiling", (-sx / 2, -sy / 2, sz), (sx / 2, sy / 2, sz + t), white),
@@ -245,6 +245,18 @@ def area_lamp_room() -> list:
         box("Table", (-0.8, -0.5, 0.0), (0.8, 0.5, 0.75), white),
     ]
     blender.world((0.0, 0.0, 0.0), 0.0)
+    return room
+
+
+def area_lamp_room() -> list:
+    """A closed white room (5 × 4 × 2.8 m, walls 0.2 m thick) with a table, lit only by Blender
+    area lights, two of them facing a surface a few centimetres away: a 1.2 × 0.6 m ceiling panel
+    facing down, a 3 × 0.1 m cove strip 8 cm below the ceiling along the -y wall facing up, and a
+    0.4 m disk 5 cm off the +x wall facing it (a wall washer). The texels in front of the last two
+    are where a uniform point on a lamp's surface spikes (1/d²). Returns the receivers: every
+    mesh of the room."""
+    room = _lamp_room()
+    sx, sy, sz, _ = LAMP_ROOM
     blender.light("AREA", (0.5, 0.3, sz - 0.02), energy=200.0, name="Panel", shape="RECTANGLE", size=1.2, size_y=0.6)
     up = blender.rotation_pointing((0.0, 0.0, 1.0))
     blender.light(
@@ -260,22 +272,8 @@ def lamp_grid_room() -> list:
     0.6 m square ceiling panels in a 3 × 2 grid facing down, two 0.1 m point lights on the ±x
     walls at 1.8 m and a spot over the table: where a shading point picking one lamp
     (`lights.Choice`) has the most to lose against sampling all nine. Returns the receivers."""
-    import bpy
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    box, material = blender.box_between, blender.material
-    white = material("Plaster", (0.8, 0.8, 0.78))
-    sx, sy, sz, t = 5.0, 4.0, 2.8, 0.2
-    room = [
-        box("Floor", (-sx / 2, -sy / 2, -t), (sx / 2, sy / 2, 0), white),
-        box("Ceiling", (-sx / 2, -sy / 2, sz), (sx / 2, sy / 2, sz + t), white),
-        box("Wall -X", (-sx / 2 - t, -sy / 2, 0), (-sx / 2, sy / 2, sz), white),
-        box("Wall +X", (sx / 2, -sy / 2, 0), (sx / 2 + t, sy / 2, sz), white),
-        box("Wall -Y", (-sx / 2, -sy / 2 - t, 0), (sx / 2, -sy / 2, sz), white),
-        box("Wall +Y", (-sx / 2, sy / 2, 0), (sx / 2, sy / 2 + t, sz), white),
-        box("Table", (-0.8, -0.5, 0.0), (0.8, 0.5, 0.75), white),
-    ]
-    blender.world((0.0, 0.0, 0.0), 0.0)
+    room = _lamp_room()
+    sx, _, sz, _ = LAMP_ROOM
     for i, x in enumerate((-1.5, 0.0, 1.5)):
         for j, y in enumerate((-0.9, 0.9)):
             blender.light("AREA", (x, y, sz - 0.02), energy=60.0, name=f"Panel {i}{j}", shape="SQUARE", size=0.6)
