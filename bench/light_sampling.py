@@ -19,13 +19,16 @@ from the emitters only). Our rows turn the parts of the emitter sampling on one 
 - `+ near solid angle`: a cluster of one triangle picked by the solid angle it subtends from
   points inside its bounding sphere (`lights.NEAR_RADII`), not by power over distance²;
 - `+ one lamp per point`: a shading point samples one of the point, spot and area lights,
-  picked by intensity, cosine bounds and distance (`lights.Choice`), not every one of them.
+  picked by intensity, cosine bounds and distance (`lights.Choice`), not every one of them;
+- `+ light tree`: clusters of more than one emitting triangle split again (`lights.LIGHT_TREE`),
+  descended level by level down to single triangles, not a triangle by power within a cluster.
 
 `area-lamp-room` (scenekit's `area_lamp_room`, on request): lit by Blender area lights, two of
 them facing the ceiling and a wall a few centimetres away, no emissive mesh: only the last two
 rows change its sampling; `lamp-grid-room` (`lamp_grid_room`): nine lamps (six ceiling panels,
 two point lights, a spot) that all light most of the room, where picking one lamp per point has
-the most to lose.
+the most to lose; `bulb-hall` (`bulb_hall`): 48 bulbs and 12 plaques, 3,984 emitting triangles,
+where the light tree has the most to give.
 
 Per row: relative I_z RMSE (luminance, over fully covered unburied texels, relative to the
 reference's mean), with the floor removed; per-sample variance (error² × samples) over Cycles' at
@@ -49,8 +52,16 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 SCENES = ("staircase2", "bedroom")
 #: on request (`--scenes`): Blender area lights beside the receivers, not emissive meshes
-EXTRA_SCENES = ("area-lamp-room", "lamp-grid-room")
-VARIANTS = ("power, area", "+ clusters", "+ stratified", "+ solid angle", "+ near solid angle", "+ one lamp per point")
+EXTRA_SCENES = ("area-lamp-room", "lamp-grid-room", "bulb-hall")
+VARIANTS = (
+    "power, area",
+    "+ clusters",
+    "+ stratified",
+    "+ solid angle",
+    "+ near solid angle",
+    "+ one lamp per point",
+    "+ light tree",
+)
 
 
 def main() -> int:
@@ -94,6 +105,7 @@ def variant(name: str) -> None:
     lights.SOLID_ANGLE_RANGE = (3e-4, 6.22) if level >= 3 else (math.inf, math.inf)
     lights.NEAR_RADII = 1.0 if level >= 4 else 0.0
     lights.CHOOSE = level >= 5
+    lights.LIGHT_TREE = level >= 6
 
 
 def measure(tte, name: str, args) -> dict:

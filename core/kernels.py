@@ -32,6 +32,7 @@ _C1 = sh.C1
 _IRRADZ_FROM_R10 = sh.IRRADZ_FROM_R10
 _INV_PI = 1.0 / math.pi
 _TWO_PI = 2.0 * math.pi
+_BELOW_ONE = 1.0 - 2.0**-53  # the largest double below 1
 
 
 # ---- helpers (compiled first, so the kernels call the compiled versions) -------------------
@@ -674,36 +675,40 @@ def _emitter_density(chance, area, solid_angle, cos, dist, lo, hi):
 
 def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emitters, share, window):
     """One emitter sample per point x (R, 3) (`lights.EmissiveTriangles._sample_points`, one
-    row at a time): the cluster by `u[0]` (`_cluster_weights` with normals (R, 3) or no rows),
-    the triangle of the cluster by `u[1]` (the first of its rows of `key` above cluster + u),
-    then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
+    row at a time): a leaf of the light tree by `u[0]` (`_pick_leaf`, with normals (R, 3) or
+    no rows), the triangle of the leaf by `u[1]` (the first of its rows of `key` above leaf +
+    u), then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
     (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (9,
-    K): rows as `_cluster_weights` takes them; key (E,), order (E,),
-    first (K,), last (K,), each triangle's bounding sphere (T, 4): centre, radius).
+    K): the tree's K nodes, rows as `_cluster_weights` takes them; key (E,), order (E,),
+    first (K,), last (K,): each leaf's rows of key; each triangle's bounding sphere (T, 4):
+    centre, radius; child_first, child_count (K + 1,), parent (K,): `lights.light_tree`).
     Returns directions (R, 3), distances (R,), triangles (R,) int64 and densities (R,)."""
-    clusters, key, order, first, last, bound = emitters
+    clusters, key, order, first, last, bound, child_first, child_count, _ = emitters
     n = x.shape[0]
-    k = clusters.shape[1]
     horizon = normals.shape[0] > 0
     dirs = np.empty((n, 3))
     dist = np.empty(n)
     pick = np.empty(n, np.int64)
     pdf = np.empty(n)
-    w = np.empty(k)
-    alone = clusters[5] / clusters[5].sum()
+    w = np.empty(clusters.shape[1])
     for i in range(n):
-        cluster, chance = k - 1, 1.0
-        if k > 1:
-            nx, ny, nz = _normal(normals, i)
-            total = _cluster_weights(x[i, 0], x[i, 1], x[i, 2], nx, ny, nz, horizon, clusters, triangles, w)
-            scale, mix = _cluster_chances(total, share)
-            acc = 0.0
-            for c in range(k):
-                acc += scale * w[c] + mix * alone[c]
-                if u[0, i] < acc:
-                    cluster = c
-                    break
-            chance = scale * w[cluster] + mix * alone[cluster]
+        nx, ny, nz = _normal(normals, i)
+        cluster, chance = _pick_leaf(
+            x[i, 0],
+            x[i, 1],
+            x[i, 2],
+            nx,
+            ny,
+            nz,
+            horizon,
+            clusters,
+            triangles,
+            w,
+            child_first,
+            child_count,
+            u[0, i],
+            share,
+        )
         lo, hi = first[cluster], last[cluster]  # the first row whose key exceeds cluster + u
         v = cluster + u[1, i]
         while lo < hi:
@@ -749,24 +754,36 @@ def emitter_pdf(x, normals, d, t, prim, triangles, tri_normal, tri_area, within,
     """(R,): the density per steradian with which `sample_emitters` at x (R, 3) (normals (R, 3)
     or no rows) picks the point at distance t (R,) along d (R, 3) on triangle prim (R,) (0 for
     triangles that do not emit)."""
-    clusters, bound = emitters[0], emitters[5]
-    k = clusters.shape[1]
+    clusters, bound, child_first, child_count, parent = emitters[0], emitters[5], emitters[6], emitters[7], emitters[8]
     horizon = normals.shape[0] > 0
-    w = np.empty(k)
-    alone = clusters[5] / clusters[5].sum()
+    w = np.empty(clusters.shape[1])
+    path = np.empty(clusters.shape[1], np.int64)
     out = np.empty(x.shape[0])
     for i in range(x.shape[0]):
         tri = prim[i]
         if within[tri] <= 0.0:
             out[i] = 0.0
             continue
-        chance = within[tri]
-        if k > 1:
-            nx, ny, nz = _normal(normals, i)
-            total = _cluster_weights(x[i, 0], x[i, 1], x[i, 2], nx, ny, nz, horizon, clusters, triangles, w)
-            scale, mix = _cluster_chances(total, share)
-            c = cluster_of[tri]
-            chance *= scale * w[c] + mix * alone[c]
+        nx, ny, nz = _normal(normals, i)
+        chance = _leaf_chance(
+            x[i, 0],
+            x[i, 1],
+            x[i, 2],
+            nx,
+            ny,
+            nz,
+            horizon,
+            clusters,
+            triangles,
+            w,
+            child_first,
+            child_count,
+            parent,
+            cluster_of[tri],
+            path,
+            share,
+        )
+        chance *= within[tri]
         omega = 0.0 if _surely_small(x, i, tri, tri_area, bound, window[0]) else _spherical(x, i, triangles, tri)[5]
         cos = abs(d[i, 0] * tri_normal[tri, 0] + d[i, 1] * tri_normal[tri, 1] + d[i, 2] * tri_normal[tri, 2])
         out[i] = _emitter_density(chance, tri_area[tri], omega, cos, t[i], window[0], window[1])
@@ -918,8 +935,9 @@ def _solid_angle(px, py, pz, triangles, t):
     return 2.0 * math.atan2(det, 1.0 + ab + bc + ca)
 
 
-def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w):
-    """Into w (K,): each emitter cluster's power over max(distance², radius²) from the point
+def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, first, end):
+    """Into w[first:end] (of (K,)): each emitter cluster's (light tree node's, columns first ..
+    end − 1) power over max(distance², radius²) from the point
     (px, py, pz), times (if `horizon`) the largest cosine to the unit normal (nx, ny, nz) of a
     direction into the cluster's bounding sphere (0 for a cluster wholly below the horizon);
     returns their sum, in index order. A cluster of one triangle that x lies near (distance² below
@@ -935,10 +953,9 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w):
     With d the distance, r the radius and a = normal · (centre − x): the normal lies inside
     the cone of directions into the sphere when a ≥ √(d² − r²), else the nearest edge's
     cosine is (a √(d² − r²) + √(d² − a²) r) / d²; inside the sphere, 1."""
-    k = w.shape[0]
     near = 0
     if horizon:
-        for c in range(k):
+        for c in range(first, end):
             dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
             d2 = dx * dx + dy * dy + dz * dz
             near += d2 < clusters[8, c]
@@ -950,12 +967,12 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w):
             d2s = max(d2, 1e-300)
             w[c] = clusters[5, c] * (max(edge, 0.0) if outside else d2s) / (max(d2, r2) * d2s)
     else:
-        for c in range(k):
+        for c in range(first, end):
             dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
             d2 = dx * dx + dy * dy + dz * dz
             near += d2 < clusters[8, c]
             w[c] = clusters[5, c] / max(d2, clusters[3, c])
-    for c in range(k if near else 0):  # lone triangles near x: by solid angle
+    for c in range(first, end if near else first):  # lone triangles near x: by solid angle
         if clusters[6, c] < 0.0 or w[c] <= 0.0:
             continue
         dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
@@ -965,9 +982,73 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w):
             if math.isfinite(omega):  # NaN from a corner: keep the distance's weight
                 w[c] *= clusters[7, c] * omega * max(d2, clusters[3, c]) / clusters[5, c]
     total = 0.0
-    for c in range(k):
+    for c in range(first, end):
         total += w[c]
     return total
+
+
+def _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, first, end, share):
+    """(scale, mix, power) of the choice among the light tree nodes first .. end − 1 (siblings)
+    at (px, py, pz): node c is picked with probability scale·w[c] + mix·clusters[5, c] / power
+    (`_cluster_weights` into w, `_cluster_chances`; power: the siblings' summed power)."""
+    total = _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, first, end)
+    scale, mix = _cluster_chances(total, share)
+    power = 0.0
+    for c in range(first, end):
+        power += clusters[5, c]
+    return scale, mix, power
+
+
+def _pick_leaf(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_first, child_count, u, share):
+    """(leaf, chance): a leaf of the light tree (`lights.light_tree`: child_first, child_count
+    (N + 1,), the last entry the root) picked at (px, py, pz) by the uniform number u, one level
+    at a time among a node's children (`_child_chance`), u rescaled to the picked child's
+    interval for the next level; chance, the product of the levels' probabilities."""
+    node = child_first.shape[0] - 1
+    chance = 1.0
+    while child_count[node] > 0:
+        a, end = child_first[node], child_first[node] + child_count[node]
+        if end - a == 1:
+            node = a
+            continue
+        scale, mix, power = _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share)
+        pick, below, acc = end - 1, 0.0, 0.0
+        for c in range(a, end):
+            below = acc
+            acc += scale * w[c] + mix * (clusters[5, c] / power)
+            if u < acc:
+                pick = c
+                break
+        p = scale * w[pick] + mix * (clusters[5, pick] / power)
+        chance *= p
+        u = min(max((u - below) / p, 0.0), _BELOW_ONE) if p > 0.0 else 0.0
+        node = pick
+    return node, chance
+
+
+def _leaf_chance(
+    px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_first, child_count, parent, leaf, path, share
+):
+    """The probability with which `_pick_leaf` at (px, py, pz) picks `leaf`: its levels'
+    probabilities multiplied from the root down, as `_pick_leaf` does (parent (N,): N for a
+    top cluster; path: scratch of N entries)."""
+    root = child_first.shape[0] - 1
+    depth = 0
+    c = leaf
+    while c != root:
+        path[depth] = c
+        depth += 1
+        c = parent[c]
+    chance = 1.0
+    node = root
+    for j in range(depth - 1, -1, -1):
+        c = path[j]
+        a, end = child_first[node], child_first[node] + child_count[node]
+        if end - a > 1:
+            scale, mix, power = _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share)
+            chance *= scale * w[c] + mix * (clusters[5, c] / power)
+        node = c
+    return chance
 
 
 def _horizon_bound(a, d2, r2, r):
@@ -1075,6 +1156,9 @@ _HELPERS = (
     "_cluster_weights",
     "_normal",
     "_cluster_chances",
+    "_child_chance",
+    "_pick_leaf",
+    "_leaf_chance",
     "_horizon_bound",
     "_unit3",
     "_spherical",

@@ -20,12 +20,14 @@ the point picks one of them by its expected contribution (`Choice`: intensity, t
 bounds at both ends, over distance²) and divides its sample by that probability. A point
 samples none where none can light it (behind every one-sided lamp, all below its horizon).
 
-Emissive triangles are grouped into at most CLUSTERS spatial clusters (median splits of their
-centroids along the longest axis). At each shading point x a cluster is picked with probability
-∝ its power over max(distance², radius²) to x (mixed with POWER_SHARE of power alone; a cluster
-of one triangle with x inside its bounding sphere: ∝ its luminance × the solid angle it
-subtends, NEAR_RADII), then a
-triangle of the cluster ∝ its power (area × emitted luminance; emission is two-sided, so both
+Emissive triangles are grouped into a light tree: at most CLUSTERS spatial clusters (median
+splits of their centroids along the longest axis), each cluster of several triangles split again
+into at most FANOUT, down to single triangles (`light_tree`; up to MAX_LEAVES leaves). At each
+shading point x the tree is descended from the top: among a node's children one is picked with
+probability ∝ its power over max(distance², radius²) to x (mixed with POWER_SHARE of power
+alone; a leaf of one triangle with x inside its bounding sphere: ∝ its luminance × the solid
+angle it subtends, NEAR_RADII), then a
+triangle of the leaf ∝ its power (area × emitted luminance; emission is two-sided, so both
 sides count alike), then a uniform point on the triangle or, where the triangle subtends a solid
 angle within SOLID_ANGLE_RANGE, a uniform direction in that solid angle (Arvo 1995: no 1/d²
 spikes beside a lamp): a lamp across the room no longer takes as many samples as the one beside
@@ -349,6 +351,13 @@ class Environment(Light):
 
 #: Most spatial clusters the emitting triangles of one light group are split into.
 CLUSTERS = 32
+#: Split clusters of more than one emitting triangle again into at most FANOUT clusters each, down
+#: to single triangles (or MAX_LEAVES leaves): a light tree, descended at each shading point by
+#: the same weights one level at a time, so a scene with thousands of emitters picks the one
+#: beside the point, not a cluster's triangle by power alone. False: the top clusters alone.
+LIGHT_TREE = True
+FANOUT = 8
+MAX_LEAVES = 4096
 #: Share of the cluster choice made by power alone, whatever the distance: the distance bound
 #: knows nothing of occlusion, so a bright emitter behind a wall keeps some samples.
 POWER_SHARE = 0.1
@@ -399,10 +408,13 @@ class EmissiveTriangles(Light):
         self._cluster(power)
 
     def _cluster(self, power: np.ndarray) -> None:
-        """Clusters of the emitters `index` (`cluster_splits`) and per cluster its power `cluster_power`
-        (K,), bounding-box centre `centre` (K, 3) and squared radius `radius2` (K,); per
-        triangle (T,) its cluster `cluster_of` and its probability within it `within`; the
-        emitters sorted by cluster `order` and `key` (E,): cluster + cumulative share within it."""
+        """The light tree over the emitters `index` (`light_tree`) and per node (N columns, in
+        breadth-first order: a node's children are consecutive) its power `cluster_power` (N,),
+        bounding-box centre `centre` (N, 3) and squared radius `radius2` (N,), the tree's links
+        `child_first`, `child_count` (N + 1,: the last entry is the root, above the top clusters)
+        and `parent` (N,: N for a top cluster); per triangle (T,) its leaf `cluster_of` and its
+        probability within it `within`; the emitters sorted by leaf `order` and `key` (E,):
+        leaf + cumulative share within it, each leaf's rows `first` .. `last`."""
         t = len(self.triangles)
         self.cluster_of = np.zeros(t, np.int64)
         self.within = np.zeros(t)
@@ -411,48 +423,80 @@ class EmissiveTriangles(Light):
             self.centre, self.radius2 = np.zeros((0, 3)), np.zeros(0)
             self.order, self.key = self.index, np.zeros(0)
             self.first = self.last = self.lone = np.zeros(0, np.int64)
+            self.child_first = self.child_count = np.zeros(1, np.int64)
+            self.parent = np.zeros(0, np.int64)
             self.luminance = np.zeros(0)
             return
-        cluster = cluster_splits(self.triangles[self.index].mean(axis=1), CLUSTERS)
-        k = int(cluster.max()) + 1
-        self.cluster_of[self.index] = cluster
-        self.cluster_power = np.bincount(cluster, power[self.index], minlength=k)
-        self.within[self.index] = power[self.index] / self.cluster_power[cluster]
         corners = self.triangles[self.index]
+        leaf, self.child_first, self.child_count, self.parent = light_tree(
+            corners.mean(axis=1), CLUSTERS, FANOUT if LIGHT_TREE else 0, MAX_LEAVES
+        )
+        k = len(self.parent)
+        self.cluster_of[self.index] = leaf
+        power_of_leaf = np.bincount(leaf, power[self.index], minlength=k)
+        self.within[self.index] = power[self.index] / power_of_leaf[leaf]
         lo = np.full((k, 3), np.inf)
         hi = np.full((k, 3), -np.inf)
-        np.minimum.at(lo, cluster, corners.min(axis=1))
-        np.maximum.at(hi, cluster, corners.max(axis=1))
+        np.minimum.at(lo, leaf, corners.min(axis=1))
+        np.maximum.at(hi, leaf, corners.max(axis=1))
+        self.cluster_power = power_of_leaf
+        for node in range(k - 1, -1, -1):  # children before parents (breadth-first order reversed)
+            a, m = self.child_first[node], self.child_count[node]
+            if m:
+                lo[node], hi[node] = lo[a : a + m].min(axis=0), hi[a : a + m].max(axis=0)
+                self.cluster_power[node] = self.cluster_power[a : a + m].sum()
         self.centre = 0.5 * (lo + hi)
         self.radius2 = np.maximum(0.25 * np.square(hi - lo).sum(axis=1), 1e-12)
-        self.order = self.index[np.argsort(cluster, kind="stable")]
-        c = self.cluster_of[self.order]
+        self.order = self.index[np.argsort(leaf, kind="stable")]
+        sorted_leaf = self.cluster_of[self.order]
         share = self.within[self.order]
         cum = np.cumsum(share)
-        first = np.searchsorted(c, np.arange(k))  # each cluster's first row in order
-        self.key = c + (cum - (cum - share)[first][c])
-        last = np.append(first[1:], len(c)) - 1
-        self.key[last] = np.arange(k) + 1.0  # each cluster's segment ends exactly at c + 1
-        self.first, self.last = first, last
-        # a cluster of one triangle: its id and emitted luminance (`cluster_probability`)
-        self.lone = np.where(first == last, self.order[first], -1)
+        count = np.bincount(sorted_leaf, minlength=k)
+        first = np.searchsorted(sorted_leaf, np.arange(k))  # each leaf's first row in order
+        last = first + count - 1
+        is_leaf = count > 0
+        self.key = sorted_leaf + (cum - (cum - share)[first[sorted_leaf]])
+        self.key[last[is_leaf]] = np.flatnonzero(is_leaf) + 1.0  # each leaf's segment ends exactly at c + 1
+        self.first, self.last = first, np.where(is_leaf, last, first)
+        # a leaf of one triangle: its id and emitted luminance (`cluster_probability`)
+        self.lone = np.where(count == 1, self.order[np.minimum(first, len(sorted_leaf) - 1)], -1)
         self.luminance = np.where(self.lone >= 0, self.cluster_power / np.maximum(self.area[self.lone], 1e-300), 0.0)
 
     def __len__(self) -> int:
         return len(self.index)
 
     def cluster_probability(self, x: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
-        """(R, K): the probability of picking each cluster at the points x (R, 3): ∝ its power
-        over max(distance², radius²) to its bounding box's centre, times (given the points'
-        `normals` (R, 3)) the largest cosine of a direction into the box's bounding sphere (0
-        below the horizon), mixed with POWER_SHARE ∝ power alone (power alone where every
-        cluster is below the horizon); rows sum to 1. A cluster of one triangle seen from within
-        NEAR_RADII of its radius weighs its luminance × the triangle's solid angle instead of
-        power over distance² (where that is finite). numpy: the spec of the compiled choice
-        (`kernels.sample_emitters`, `kernels.emitter_pdf`), the tests compare them."""
+        """(R, N): the probability of picking each node of the light tree (a leaf, or any leaf
+        below an inner node) at the points x (R, 3); the leaves' sum to 1 per row. Among the
+        children of a node, each is picked ∝ its weight: its power over max(distance², radius²)
+        to its bounding box's centre, times (given the points' `normals` (R, 3)) the largest
+        cosine of a direction into the box's bounding sphere (0 below the horizon), mixed with
+        POWER_SHARE ∝ power alone (power alone where every child is below the horizon); a leaf
+        of one triangle seen from within NEAR_RADII of its radius weighs its luminance × the
+        triangle's solid angle instead of power over distance² (where that is finite). numpy:
+        the spec of the compiled choice (`kernels.sample_emitters`, `kernels.emitter_pdf`), the
+        tests compare them."""
         phi = self.cluster_power
         if len(phi) == 1:
             return np.ones((len(x), 1))
+        w = self._weights(x, normals)
+        prob = np.zeros_like(w)
+        root = len(phi)
+        for c in [root, *range(root)]:  # breadth first: a node's probability before its children's
+            a, m = self.child_first[c], self.child_count[c]
+            if m == 0:
+                continue
+            above = 1.0 if c == root else prob[:, c : c + 1]
+            part, power = w[:, a : a + m], phi[a : a + m]
+            total = part.sum(axis=1, keepdims=True)
+            power_only = np.broadcast_to(power / power.sum(), part.shape)
+            mixed = (1.0 - POWER_SHARE) * part / np.where(total > 0.0, total, 1.0) + POWER_SHARE * power_only
+            prob[:, a : a + m] = above * np.where(total > 0.0, mixed, power_only)
+        return prob
+
+    def _weights(self, x: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
+        """(R, N): every node's weight at the points x (`cluster_probability`)."""
+        phi = self.cluster_power
         to = self.centre[None] - x[:, None, :]
         d2 = np.square(to).sum(axis=2)
         w = phi / np.maximum(d2, self.radius2)
@@ -468,10 +512,7 @@ class EmissiveTriangles(Light):
             near = (d2[:, c] < NEAR_RADII**2 * self.radius2[c]) & np.isfinite(omega) & (w[:, c] > 0.0)
             by_angle = w[:, c] * (self.luminance[c] * omega * np.maximum(d2[:, c], self.radius2[c]) / phi[c])
             w[:, c] = np.where(near, by_angle, w[:, c])
-        total = w.sum(axis=1, keepdims=True)
-        power_only = np.broadcast_to(phi / phi.sum(), w.shape)
-        mixed = (1.0 - POWER_SHARE) * w / np.where(total > 0.0, total, 1.0) + POWER_SHARE * power_only
-        return np.where(total > 0.0, mixed, power_only)
+        return w
 
     def sample(self, rng, x, ray_pdf: RayPdf, strata=1, normals=None) -> Sample:
         dirs, dist, emitted, p_light = self._sample_points(rng, x, strata, normals)
@@ -500,7 +541,8 @@ class EmissiveTriangles(Light):
         radius2 = self.radius2
         rows = [self.centre.T, radius2, np.sqrt(radius2), self.cluster_power, self.lone, self.luminance]
         clusters = np.ascontiguousarray(np.vstack(rows + [NEAR_RADII**2 * radius2]), np.float64)
-        return (clusters, self.key, self.order, self.first, self.last, self.bound)
+        tree = (self.child_first, self.child_count, self.parent)
+        return (clusters, self.key, self.order, self.first, self.last, self.bound, *tree)
 
     def pdf(self, d, t=None, prim=None, origins=None, normals=None) -> np.ndarray:
         """Density per steradian of sampling, from `origins` (R, 3) with `normals` (R, 3) or
@@ -662,6 +704,41 @@ def cluster_splits(centroids: np.ndarray, most: int) -> np.ndarray:
         extent[c] = float(np.linalg.norm(np.ptp(pts[~upper], axis=0)))
         extent.append(float(np.linalg.norm(np.ptp(pts[upper], axis=0))))
     return ids
+
+
+def light_tree(centroids: np.ndarray, top: int, fanout: int, most_leaves: int):
+    """A tree of spatial clusters over points `centroids` (E, 3): at most `top` top clusters
+    (`cluster_splits`), each cluster of more than one point split again into at most `fanout`
+    (`cluster_splits` of its points), breadth first, until every leaf holds one point (or
+    coincident points) or there are `most_leaves` leaves; fanout 0: the top clusters alone.
+    Returns (leaf (E,) each point's leaf, child_first (N + 1,), child_count (N + 1,), parent
+    (N,)) over N nodes numbered breadth first, so a node's children are consecutive (0 children:
+    a leaf); entry N of the first two is the root above the top clusters, which parent N names."""
+    ids = cluster_splits(centroids, top)
+    k = int(ids.max()) + 1
+    members = [np.flatnonzero(ids == c) for c in range(k)]
+    child_first, child_count, parent = [0] * k, [0] * k, [-1] * k  # the root's entry is appended last
+    leaves, c = k, 0
+    while fanout and c < len(members) and leaves < most_leaves:
+        m = members[c]
+        sub = cluster_splits(centroids[m], min(fanout, most_leaves - leaves + 1)) if len(m) > 1 else ids[:0]
+        n = int(sub.max()) + 1 if len(sub) else 1
+        if n > 1:
+            child_first[c], child_count[c] = len(members), n
+            for j in range(n):
+                members.append(m[sub == j])
+                child_first.append(0)
+                child_count.append(0)
+                parent.append(c)
+            leaves += n - 1
+        c += 1
+    nodes = len(members)
+    leaf = np.zeros(len(centroids), np.int64)
+    for c in range(nodes):
+        if child_count[c] == 0:
+            leaf[members[c]] = c
+    parent_of = np.array([nodes if p < 0 else p for p in parent], np.int64)
+    return leaf, np.array(child_first + [0], np.int64), np.array(child_count + [k], np.int64), parent_of
 
 
 #: The sampling class of each light data type of core.scene.
