@@ -286,6 +286,57 @@ def lamp_grid_room() -> list:
     return room
 
 
+#: The bulb hall's size (x, y, height), wall thickness, bulbs per row (two rows) and bulb radius, metres.
+BULB_HALL = (12.0, 6.0, 3.0, 0.2, 24, 0.05)
+
+
+def bulb_hall() -> list:
+    """A closed white hall (BULB_HALL: 12 × 6 × 3 m) with two tables, lit only by many small
+    emissive meshes: two rows of 24 bulbs (icospheres of 80 triangles, 5 cm radius) hanging
+    0.4–0.8 m below the ceiling, and twelve 0.2 × 0.3 m emissive plaques 4 cm off the long walls
+    at 1.8 m; a black world. 3,984 emitting triangles, far more than the emitters' clusters
+    (`lights.CLUSTERS`): where picking a cluster and then a triangle by power alone within it
+    has the most to lose. Returns the receivers: the hall's meshes (not the emitters)."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    box, material = blender.box_between, blender.material
+    white = material("Plaster", (0.8, 0.8, 0.78))
+    sx, sy, sz, t, per_row, radius = BULB_HALL
+    room = [
+        box("Floor", (-sx / 2, -sy / 2, -t), (sx / 2, sy / 2, 0), white),
+        box("Ceiling", (-sx / 2, -sy / 2, sz), (sx / 2, sy / 2, sz + t), white),
+        box("Wall -X", (-sx / 2 - t, -sy / 2, 0), (-sx / 2, sy / 2, sz), white),
+        box("Wall +X", (sx / 2, -sy / 2, 0), (sx / 2 + t, sy / 2, sz), white),
+        box("Wall -Y", (-sx / 2, -sy / 2 - t, 0), (sx / 2, -sy / 2, sz), white),
+        box("Wall +Y", (-sx / 2, sy / 2, 0), (sx / 2, sy / 2 + t, sz), white),
+        box("Table A", (-3.5, -0.6, 0.0), (-1.5, 0.6, 0.75), white),
+        box("Table B", (1.5, -0.6, 0.0), (3.5, 0.6, 0.75), white),
+    ]
+    bulb = material("Bulb", (0.1, 0.1, 0.1), emission=(1.0, 0.85, 0.6, 40.0))
+    plaque = material("Plaque", (0.1, 0.1, 0.1), emission=(0.6, 0.8, 1.0, 6.0))
+    for row, y in enumerate((-1.2, 1.2)):
+        for i in range(per_row):
+            x = -sx / 2 + (i + 0.5) * sx / per_row
+            z = sz - 0.4 - 0.4 * ((i * 7 + row * 3) % 5) / 4  # 0.4-0.8 m below the ceiling
+            bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, radius=radius, location=(x, y, z))
+            obj = bpy.context.active_object
+            obj.name = f"Bulb {row}{i:02d}"
+            obj.data.materials.append(bulb)
+    for i in range(6):
+        x = -sx / 2 + (i + 0.5) * sx / 6
+        for side in (-1.0, 1.0):
+            y0 = side * (sy / 2 - 0.04)
+            box(
+                f"Plaque {i}{side:+.0f}",
+                (x - 0.1, min(y0, y0 + side * 0.01), 1.65),
+                (x + 0.1, max(y0, y0 + side * 0.01), 1.95),
+                plaque,
+            )
+    blender.world((0.0, 0.0, 0.0), 0.0)
+    return room
+
+
 def field(n_triangles: int = 1_000_000) -> list:
     """`sphere_field(n_triangles)` as one mesh "Field" on a ground plane 1.2× its extent, one
     default diffuse material, sun + sky; returns the receivers: [the ground]."""
