@@ -27,8 +27,10 @@ from the emitters only). Our rows turn the parts of the emitter sampling on one 
 them facing the ceiling and a wall a few centimetres away, no emissive mesh: only the last two
 rows change its sampling; `lamp-grid-room` (`lamp_grid_room`): nine lamps (six ceiling panels,
 two point lights, a spot) that all light most of the room, where picking one lamp per point has
-the most to lose; `bulb-hall` (`bulb_hall`): 48 bulbs and 12 plaques, 3,984 emitting triangles,
-where the light tree has the most to give.
+the most to lose; `bulb-hall` (`bulb_hall`): 48 bulbs and 12 plaques, 3,984 emitting triangles
+spread through a hall; `panel-room` (`panel_room`): a subdivided 24 × 12
+ceiling panel 3 cm below the ceiling and a 60-segment LED strip 4 cm off a wall, 696 emitting
+triangles a few centimetres from what they light.
 
 Per row: relative I_z RMSE (luminance, over fully covered unburied texels, relative to the
 reference's mean), with the floor removed; per-sample variance (error² × samples) over Cycles' at
@@ -52,7 +54,7 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 SCENES = ("staircase2", "bedroom")
 #: on request (`--scenes`): Blender area lights beside the receivers, not emissive meshes
-EXTRA_SCENES = ("area-lamp-room", "lamp-grid-room", "bulb-hall")
+EXTRA_SCENES = ("area-lamp-room", "lamp-grid-room", "bulb-hall", "panel-room")
 VARIANTS = (
     "power, area",
     "+ clusters",

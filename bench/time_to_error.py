@@ -75,7 +75,7 @@ SAMPLES = [4, 8, 16, 32, 64, 256]
 #: time kept, on both sides: single timings of 1–2 s bakes swing by tens of percent.
 REPEAT_BELOW, REPEATS = 5.0, 5
 #: Scenes measured on request (`--scenes`): rooms like the held-out ones issue 23 reports.
-EXTRA_SCENES = ("emissive-room", "door-room", "area-lamp-room", "lamp-grid-room", "bulb-hall")
+EXTRA_SCENES = ("emissive-room", "door-room", "area-lamp-room", "lamp-grid-room", "bulb-hall", "panel-room")
 #: Cycles seeds of the reference's two halves (the rows use seed 0: Cycles' samples for one seed
 #: are nested, so a row must not share its samples with the reference)
 REFERENCE_SEEDS = (9173, 9174)
@@ -152,6 +152,8 @@ def load_scene(name: str) -> list:
         return scenes.lamp_grid_room()
     if name == "bulb-hall":
         return scenes.bulb_hall()
+    if name == "panel-room":
+        return scenes.panel_room()
     import denoise
 
     return denoise.load_scene(name)

@@ -678,7 +678,7 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
     row at a time): a leaf of the light tree by `u[0]` (`_pick_leaf`, with normals (R, 3) or
     no rows), the triangle of the leaf by `u[1]` (the first of its rows of `key` above leaf +
     u), then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
-    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (9,
+    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (10,
     K): the tree's K nodes, rows as `_cluster_weights` takes them; key (E,), order (E,),
     first (K,), last (K,): each leaf's rows of key; each triangle's bounding sphere (T, 4):
     centre, radius; child_first, child_count (K + 1,), parent (K,): `lights.light_tree`).
@@ -944,8 +944,9 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, fi
     its row 8) weighs its emitted luminance (row 7) times the solid angle the triangle subtends
     from x instead of power over distance²: beside a lamp's quad, the triangle the point sits by
     subtends far more than its twin, which power over distance² cannot tell apart (the horizon
-    factor is kept). clusters (9, K): rows centre x, y, z, radius², radius, power, the lone
-    triangle's id in triangles (T, 3, 3) (−1: several), its luminance, the near distance².
+    factor is kept). clusters (10, K): rows centre x, y, z, radius², radius, power, the lone
+    triangle's id in triangles (T, 3, 3) (−1: several), its luminance, the near distance², the
+    distance² from which the tree below is descended by power alone (`_pick_leaf`).
     Element-wise and branch-free, so the first loops vectorise (bit for bit the scalar
     arithmetic; without fast-math, which would reassociate the sum and make its last bits
     depend on the arrays' alignment: a seed would no longer reproduce a bake bit for bit
@@ -993,37 +994,55 @@ def _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, first
     (`_cluster_weights` into w, `_cluster_chances`; power: the siblings' summed power)."""
     total = _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, first, end)
     scale, mix = _cluster_chances(total, share)
-    power = 0.0
-    for c in range(first, end):
-        power += clusters[5, c]
-    return scale, mix, power
+    return scale, mix, _power_of(clusters, first, end)
 
 
 def _pick_leaf(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_first, child_count, u, share):
     """(leaf, chance): a leaf of the light tree (`lights.light_tree`: child_first, child_count
     (N + 1,), the last entry the root) picked at (px, py, pz) by the uniform number u, one level
     at a time among a node's children (`_child_chance`), u rescaled to the picked child's
-    interval for the next level; chance, the product of the levels' probabilities."""
+    interval for the next level; below a node the point lies far from (distance² at least its
+    clusters[9]), by power alone (`_power_chance`): its leaves' weights would differ little.
+    chance: the product of the levels' probabilities."""
     node = child_first.shape[0] - 1
     chance = 1.0
+    far = False
     while child_count[node] > 0:
         a, end = child_first[node], child_first[node] + child_count[node]
         if end - a == 1:
             node = a
             continue
-        scale, mix, power = _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share)
+        if far:
+            scale, mix, power = 0.0, 1.0, _power_of(clusters, a, end)
+        else:
+            scale, mix, power = _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share)
         pick, below, acc = end - 1, 0.0, 0.0
         for c in range(a, end):
             below = acc
-            acc += scale * w[c] + mix * (clusters[5, c] / power)
+            acc += (scale * w[c] if scale > 0.0 else 0.0) + mix * (clusters[5, c] / power)
             if u < acc:
                 pick = c
                 break
-        p = scale * w[pick] + mix * (clusters[5, pick] / power)
+        p = (scale * w[pick] if scale > 0.0 else 0.0) + mix * (clusters[5, pick] / power)
         chance *= p
         u = min(max((u - below) / p, 0.0), _BELOW_ONE) if p > 0.0 else 0.0
         node = pick
+        far = far or _far_from(px, py, pz, clusters, node)
     return node, chance
+
+
+def _power_of(clusters, first, end):
+    """The summed power of the light tree nodes first .. end − 1."""
+    power = 0.0
+    for c in range(first, end):
+        power += clusters[5, c]
+    return power
+
+
+def _far_from(px, py, pz, clusters, c):
+    """True when (px, py, pz) lies at least clusters[9, c] (distance²) from node c's centre."""
+    dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
+    return dx * dx + dy * dy + dz * dz >= clusters[9, c]
 
 
 def _leaf_chance(
@@ -1041,13 +1060,20 @@ def _leaf_chance(
         c = parent[c]
     chance = 1.0
     node = root
+    far = False
     for j in range(depth - 1, -1, -1):
         c = path[j]
         a, end = child_first[node], child_first[node] + child_count[node]
         if end - a > 1:
-            scale, mix, power = _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share)
-            chance *= scale * w[c] + mix * (clusters[5, c] / power)
+            if far:
+                chance *= clusters[5, c] / _power_of(clusters, a, end)
+            else:
+                scale, mix, power = _child_chance(
+                    px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share
+                )
+                chance *= scale * w[c] + mix * (clusters[5, c] / power)
         node = c
+        far = far or _far_from(px, py, pz, clusters, node)
     return chance
 
 
@@ -1156,6 +1182,8 @@ _HELPERS = (
     "_cluster_weights",
     "_normal",
     "_cluster_chances",
+    "_power_of",
+    "_far_from",
     "_child_chance",
     "_pick_leaf",
     "_leaf_chance",

@@ -286,6 +286,33 @@ def lamp_grid_room() -> list:
     return room
 
 
+def panel_room() -> list:
+    """`area_lamp_room`'s room and table lit by two subdivided emissive meshes instead of lamps:
+    a 1.2 × 0.6 m ceiling panel of 24 × 12 quads hanging 3 cm below the ceiling, and a 3 m
+    LED strip of 60 quads (3 cm wide) 4 cm off the -y wall at 2.2 m, facing it; 696 emitting
+    triangles, a few centimetres from the surfaces they light, as real lamp meshes are. Each
+    of the flat clusters holds a patch of a dozen or more of them; the light tree resolves the
+    one under a point. Returns the receivers: the room's meshes (not the emitters)."""
+    import bpy
+
+    room = _lamp_room()
+    sx, sy, sz, _ = LAMP_ROOM
+    panel = blender.material("LED Panel", (0.1, 0.1, 0.1), emission=(1.0, 0.95, 0.85, 15.0))
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=24, y_subdivisions=12, size=1.0, location=(0.5, 0.3, sz - 0.03))
+    obj = bpy.context.active_object
+    obj.name, obj.scale = "LED Panel", (1.2, 0.6, 1.0)
+    obj.data.materials.append(panel)
+    strip = blender.material("LED Strip", (0.1, 0.1, 0.1), emission=(0.6, 0.8, 1.0, 20.0))
+    location = (0.0, -sy / 2 + 0.04, 2.2)
+    bpy.ops.mesh.primitive_grid_add(
+        x_subdivisions=60, y_subdivisions=1, size=1.0, location=location, rotation=(1.5708, 0, 0)
+    )
+    obj = bpy.context.active_object
+    obj.name, obj.scale = "LED Strip", (3.0, 0.03, 1.0)
+    obj.data.materials.append(strip)
+    return room
+
+
 #: The bulb hall's size (x, y, height), wall thickness, bulbs per row (two rows) and bulb radius, metres.
 BULB_HALL = (12.0, 6.0, 3.0, 0.2, 24, 0.05)
 
@@ -294,9 +321,9 @@ def bulb_hall() -> list:
     """A closed white hall (BULB_HALL: 12 × 6 × 3 m) with two tables, lit only by many small
     emissive meshes: two rows of 24 bulbs (icospheres of 80 triangles, 5 cm radius) hanging
     0.4–0.8 m below the ceiling, and twelve 0.2 × 0.3 m emissive plaques 4 cm off the long walls
-    at 1.8 m; a black world. 3,984 emitting triangles, far more than the emitters' clusters
-    (`lights.CLUSTERS`): where picking a cluster and then a triangle by power alone within it
-    has the most to lose. Returns the receivers: the hall's meshes (not the emitters)."""
+    at 1.8 m; a black world. 3,984 emitting triangles, far more than the emitters' top clusters
+    (`lights.CLUSTERS`), most of them a metre or more from what they light. Returns the
+    receivers: the hall's meshes (not the emitters)."""
     import bpy
 
     bpy.ops.wm.read_factory_settings(use_empty=True)

@@ -26,8 +26,8 @@ into at most FANOUT, down to single triangles (`light_tree`; up to MAX_LEAVES le
 shading point x the tree is descended from the top: among a node's children one is picked with
 probability ∝ its power over max(distance², radius²) to x (mixed with POWER_SHARE of power
 alone; a leaf of one triangle with x inside its bounding sphere: ∝ its luminance × the solid
-angle it subtends, NEAR_RADII), then a
-triangle of the leaf ∝ its power (area × emitted luminance; emission is two-sided, so both
+angle it subtends, NEAR_RADII; below a node x lies DESCEND_RADII of its radius or more from, ∝
+power alone, which costs no weights), then a triangle of the leaf ∝ its power (area × emitted luminance; emission is two-sided, so both
 sides count alike), then a uniform point on the triangle or, where the triangle subtends a solid
 angle within SOLID_ANGLE_RANGE, a uniform direction in that solid angle (Arvo 1995: no 1/d²
 spikes beside a lamp): a lamp across the room no longer takes as many samples as the one beside
@@ -358,6 +358,9 @@ CLUSTERS = 32
 LIGHT_TREE = True
 FANOUT = 8
 MAX_LEAVES = 4096
+#: Below a node a shading point lies this many of its bounding radii or more from, the tree is
+#: descended by power alone (no weights to evaluate): its leaves' weights differ little there.
+DESCEND_RADII = 4.0
 #: Share of the cluster choice made by power alone, whatever the distance: the distance bound
 #: knows nothing of occlusion, so a bright emitter behind a wall keeps some samples.
 POWER_SHARE = 0.1
@@ -482,6 +485,9 @@ class EmissiveTriangles(Light):
         w = self._weights(x, normals)
         prob = np.zeros_like(w)
         root = len(phi)
+        # below a node x lies DESCEND_RADII of its radius or more from: by power alone
+        far = np.square(self.centre[None] - x[:, None, :]).sum(axis=2) >= DESCEND_RADII**2 * self.radius2
+        far_above = np.zeros((len(x), root + 1), bool)
         for c in [root, *range(root)]:  # breadth first: a node's probability before its children's
             a, m = self.child_first[c], self.child_count[c]
             if m == 0:
@@ -491,7 +497,9 @@ class EmissiveTriangles(Light):
             total = part.sum(axis=1, keepdims=True)
             power_only = np.broadcast_to(power / power.sum(), part.shape)
             mixed = (1.0 - POWER_SHARE) * part / np.where(total > 0.0, total, 1.0) + POWER_SHARE * power_only
-            prob[:, a : a + m] = above * np.where(total > 0.0, mixed, power_only)
+            by_power = (total <= 0.0) | far_above[:, c : c + 1]
+            prob[:, a : a + m] = above * np.where(by_power, power_only, mixed)
+            far_above[:, a : a + m] = far_above[:, c : c + 1] | far[:, a : a + m]
         return prob
 
     def _weights(self, x: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
@@ -540,7 +548,8 @@ class EmissiveTriangles(Light):
         """The cluster arrays the kernels take (`kernels.sample_emitters`)."""
         radius2 = self.radius2
         rows = [self.centre.T, radius2, np.sqrt(radius2), self.cluster_power, self.lone, self.luminance]
-        clusters = np.ascontiguousarray(np.vstack(rows + [NEAR_RADII**2 * radius2]), np.float64)
+        rows += [NEAR_RADII**2 * radius2, DESCEND_RADII**2 * radius2]
+        clusters = np.ascontiguousarray(np.vstack(rows), np.float64)
         tree = (self.child_first, self.child_count, self.parent)
         return (clusters, self.key, self.order, self.first, self.last, self.bound, *tree)
 
