@@ -1002,7 +1002,7 @@ def _pick_leaf(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_fi
     (N + 1,), the last entry the root) picked at (px, py, pz) by the uniform number u, one level
     at a time among a node's children (`_child_chance`), u rescaled to the picked child's
     interval for the next level; below a node the point lies far from (distance² at least its
-    clusters[9]), by power alone (`_power_chance`): its leaves' weights would differ little.
+    clusters[9]), by power alone (`_power_of`): its leaves' weights would differ little.
     chance: the product of the levels' probabilities."""
     node = child_first.shape[0] - 1
     chance = 1.0

@@ -155,7 +155,7 @@ def test_the_light_tree_splits_the_top_clusters_down_to_single_triangles(monkeyp
     assert (flat.child_count[:-1] == 0).all() and flat.child_count[-1] == len(flat.parent) <= lights.CLUSTERS
 
 
-def test_among_many_lamps_the_tree_gives_the_one_overhead_most_samples(monkeypatch):
+def test_among_many_lamps_the_tree_gives_the_one_overhead_several_times_the_samples(monkeypatch):
     """A point 20 cm under one of 144 small lamps, which brings most of its light: the flat
     clusters (about 5 lamps each, a triangle by power within) give that lamp a few percent of the
     samples, the light tree several times as many; both unbiased against Lambert's formula, the

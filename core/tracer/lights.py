@@ -27,12 +27,13 @@ shading point x the tree is descended from the top: among a node's children one 
 probability ∝ its power over max(distance², radius²) to x (mixed with POWER_SHARE of power
 alone; a leaf of one triangle with x inside its bounding sphere: ∝ its luminance × the solid
 angle it subtends, NEAR_RADII; below a node x lies DESCEND_RADII of its radius or more from, ∝
-power alone, which costs no weights), then a triangle of the leaf ∝ its power (area × emitted luminance; emission is two-sided, so both
-sides count alike), then a uniform point on the triangle or, where the triangle subtends a solid
-angle within SOLID_ANGLE_RANGE, a uniform direction in that solid angle (Arvo 1995: no 1/d²
-spikes beside a lamp): a lamp across the room no longer takes as many samples as the one beside
-the texel. Sampling and densities are compiled (`kernels.sample_emitters`, `kernels.emitter_pdf`). The density therefore depends on x: `pdf` and
-`evaluate` take the rays' origins. Array conventions: x (R, 3) shading points, directions (R, 3)
+power alone, which costs no weights), then a triangle of the leaf ∝ its power (area × emitted
+luminance; emission is two-sided, so both sides count alike), then a uniform point on the
+triangle or, where the triangle subtends a solid angle within SOLID_ANGLE_RANGE, a uniform
+direction in that solid angle (Arvo 1995: no 1/d² spikes beside a lamp): a lamp across the room
+no longer takes as many samples as the one beside the texel. Sampling and densities are compiled
+(`kernels.sample_emitters`, `kernels.emitter_pdf`). The density therefore depends on x: `pdf`
+and `evaluate` take the rays' origins. Array conventions: x (R, 3) shading points, directions (R, 3)
 unit, world space; densities per steradian.
 """
 
