@@ -21,6 +21,10 @@ statistics reduced (`statistics.Reduced`) once its last pass is added. A texel's
 depend only on its own estimates in pass order, so the numbers are the same, while running
 statistics exist for one chunk at a time instead of the whole atlas.
 
+Passes follow one another without waiting: a pass's units are queued while the last of the
+pass before still run (an atlas of a few chunks would otherwise leave workers idle at the end of
+each pass), except where the noise target must see a whole pass first (`_runs`).
+
 Between units: progress, cancel (raises BakeCancelled within a unit), the time budget (no unit
 starts after it, the first pass always completes) and, after each pass, the noise target. Its
 rule is fixed so that `core/farm.py` (every pass of a group of chunks in one task) gives the same
@@ -111,19 +115,25 @@ class _Run:
         self.rays = self.texel_passes = 0
 
     def passes(self, pool: Executor) -> str:
+        """Every pass over the atlas, in runs of passes no noise-target test falls between
+        (`_runs`): within a run the next pass's units start while the last of the pass before
+        finish, so no worker waits at the end of a pass (the units are still added in order)."""
         settings, stats = self.settings, self.stats
         assert stats is not None
         n = len(stats.passes)
         max_passes = max(1, -(-settings.samples // settings.pass_samples))
         active = chunks(settings, n)
         floor = None
-        for p in range(max_passes):
+        for first, end in _runs(settings, max_passes):
+            work = [units(settings, p, active) for p in range(first, end)]
+            per_pass, converging = len(work[0]), sum(len(a) for a in active)
 
-            def on_unit(done, of, p=p, converging=sum(len(a) for a in active)):
+            def on_unit(done, of, first=first, per_pass=per_pass, converging=converging):
+                p, within = first + (done - 1) // per_pass, (done - 1) % per_pass + 1
                 elapsed = time.perf_counter() - self.start
                 if self.progress:
                     self.progress(
-                        _fraction(p, done / of, max_passes, settings, elapsed),
+                        _fraction(p, within / per_pass, max_passes, settings, elapsed),
                         _status(
                             _pass_status(p, max_passes, converging, n),
                             self.rays,
@@ -132,25 +142,19 @@ class _Run:
                             elapsed,
                         ),
                     )
-                return not (settings.time_budget and elapsed >= settings.time_budget and p > 0)
+                # the time budget: no unit starts after it, but the first pass always completes
+                return not (settings.time_budget and elapsed >= settings.time_budget and (p > 0 or within == per_pass))
 
-            if not self.one_pass(pool, units(settings, p, active), on_unit):
+            flat = [unit for pass_units in work for unit in pass_units]
+            if not self.run_units(pool, iter(flat), len(flat), lambda unit, r: stats.add(unit.texels, r), on_unit):
                 return "time_budget"
-            if settings.noise_target and p + 1 >= MIN_ADAPTIVE_PASSES:
+            if settings.noise_target and end >= MIN_ADAPTIVE_PASSES:
                 if floor is None:  # fixed from the first MIN_ADAPTIVE_PASSES passes (core/farm.py)
                     floor = stats.floor()
                 active = [a[~stats.converged(a, settings.noise_target, floor)] for a in active]
                 if not any(len(a) for a in active):
                     return "noise_target"
         return "samples"
-
-    def one_pass(self, pool: Executor, work: list[WorkUnit], on_unit) -> bool:
-        """The units of one pass on the pool, added in order. `on_unit(done, of)` after each
-        returns False to end the pass early (returns False then); `cancel()` returning True
-        raises BakeCancelled."""
-        stats = self.stats
-        assert stats is not None
-        return self.run_units(pool, iter(work), len(work), lambda unit, r: stats.add(unit.texels, r), on_unit)
 
     def streamed(self, pool: Executor, reduced: Reduced) -> str:
         """Every pass of chunk 0, then of chunk 1, …, each chunk's statistics reduced into
@@ -291,6 +295,16 @@ def _pool(executor: Executor | None, threads: int):
         return
     with ThreadPoolExecutor(max_workers=threads) as pool:
         yield pool
+
+
+def _runs(settings: BakeSettings, max_passes: int) -> list[tuple[int, int]]:
+    """The passes as runs [first, end) between which the noise target tests the texels: all
+    of them in one run without a noise target; with one, passes 0 .. MIN_ADAPTIVE_PASSES − 1,
+    then one pass per run (each followed by a test)."""
+    if not settings.noise_target:
+        return [(0, max_passes)]
+    first = min(MIN_ADAPTIVE_PASSES, max_passes)
+    return [(0, first)] + [(p, p + 1) for p in range(first, max_passes)]
 
 
 def _fraction(p, unit_fraction, max_passes, settings, elapsed) -> float:
