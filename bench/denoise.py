@@ -7,7 +7,8 @@
     .venv/bin/python bench/denoise.py --scenes bedroom --no-edge --reference 16384 --ours 4 16 64 256 1024 2048 4096
 
 Scenes: `classroom` (scenekit/scenes.py: sun + sky through the windows, its 6 receivers) and the
-two emissive-lit interiors of ../shared/scenes, `staircase2` and `bedroom`: their receivers are the
+two emissive-lit interiors of the external scenes (docs/conventions.md#external-scenes),
+`staircase2` and `bedroom`: their receivers are the
 RECEIVERS largest mesh objects by world-space area that are not emitters (`Light_*`) or glass
 (`Glass*`, `LampGlass*`) and have fewer than MAX_POLYGONS polygons. Per scene one shared atlas
 (`--resolution`, texel density 0: the atlas is filled; `--padding` texels between charts),

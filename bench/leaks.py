@@ -20,7 +20,8 @@ crosses, and those hidden under geometry whose visible neighbours disagree, are 
 texel leaks light when it exceeds its answer by more than 1e-3 of the fully lit value; it is a
 dark halo when it falls short by as much. The same rule judges Cycles' bake.
 
-Scenes (`bedroom`, `staircase2` of ../shared/scenes and the classroom, loaded and unwrapped as
+Scenes (`bedroom`, `staircase2` of the external scenes, docs/conventions.md#external-scenes, and
+the classroom, loaded and unwrapped as
 bench/denoise.py does, BOUNCES diffuse bounces): no exact answer, so ours is judged against
 Cycles. Each engine bakes twice (seeds 1, 2); per texel the mean of the two and its standard
 error, |a − b|/2, floored at the median relative standard error of the POOL × POOL texels

@@ -3,7 +3,8 @@
     flock /tmp/bench.lock .venv/bin/python bench/light_sampling.py                 # staircase2, bedroom
     .venv/bin/python bench/light_sampling.py --scenes staircase2 --resolution 256 --samples 16 64
 
-Scenes: the emissive-lit interiors of ../shared/scenes (`staircase2`: 8 lamps, `bedroom`),
+Scenes: the emissive-lit interiors of the external scenes (docs/conventions.md#external-scenes;
+`staircase2`: 8 lamps, `bedroom`),
 receivers and atlas as bench/time_to_error.py sets them up. Cycles' reference: two halves of
 `--reference` samples with their own seeds (its noise, the floor, is removed from every error in
 quadrature); Cycles' rows and ours at `--samples`, BOUNCES bounces (`--direct`: 0, light straight

@@ -7,7 +7,8 @@
 
 Scenes: `shapes` (a smooth UV sphere and a smooth cylinder, flat caps, on a floor under
 scenekit's `sun_and_sky`: every seam of the sphere and the cylinder's side is smooth), `staircase2`
-and `bedroom` (../shared/scenes, emissive-lit interiors; receivers as bench/denoise.py picks them:
+and `bedroom` (external scenes: docs/conventions.md#external-scenes; emissive-lit interiors;
+receivers as bench/denoise.py picks them:
 its RECEIVERS largest meshes that are not emitters or glass) and the `classroom` (sun + sky through
 the windows, its 6 receivers, all flat with hard edges: no smooth seam, so CLASSROOM_EXTRA, two
 meshes with curved smooth parts, receive too). Per scene one shared atlas (`--resolution`, `--padding` texels

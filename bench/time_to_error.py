@@ -3,11 +3,12 @@
     flock /tmp/bench.lock .venv/bin/python bench/time_to_error.py                  # the four scenes
     .venv/bin/python bench/time_to_error.py --scenes staircase2 bedroom [--resolution 512]
 
-Scenes: `classroom` (../shared/scenes/classroom, 104k triangles, OBJ; its environment map is not
+Scenes: `classroom` (of the external scenes, docs/conventions.md#external-scenes; 104k triangles,
+OBJ; its environment map is not
 shipped, so it is lit by a sun and a sky colour through the windows; receivers: the 6 largest room
 meshes with few charts; the backdrop and furniture only occlude), `field` (a procedural
 ~1M-triangle field of spheres on a ground plane, sun + sky; receivers: the ground) (both
-scenekit/scenes.py), and the two interiors of ../shared/scenes lit by emissive meshes,
+scenekit/scenes.py), and the two external interiors lit by emissive meshes,
 `staircase2` (8 emitters) and `bedroom` (receivers as bench/denoise.py picks them: the largest
 meshes by area that are not emitters or glass). On request (`--scenes`), two rooms like the
 held-out ones of issue 23: `emissive-room` (scenekit's `emissive` scene: a ceiling light box and

@@ -2,7 +2,9 @@
 
     python bench/unwrap_raster.py [--sizes 10000 100000 1000000]
     python bench/unwrap_raster.py --unwrap-only [--sizes ...] [--module hhd_old.core.unwrap]
-    python bench/unwrap_raster.py --scenes ../shared/scenes/bedroom/bedroom.blend ... [--resolution 2048] [--padding 8]
+    python bench/unwrap_raster.py --scenes SCENES/bedroom/bedroom.blend ... [--resolution 2048] [--padding 8]
+
+(SCENES: the external scenes' folder, docs/conventions.md#external-scenes)
 
 The mesh is a field of displaced, subdivided spheres (many charts, curved surfaces, like real
 props; scenekit/meshes.py `sphere_field`). Atlas resolution grows with the size (1024, 2048, 4096). Peak memory is the numpy/Python

@@ -1,8 +1,8 @@
 """Octahedral packing of unit directions into 2 channels in [-1, 1]. No bpy.
 
 Cigolle et al. 2014, "A Survey of Efficient Representations for Independent Unit Vectors".
-The highlight direction is stored this way in world space (DESIGN.md). Decoding renormalises, so
-any 2-channel value decodes to a unit vector.
+The highlight direction is stored this way in world space (docs/conventions.md#direction-storage).
+Decoding renormalises, so any 2-channel value decodes to a unit vector.
 """
 
 from __future__ import annotations

@@ -6,8 +6,8 @@ every cell, as EEVEE does (`lightprobe_irradiance_grid_sample_position`):
     local = (i + ½) / n · 2 − 1 per axis,  world = to_world · local.
 `bake` traces every probe with the lightmap's path tracer over the whole sphere
 (`tracer.sphere.ProbeEstimator`: same lights, bounces and light sets) into world-space radiance
-SH (DESIGN.md's basis and units). A probe whose rays mostly hit the back of triangles (inside a
-closed mesh, behind a wall's modelled side) is invalid: its share of front hits (rays that
+SH (docs/conventions.md#what-the-sh-store). A probe whose rays mostly hit the back of triangles
+(inside a closed mesh, behind a wall's modelled side) is invalid: its share of front hits (rays that
 escape count as front) is below the volume's Validity Threshold, EEVEE's own setting (0.4 by
 default). It takes the mean of its valid neighbours (`fill_invalid`), as engines do. `sample` interpolates a grid trilinearly between
 probe centres, clamped at the border, as EEVEE samples its volumes.
@@ -259,7 +259,7 @@ def write(staging, folder: Path, baked: list[BakedProbes]) -> dict:
         "format": PROBES_FORMAT,
         "format_version": PROBES_FORMAT_VERSION,
         "conventions": {
-            "sh": "world-space L2 radiance SH over the whole sphere, DESIGN.md basis (Y00, Y1-1, Y10, Y11, ...)",
+            "sh": "world-space L2 radiance SH over the whole sphere, basis of docs/conventions.md#sh-basis (Y00, Y1-1, Y10, Y11, ...)",
             "positions": "probe (x, y, z) at to_world · ((i + 0.5) / n · 2 − 1) per axis (EEVEE's cell centres)",
             "layout": "EXR row y + ny·z (top row first), column x",
         },

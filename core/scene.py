@@ -3,7 +3,7 @@
 Units follow Blender/Cycles (checked against Cycles' Diffuse bake in tests/test_bake_cycles.py):
   * radiance: W/(m²·sr) as Cycles emission and world strength (strength × colour);
   * sun: `irradiance` = strength × colour, W/m² on a surface facing it; our irradiance unit
-    (DESIGN.md, E = (1/π)∫L cos) is then S cosθ / π;
+    (docs/conventions.md#irradiance-units, E = (1/π)∫L cos) is then S cosθ / π;
   * point light: `power` = power × colour, W; a surface at distance d facing it gets
     E = P / (4π² d²) in our unit, i.e. its radiance SH is P/(4π d²) · Y(l). With a radius r it
     has radiance P / (4π² r²) over the cone it subtends: with Blender's default "soft falloff"

@@ -285,8 +285,9 @@ def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
 
 #: A way of reading a lightmap: points `xy (S, 2)` (texel units) -> a function of the unit vertex
-#: normal `n_v (S, 3)` and shading normal `n (S, 3)` there giving irradiance `(S, 3)` (DESIGN.md
-#: units). The filtered texels are read once per set of points, the normals applied after.
+#: normal `n_v (S, 3)` and shading normal `n (S, 3)` there giving irradiance `(S, 3)`
+#: (docs/conventions.md#irradiance-units). The filtered texels are read once per set of points, the
+#: normals applied after.
 Reader = Callable[[np.ndarray], Callable[[np.ndarray, np.ndarray], np.ndarray]]
 
 

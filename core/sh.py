@@ -1,14 +1,16 @@
 """Real L2 spherical harmonics in the project's convention. No bpy.
 
-Basis (DESIGN.md): 9 coefficients in (l, m) order (0,0),(1,-1),(1,0),(1,1),(2,-2),(2,-1),(2,0),(2,1),(2,2),
+Basis (docs/conventions.md#sh-basis): 9 coefficients in (l, m) order
+    (0,0),(1,-1),(1,0),(1,1),(2,-2),(2,-1),(2,0),(2,1),(2,2),
     Y1 ∝ (-y, z, -x),  Y2 ∝ (xy, -yz, 3z²-1, -xz, x²-y²),
 orthonormal over the sphere: the real SH with the Condon–Shortley phase (`sh_reference` builds
 them from associated Legendre functions and the tests compare).
 
 Array conventions: directions `(N, 3)` unit vectors; SH `(N, 9, C)` (C colour channels, usually
 3) or `(N, 9)`; the coefficient axis is axis 1. Stored SH is *radiance*; irradiance uses the
-normalisation of DESIGN.md, E(n) = (1/π) ∫ L(ω) max(n·ω, 0) dω, so that a white diffuse surface
-under radiance 1 has E = 1, and radiance SH becomes irradiance SH by scaling bands by 1, 2/3, 1/4.
+normalisation of docs/conventions.md#irradiance-units, E(n) = (1/π) ∫ L(ω) max(n·ω, 0) dω, so
+that a white diffuse surface under radiance 1 has E = 1, and radiance SH becomes irradiance SH by
+scaling bands by 1, 2/3, 1/4.
 """
 
 from __future__ import annotations
@@ -105,7 +107,8 @@ def evaluate_sh(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
 
 
 def irradiance(radiance_sh: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Irradiance E(n) (DESIGN.md units) of radiance SH at normals: `(N,9,C), (N,3) -> (N,C)`."""
+    """Irradiance E(n) (docs/conventions.md#irradiance-units) of radiance SH at normals:
+    `(N,9,C), (N,3) -> (N,C)`."""
     return evaluate_sh(convolve_cosine(_as_nkc(radiance_sh)), normals)
 
 

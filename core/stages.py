@@ -118,7 +118,8 @@ class TracedAtlas:
     """One atlas's traced radiance, compact over its P covered texels (order of `points.texel`).
 
     points: the BakePoints it was traced at (per-texel and per-triangle arrays, picklable);
-    sh (P, 9, 3) float64: world-space radiance L2 SH over the hemisphere of n_v (DESIGN.md),
+    sh (P, 9, 3) float64: world-space radiance L2 SH over the hemisphere of n_v
+    (docs/conventions.md#what-the-sh-store),
     0 for buried texels; sh_error (P, 9, 3) float32: standard error of `sh` from the spread
     between passes (0 where every pass agrees, or after a single pass); texel_samples (P,) int:
     hemisphere samples each texel took (they differ under a noise target or a time budget).

@@ -22,8 +22,9 @@ from .hhd import hemisphere_quadrature
 class DeltaLight:
     """A light from one direction (sun, small distant source).
 
-    direction (3,) unit, towards the light; irradiance (3,) RGB: the irradiance (DESIGN.md
-    units, E = (1/π)∫ L cos) it gives a surface facing it. Its radiance SH is π E Y(direction).
+    direction (3,) unit, towards the light; irradiance (3,) RGB: the irradiance
+    (docs/conventions.md#irradiance-units, E = (1/π)∫ L cos) it gives a surface facing it. Its
+    radiance SH is π E Y(direction).
     """
 
     direction: np.ndarray

@@ -93,7 +93,8 @@ class Fixture:
         return np.concatenate([p.triangles() for p in self.parts])
 
     def full(self, normal: np.ndarray) -> np.ndarray:
-        """(P,) the irradiance (DESIGN.md units) of a fully lit texel of unit normal (P, 3)."""
+        """(P,) the irradiance (docs/conventions.md#irradiance-units) of a fully lit texel of unit
+        normal (P, 3)."""
         return self.sun[2] * np.maximum(normal @ self.sun_direction, 0.0) / math.pi
 
     def expect(self, centre: np.ndarray, normal: np.ndarray, texel: np.ndarray, shadowed) -> np.ndarray:
@@ -247,7 +248,7 @@ def texel_centres(points) -> np.ndarray:
 
 
 def expected(fixture: Fixture, points) -> np.ndarray:
-    """(P,) exact I_z per texel (NaN: none), DESIGN.md units."""
+    """(P,) exact I_z per texel (NaN: none), units of docs/conventions.md#irradiance-units."""
     from hhd_lightmapper.core.rays import RayScene
 
     scene = RayScene(fixture.triangles())

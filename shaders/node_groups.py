@@ -3,7 +3,7 @@
 The inputs that take baked data are named after the layers of the channel spec each preview mode
 samples (`core.encoding.preview`), so shaders/preview.py links every preview image to the input
 of its layer's name. Groups (all output `Irradiance` and `Radiance` = Albedo × Irradiance, in
-DESIGN.md units):
+the units of docs/conventions.md#irradiance-units):
   "HHD Lightmap" / "AHD Lightmap": inputs Iz, Wa (colour; equal channels in luminance mode),
       Direction (octahedral X, Y in the vector's x, y), Normal (shading), Vertex Normal, Albedo,
       Self Bounce (0/1). The formula and octahedral decode are docs/format.md's, d·n_v floored at
@@ -131,7 +131,7 @@ def hhd_irradiance(b: Builder, iz, wa, d, n, nv, albedo, self_bounce, model: str
     """I(n) of the HHD (or AHD) model as nodes, docs/format.md and core.hhd.reconstruct:
     Iz ⊙ [wa·(1 + n·n_v)/2 + (1 − wa)·max(n·d, 0)/max(d·n_v, MIN_COS/2)] + self_bounce·albedo ⊙ Iz·(1 − n·n_v)/2.
     iz, wa, albedo: colours (wa equal channels in luminance mode); d, n, nv: unit world vectors;
-    self_bounce: 0/1. Returns the irradiance colour socket (DESIGN.md units)."""
+    self_bounce: 0/1. Returns the irradiance colour socket (docs/conventions.md#irradiance-units)."""
     n_nv = b.vec("DOT_PRODUCT", n, nv)
     dnv = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), 0.5 * float(hhd.MIN_COS))
     directional = b.math("DIVIDE", b.math("MAXIMUM", b.vec("DOT_PRODUCT", n, d), 0.0), dnv)

@@ -2,7 +2,7 @@
 with the talk's HLSH hemisphere / cone multiply (core.hlsh), built by code from core's maths.
 
 Inputs (all world space):
-  SH0 … SH8   the object's radiance SH (DESIGN.md basis and units), one RGB colour each; the
+  SH0 … SH8   the object's radiance SH (docs/conventions.md#sh-basis), one RGB colour each; the
               preview reads them per object (Attribute nodes of type OBJECT, shaders/probe_preview.py)
   Normal      the shading normal n (normal maps), Geometry Normal the normal N the hemisphere
               or cone is taken around (the interpolated vertex normal)
@@ -13,7 +13,8 @@ Inputs (all world space):
               1 HLSH: core.hlsh.project(sh, N, 0).evaluate(n) (hemisphere of N);
               2 HLSH + cone: core.hlsh.project(sh, N, cos α).evaluate(n)
   Albedo      the base colour
-Outputs: Irradiance (DESIGN.md units, not clamped, as numpy) and Radiance = Albedo × Irradiance.
+Outputs: Irradiance (docs/conventions.md#irradiance-units, not clamped, as numpy) and
+Radiance = Albedo × Irradiance.
 
 `project_hlsh` ports `core.hlsh.project` term by term (world space, no SH rotation); colours are
 carried through vector math nodes, one channel per component. Its intermediate sockets are

@@ -1,6 +1,7 @@
 """Bake the same receivers with our tracer and with Cycles' Diffuse bake (Direct + Indirect,
-Color off: irradiance in DESIGN.md's unit) and compare I_z texel by texel, with a tolerance
-derived from both estimators' measured noise. The scenes are built with scenekit/blender.py."""
+Color off: irradiance in the unit of docs/conventions.md#irradiance-units) and compare I_z texel by
+texel, with a tolerance derived from both estimators' measured noise. The scenes are built with
+scenekit/blender.py."""
 
 import numpy as np
 

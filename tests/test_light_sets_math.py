@@ -60,7 +60,8 @@ def quadrature_linear_sh(ca, cd, d, n_v):
 
 
 def exact_irradiance(ca, cd, d, n_v, n):
-    """Irradiance (DESIGN.md units) of the lighting at normals n: C_a (1 + n·n_v)/2 + C_d max(n·d, 0)."""
+    """Irradiance (docs/conventions.md#irradiance-units) of the lighting at normals n:
+    C_a (1 + n·n_v)/2 + C_d max(n·d, 0)."""
     cos_nv = np.einsum("ni,ni->n", n, n_v)[:, None]
     return ca * 0.5 * (1.0 + cos_nv) + cd * np.maximum(np.einsum("ni,ni->n", n, d), 0.0)[:, None]
 

@@ -234,7 +234,8 @@ STAIRCASE = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "stairca
 
 @pytest.mark.slow
 def test_a_shared_scene_selected_whole_shares_no_texel(extension, tmp_path):
-    """staircase2 (27 objects, 31k polygons, a real .blend from ../shared/scenes), every mesh
+    """staircase2 (27 objects, 31k polygons, a real .blend of the external scenes,
+    docs/conventions.md#external-scenes), every mesh
     selected, unwrapped at 1024²: no texel shared between objects or charts."""
     import bpy
 

@@ -1,6 +1,6 @@
 """The conventions every file of an atlas follows, as the sidecar states them. No bpy.
 
-The same text as docs/format.md and ../shared/DESIGN.md, with the constants taken from where
+The same text as docs/format.md and docs/conventions.md, with the constants taken from where
 they are defined (the encoder's direction cone, Rec.709 luminance).
 """
 

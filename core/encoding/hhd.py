@@ -21,7 +21,7 @@ IZ = Channel(
     "Iz",
     tuple("RGB"),
     HALF_OR_FLOAT,
-    "I_z: irradiance at the vertex normal n_v, linear RGB, DESIGN.md units (albedo × I = radiance)",
+    "I_z: irradiance at the vertex normal n_v, linear RGB, I = (1/π) ∫ L max(n·ω, 0) dω (albedo × I = radiance)",
     fill=DILATE_BURIED_BLACK,
     preview="iz",
 )

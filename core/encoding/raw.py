@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from .spec import DILATE_BURIED_BLACK, FLOAT, NO_FILL, Channel, FileSpec
 
-#: SH0 … SH8: radiance SH coefficient k in DESIGN.md's order, RGB.
+#: SH0 … SH8: radiance SH coefficient k in the order of docs/conventions.md#sh-basis, RGB.
 SH_LAYERS = tuple(
     Channel(
         f"SH{k}",

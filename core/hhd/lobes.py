@@ -4,9 +4,9 @@ Model, with n_v the vertex normal, n the shading normal, d the highlight directi
     HHD  I(n) = I_z [ w_a (1 + n·n_v)/2 + (1 - w_a) max(n·d, 0) / (d·n_v) ]
     AHD  I(n) = I_z [ w_a               + (1 - w_a) max(n·d, 0) / (d·n_v) ]
 i.e. C_a = w_a I_z and C_d = (1 - w_a) I_z / (d·n_v). I(n_v) = I_z exactly in both.
-Irradiance is in DESIGN.md units: E(n) = (1/π) ∫ L max(n·ω, 0) dω. Lobes are irradiance SH in the
-local frame z = n_v; the directional lobe also in the factorised form d_j = f_j(θ) g_j(φ) the
-search evaluates (`theta_functions`, `phi_factors`).
+Irradiance is in the units of docs/conventions.md#irradiance-units: E(n) = (1/π) ∫ L max(n·ω, 0) dω.
+Lobes are irradiance SH in the local frame z = n_v; the directional lobe also in the factorised
+form d_j = f_j(θ) g_j(φ) the search evaluates (`theta_functions`, `phi_factors`).
 """
 
 from __future__ import annotations
