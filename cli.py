@@ -5,8 +5,10 @@ point works with the `bpy` module from Python, without a Blender executable:
 
     python -m hhd_lightmapper.cli scene.blend bake --out lightmaps
 
-(`standalone` opens the .blend and registers the add-on first). Exit codes are stable, so build
-scripts can tell failures apart: see EXIT_* below; every failure prints one line saying why.
+(`standalone` parses the command line, then opens the .blend and registers the add-on). `--help`,
+at the top or after a command, lists every command and option without a .blend. Exit codes are
+stable, so build scripts can tell failures apart: see EXIT_* below; every failure prints one line
+saying why.
 """
 
 from __future__ import annotations
@@ -46,21 +48,110 @@ def _thread_count(text: str) -> int:
     return value
 
 
-def _parser() -> argparse.ArgumentParser:
+BLENDER_PROG = f"blender -b FILE.blend --command {COMMAND}"  # main(), registered with Blender
+STANDALONE_PROG = "python -m hhd_lightmapper.cli FILE.blend"  # standalone(), under the bpy module
+
+#: Every exit code with its meaning, for the help's epilog (the EXIT_* constants above).
+EXIT_CODES = (
+    (EXIT_OK, "ok: the command finished (its summary is the last line on stdout)"),
+    (EXIT_INPUT, "input: the scene or the options cannot be baked as given (the message names what)"),
+    (EXIT_USAGE, "usage: bad command line (unknown command or option, invalid value, no FILE.blend)"),
+    (EXIT_DEPENDENCY, "dependency: a compiled package (embreex, xatlas, OpenEXR), or Dask for --scheduler, is missing"),
+    (EXIT_OUTPUT, "output: the output files could not be written (previous files are intact)"),
+    (EXIT_CANCELLED, "cancelled: interrupted (Ctrl-C); no output file was replaced"),
+    (EXIT_INTERNAL, "internal error: a bug; the traceback is printed (please report it)"),
+)
+
+
+def _setting(name: str) -> dict:
+    """The keywords properties.py declares scene setting `name` with (name, default, min, max,
+    items, description), read from the class's annotation: no registration or .blend needed, so
+    the help quotes the settings' real ranges and defaults."""
+    from .properties import HHDSettings
+
+    return HHDSettings.__annotations__[name].keywords
+
+
+def _new_scene_value(name: str) -> str:
+    """Setting `name`'s value in a new scene, as the command line would spell it."""
+    value = _setting(name)["default"]
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if isinstance(value, str):
+        return value.lower() if "items" in _setting(name) else (value or "empty")
+    return f"{value:g}"
+
+
+def _default(name: str, unit: str = "") -> str:
+    """'default: the scene's <Label> setting, <value> in a new scene': an option left out keeps the
+    .blend's own setting."""
+    value = _new_scene_value(name)
+    return f"default: the scene's {_setting(name)['name']} setting, {value}{unit} in a new scene"
+
+
+def _span(name: str, unit: str = "") -> str:
+    """The range properties.py allows for setting `name`: '4–65536' or '≥ 0'."""
+    keywords = _setting(name)
+    low, high = keywords.get("min"), keywords.get("max")
+    if high is None:
+        return f"≥ {low:g}{unit}"
+    return f"{low:g}–{high:g}{unit}"
+
+
+def _choices(name: str, choices) -> str:
+    """'a: what a does; b: what b does' for the choices of enum setting `name` (its items' descriptions)."""
+    described = {key.lower(): text for key, _label, text in _setting(name)["items"]}
+    return "; ".join(f"{c}: {described[c][:1].lower()}{described[c][1:]}" if c in described else c for c in choices)
+
+
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the description's and epilog's lines (the calling forms, the exit-code table) as
+    written; option help is wrapped as usual, but never inside a hyphenated word such as an
+    option's name (--noise-target)."""
+
+    def _split_lines(self, text, width):
+        import textwrap
+
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False)
+
+
+def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
+    """The command line of both entry points; `prog` names the one in use (BLENDER_PROG or
+    STANDALONE_PROG). Every option says what it does, its unit or range, and its default."""
+    exit_codes = "exit codes:\n" + "\n".join(f"  {code:>3}  {text}" for code, text in EXIT_CODES)
     p = argparse.ArgumentParser(
-        prog=f"blender -b FILE.blend --command {COMMAND}",
-        description="HHD Lightmapper: unwrap, bake and encode directional lightmaps.",
+        prog=prog,
+        formatter_class=_HelpFormatter,
+        description="HHD Lightmapper: unwrap, bake and encode directional lightmaps of a .blend, headless.\n"
+        "\n"
+        "Run it with Blender, the extension installed and enabled:\n"
+        f"  {BLENDER_PROG} COMMAND [options]\n"
+        "or with the bpy module from Python (no Blender executable needed):\n"
+        f"  {STANDALONE_PROG} COMMAND [options]\n"
+        "\n"
+        "Options override the .blend's HHD Lightmapper settings for this run only (--save keeps them);\n"
+        "an option left out keeps the .blend's setting. COMMAND --help lists a command's options.",
+        epilog=exit_codes,
     )
-    sub = p.add_subparsers(dest="action", required=True)
+    sub = p.add_subparsers(dest="action", required=True, title="commands")
+
+    def command(name: str, text: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=text, description=text, epilog=exit_codes, formatter_class=_HelpFormatter)
 
     def receivers(q):
         q.add_argument(
             "--objects",
             nargs="+",
             metavar="NAME",
-            help="receiver objects (default: the scene's Receivers setting: the saved selection or collection)",
+            help="receiver objects, by name (mesh objects only; wins over --collection) (default: the scene's "
+            "Receivers setting: the selection saved in the .blend, or its receiver collection)",
         )
-        q.add_argument("--collection", metavar="NAME", help="receivers: the mesh objects of this collection")
+        q.add_argument(
+            "--collection",
+            metavar="NAME",
+            help="receivers: the mesh objects of this collection, child collections included (default: the "
+            "scene's Receivers setting)",
+        )
 
     def threads(q):
         q.add_argument(
@@ -68,15 +159,34 @@ def _parser() -> argparse.ArgumentParser:
             type=_thread_count,
             default=None,
             metavar="N",
-            help="worker threads, 0 = every core this process may use (default: the scene's "
+            help="worker threads, ≥ 0; 0 = every core this process may use (default: the scene's "
             "Render > Performance > Threads, as a headless Cycles render; Auto = every core)",
         )
 
     def encoder(q):
-        q.add_argument("--model", choices=list(encoding.MODELS))
-        q.add_argument("--direction", choices=list(encoding.DIRECTIONS))
-        q.add_argument("--ambient", choices=list(encoding.AMBIENTS))
-        q.add_argument("--phi-search", action="store_true", default=None)
+        q.add_argument(
+            "--model",
+            choices=list(encoding.MODELS),
+            help=f"the encoding written: {_choices('model', encoding.MODELS)} ({_default('model')})",
+        )
+        q.add_argument(
+            "--direction",
+            choices=list(encoding.DIRECTIONS),
+            help=f"how the highlight direction is found: {_choices('direction', encoding.DIRECTIONS)} "
+            f"({_default('direction')})",
+        )
+        q.add_argument(
+            "--ambient",
+            choices=list(encoding.AMBIENTS),
+            help=f"ambient weight: {_choices('ambient', encoding.AMBIENTS)} ({_default('ambient')})",
+        )
+        q.add_argument(
+            "--phi-search",
+            action="store_true",
+            default=None,
+            help="also search the highlight direction's azimuth (slower, slightly lower error) "
+            f"({_default('phi_search')})",
+        )
 
     def denoise(q, what, default):
         q.add_argument(
@@ -84,7 +194,8 @@ def _parser() -> argparse.ArgumentParser:
             action=argparse.BooleanOptionalAction,
             default=None,
             help=f"{what} the SH denoised with Open Image Denoise's lightmap filter (Blender's own "
-            f"library), or not (default: {default}); the SH EXR always keeps the SH as traced",
+            f"library), or not (default: {default}, {_new_scene_value('denoise')} in a new scene); the SH "
+            "EXR always keeps the SH as traced",
         )
 
     def stitch(q, what):
@@ -94,65 +205,146 @@ def _parser() -> argparse.ArgumentParser:
             action=argparse.BooleanOptionalAction,
             default=None,
             help=f"{what} the SH stitched along the UV seams of smooth surfaces, so no line shows where a "
-            "surface is split between charts, or not (default: the scene's Stitch Seams setting)",
+            f"surface is split between charts, or not ({_default('stitch_seams')})",
         )
 
-    q = sub.add_parser("unwrap", help="xatlas lightmap UVs for the receivers")
-    receivers(q)
-    q.add_argument("--resolution", type=int)
-    q.add_argument("--texel-density", type=float)
-    q.add_argument("--make-single-user", action="store_true")
-    q.add_argument("--save", action="store_true", help="save the .blend afterwards (keeps the UVs)")
+    def out(q, what):
+        q.add_argument(
+            "--out",
+            metavar="DIR",
+            help=f"{what}; // at the start = relative to the .blend ({_default('output_dir')})",
+        )
 
-    q = sub.add_parser("bake", help="trace, encode and write the lightmap files")
+    def resolution(q, what):
+        q.add_argument(
+            "--resolution",
+            type=int,
+            metavar="TEXELS",
+            help=f"atlas width and height in texels, {_span('resolution')}: {what} ({_default('resolution')})",
+        )
+
+    def texel_density(q, what):
+        q.add_argument(
+            "--texel-density",
+            type=float,
+            metavar="PER_METRE",
+            help=f"texels per metre, {_span('texel_density')}, {what}; 0 = use --resolution instead "
+            f"({_default('texel_density')})",
+        )
+
+    q = command("unwrap", "xatlas lightmap UVs for the receivers")
+    receivers(q)
+    resolution(q, "the size of every atlas when the texel density is 0")
+    texel_density(q, "sizing each atlas to its surface area")
+    q.add_argument(
+        "--make-single-user",
+        action="store_true",
+        help="give linked duplicates (objects sharing one mesh) their own mesh first; without it the unwrap "
+        "refuses them, as one UV layer cannot give them separate texels (default: off)",
+    )
+    q.add_argument(
+        "--save",
+        action="store_true",
+        help="save the .blend afterwards, keeping the UVs and this run's settings (default: off: the .blend "
+        "on disk is left as it was)",
+    )
+
+    q = command("bake", "trace, encode and write the lightmap files")
     receivers(q)
     encoder(q)
-    q.add_argument("--out", metavar="DIR", help="output folder (default: the scene's Output Folder)")
-    q.add_argument("--preset", choices=[k.lower() for k in presets.PRESETS])
-    q.add_argument("--samples", type=int)
-    q.add_argument("--bounces", type=int)
+    out(q, "output folder")
+    names = ", ".join(
+        f"{k.lower()} ({p.samples} samples, {p.bounces} bounce{'s' * (p.bounces != 1)}, "
+        f"{'denoised' if p.denoise else 'not denoised'})"
+        for k, p in presets.PRESETS.items()
+    )
+    q.add_argument(
+        "--preset",
+        choices=[k.lower() for k in presets.PRESETS],
+        help=f"quality preset, setting --samples, --bounces, --noise-target and --denoise (any of them given "
+        f"as well overrides it): {names}; README: Speed vs accuracy (default: none: the scene's own "
+        "Samples, Bounces, Noise Target and Denoise settings)",
+    )
+    q.add_argument(
+        "--samples",
+        type=int,
+        metavar="N",
+        help=f"hemisphere samples per texel (the most a texel takes with --noise-target), {_span('samples')} "
+        f"({_default('samples')})",
+    )
+    q.add_argument(
+        "--bounces",
+        type=int,
+        metavar="N",
+        help=f"diffuse interreflection bounces after the first hit, {_span('bounces')} ({_default('bounces')})",
+    )
     q.add_argument(
         "--noise-target",
         type=float,
         metavar="PERCENT",
-        help="stop a texel once the standard error of its irradiance is below PERCENT of it",
+        help="stop a texel once the standard error of its irradiance is below PERCENT of it, "
+        f"{_span('noise_target')}; 0 = every texel takes every sample ({_default('noise_target')})",
     )
-    q.add_argument("--time-budget", type=float, metavar="SECONDS", help="stop tracing after SECONDS")
-    q.add_argument("--seed", type=int)
+    q.add_argument(
+        "--time-budget",
+        type=float,
+        metavar="SECONDS",
+        help=f"stop tracing after SECONDS, {_span('time_budget')} (the first pass always completes); "
+        f"0 = no limit ({_default('time_budget', ' s')})",
+    )
+    q.add_argument(
+        "--seed",
+        type=int,
+        metavar="N",
+        help=f"random seed, {_span('seed')}: the same seed gives the same bake ({_default('seed')})",
+    )
     denoise(q, "encode", "the --preset's, else the scene's Denoise setting")
     stitch(q, "encode")
-    q.add_argument("--unwrap", action="store_true", help="unwrap the receivers first")
-    q.add_argument("--resolution", type=int, help="atlas size for --unwrap")
-    q.add_argument("--texel-density", type=float, help="texels per metre for --unwrap")
-    q.add_argument("--save", action="store_true", help="save the .blend afterwards (keeps the loaded images)")
+    q.add_argument(
+        "--unwrap",
+        action="store_true",
+        help="unwrap the receivers first, as the unwrap command does (linked duplicates are refused) "
+        "(default: off: bake the lightmap UVs the objects have)",
+    )
+    resolution(
+        q,
+        "for --unwrap when the texel density is 0, and the atlas size of receivers whose lightmap UVs "
+        "were not made by this add-on's unwrap",
+    )
+    texel_density(q, "for --unwrap")
+    q.add_argument(
+        "--save",
+        action="store_true",
+        help="save the .blend afterwards, keeping the loaded images and this run's settings (default: off)",
+    )
     q.add_argument(
         "--scheduler",
         metavar="tcp://HOST:PORT",
         help="trace on the Dask cluster of this scheduler (docs/farm.md): the same files as a local bake; "
-        "finished tasks are kept in the output folder's .hhd_farm, so the same command resumes",
+        "finished tasks are kept in the output folder's .hhd_farm, so the same command resumes "
+        "(default: the scene's Dask Scheduler setting; empty, as in a new scene: bake on this machine)",
     )
     threads(q)
 
-    q = sub.add_parser("encode", help="re-encode a finished bake from its SH EXR (no tracing)")
+    q = command("encode", "re-encode a finished bake from its SH EXR (no tracing)")
     receivers(q)
     encoder(q)
-    q.add_argument("--out", metavar="DIR", help="folder of the bake (default: the scene's Output Folder)")
+    out(q, "folder of the bake")
     denoise(q, "re-encode", "the scene's Denoise setting")
     stitch(q, "re-encode")
     threads(q)
 
-    q = sub.add_parser(
-        "blend", help="write the blended state of the light sets into each atlas's lightmap (no tracing)"
-    )
+    q = command("blend", "write the blended state of the light sets into each atlas's lightmap (no tracing)")
     receivers(q)
-    q.add_argument("--out", metavar="DIR", help="folder of the bake (default: the scene's Output Folder)")
+    out(q, "folder of the bake")
     q.add_argument(
         "--weights",
         nargs="+",
         type=_weight,
         default=[],
         metavar="NAME=W",
-        help="a light set's weight, W a number or R,G,B (≥ 0); sets not given keep the scene's weight (else 1)",
+        help="a light set's weight, W a number or R,G,B (≥ 0; 1 = as baked, 0 = off) (default: none given: "
+        "every set keeps the scene's weight, else 1)",
     )
     return p
 
@@ -280,11 +472,32 @@ def _blend(context, args) -> str:
 
 
 def main(argv: list[str]) -> int:
-    """Run one command; returns the exit code (never raises)."""
+    """Run one command on the open .blend; returns the exit code (never raises). Blender's entry
+    point (`blender -b FILE.blend --command hhd_lightmapper ...`): `--help` prints the help."""
+    args = _parse(_parser(BLENDER_PROG), argv)
+    return args if isinstance(args, int) else _run(args)
+
+
+def _commands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """The commands of `parser`, by name: its subparsers."""
+    (action,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return action.choices
+
+
+def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace | int:
+    """The parsed command line, or the exit code once argparse has printed the help (EXIT_OK) or
+    a usage error (EXIT_USAGE). No arguments at all print the full help, as a usage error."""
+    if not argv:
+        parser.print_help(sys.stderr)
+        return EXIT_USAGE
     try:
-        args = _parser().parse_args(argv)
+        return parser.parse_args(argv)
     except SystemExit as exc:
         return EXIT_USAGE if exc.code else EXIT_OK
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Run the parsed command on the open .blend; returns the exit code (never raises)."""
     context = bpy.context
     start = time.perf_counter()
     try:
@@ -315,10 +528,20 @@ def _fail(code: int, message) -> int:
 
 
 def standalone(argv: list[str]) -> int:
-    """`python -m hhd_lightmapper.cli FILE.blend <command> ...` under the bpy module."""
-    if not argv or not argv[0].endswith(".blend"):
-        print("usage: python -m hhd_lightmapper.cli FILE.blend {unwrap,bake,encode} ...", file=sys.stderr)
-        return EXIT_USAGE
+    """`python -m hhd_lightmapper.cli FILE.blend <command> ...` under the bpy module. The command
+    line is parsed before the .blend is opened: `--help` (with or without FILE.blend, at the top or
+    after a command) and usage errors never open a file."""
+    parser = _parser(STANDALONE_PROG)
+    has_blend = bool(argv) and argv[0].endswith(".blend")
+    if argv and not has_blend and not argv[0].startswith("-") and argv[0] not in _commands(parser):
+        parser.print_usage(sys.stderr)  # a file that is not a .blend, or a misspelt command
+        return _fail(EXIT_USAGE, f"expected FILE.blend or a command first, got {argv[0]!r}")
+    args = _parse(parser, argv[1:] if has_blend else argv)
+    if isinstance(args, int):
+        return args
+    if not has_blend:
+        parser.print_usage(sys.stderr)
+        return _fail(EXIT_USAGE, "the first argument must be the .blend file to open (FILE.blend)")
     try:
         bpy.ops.wm.open_mainfile(filepath=argv[0])
     except RuntimeError as exc:
@@ -327,7 +550,7 @@ def standalone(argv: list[str]) -> int:
 
     hhd_lightmapper.register()
     try:
-        return main(argv[1:])
+        return _run(args)
     finally:
         hhd_lightmapper.unregister()
 
