@@ -87,5 +87,10 @@ oidn-weights: setup
 bench: setup
 	$(PY) bench/encoder.py
 
+# docs/results.md and the README's headline table from bench/results/*.json (--check: up to date?)
+.PHONY: results
+results: setup
+	$(PY) tools/results_doc.py
+
 clean:
 	rm -rf $(VENV) $(VENV_OLD) dist out build wheels *.egg-info .pytest_cache .ruff_cache .mypy_cache oidn_weights/*.tza

@@ -296,7 +296,7 @@ class Paths:
     def irradiance_at(
         self, rng: np.random.Generator, x: np.ndarray, n: np.ndarray, strata: _lights.Strata = 1
     ) -> np.ndarray:
-        """Next-event estimate of the irradiance (R, C) (DESIGN units, E/π·π = outgoing radiance
+        """Next-event estimate of the irradiance (R, C) (docs/conventions.md units, E/π·π = outgoing radiance
         per unit albedo; C: 3 per light set) at surface points x (R, 3) with unit normals n (R, 3)
         from every light (one of the point, spot and area lights: `light_samples`), one shadow
         ray per light sampled and point; MIS against cosine sampling at x. strata: where the
