@@ -1,10 +1,14 @@
 # Two commands on a fresh machine with Python 3.13 and 3.11 (see README):
 #   make demo   - create .venv (Python 3.13, bpy 5.3.0) with the pinned packages, bake the
 #                 embedded demo into out/demo/
-#   make test   - the test suite against the newest and the oldest supported Blender: bpy 5.3.0
-#                 in .venv (Python 3.13), then bpy 4.2 LTS in .venv-4.2 (Python 3.11); each
-#                 builds and installs the extension into an isolated Blender user directory
-#                 first. Fails if either fails. This is what .ci/run calls (after `make check`).
+#   make test   - the test suite against the newest and the oldest supported Blender, side by
+#                 side: every test on bpy 5.3.0 in .venv (Python 3.13), and on bpy 4.2 LTS in
+#                 .venv-4.2 (Python 3.11) every test that touches Blender plus the fast core
+#                 tests (SUITE_OLD_MARKERS; markers in pyproject.toml). Each suite builds its
+#                 platform's zip and installs it into an isolated Blender user directory first.
+#                 Fails if either fails; the suites' times go to out/test-times/. This is what
+#                 .ci/run calls (after `make check` and `make package`).
+#   make test-core - the quick loop: the tests that need no Blender, in .venv
 #   make check  - ruff (lint + format check) over the repository and mypy over core/, with the
 #                 versions pinned in requirements-check.txt (installed into .venv)
 # PYTHON / PYTHON_OLD pick the interpreters; by default python3.13 / python3.11 on PATH or pyenv's.
@@ -15,8 +19,12 @@ VENV_OLD   := .venv-4.2
 PY         := $(VENV)/bin/python
 PY_OLD     := $(VENV_OLD)/bin/python
 PYTEST_ARGS ?=
+# pytest's own report of the slowest tests, in every suite `make test` runs
+PYTEST_REPORT := --durations=25
+# bpy 4.2 LTS: what touches Blender, plus the core tests that are not heavy (those run on 5.3)
+SUITE_OLD_MARKERS := bpy or not (statistical or farm or slow)
 
-.PHONY: setup setup-4.2 setup-check check demo test test-new test-old test-fast package oidn-weights bench clean
+.PHONY: setup setup-4.2 setup-check check demo test test-new test-old test-core test-fast test-deps package oidn-weights bench clean
 
 setup: $(VENV)/.installed
 setup-4.2: $(VENV_OLD)/.installed
@@ -56,26 +64,37 @@ check: setup setup-check
 demo: setup
 	$(PY) tools/demo.py --out out/demo
 
-# Both suites always run; the target fails if either failed.
-test: setup setup-4.2
-	@status=0; \
-	start=$$(date +%s); \
+# Both suites always run, side by side (most tests use one core: together they keep both busy);
+# the 4.2 suite's output follows the 5.3 suite's. The target fails if either failed.
+test: setup setup-4.2 test-deps
+	@status=0; rm -rf out/test-times; mkdir -p out/test-times; start=$$(date +%s); \
+	echo "== bpy 4.2 LTS (Python 3.11), in the background: $(PY_OLD) -m pytest -m \"$(SUITE_OLD_MARKERS)\""; \
+	( $(PY_OLD) -m pytest -q -m "$(SUITE_OLD_MARKERS)" $(PYTEST_REPORT) $(PYTEST_ARGS) \
+	  > out/test-times/bpy-4.2.log 2>&1; echo $$? > out/test-times/bpy-4.2.status ) & old=$$!; \
 	echo "== bpy 5.3.0 (Python 3.13): $(PY) -m pytest"; \
-	$(PY) -m pytest -q $(PYTEST_ARGS) || status=1; \
-	mid=$$(date +%s); echo "== bpy 5.3.0 suite: $$((mid - start)) s"; \
-	echo "== bpy 4.2 LTS (Python 3.11): $(PY_OLD) -m pytest"; \
-	$(PY_OLD) -m pytest -q $(PYTEST_ARGS) || status=1; \
-	end=$$(date +%s); echo "== bpy 4.2 suite: $$((end - mid)) s"; \
+	$(PY) -m pytest -q $(PYTEST_REPORT) $(PYTEST_ARGS) || status=1; \
+	echo "== bpy 5.3.0 suite: $$(( $$(date +%s) - start )) s"; \
+	wait $$old; cat out/test-times/bpy-4.2.log; \
+	test "$$(cat out/test-times/bpy-4.2.status)" = 0 || status=1; \
+	$(PY) tools/test_times.py --wall $$(( $$(date +%s) - start )) || status=1; \
 	exit $$status
+
+# What both suites would otherwise fetch at once: the running platform's wheels and OIDN's weights.
+test-deps: setup
+	$(PY) tools/fetch_wheels.py --platform $$($(PY) tools/build_extension.py --print-platform)
+	$(PY) tools/fetch_oidn_weights.py
 
 test-new: setup
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
 test-old: setup-4.2
-	$(PY_OLD) -m pytest -q $(PYTEST_ARGS)
+	$(PY_OLD) -m pytest -q -m "$(SUITE_OLD_MARKERS)" $(PYTEST_ARGS)
+
+test-core: setup
+	$(PY) -m pytest -q -m "not bpy" $(PYTEST_ARGS)
 
 test-fast: setup
-	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+	$(PY) -m pytest -q -m "not (slow or statistical or farm or install)" $(PYTEST_ARGS)
 
 package: setup
 	$(PY) tools/build_extension.py --output-dir dist

@@ -61,6 +61,7 @@ import pickle
 import platform
 import re
 import shutil
+import socket
 import sys
 import time
 import types
@@ -508,6 +509,25 @@ def max_passes(settings: BakeSettings) -> int:
 # ---- the client -------------------------------------------------------------------------------
 
 
+def _probe(address: str, timeout: float) -> None:
+    """BakeError at once when a tcp:// scheduler address cannot be reached because nothing
+    listens there or the host is unknown: Dask's client would retry until its `timeout`. Any
+    other outcome (it answers, or does not answer in time) is left to the client."""
+    scheme, sep, rest = address.rpartition("://")
+    host, colon, port = rest.rpartition(":")
+    if (sep and scheme != "tcp") or not colon:
+        return  # another protocol, or Dask's default port
+    try:
+        with socket.create_connection((host.strip("[]") or "127.0.0.1", int(port)), timeout=min(timeout, 5.0)):
+            return
+    except ValueError:
+        raise BakeError(f"cannot reach the Dask scheduler at {address}: expected tcp://HOST:PORT") from None
+    except (ConnectionRefusedError, socket.gaierror) as exc:
+        raise BakeError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
+    except OSError:
+        return
+
+
 def connect(address: str, chunks_per_task: int = CHUNKS_PER_TASK, timeout: float = 30.0) -> Farm:
     """A Farm on the Dask scheduler at `address` (e.g. tcp://host:8786), after checking that at
     least one worker is there and every worker's `environment()` matches this process's (else
@@ -522,6 +542,7 @@ def connect(address: str, chunks_per_task: int = CHUNKS_PER_TASK, timeout: float
             "reinstall the extension from the zip for this platform (Blender installs an extension's wheels when it "
             f"enables it; 4.2.13 or newer), or {INSTALL_HINT}"
         ) from None
+    _probe(address, timeout)
     try:
         client = distributed.Client(address, timeout=timeout, set_as_default=False)
     except (OSError, TimeoutError) as exc:

@@ -9,6 +9,7 @@ and enables it through Blender's extension machinery, exactly as a user's Blende
 import os
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,66 @@ sys.path.insert(0, str(ROOT))  # scenekit, the shared test/bench scenes
 EXTENSION_MODULE = "bl_ext.user_default.hhd_lightmapper"
 
 
+IMPLY_BPY = ("cycles", "eevee", "install")
+
+
+def pytest_collection_modifyitems(config, items):
+    """A test that uses the installed extension runs inside Blender: it is marked `bpy` whether
+    or not its module says so. `cycles`, `eevee` and `install` without `bpy` are refused: the
+    LTS suite selects Blender's tests by `bpy` alone (Makefile)."""
+    for item in items:
+        if "extension" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.bpy)
+        marks = {m.name for m in item.iter_markers()}
+        wrong = [m for m in IMPLY_BPY if m in marks and "bpy" not in marks]
+        if wrong:
+            raise pytest.UsageError(f"{item.nodeid}: marked {wrong} but not bpy")
+
+
+class SuiteClock:
+    """Each test's time (setup + call + teardown, seconds) and outcome, written at the end of
+    the session to out/test-times/<label>.json (label: bpy's version, or `core` without bpy):
+    `make test` prints the suites' totals from these files."""
+
+    def __init__(self):
+        self.start = time.time()
+        self.tests: dict[str, dict] = {}
+
+    def pytest_runtest_logreport(self, report):
+        entry = self.tests.setdefault(report.nodeid, {"seconds": 0.0, "outcome": "passed"})
+        entry["seconds"] += report.duration
+        if report.failed:
+            entry["outcome"] = "failed"
+        elif report.skipped and entry["outcome"] == "passed":
+            entry["outcome"] = "skipped"
+
+    def pytest_sessionfinish(self, session, exitstatus):
+        import json
+
+        if not self.tests or hasattr(session.config, "workerinput"):
+            return
+        label = "bpy-" + ".".join(map(str, sys.modules["bpy"].app.version)) if "bpy" in sys.modules else "core"
+        outcomes = [t["outcome"] for t in self.tests.values()]
+        slowest = sorted(self.tests.items(), key=lambda kv: -kv[1]["seconds"])
+        record = {
+            "suite": label,
+            "python": ".".join(map(str, sys.version_info[:3])),
+            "markers": session.config.option.markexpr or "",
+            "wall_seconds": round(time.time() - self.start, 1),
+            "tests": len(self.tests),
+            **{k: outcomes.count(k) for k in ("passed", "failed", "skipped")},
+            "slowest": [{"test": k, "seconds": round(v["seconds"], 2)} for k, v in slowest[:25]],
+            "all": {k: round(v["seconds"], 3) for k, v in sorted(self.tests.items())},
+        }
+        folder = ROOT / "out" / "test-times"
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / f"{label}.json").write_text(json.dumps(record, indent=1) + "\n")
+
+
+def pytest_configure(config):
+    config.pluginmanager.register(SuiteClock(), "hhd_suite_clock")
+
+
 def pytest_unconfigure(config):
     """The isolated user configuration goes with the session (the installed extension in it is
     hundreds of megabytes; a machine running the suite often would fill its disk)."""
@@ -32,32 +93,23 @@ def pytest_unconfigure(config):
     shutil.rmtree(USER_RESOURCES, ignore_errors=True)
 
 
-def this_platform() -> str:
-    """Blender's platform name for the running machine, e.g. 'linux-x64'."""
-    import platform
-
-    system = {"Linux": "linux", "Darwin": "macos", "Windows": "windows"}[platform.system()]
-    arch = {"x86_64": "x64", "AMD64": "x64", "arm64": "arm64", "aarch64": "arm64"}[platform.machine()]
-    return f"{system}-{arch}"
-
-
 @pytest.fixture(scope="session")
-def built_zips(tmp_path_factory):
-    """Every platform's validated extension zip, built by Blender's extension tool."""
+def extension_zip(tmp_path_factory) -> Path:
+    """The running platform's extension zip, built and validated by Blender's extension tool
+    (tools/build_extension.py; `make package` builds and checks every platform's)."""
     import build_extension
 
-    return build_extension.build(tmp_path_factory.mktemp("dist"))
+    (zip_path,) = build_extension.build(tmp_path_factory.mktemp("dist"), platform=build_extension.this_platform())
+    return zip_path
 
 
 @pytest.fixture(scope="session")
-def extension(built_zips):
+def extension(extension_zip):
     """The extension installed from its zip into the isolated user repo and enabled."""
     import bpy
 
-    tag = this_platform().replace("-", "_")
-    zip_path = next(z for z in built_zips if z.stem.endswith(tag))
     result = bpy.ops.extensions.package_install_files(
-        filepath=str(zip_path), repo="user_default", enable_on_install=True
+        filepath=str(extension_zip), repo="user_default", enable_on_install=True
     )
     assert result == {"FINISHED"}
     assert EXTENSION_MODULE in bpy.context.preferences.addons
@@ -79,6 +131,28 @@ def oidn_weights() -> list[Path]:
         return fetch_oidn_weights.fetch()
     except (SystemExit, subprocess.CalledProcessError, OSError) as e:
         pytest.skip(f"OIDN lightmap weights unavailable (tools/fetch_oidn_weights.py: {e})")
+
+
+@pytest.fixture
+def cli_run(extension, capfd):
+    """The command line run in this process: `run(BLEND, *ARGS)` opens BLEND and calls
+    `cli.main(ARGS)`, as `python -m hhd_lightmapper.cli BLEND ARGS` does in a process of its own,
+    and returns (returncode, stdout, stderr) like subprocess.run. For the tests where the process
+    boundary is not what is tested (signals and import isolation keep their subprocesses)."""
+    import types
+
+    import bpy
+
+    from hhd_lightmapper import cli
+
+    def run(blend, *args):
+        capfd.readouterr()
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        code = cli.main([str(a) for a in args])
+        out, err = capfd.readouterr()
+        return types.SimpleNamespace(returncode=code, stdout=out, stderr=err)
+
+    return run
 
 
 @pytest.fixture

@@ -67,6 +67,7 @@ def test_the_spherical_rectangles_solid_angle_is_the_closed_form_and_its_points_
     assert (p[:, 1] >= -0.5 - 1e-12).all() and (p[:, 1] <= 0.5 + 1e-12).all()
 
 
+@pytest.mark.statistical
 @pytest.mark.parametrize("shape", ["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"])
 def test_next_event_estimate_is_unbiased_against_lamberts_formula_up_to_the_lamp(shape):
     light, k = lamp(shape), 200_000

@@ -14,7 +14,7 @@ from hhd_lightmapper import blender_compat
 from hhd_lightmapper.core import bakepoints
 from scenekit import blender as kit
 
-pytestmark = [pytest.mark.bpy, pytest.mark.slow]
+pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.slow]
 
 
 @pytest.fixture(autouse=True)

@@ -231,6 +231,7 @@ def read(path) -> dict:
     return {k: v.tobytes() for k, v in exr.read(path)[0].items()}
 
 
+@pytest.mark.slow
 def test_denoised_bake_keeps_the_raw_sh_and_reencode_switches_denoising_off_and_on(tmp_path, library, denoiser):  # noqa: F811
     surface, scene = plane()
     atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
@@ -360,6 +361,7 @@ def banded_atlas() -> encoding.TexelData:
     return replace(data, noise=noise)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("band_rows", [16, 48, 96])
 def test_a_page_denoised_in_bands_has_the_whole_pages_bits(denoiser, monkeypatch, band_rows):  # noqa: F811
     """Bands of 16 to 96 rows (the first bands' context reaching the page's top, box sums and the

@@ -42,6 +42,7 @@ def reference_and_lean(data: encoding.TexelData, denoiser):  # noqa: F811
 # A band's rows reach BAND_OVERLAP + FILL_BLUR + FILL_RINGS = 114 rows above its core: a texel is
 # written once no later band reads its row. 48 rows: bands shorter than that, texels held back
 # over several bands; 128: the top 114 rows of each band held back until the next is built.
+@pytest.mark.slow
 @pytest.mark.parametrize("band_rows", [48, 128])
 def test_a_banded_page_denoised_in_place_has_the_copys_bits(denoiser, monkeypatch, band_rows):  # noqa: F811
     """The tall L chart (the fill's page mean used), a black chart (-0), a buried patch, NaN and
@@ -60,6 +61,7 @@ def test_a_banded_page_denoised_in_place_has_the_copys_bits(denoiser, monkeypatc
     assert changed[data.coverage > 0].mean() > 0.9  # the filter ran: bits differ from the traced ones
 
 
+@pytest.mark.slow
 def test_a_multi_page_atlas_denoised_in_place_has_the_copys_bits(denoiser, monkeypatch):  # noqa: F811
     """Pages of several brightness bands, small whole pages and a banded one, black and
     non-finite texels, buried texels and the noise clamp."""
@@ -99,6 +101,7 @@ def test_a_multi_page_atlas_denoised_in_place_has_the_copys_bits(denoiser, monke
     np.testing.assert_array_equal(bits(lean.sh), bits(reference.sh))
 
 
+@pytest.mark.slow
 def test_no_page_sized_copy_of_the_traced_sh_is_held(denoiser, monkeypatch):  # noqa: F811
     """Peak of numpy's allocations (tracemalloc) while a banded page (5 bands) is denoised in
     place, against the same page denoised whole (`BAND_TEXELS` large): the banded run's peak is

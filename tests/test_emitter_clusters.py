@@ -71,6 +71,7 @@ SCENES = {
 }
 
 
+@pytest.mark.statistical
 @pytest.mark.parametrize("normal", [None, (0.6, 0.0, 0.8)])
 @pytest.mark.parametrize("scene", SCENES)
 def test_picked_triangles_follow_the_reported_density(normal, scene):

@@ -22,6 +22,8 @@ from hhd_lightmapper.core.scene import BakeScene, PointLight, SunLight
 from scenekit import meshes
 from test_oidn import bpy_library_dirs
 
+pytestmark = pytest.mark.farm  # Dask clusters of local processes
+
 distributed = pytest.importorskip("distributed")
 
 SIZE = 128

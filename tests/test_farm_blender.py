@@ -20,7 +20,7 @@ import pytest
 from hhd_lightmapper import cli
 from scenekit import blender as kit
 
-pytestmark = pytest.mark.bpy
+pytestmark = [pytest.mark.bpy, pytest.mark.farm]
 distributed = pytest.importorskip("distributed")
 
 
@@ -92,15 +92,6 @@ def blend(extension, restore_hhd_settings, tmp_path):
     return path
 
 
-def run_cli(blend, *args):
-    return subprocess.run(
-        [sys.executable, "-m", "hhd_lightmapper.cli", str(blend), *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-
-
 def exr_bytes(folder: Path) -> dict:
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*.exr"))}
 
@@ -118,8 +109,9 @@ def without_run_details(doc: dict) -> dict:
 
 
 @pytest.mark.slow
-def test_bake_with_scheduler_writes_the_files_of_the_local_bake(dask_cluster, blend, tmp_path):
+def test_bake_with_scheduler_writes_the_files_of_the_local_bake(dask_cluster, blend, cli_run, tmp_path):
     args = ("--objects", "Floor", "Cube", "--threads", "2")
+    run_cli = cli_run
     local = run_cli(blend, "bake", "--out", str(tmp_path / "local"), *args)
     assert local.returncode == cli.EXIT_OK, local.stderr
     remote = run_cli(blend, "bake", "--out", str(tmp_path / "farm"), "--scheduler", dask_cluster, *args)
@@ -133,8 +125,11 @@ def test_bake_with_scheduler_writes_the_files_of_the_local_bake(dask_cluster, bl
     assert not (tmp_path / "farm" / ".hhd_farm").exists()
 
 
-def test_scheduler_refuses_a_time_budget_and_names_an_unreachable_scheduler(blend, tmp_path):
+def test_scheduler_refuses_a_time_budget_and_names_an_unreachable_scheduler(blend, cli_run, tmp_path):
+    """Refused at once: nothing listens on port 9, so the connection is refused (no retrying
+    until Dask's timeout)."""
     args = ("bake", "--out", str(tmp_path / "out"), "--objects", "Floor", "Cube")
+    run_cli = cli_run
     budget = run_cli(blend, *args, "--scheduler", "tcp://127.0.0.1:9", "--time-budget", "10")
     assert budget.returncode == cli.EXIT_INPUT
     assert "time budget cannot be used with --scheduler" in budget.stderr

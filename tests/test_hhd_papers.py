@@ -105,6 +105,7 @@ def test_linear_sh_solve_reads_a_bakes_sh_directly(rng):
     np.testing.assert_allclose(p.ambient_weight, 0.7 / iz, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_searched_hemispherical_beats_optimal_linear_spherical_on_real_environments(rng):
     n = synthetic.random_normals(rng, 300)
     for env in synthetic.benchmark_set():

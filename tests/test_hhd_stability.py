@@ -187,6 +187,7 @@ def hemisphere_max(values_fn, s, n, p):
 OVERSHOOT_BOUND = {"luminance": 1.5, "rgb": 1.15}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ambient", ["luminance", "rgb"])
 def test_reconstruction_stays_within_the_documented_bound(ambient):
     rng = np.random.default_rng(6)

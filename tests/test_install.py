@@ -32,9 +32,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import this_platform
-
-pytestmark = [pytest.mark.bpy, pytest.mark.slow]
+pytestmark = [pytest.mark.bpy, pytest.mark.install, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parent.parent
 TRY = ROOT / "tools" / "try_install.py"
 ENVS = {"5.3": ROOT / ".venv", "4.2": ROOT / ".venv-4.2"}
@@ -86,8 +84,8 @@ def iz_image(folder: Path, python: str) -> np.ndarray:
     return np.load(target)
 
 
-def test_zip_installs_enables_and_bakes_in_a_bpy_only_environment(built_zips, tmp_path):
-    zip_path = next(z for z in built_zips if z.stem.endswith(this_platform().replace("-", "_")))
+def test_zip_installs_enables_and_bakes_in_a_bpy_only_environment(extension_zip, tmp_path):
+    zip_path = extension_zip
     python = bare_env()
     check = subprocess.run(
         [
@@ -259,14 +257,14 @@ def exr_bytes(folder: Path) -> dict:
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*.exr"))}
 
 
-def test_the_zips_own_dask_bakes_on_a_farm_what_the_local_bake_writes(built_zips, tmp_path):
+def test_the_zips_own_dask_bakes_on_a_farm_what_the_local_bake_writes(extension_zip, tmp_path):
     """`blender -b FILE --command hhd_lightmapper bake --scheduler tcp://…` on a Blender whose
     Python has no Dask: the installed extension's command line, in the bpy-only environment,
     bakes without and with `--scheduler` (tools/try_install.py --scheduler)."""
     distributed = pytest.importorskip(
         "distributed", reason="the farm's workers run this environment: pip install '.[farm]'"
     )
-    zip_path = next(z for z in built_zips if z.stem.endswith(this_platform().replace("-", "_")))
+    zip_path = extension_zip
     python = bare_env()
     absent = subprocess.run(
         [

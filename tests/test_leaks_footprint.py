@@ -100,6 +100,7 @@ def test_other_triangles_list_every_overlap_of_a_texel_largest_first(m, monkeypa
         assert list(others[row]) == expect
 
 
+@pytest.mark.statistical
 def test_samples_cover_the_whole_footprint_over_the_texels_triangles():
     """On an unwrapped UV sphere (many texels straddle triangle edges), every sample origin lies
     in one of its texel's triangles and inside the texel, and over the fully covered texels that

@@ -14,7 +14,7 @@ from conftest import EXTENSION_MODULE
 from hhd_lightmapper.core import bakepoints, exr, light_sets, lightmap_files
 from scenekit import blender as kit
 
-pytestmark = [pytest.mark.bpy, pytest.mark.slow]
+pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.slow]
 
 SAMPLES, BOUNCES = 32, 1
 #: (w_A, w_B): an RGB weight on the warm lamp, a scalar one on the cool lamp

@@ -31,7 +31,7 @@ from hhd_lightmapper.core.lightmap_files import AtlasFiles, write_atlas
 from scenekit import blender as kit
 from test_preview_eevee import normal_mapped_material, read_rgb, render, render_inputs, texel_corners
 
-pytestmark = pytest.mark.bpy
+pytestmark = [pytest.mark.bpy, pytest.mark.eevee]
 ATLAS = "Lightmap"  # bridge.bake_session.DEFAULT_ATLAS: the atlas of objects never unwrapped
 SETS = ("Lamp", "Sky")
 RES = 32

@@ -143,6 +143,7 @@ def test_hdr_values_beyond_half_are_stored_as_float_not_clipped(tmp_path):
     assert json.loads(files.sidecar.read_text())["channels"]["hhd"]["Iz.R"]["type"] == "float"
 
 
+@pytest.mark.slow
 def test_reencode_reads_the_sh_exr_and_changes_only_the_encoded_file(tmp_path):
     files = plane_bake(tmp_path)
     sh_before, texels_before = files.sh.read_bytes(), files.texels.read_bytes()

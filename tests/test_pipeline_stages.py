@@ -4,6 +4,7 @@ receives the atlas's texel images; `trace_surface` is stages 1–2 of `run`."""
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from hhd_lightmapper.core import bake, bakepoints, denoise, encoding, exr, lightmap_files, post, seams, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
@@ -133,6 +134,7 @@ def sphere():
     return surface, scene
 
 
+@pytest.mark.slow
 def test_a_stitched_bake_keeps_the_traced_files_and_reencodes_to_the_same_bytes(tmp_path):
     """Stitching changes only the encoding: the raw SH and texel files are those of the
     unstitched bake, and a re-encode of either bake with stitching on gives the stitched bake's
@@ -176,6 +178,7 @@ class FailingDenoiser:
         return self.real.denoise(image, directional=directional, input_scale=input_scale)
 
 
+@pytest.mark.slow
 def test_a_denoiser_failing_half_way_gives_the_undenoised_bake(tmp_path, monkeypatch, library, denoiser):  # noqa: F811
     """The bake denoises in place with nothing of the traced SH kept (its raw files are written
     first); OIDN failing after part of the atlas is written puts the traced SH back from the

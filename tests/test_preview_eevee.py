@@ -20,7 +20,7 @@ from hhd_lightmapper.core import exr, hhd, octahedral
 from hhd_lightmapper.core.textures import sample_bilinear
 from scenekit import blender as kit
 
-pytestmark = pytest.mark.bpy
+pytestmark = [pytest.mark.bpy, pytest.mark.eevee]
 AOVS = ("luv", "n", "nv", "albedo")
 
 

@@ -34,7 +34,7 @@ from hhd_lightmapper.core import exr, hlsh, probes, sh
 from scenekit import blender as kit
 from test_preview_eevee import normal_mapped_material
 
-pytestmark = pytest.mark.bpy
+pytestmark = [pytest.mark.bpy, pytest.mark.eevee]
 MODES = {"SH": 0, "HLSH": 1, "HLSH_CONE": 2}
 
 

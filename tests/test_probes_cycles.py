@@ -33,7 +33,7 @@ import pytest
 from hhd_lightmapper.core import probes, sh, tracer
 from scenekit import blender as kit
 
-pytestmark = [pytest.mark.bpy, pytest.mark.slow]
+pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.slow]
 CUBE = 0.002
 IMAGE = 32
 DIRECTIONS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)

@@ -82,6 +82,7 @@ def without_run_details(doc):
     return doc
 
 
+@pytest.mark.slow
 def test_one_thread_and_many_write_byte_identical_files(tmp_path):
     one = bake_with(tmp_path / "one", 1)
     many = bake_with(tmp_path / "many", MANY)

@@ -139,6 +139,7 @@ def test_environment_sampling_density_is_normalised_and_consistent():
     assert near_sun.mean() > 0.5
 
 
+@pytest.mark.statistical
 def test_hdri_world_bake_matches_quadrature_of_the_environment():
     """A plane under an HDRI sky with a tiny bright sun: MIS of environment and hemisphere
     sampling is unbiased (mean SH within 4 standard errors of a fine quadrature of the image)
@@ -161,6 +162,7 @@ def test_hdri_world_bake_matches_quadrature_of_the_environment():
     assert (iz.std(axis=0) / iz.mean(axis=0)).max() < 0.5  # per-texel noise at 32 spp
 
 
+@pytest.mark.statistical
 def test_emissive_triangles_are_light_sampled_without_bias():
     """A small emissive quad above the floor: the MIS bake's SH match a fine quadrature over the
     quad (per texel, within 4 standard errors), and are far less noisy than when the quad is
@@ -189,6 +191,7 @@ def test_emissive_triangles_are_light_sampled_without_bias():
     assert np.median(relative_noise) < 0.05, np.median(relative_noise)
 
 
+@pytest.mark.statistical
 @pytest.mark.parametrize("power, reference", [(0.5, 0.5), (0.5, 1.0), (1.0, 1.0)])
 def test_roulette_keeps_a_glowing_closed_box_unbiased(monkeypatch, power, reference):
     """Inside a closed box whose every face emits radiance 1 and reflects 0.6, the radiance
@@ -224,6 +227,7 @@ def luminance_iz(result, points):
     return hhd.irradz(result.sh, points.normal) @ hhd.LUMINANCE
 
 
+@pytest.mark.statistical
 def test_noise_target_stops_converged_texels_and_meets_the_target():
     points, scene = occluded_floor_scene()
     open_ = ~points.buried
@@ -246,6 +250,7 @@ def test_noise_target_stops_converged_texels_and_meets_the_target():
     assert np.sqrt(np.mean(relative[slow] ** 2)) < np.sqrt(np.mean(fixed_rel[slow] ** 2))
 
 
+@pytest.mark.slow
 def test_noise_target_is_deterministic_whatever_the_thread_count():
     points, scene = occluded_floor_scene()
     settings = dict(samples=256, bounces=1, noise_target=0.05, chunk_texels=4096)
@@ -270,6 +275,7 @@ def test_noise_target_on_black_and_constant_texels_stops_at_the_minimum():
     assert furnace.stopped_by == "noise_target" and np.isfinite(furnace.sh).all()
 
 
+@pytest.mark.slow
 def test_time_budget_stops_after_the_first_pass_with_an_estimate_everywhere():
     points, scene = occluded_floor_scene()
     result = tracer.bake(points, scene, tracer.BakeSettings(samples=1 << 20, bounces=1, time_budget=0.5))

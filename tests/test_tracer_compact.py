@@ -168,6 +168,7 @@ def test_bake_run_writes_the_files_of_the_full_trace(tmp_path):
     assert files(tmp_path / "run") == files(tmp_path / "full") and len(files(tmp_path / "run")) == 3 * 4
 
 
+@pytest.mark.slow
 def test_bake_run_frees_each_atlas_once_its_files_are_written(tmp_path, monkeypatch):
     """When an atlas is traced, the bake points and traced SH of the atlases before it are gone
     (no reference left: `bake.run` drops them once their files are written), light sets or not."""

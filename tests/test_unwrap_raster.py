@@ -57,6 +57,7 @@ def unwrapped(mesh_fn, resolution=256, **kw):
     return v, f, result
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mesh_fn", [meshes.plane, meshes.cube, meshes.uv_sphere, meshes.slivers])
 def test_raster_matches_the_slow_clipping_reference(mesh_fn):
     v, f, result = unwrapped(mesh_fn)
@@ -99,6 +100,7 @@ def test_bake_points_cover_every_texel_and_lie_on_the_surface(mesh_fn):
     assert (np.einsum("pi,pi->p", pts.normal, pts.face_normal) >= 0).all()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mesh_fn", [meshes.cube, meshes.uv_sphere])
 @pytest.mark.parametrize("footprint", [0.5, 1.0])
 def test_sample_origins_cover_the_footprint_of_the_texel_inside_its_triangle(mesh_fn, footprint, monkeypatch):
@@ -395,6 +397,7 @@ def spheres(count, radius=0.3):
     return [unwrap.UnwrapMesh(f"s{k}", v + [k * 2.0, 0.0, 0.0], f) for k in range(count)]
 
 
+@pytest.mark.slow
 def test_charts_that_need_more_than_one_atlas_spill_into_several_of_the_same_size():
     objs = spheres(40)
     one = unwrap.unwrap(objs[:1], unwrap.UnwrapSettings(resolution=256, padding=8))

@@ -145,7 +145,7 @@ def test_cancel_leaves_the_blend_and_the_previous_files_unchanged(baked_scene):
     assert {p: p.read_bytes() for p in (folder / "lightmaps").rglob("*") if p.is_file()} == files
 
 
-def run_cli(blend, *args, env=None, **kw):
+def run_cli_process(blend, *args, env=None, **kw):
     return subprocess.run(
         [sys.executable, "-m", "hhd_lightmapper.cli", str(blend), *args],
         capture_output=True,
@@ -157,9 +157,12 @@ def run_cli(blend, *args, env=None, **kw):
 
 
 @pytest.mark.slow
-def test_command_line_exit_codes(baked_scene, tmp_path):
+def test_command_line_exit_codes(baked_scene, cli_run, tmp_path):
+    """Exit codes and messages, in this process (`cli_run`); a missing dependency and SIGINT in
+    a process of their own (import isolation, signals)."""
     scene, receivers, folder = baked_scene
     blend = folder / "scene.blend"
+    run_cli = cli_run
     ok = run_cli(blend, "bake", "--out", str(tmp_path / "cli"), "--objects", "Floor", "Cube", "--preset", "draft")
     assert ok.returncode == cli.EXIT_OK, ok.stderr
     assert "[100.0%]" in ok.stdout and (tmp_path / "cli" / "Lightmap_hhd.exr").is_file()
@@ -200,7 +203,9 @@ def test_command_line_exit_codes(baked_scene, tmp_path):
     blocked.mkdir()
     (blocked / "OpenEXR.py").write_text("raise ImportError('blocked by the test')\n")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(blocked), os.environ.get("PYTHONPATH", "")]))
-    nodep = run_cli(blend, "bake", "--out", str(tmp_path / "nodep"), "--objects", "Floor", "--samples", "2", env=env)
+    nodep = run_cli_process(
+        blend, "bake", "--out", str(tmp_path / "nodep"), "--objects", "Floor", "--samples", "2", env=env
+    )
     assert nodep.returncode == cli.EXIT_DEPENDENCY and "'OpenEXR'" in nodep.stderr
 
     # Started with SIGINT ignored, as a shell without job control (CI) starts background commands:
@@ -271,7 +276,7 @@ def test_command_line_refuses_a_negative_thread_count(baked_scene, capsys):
 
 
 @pytest.mark.slow
-def test_command_line_threads_follow_the_scene_or_the_flag_and_files_are_identical(baked_scene, tmp_path):
+def test_command_line_threads_follow_the_scene_or_the_flag_and_files_are_identical(baked_scene, cli_run, tmp_path):
     import bpy
 
     from hhd_lightmapper.core import parallel
@@ -281,6 +286,7 @@ def test_command_line_threads_follow_the_scene_or_the_flag_and_files_are_identic
     blend = folder / "scene.blend"
     bpy.ops.wm.save_mainfile()
     args = ("--objects", "Floor", "Cube", "--preset", "draft")
+    run_cli = cli_run
     default = run_cli(blend, "bake", "--out", str(tmp_path / "default"), *args)
     assert default.returncode == cli.EXIT_OK, default.stderr
     every = run_cli(blend, "bake", "--out", str(tmp_path / "every"), "--threads", "0", *args)
