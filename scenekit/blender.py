@@ -35,12 +35,16 @@ def clear_data(worlds: bool = False) -> None:
 
 def clear_scene():
     """An empty scene for the tests: no world, Cycles on the CPU without adaptive sampling or
-    denoising, the lightmap settings at LAYER / RES in one shared atlas. Returns the scene."""
+    denoising, every core (Render > Performance > Threads: Auto), the lightmap settings at
+    LAYER / RES in one shared atlas and no light sets listed (a .blend an earlier test opened
+    may have left them). Returns the scene."""
     import bpy
 
     clear_data()
     scene = bpy.context.scene
     scene.world = None
+    scene.render.threads_mode = 'AUTO'
+    scene.hhd.light_sets.clear()
     scene.render.engine = 'CYCLES'
     scene.cycles.device = 'CPU'
     scene.cycles.use_adaptive_sampling = False
@@ -273,10 +277,12 @@ def select(objs):
     bpy.context.view_layer.objects.active = objs[0]
 
 
-def unwrap(receivers):
-    """Select `receivers` and run the add-on's Unwrap on them (the scene's HHD settings)."""
+def unwrap(receivers, texel_density: float = 0.0):
+    """Select `receivers` and run the add-on's Unwrap on them (the scene's HHD settings; a
+    `texel_density` in texels per metre replaces the fixed Resolution)."""
     import bpy
 
+    bpy.context.scene.hhd.texel_density = texel_density
     select(receivers)
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
 

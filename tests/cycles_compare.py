@@ -5,7 +5,7 @@ scenekit/blender.py."""
 
 import numpy as np
 
-from scenekit.blender import LAYER, RES, select
+from scenekit.blender import LAYER, select
 
 
 def cycles_footprint() -> float:
@@ -16,7 +16,21 @@ def cycles_footprint() -> float:
     return 1.0 if bpy.app.version >= (5, 2, 1) else 0.5
 
 
+def atlas_size(receivers) -> tuple[int, int]:
+    """(width, height) of the atlas the receivers were unwrapped into (one for all)."""
+    sizes = {(o.hhd.atlas_width, o.hhd.atlas_height) for o in receivers}
+    assert len(sizes) == 1, sizes
+    return sizes.pop()
+
+
 def ours(receivers, samples, bounces, seed):
+    """(bake points, I_z (P, 3), the traced atlas) of our bake of `receivers` with `seed`."""
+    return ours_seeds(receivers, samples, bounces, (seed,))[0]
+
+
+def ours_seeds(receivers, samples, bounces, seeds):
+    """`ours` for each of `seeds`: the scene is read and the bake points are built once, and
+    traced once per seed (the traces are what differ between seeds)."""
     import bpy
 
     from hhd_lightmapper.bridge import mesh_data, scene_data
@@ -25,9 +39,18 @@ def ours(receivers, samples, bounces, seed):
     depsgraph = bpy.context.evaluated_depsgraph_get()
     surface = mesh_data.read_surface(receivers, LAYER, depsgraph)
     scene = scene_data.read_bake_scene(depsgraph)
-    settings = tracer.BakeSettings(samples=samples, pass_samples=16, bounces=bounces, seed=seed)
-    traced = bake.trace_surface(surface, RES, RES, scene, settings)
-    return traced.points, hhd.irradz(traced.sh, traced.points.normal), traced
+    ray_scene = bake.ray_scene_of(scene)
+    width, height = atlas_size(receivers)
+    atlas = bake.AtlasInput(
+        "atlas", width, height, surface, [str(k) for k in range(int(surface.object_index.max()) + 1)]
+    )
+    points = bake.points_of(atlas, ray_scene)
+    runs = []
+    for seed in seeds:
+        settings = tracer.BakeSettings(samples=samples, pass_samples=16, bounces=bounces, seed=seed)
+        traced = tracer.bake(points, scene, settings, ray_scene=ray_scene)
+        runs.append((traced.points, hhd.irradz(traced.sh, traced.points.normal), traced))
+    return runs
 
 
 def cycles(receivers, points, samples, bounces, seed):
@@ -40,7 +63,10 @@ def cycles(receivers, points, samples, bounces, seed):
     scene.cycles.diffuse_bounces = bounces
     scene.cycles.glossy_bounces = scene.cycles.transmission_bounces = 0
     scene.cycles.sample_clamp_direct = scene.cycles.sample_clamp_indirect = 0.0
-    image = bpy.data.images.get("cycles_bake") or bpy.data.images.new("cycles_bake", RES, RES, float_buffer=True)
+    width, height = atlas_size(receivers)
+    image = bpy.data.images.get("cycles_bake")
+    if image is None or tuple(image.size) != (width, height):
+        image = bpy.data.images.new("cycles_bake", width, height, float_buffer=True)
     for obj in receivers:
         for mat in obj.data.materials:
             node = mat.node_tree.nodes.get("hhd_bake_target") or mat.node_tree.nodes.new("ShaderNodeTexImage")
@@ -49,14 +75,13 @@ def cycles(receivers, points, samples, bounces, seed):
             mat.node_tree.nodes.active = node
     select(receivers)
     bpy.ops.object.bake(type='DIFFUSE', pass_filter={'DIRECT', 'INDIRECT'}, margin=0, use_clear=True, uv_layer=LAYER)
-    px = np.array(image.pixels[:], dtype=np.float64).reshape(RES * RES, 4)[:, :3]
+    px = np.array(image.pixels[:], dtype=np.float64).reshape(width * height, 4)[:, :3]
     return px[points.texel]
 
 
 def compare(receivers, samples=64, bounces=1, cycles_samples=64):
     """(mean I_z, bias, residual RMS, expected RMS from noise) over fully covered texels."""
-    points, o1, _ = ours(receivers, samples, bounces, seed=1)
-    _, o2, _ = ours(receivers, samples, bounces, seed=2)
+    (points, o1, _), (_, o2, _) = ours_seeds(receivers, samples, bounces, (1, 2))
     c1 = cycles(receivers, points, cycles_samples, bounces, seed=1)
     c2 = cycles(receivers, points, cycles_samples, bounces, seed=2)
     keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
