@@ -6,6 +6,7 @@ Blender config. The `extension` fixture builds the package with Blender's own to
 and enables it through Blender's extension machinery, exactly as a user's Blender would.
 """
 
+import contextlib
 import os
 import sys
 import tempfile
@@ -155,10 +156,9 @@ def cli_run(extension, capfd):
     return run
 
 
-@pytest.fixture
-def restore_hhd_settings(extension):
-    """Puts the scene's HHD settings back after the test: the bpy scene outlives a test, and a
-    later test may rely on the defaults (e.g. the Output Folder `//lightmaps`)."""
+@contextlib.contextmanager
+def hhd_settings_restored():
+    """The scene's HHD settings as they were before the block, after it."""
     import bpy
 
     settings = bpy.context.scene.hhd
@@ -169,7 +169,17 @@ def restore_hhd_settings(extension):
     ]
     keys.sort(key=lambda k: k == "preset")  # the preset last: it may set the knobs again, the same
     before = {k: getattr(settings, k) for k in keys}
-    yield
-    settings = bpy.context.scene.hhd
-    for key in keys:
-        setattr(settings, key, before[key])
+    try:
+        yield
+    finally:
+        settings = bpy.context.scene.hhd
+        for key in keys:
+            setattr(settings, key, before[key])
+
+
+@pytest.fixture
+def restore_hhd_settings(extension):
+    """Puts the scene's HHD settings back after the test: the bpy scene outlives a test, and a
+    later test may rely on the defaults (e.g. the Output Folder `//lightmaps`)."""
+    with hhd_settings_restored():
+        yield

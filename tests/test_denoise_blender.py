@@ -7,6 +7,7 @@ without tracing; a Blender without the library bakes undenoised and says so."""
 
 import importlib
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -23,10 +24,9 @@ pytestmark = pytest.mark.bpy
 NOT_FOUND = "Open Image Denoise library not found in this Blender"
 
 
-@pytest.fixture
-def scene(extension, oidn_weights, restore_hhd_settings, tmp_path):
+def build_scene(folder: Path):
     """Floor + cube under a sun and a sky, unwrapped at 256², 8 samples and 1 bounce (noisy, so the
-    denoiser has work), receivers selected, saved as tmp_path/scene.blend with Denoise on."""
+    denoiser has work), receivers selected, saved as folder/scene.blend with Denoise on."""
     import bpy
 
     scene = kit.clear_scene()
@@ -37,11 +37,40 @@ def scene(extension, oidn_weights, restore_hhd_settings, tmp_path):
     kit.unwrap([floor, cube])
     s = scene.hhd
     s.preset = 'PRODUCTION'
-    s.samples, s.bounces, s.seed, s.output_dir, s.pack_images = 8, 1, 0, str(tmp_path / "lightmaps"), False
+    s.samples, s.bounces, s.seed, s.output_dir, s.pack_images = 8, 1, 0, str(folder / "lightmaps"), False
     assert s.preset == 'CUSTOM' and s.denoise
     kit.select([floor, cube])
-    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
-    return scene, tmp_path
+    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "scene.blend"))
+    return scene
+
+
+@pytest.fixture
+def scene(extension, oidn_weights, restore_hhd_settings, tmp_path):
+    """`build_scene` in tmp_path: (scene, tmp_path)."""
+    return build_scene(tmp_path), tmp_path
+
+
+@pytest.fixture(scope="module")
+def on_and_off(extension, oidn_weights, tmp_path_factory):
+    """`build_scene` baked once with Denoise on into on/ and once off into off/: {'on': files,
+    'off': files, 'summary': {'on': …, 'off': …}} (the panel's bake summaries). Shared by the
+    tests of this module: copy a folder (`copied`) before changing it."""
+    from conftest import hhd_settings_restored
+
+    folder = tmp_path_factory.mktemp("denoise")
+    with hhd_settings_restored():
+        scene = build_scene(folder)
+        baked = {"summary": {}}
+        for name, denoise in (("on", True), ("off", False)):
+            baked[name] = bake(scene, folder / name, denoise)
+            baked["summary"][name] = scene.hhd.bake_summary
+    return baked
+
+
+def copied(files: lightmap_files.AtlasFiles, folder: Path) -> lightmap_files.AtlasFiles:
+    """A copy of the bake `files` in `folder`."""
+    shutil.copytree(files.folder, folder)
+    return lightmap_files.AtlasFiles(folder, files.name)
 
 
 def bake(scene, folder: Path, denoise: bool) -> lightmap_files.AtlasFiles:
@@ -83,14 +112,12 @@ def without_library(monkeypatch) -> None:
         monkeypatch.setattr(importlib.import_module(f"{package}.bridge.denoiser"), "oidn_library", lambda: "")
 
 
-def test_denoised_bake_filters_the_encoding_and_keeps_the_raw_sh(scene):
+def test_denoised_bake_filters_the_encoding_and_keeps_the_raw_sh(on_and_off):
     """Denoise on: the sidecar records OIDN's run, the HHD file is of the filtered SH (less
     texel-to-texel noise, the same mean light), the raw SH and texel files are the traced ones."""
-    scene, folder = scene
-    on = bake(scene, folder / "on", True)
-    assert ", denoised (" in scene.hhd.bake_summary
-    off = bake(scene, folder / "off", False)
-    assert ", not denoised (" in scene.hhd.bake_summary
+    on, off = on_and_off["on"], on_and_off["off"]
+    assert ", denoised (" in on_and_off["summary"]["on"]
+    assert ", not denoised (" in on_and_off["summary"]["off"]
 
     r = record(on)
     assert r["enabled"] and r["applied"] and "warning" not in r
@@ -109,12 +136,11 @@ def test_denoised_bake_filters_the_encoding_and_keeps_the_raw_sh(scene):
     assert abs(clean[baked].mean() / noisy[baked].mean() - 1.0) < 0.02  # measured 0.0002
 
 
-def test_reencode_switches_denoising_off_and_on_without_tracing(scene):
+def test_reencode_switches_denoising_off_and_on_without_tracing(scene, on_and_off):
     """Re-encode with Denoise off gives the undenoised bake's HHD file, with it on the denoised
     one (the raw SH file and the sidecar's bake record untouched)."""
     scene, folder = scene
-    off = bake(scene, folder / "off", False)
-    on = bake(scene, folder / "on", True)
+    off, on = copied(on_and_off["off"], folder / "off"), copied(on_and_off["on"], folder / "on")
     denoised, undenoised, sh = on.hhd.read_bytes(), off.hhd.read_bytes(), on.sh.read_bytes()
     bake_record = lightmap_files.read_sidecar(on.sidecar)["bake"]
     reencode(scene, on, False)
