@@ -15,7 +15,7 @@
   environment (no Dask of its own) the installed extension's command line bakes the scene without
   importing Dask, then with `--scheduler` on a LocalCluster of this suite's environment (another
   process, 127.0.0.1), importing `dask.distributed` from the wheels Blender installed, and the
-  files are byte-identical.
+  files are byte-identical. One install of the zip serves the operators' bake and these.
 """
 
 import collections
@@ -84,8 +84,14 @@ def iz_image(folder: Path, python: str) -> np.ndarray:
     return np.load(target)
 
 
-def test_zip_installs_enables_and_bakes_in_a_bpy_only_environment(extension_zip, tmp_path):
-    zip_path = extension_zip
+def test_zip_installs_enables_and_bakes_in_a_bpy_only_environment_and_its_own_dask_on_a_farm(extension_zip, tmp_path):
+    """In the bpy-only environment (tools/try_install.py --scheduler), one install of the zip:
+    Unwrap + Bake through the operators; then `blender -b FILE --command hhd_lightmapper bake`
+    (the installed extension's command line) on a Blender whose Python has no Dask, without and
+    with `--scheduler`, Dask coming from the zip's wheels: the files are byte-identical. The
+    operators' bake also matches the same scene baked through this environment's CLI."""
+    import distributed
+
     python = bare_env()
     check = subprocess.run(
         [
@@ -97,16 +103,32 @@ def test_zip_installs_enables_and_bakes_in_a_bpy_only_environment(extension_zip,
         text=True,
         check=True,
     )
-    assert check.stdout.strip() == "[]"  # nothing of ours outside the zip
-    report = run_json([str(python), str(TRY), str(zip_path), "--out", str(tmp_path / "bake")])
+    assert check.stdout.strip() == "[]"  # nothing of ours outside the zip, Dask included
+    out = tmp_path / "bake"
+    with local_cluster(tmp_path) as address:
+        cmd = [str(python), str(TRY), str(extension_zip), "--out", str(out), "--scheduler", address]
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, (done.stdout[-3000:], done.stderr[-5000:])
+    report = json.loads(done.stdout.strip().splitlines()[-1])
     assert report["blender"].split()[0] == bpy_version()
     assert report["texels"] > 30000 and 0.2 < report["mean_iz"] < 5.0, report
     assert report["threads"] >= 1
+
+    assert report["exit_codes"] == [0, 0], (report, done.stdout[-3000:], done.stderr[-5000:])
+    assert report["farm_imported_by_local_bake"] == []  # a bake without --scheduler never imports Dask
+    wheels = Path(report["wheels_site_packages"])
+    for module in ("dask", "distributed"):  # the copy Blender installed from the zip's wheels
+        assert Path(report[module]).is_relative_to(wheels), (module, report)
+    assert report["distributed_version"] == distributed.__version__  # the workers' (requirements*.txt)
+    assert f"farm: 2 worker(s) at {address}" in done.stdout
+    local = exr_bytes(out / "local")
+    assert len(local) > 5 and exr_bytes(out / "farm") == local
+
     # the same scene through this environment's CLI (the package as developed) bakes the same
     scene = tmp_path / "scene.blend"
     run_json([sys.executable, str(TRY), "--scene-only", str(scene)])
     cli_bake(sys.executable, scene, tmp_path / "cli")
-    assert np.array_equal(iz_image(tmp_path / "bake", sys.executable), iz_image(tmp_path / "cli", sys.executable))
+    assert np.array_equal(iz_image(out, sys.executable), iz_image(tmp_path / "cli", sys.executable))
 
 
 def cli_bake(python: str, scene: Path, out: Path, *options: str) -> None:
@@ -255,40 +277,3 @@ def local_cluster(folder: Path):
 
 def exr_bytes(folder: Path) -> dict:
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*.exr"))}
-
-
-def test_the_zips_own_dask_bakes_on_a_farm_what_the_local_bake_writes(extension_zip, tmp_path):
-    """`blender -b FILE --command hhd_lightmapper bake --scheduler tcp://…` on a Blender whose
-    Python has no Dask: the installed extension's command line, in the bpy-only environment,
-    bakes without and with `--scheduler` (tools/try_install.py --scheduler)."""
-    distributed = pytest.importorskip(
-        "distributed", reason="the farm's workers run this environment: pip install '.[farm]'"
-    )
-    zip_path = extension_zip
-    python = bare_env()
-    absent = subprocess.run(
-        [
-            str(python),
-            "-c",
-            "import importlib.util as u; print([m for m in ('dask', 'distributed') if u.find_spec(m)])",
-        ],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    assert absent.stdout.strip() == "[]"  # only the zip can bring Dask
-    out = tmp_path / "bake"
-    with local_cluster(tmp_path) as address:
-        cmd = [str(python), str(TRY), str(zip_path), "--out", str(out), "--scheduler", address]
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, (done.stdout[-3000:], done.stderr[-5000:])
-    report = json.loads(done.stdout.strip().splitlines()[-1])
-    assert report["exit_codes"] == [0, 0], (report, done.stdout[-3000:], done.stderr[-5000:])
-    assert report["farm_imported_by_local_bake"] == []  # a bake without --scheduler never imports Dask
-    wheels = Path(report["wheels_site_packages"])
-    for module in ("dask", "distributed"):  # the copy Blender installed from the zip's wheels
-        assert Path(report[module]).is_relative_to(wheels), (module, report)
-    assert report["distributed_version"] == distributed.__version__  # the workers' (requirements*.txt)
-    assert f"farm: 2 worker(s) at {address}" in done.stdout
-    local = exr_bytes(out / "local")
-    assert len(local) > 5 and exr_bytes(out / "farm") == local

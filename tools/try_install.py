@@ -13,13 +13,13 @@ luminance over covered texels) and the bake's thread count. Exit 0 on success.
 
     python tools/try_install.py dist/hhd_lightmapper-0.1.0-linux_x64.zip --out DIR --scheduler tcp://HOST:PORT
 
-installs the zip the same way, then bakes the same scene twice through the installed extension's
-command line (`cli.main`, what `blender -b FILE --command hhd_lightmapper bake` calls) into
-DIR/local and DIR/farm, the second with `--scheduler`: Dask must come from the zip's own wheels
-(an environment that can already import dask or distributed is refused too), and the first bake
-must not import it. The JSON line then has both exit codes, whether Dask was imported before the
+installs the zip and bakes the same way, then bakes the same scene twice more through the installed
+extension's command line (`cli.main`, what `blender -b FILE --command hhd_lightmapper bake` calls)
+into DIR/local and DIR/farm, the second with `--scheduler`: Dask must come from the zip's own wheels
+(an environment that can already import dask or distributed is refused too), and the bakes before
+it must not import it. The JSON line then has both exit codes, whether Dask was imported before the
 farm bake, the files `dask` and `distributed` were imported from and the site-packages folder
-Blender installed the extension's wheels into.
+Blender installed the extension's wheels into, besides what the operators' bake reports.
 
     python tools/try_install.py --scene-only FILE.blend
 
@@ -129,25 +129,28 @@ def prepare(out: Path, denoise: bool = True):
     return receivers
 
 
-def install_and_bake(zip_path: Path, out: Path, denoise: bool = True) -> dict:
-    import bpy
-
-    install(zip_path)
-    prepare(out, denoise)
-    if bpy.ops.hhd.unwrap() != {"FINISHED"} or bpy.ops.hhd.bake() != {"FINISHED"}:
-        raise SystemExit("unwrap or bake did not finish")
-    return summary(out)
-
-
-def install_and_bake_on_farm(zip_path: Path, out: Path, scheduler: str, denoise: bool = True) -> dict:
-    """Install, unwrap, then `bake` through the installed extension's command line twice: into
-    out/local without a scheduler, into out/farm with `--scheduler`."""
+def install_and_bake(zip_path: Path, out: Path, denoise: bool = True, scheduler: str | None = None) -> dict:
+    """Install, unwrap and bake with the operators into `out`; with a `scheduler`, then `bake`
+    through the installed extension's command line twice (`farm_bakes`). Returns the report."""
     import bpy
 
     install(zip_path)
     receivers = prepare(out, denoise)
-    if bpy.ops.hhd.unwrap() != {"FINISHED"}:
-        raise SystemExit("unwrap did not finish")
+    if bpy.ops.hhd.unwrap() != {"FINISHED"} or bpy.ops.hhd.bake() != {"FINISHED"}:
+        raise SystemExit("unwrap or bake did not finish")
+    report = summary(out)
+    if scheduler:
+        report |= farm_bakes(receivers, out, scheduler)
+    return report
+
+
+def farm_bakes(receivers, out: Path, scheduler: str) -> dict:
+    """`bake` the unwrapped `receivers` through the installed extension's command line (what
+    `blender -b FILE --command hhd_lightmapper` calls) into out/local without a scheduler and
+    into out/farm with `--scheduler`: their exit codes, whether Dask was imported before the
+    farm bake, and where Dask was imported from."""
+    import bpy
+
     cli = importlib.import_module(MODULE + ".cli")
     args = ["bake", "--objects", *(ob.name for ob in receivers), "--seed", "0"]
     local = cli.main([*args, "--out", str(out / "local")])
@@ -159,8 +162,6 @@ def install_and_bake_on_farm(zip_path: Path, out: Path, scheduler: str, denoise:
     major_minor = "python{:d}.{:d}".format(*sys.version_info[:2])
     wheels = Path(bpy.utils.user_resource('EXTENSIONS'), ".local", "lib", major_minor, "site-packages")
     return {
-        "blender": bpy.app.version_string,
-        "python": sys.version.split()[0],
         "exit_codes": [local, farm],
         "farm_imported_by_local_bake": dask_before,
         "dask": str(Path(dask.__file__).resolve()),
@@ -219,10 +220,7 @@ def main() -> int:
                 ap.error("give the zip to install (or --scene-only FILE.blend)")
             refuse_preinstalled()
             out = (args.out or Path(tempfile.mkdtemp(prefix="hhd-try-bake-"))).resolve()
-            if args.scheduler:
-                report = install_and_bake_on_farm(args.zip.resolve(), out, args.scheduler, args.denoise)
-            else:
-                report = install_and_bake(args.zip.resolve(), out, args.denoise)
+            report = install_and_bake(args.zip.resolve(), out, args.denoise, args.scheduler)
     finally:
         shutil.rmtree(user_dir, ignore_errors=True)  # the installed extension: hundreds of MB
     print(json.dumps(report), flush=True)
