@@ -301,6 +301,15 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
     denoise(q, "encode", "the --preset's, else the scene's Denoise setting")
     stitch(q, "encode")
     q.add_argument(
+        "--inward-faces",
+        choices=["open-side", "as-modelled", "refuse"],
+        help="faces whose normals point into their own closed object (an inside-out mesh): open-side "
+        "bakes them on the side light reaches (n_v turned round, as Cycles shades them), as-modelled "
+        f"bakes them as they are (black there) with a warning, refuse exits with code {EXIT_INPUT} naming "
+        "them; a closed object holding a light is a room seen from inside and left alone "
+        f"({_default('inward_faces')})",
+    )
+    q.add_argument(
         "--unwrap",
         action="store_true",
         help="unwrap the receivers first, as the unwrap command does (linked duplicates are refused) "
@@ -380,10 +389,10 @@ def _apply_options(settings, args) -> None:
         value = getattr(args, key, None)
         if value is not None:
             setattr(settings, key, value)
-    for key in ("model", "direction", "ambient"):
+    for key in ("model", "direction", "ambient", "inward_faces"):
         value = getattr(args, key, None)
         if value is not None:
-            setattr(settings, key, value.upper())
+            setattr(settings, key, value.upper().replace("-", "_"))
     if args.collection:
         if args.collection not in bpy.data.collections:
             raise BakeError(f"no collection named '{args.collection}'")

@@ -194,6 +194,33 @@ class HHDSettings(bpy.types.PropertyGroup):
         "between charts. Hard edges are left alone. Re-encode can switch it off or on without "
         "baking again",
     )
+    inward_faces: EnumProperty(
+        name="Faces Pointing In",
+        items=[
+            (
+                'OPEN_SIDE',
+                "Bake from the Open Side",
+                "Faces whose normals point into their own closed object are baked on the side light "
+                "reaches (their n_v turned round), as Cycles' two-sided shading shows them",
+            ),
+            (
+                'AS_MODELLED',
+                "Keep as Modelled",
+                "Bake such faces along their own normals (their lightmap is black there), with a warning",
+            ),
+            ('REFUSE', "Refuse", "Stop the bake with an error naming the objects with such faces"),
+        ],
+        default='OPEN_SIDE',
+        description="Faces whose normals point into their own closed object (an inside-out mesh: Blender "
+        "shades both sides, so it looks right there): what the bake does with them. A closed object "
+        "holding a light or an emitter is a room seen from inside and is left as it is",
+    )
+    inward_report: StringProperty(
+        name="Faces Pointing In",
+        default="",
+        options={'SKIP_SAVE'},
+        description="Objects whose faces point inwards, found by Check Normals or the last bake (one per line)",
+    )
     time_budget: FloatProperty(
         name="Time Budget",
         default=0.0,

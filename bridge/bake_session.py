@@ -115,7 +115,34 @@ def pipeline_settings(settings, threads: int = 0) -> core_bake.PipelineSettings:
         denoise=settings.denoise,
         denoiser_library=denoiser.oidn_library() if settings.denoise else "",
         stitch_seams=settings.stitch_seams,
+        inward_faces=settings.inward_faces,
     )
+
+
+def check_inward(context, objects: list[str] | None = None) -> list[str]:
+    """The receivers' faces that point into their own object (`core.inward`), without baking and
+    without lightmap UVs: one message per object (the scene's `inward_faces` action named), also
+    kept in `scene.hhd.inward_report` for the panel."""
+    from ..core import inward
+
+    settings = context.scene.hhd
+    receivers = target_objects(context, objects)
+    depsgraph = context.evaluated_depsgraph_get()
+    lights = inward.light_points(scene_data.read_bake_scene(depsgraph))
+    messages = []
+    for obj in receivers:
+        surface = mesh_data.read_shape(obj, depsgraph)
+        if surface is None:
+            continue
+        for item in inward.find(surface, [obj.name], lights):
+            messages.append(item.message(settings.inward_faces, done=False))
+    set_inward_report(context.scene, messages)
+    return messages
+
+
+def set_inward_report(scene, messages: list[str]) -> None:
+    """The panel's warning rows: `messages`, one per line."""
+    scene.hhd.inward_report = "\n".join(messages)
 
 
 def encoder_settings(settings) -> core_bake.EncoderSettings:
@@ -261,6 +288,11 @@ class BakeSession:
             f"Baked {texels} texels in {len(atlases)} atlas(es){_probes_text(self.probe_grids)} to {self.out_dir}, "
             f"{stitched}, {denoised}{sets_text} ({seconds:.1f} s: {', '.join(r.name for r in self.results)})"
         )
+
+    @property
+    def inward_warnings(self) -> list[str]:
+        """The finished bake's messages about faces that point into their own object."""
+        return [w for r in self.results for w in r.warnings if "normals point inwards" in w]
 
     @property
     def result_warnings(self) -> list[str]:

@@ -224,6 +224,33 @@ def read_triangles(mesh, matrix_world):
     return world[verts].reshape(-1, 3, 3), loops.reshape(-1, 3), mat_index
 
 
+def read_shape(obj, depsgraph):
+    """SurfaceTriangles of the evaluated mesh of `obj` for the shape alone (positions, corner
+    normals, polygon per triangle, world space; no UVs or albedo: zeros), or None without faces.
+    What `core.inward` needs, before any unwrap."""
+    from ..core.bakepoints import SurfaceTriangles
+
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        tris = read_triangles(mesh, evaluated.matrix_world)
+        if tris is None:
+            return None
+        positions, loops, _mat = tris
+        normals = np.zeros(len(mesh.loops) * 3)
+        mesh.corner_normals.foreach_get("vector", normals)
+        normal_matrix = np.linalg.inv(np.array(evaluated.matrix_world, dtype=np.float64)[:3, :3]).T
+        n_world = normals.reshape(-1, 3) @ normal_matrix.T
+        polygon = np.zeros(len(loops), np.int64)
+        mesh.loop_triangles.foreach_get("polygon_index", polygon)
+    finally:
+        evaluated.to_mesh_clear()
+    t = len(loops)
+    return SurfaceTriangles(
+        positions, n_world[loops], np.zeros((t, 3, 2)), np.zeros(t, np.int64), np.zeros((t, 3)), polygon=polygon
+    )
+
+
 def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None = None, notes: list | None = None):
     """SurfaceTriangles of the evaluated meshes of `objects` (modifiers applied, world space):
     positions, corner normals (smooth/flat/custom as Blender shades them), lightmap UVs, object
@@ -251,6 +278,8 @@ def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None =
             n_world = normals.reshape(-1, 3) @ normal_matrix.T
             n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
             albedo, tex_index, tex_uv = triangle_albedo(evaluated, mesh, loops, mat_index, cache, notes)
+            polygon = np.zeros(len(loops), np.int64)
+            mesh.loop_triangles.foreach_get("polygon_index", polygon)
             parts.append(
                 (
                     positions,
@@ -260,10 +289,12 @@ def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None =
                     albedo,
                     tex_index,
                     tex_uv,
+                    polygon,
                 )
             )
         finally:
             evaluated.to_mesh_clear()
     if not parts:
         raise BakeError("none of the objects has faces to bake")
-    return SurfaceTriangles(*(np.concatenate(x) for x in zip(*parts)), textures=cache.images)
+    *arrays, polygon = (np.concatenate(x) for x in zip(*parts))
+    return SurfaceTriangles(*arrays, textures=cache.images, polygon=polygon)

@@ -23,7 +23,20 @@ from pathlib import Path
 
 import numpy as np
 
-from . import bakepoints, encoding, exr, light_sets, lightmap_files, parallel, post, probes, seams, stages, tracer
+from . import (
+    bakepoints,
+    encoding,
+    exr,
+    inward,
+    light_sets,
+    lightmap_files,
+    parallel,
+    post,
+    probes,
+    seams,
+    stages,
+    tracer,
+)
 from .bakepoints import BakePoints, SurfaceTriangles
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError
@@ -54,13 +67,16 @@ class PipelineSettings:
     `denoiser_library` (the bpy side finds Blender's; "" = none: the bake is then undenoised, with
     a warning); stitch_seams: run the stitch post stage (`core.seams`) after it, so a smooth
     surface split between charts reads the same on both sides of the split. A bake writes the
-    atlas's seams file either way, so a re-encode can switch stitching on or off."""
+    atlas's seams file either way, so a re-encode can switch stitching on or off. inward_faces:
+    what to do with faces that point into their own object (`core.inward`: OPEN_SIDE bakes them
+    from the side light reaches, AS_MODELLED as they are, with a warning; REFUSE: BakeError)."""
 
     trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
     encoder: EncoderSettings = field(default_factory=EncoderSettings)
     denoise: bool = False
     denoiser_library: str = ""
     stitch_seams: bool = True
+    inward_faces: str = inward.OPEN_SIDE
 
 
 @dataclass
@@ -194,12 +210,14 @@ def run(
     exr.set_threads(threads)
     report = Progress(progress)
     t0 = time.perf_counter()
+    atlases, found, scene = check_inward(atlases, scene, settings.inward_faces)
     ray_scene = ray_scene_of(scene)
     points = []
     remote = farm.bake_points(atlases, scene, cancel) if farm is not None else None  # on the farm's workers
     for i, atlas in enumerate(atlases):
         _check_cancel(cancel)
         points.append(check_points(atlas, remote[i]()) if remote else points_of(atlas, ray_scene, threads, cancel))
+        inward.count_texels(found[i], points[-1].triangle)
         report.report(
             _STAGES[0] * (i + 1) / len(atlases), f"bake points of '{atlas.name}': {len(points[-1].texel)} texels"
         )
@@ -209,12 +227,15 @@ def run(
             farm.submit(
                 atlas.name, out_dir, tracer.texel_estimator(pts, scene, settings.trace, ray_scene), settings.trace
             )
+    extras = [_inward_sidecar(extra_sidecar or {}, f, settings.inward_faces) for f in found]
     with exr.Staging() as staging:
-        args = (atlases, points, scene, ray_scene, settings, t_points, extra_sidecar or {}, report, cancel)
+        args = (atlases, points, scene, ray_scene, settings, t_points, extras, report, cancel)
         if farm is not None:  # post stages and encoding on the workers too; this process writes
             results = _farm_atlases(farm, Staged(staging, Path(out_dir)), *args)
         else:
             results = _local_atlases(Staged(staging, Path(out_dir)), *args)
+        for result, items in zip(results, found):
+            result.warnings[:0] = [item.message(settings.inward_faces) for item in items]
         if probe_grids:
             results.extend(_bake_probes(staging, probe_grids, scene, settings, Path(out_dir), report, cancel))
         _check_cancel(cancel)
@@ -222,6 +243,36 @@ def run(
     if farm is not None:
         farm.finished()
     return results
+
+
+def check_inward(
+    atlases: list[AtlasInput], scene: BakeScene, mode: str = inward.OPEN_SIDE
+) -> tuple[list[AtlasInput], list[list[inward.InwardObject]], BakeScene]:
+    """Faces that point into their own object (`core.inward`), found before any bake point:
+    (the atlases to bake: with `mode` OPEN_SIDE those faces' normals turned round, else as
+    given; per atlas the objects found; the scene to trace: with OPEN_SIDE those faces' winding
+    turned round, `inward.flip_scene`). REFUSE with any found: BakeError naming them."""
+    if mode not in inward.MODES:
+        raise BakeError(f"inward faces: unknown setting {mode!r} (one of {', '.join(inward.MODES)})")
+    lights = inward.light_points(scene)
+    found = [inward.find(atlas.surface, atlas.objects, lights) for atlas in atlases]
+    if mode == inward.REFUSE and any(found):
+        raise BakeError("\n".join(item.message(mode) for items in found for item in items))
+    if mode == inward.OPEN_SIDE and any(found):
+        flipped = [np.concatenate([x.triangles for x in f]) if f else np.zeros(0, np.int64) for f in found]
+        positions = np.concatenate([a.surface.positions[rows] for a, rows in zip(atlases, flipped)])
+        scene = inward.flip_scene(scene, positions)
+        atlases = [replace(a, surface=inward.flip(a.surface, rows)) for a, rows in zip(atlases, flipped)]
+    return atlases, found, scene
+
+
+def _inward_sidecar(extra: dict, found: list[inward.InwardObject], mode: str) -> dict:
+    """The sidecar's extra keys of one atlas: `extra`, plus (only when some of its objects have
+    faces that point in) their messages in "notes" and their records in "inward_faces"."""
+    if not found:
+        return extra
+    notes = list(extra.get("notes", [])) + [item.message(mode) for item in found]
+    return {**extra, "notes": notes, "inward_faces": [item.note(mode) for item in found]}
 
 
 def _local_atlases(
@@ -232,7 +283,7 @@ def _local_atlases(
     ray_scene,
     settings: PipelineSettings,
     t_points,
-    extra,
+    extras,
     report,
     cancel,
 ) -> list[AtlasResult]:
@@ -256,7 +307,9 @@ def _local_atlases(
         done_texels += n
         _check_cancel(cancel)
         on_trace(1.0, _post_message(settings))
-        info = finish_atlas(atlas, traced, settings, t_points, extra, out, lambda: _check_cancel(cancel), release=True)
+        info = finish_atlas(
+            atlas, traced, settings, t_points, extras[i], out, lambda: _check_cancel(cancel), release=True
+        )
         results.append(atlas_result(atlas, out.out_dir, info))
         del traced
         report.report(
@@ -275,7 +328,7 @@ def _farm_atlases(
     ray_scene,
     settings: PipelineSettings,
     t_points,
-    extra,
+    extras,
     report,
     cancel,
 ) -> list[AtlasResult]:
@@ -302,7 +355,7 @@ def _farm_atlases(
             report.report(fraction(), f"'{atlas.name}': {_post_message(settings)} here (no farm worker has this OIDN)")
             answer.points = points[i]  # the traced atlas itself, so that `release` frees its SH
             info = finish_atlas(
-                atlas, answer, settings, t_points, extra, out, lambda: _check_cancel(cancel), release=True
+                atlas, answer, settings, t_points, extras[i], out, lambda: _check_cancel(cancel), release=True
             )
         else:
             for method, args in answer["out"]:
@@ -321,7 +374,7 @@ def _farm_atlases(
             report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{name}': {msg}")
 
         estimator = tracer.texel_estimator(pts, scene, settings.trace, ray_scene)  # as `run` submitted it
-        pending[i] = farm.finish(atlas, settings, out.out_dir, estimator, t_points, extra, on_trace, cancel)
+        pending[i] = farm.finish(atlas, settings, out.out_dir, estimator, t_points, extras[i], on_trace, cancel)
         done_texels += len(pts.texel)
         for j in [j for j, handle in pending.items() if handle.done()]:
             stage(j)

@@ -72,7 +72,8 @@ class SurfaceTriangles:
     positions (T, 3, 3) world space, metres;  normals (T, 3, 3) vertex normals, world space;
     uv (T, 3, 2) lightmap UVs in [0, 1]²;  object_index (T,) int;  albedo (T, 3) constant
     albedo per triangle (linear RGB); optional textures: texture_index (T,) int (-1: constant),
-    texture_uv (T, 3, 2) the material's own UVs, textures [core.textures.Texture].
+    texture_uv (T, 3, 2) the material's own UVs, textures [core.textures.Texture]; polygon (T,)
+    int, optional: the mesh polygon each triangle comes from (messages count faces by it).
     """
 
     positions: np.ndarray
@@ -83,6 +84,7 @@ class SurfaceTriangles:
     texture_index: np.ndarray | None = None
     texture_uv: np.ndarray | None = None
     textures: list = field(default_factory=list)
+    polygon: np.ndarray | None = None
 
 
 @dataclass

@@ -15,9 +15,11 @@ def _sign_not_zero(v: np.ndarray) -> np.ndarray:
 
 
 def encode(dirs: np.ndarray) -> np.ndarray:
-    """Unit directions `(N, 3)` -> `(N, 2)` in [-1, 1]²."""
+    """Unit directions `(N, 3)` -> `(N, 2)` in [-1, 1]²; a zero vector (a texel with no light:
+    no direction) -> (0, 0), which decodes to +z, never NaN."""
     d = np.asarray(dirs, dtype=np.float64)
-    p = d[:, :2] / np.abs(d).sum(axis=1, keepdims=True)
+    norm1 = np.abs(d).sum(axis=1, keepdims=True)
+    p = d[:, :2] / np.where(norm1 > 0.0, norm1, 1.0)
     lower = d[:, 2] < 0.0
     folded = (1.0 - np.abs(p[:, ::-1])) * _sign_not_zero(p)
     return np.where(lower[:, None], folded, p)

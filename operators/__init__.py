@@ -5,6 +5,7 @@ import bpy
 from ..shaders import probe_preview
 from .bake import HHD_OT_bake
 from .check_dependencies import HHD_OT_check_dependencies
+from .check_normals import HHD_OT_check_normals
 from .encode import HHD_OT_encode, HHD_OT_open_output
 from .light_sets import HHD_OT_blend_light_sets, HHD_OT_refresh_light_sets
 from .preview import HHD_OT_preview_hide, HHD_OT_preview_show
@@ -13,6 +14,7 @@ from .unwrap import HHD_OT_unwrap
 
 classes = (
     HHD_OT_check_dependencies,
+    HHD_OT_check_normals,
     HHD_OT_unwrap,
     HHD_OT_bake,
     HHD_OT_encode,

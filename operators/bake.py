@@ -61,12 +61,15 @@ class HHD_OT_bake(modal_work.ModalWork, bpy.types.Operator):
             self.report({'WARNING'}, "Bake cancelled: nothing was changed")
             return {'CANCELLED'}
         if isinstance(error, (BakeError, OSError)):
+            if isinstance(error, BakeError) and "normals point inwards" in str(error):  # Faces Pointing In: Refuse
+                bake_session.set_inward_report(context.scene, str(error).splitlines())
             self.report({'ERROR'}, f"Bake failed: {error}")
             return {'CANCELLED'}
         if error is not None:
             raise error
         summary = self.session.finish()
         context.scene.hhd.bake_summary = summary
+        bake_session.set_inward_report(context.scene, self.session.inward_warnings)
         for warning in self.session.result_warnings:  # e.g. no denoiser: written undenoised
             self.report({'WARNING'}, warning)
         self.report({'INFO'}, summary)

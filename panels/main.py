@@ -79,6 +79,11 @@ class HHD_PT_main(bpy.types.Panel):
         col.prop(settings, "stitch_seams")
         col.prop(settings, "time_budget")
         col.prop(settings, "seed")
+        col.prop(settings, "inward_faces")
+        row = box.row()
+        row.operator("hhd.check_normals", icon='NORMALS_FACE')
+        for line in settings.inward_report.splitlines():  # faces that point into their own object
+            box.label(text=line, icon='ERROR')
         col = box.column(heading="Encoder")
         col.prop(settings, "model")
         col.prop(settings, "direction")

@@ -1,0 +1,121 @@
+"""Faces that point into their own object (core/inward.py, issue 60): the parity rule on small
+numpy meshes (no Blender). The bakes are in tests/test_inward_blender.py."""
+
+import numpy as np
+
+from hhd_lightmapper.core import inward
+from hhd_lightmapper.core.bakepoints import SurfaceTriangles
+from scenekit import meshes
+
+
+def _tris(v, f, flip=None):
+    """(positions (T, 3, 3), corner normals (T, 3, 3): the face normals of the winding)."""
+    f = np.asarray(f).copy()
+    if flip is not None:
+        f[flip] = f[flip][:, ::-1]
+    p = np.asarray(v, float)[f]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return p, np.repeat(n[:, None], 3, axis=1)
+
+
+def _surface(*parts):
+    """SurfaceTriangles of (positions, normals) parts, one object each."""
+    p = np.concatenate([x[0] for x in parts])
+    n = np.concatenate([x[1] for x in parts])
+    obj = np.concatenate([np.full(len(x[0]), k) for k, x in enumerate(parts)])
+    t = len(p)
+    return SurfaceTriangles(p, n, np.zeros((t, 3, 2)), obj, np.full((t, 3), 0.5))
+
+
+def test_cube_outward_is_not_flagged_and_flipped_is():
+    v, f = meshes.cube(1.0, (0, 0, 0.6))
+    assert not inward.inward_triangles(*_tris(v, f)).any()
+    assert inward.inward_triangles(*_tris(v, f, flip=slice(None))).all()
+
+
+def test_half_flipped_mesh_is_found_face_by_face():
+    v, f = meshes.cube(1.0)
+    flip = np.arange(12) < 6  # bottom, top and one side: half the triangles
+    assert (inward.inward_triangles(*_tris(v, f, flip=flip)) == flip).all()
+
+
+def test_open_plane_is_never_flagged():
+    v, f = meshes.plane(2.0)
+    for flip in (None, slice(None)):
+        assert not inward.inward_triangles(*_tris(v, f, flip=flip)).any()
+
+
+def test_room_with_a_light_inside_is_not_flagged():
+    v, f = meshes.cube(4.0, (0, 0, 2))
+    room = _tris(v, f, flip=slice(None))  # inward normals: a room seen from inside
+    assert inward.inward_triangles(*room).all()  # no light: the same as a flipped cube
+    assert not inward.inward_triangles(*room, lights=np.array([[0.3, 0.2, 3.1]])).any()
+    # a light outside it does not make it a room
+    assert inward.inward_triangles(*room, lights=np.array([[0.0, 0.0, 9.0]])).all()
+
+
+def test_thin_two_sided_wall_and_thick_walled_room_are_not_flagged():
+    v, f = meshes.cube(1.0)
+    wall = _tris(v * [0.01, 3.0, 2.5], f)  # 1 cm thick, outward
+    assert not inward.inward_triangles(*wall).any()
+    v, f = meshes.plane(3.0)
+    sheet = _tris(v[:, [2, 0, 1]], f)  # a wall modelled as two planes back to back
+    for twin_faces in (f, [[0, 1, 3], [1, 2, 3]]):  # triangulated alike, or across the other diagonal
+        twin = _tris(v[:, [2, 0, 1]], twin_faces, flip=slice(None))
+        assert not inward.inward_triangles(*(np.concatenate([a, b]) for a, b in zip(sheet, twin))).any()
+    outer = _tris(*meshes.cube(5.0))
+    inner = _tris(*meshes.cube(4.6), flip=slice(None))  # the room's walls face into the room
+    both = tuple(np.concatenate([a, b]) for a, b in zip(outer, inner))
+    assert not inward.inward_triangles(*both).any()
+
+
+def test_mirrored_object_uses_its_normals_not_its_winding():
+    v, f = meshes.cube(1.0)
+    p, n = _tris(v, f)
+    mirrored = p * [-1.0, 1.0, 1.0]  # the winding turns round; the normals follow the mirror
+    assert not inward.inward_triangles(mirrored, n * [-1.0, 1.0, 1.0]).any()
+    assert inward.inward_triangles(mirrored, -n * [-1.0, 1.0, 1.0]).all()
+
+
+def test_find_names_objects_counts_faces_and_flips():
+    v, f = meshes.cube(1.0, (0, 0, 0.6))
+    floor = _tris(*meshes.plane(10.0))
+    surface = _surface(floor, _tris(v, f, flip=slice(None)), _tris(v + [3, 0, 0], f))
+    surface.polygon = np.concatenate([np.arange(2), np.arange(12) // 2, np.arange(12) // 2])
+    found = inward.find(surface, ["Floor", "Flipped", "Good"])
+    assert [(x.name, x.faces, len(x.triangles)) for x in found] == [("Flipped", 6, 12)]
+    assert "'Flipped' has 6 faces whose normals point inwards" in found[0].message()
+    flipped = inward.flip(surface, found[0].triangles)
+    assert not inward.find(flipped, ["Floor", "Flipped", "Good"])
+    assert np.array_equal(flipped.normals[2:14], -surface.normals[2:14])
+
+
+def test_flip_scene_turns_the_winding_of_the_flipped_faces_only():
+    from hhd_lightmapper.core.scene import BakeScene
+
+    v, f = meshes.cube(1.0)
+    cube, _ = _tris(v, f, flip=slice(None))
+    floor, _ = _tris(*meshes.plane(10.0))
+    scene = BakeScene(
+        np.concatenate([floor, cube]), np.full((14, 3), 0.5), texture_uv=np.arange(14 * 6.0).reshape(14, 3, 2)
+    )
+    out = inward.flip_scene(scene, cube[:, [1, 2, 0]])  # corners in another order: the same faces
+    assert np.array_equal(out.triangles[:2], scene.triangles[:2])
+    assert np.array_equal(out.triangles[2:], scene.triangles[2:][:, [0, 2, 1]])
+    assert np.array_equal(out.texture_uv[2:], scene.texture_uv[2:][:, [0, 2, 1]])
+    assert inward.flip_scene(scene, np.zeros((0, 3, 3))) is scene
+
+
+def test_a_room_lit_by_an_emitter_inside_or_its_own_glowing_panel_is_not_flagged():
+    from hhd_lightmapper.core.scene import BakeScene
+
+    v, f = meshes.cube(4.0, (0, 0, 2))
+    room, n = _tris(v, f, flip=slice(None))
+    lamp, _ = _tris(*meshes.cube(0.2, (0.5, 0.5, 3.0)))
+    for emissive in (np.arange(12, 24), np.arange(2)):  # a glowing box inside; the room's own floor
+        triangles = np.concatenate([room, lamp])
+        emission = np.zeros((24, 3))
+        emission[emissive] = 5.0
+        scene = BakeScene(triangles, np.full((24, 3), 0.5), emission=emission)
+        assert not inward.inward_triangles(room, n, inward.light_points(scene)).any()
