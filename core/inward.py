@@ -4,16 +4,18 @@ Cycles and EEVEE shade both sides of a surface, so an object whose normals point
 closed shell looks right in Blender, but its lightmap hemisphere (around n_v) looks into the
 shell and bakes black. The rule (docs/format.md, "Faces that point in"):
 
-    A face points in when its object's closed surfaces enclose the side its normal points to
-    (rays from just off that side cross the object's closed shells an odd number of times,
-    whichever way they go),
+    A face points in when its closed surface (and any of the object's closed surfaces whose
+    bounds hold it) encloses the side its normal points to (rays from just off that side cross
+    them an odd number of times, whichever way they go),
     unless a light or an emitter lies inside that shell: then it is a room seen from inside.
 
 Only closed shells count: connected triangles whose every edge (corners welded by position) is
 shared by exactly two triangles. Open surfaces (a single plane) have no inside and are never
 flagged; the parity test does not depend on the winding, so a mesh with half its faces flipped
-is found face by face, a thick wall (two nested shells) is not flagged, and a mirrored object's
-winding does not matter (the side is the one the vertex normals point to).
+is found patch by patch (faces facing alike across their shared edges: `PATCH_SAMPLES` of each
+are tested, and the majority decides the patch), a thick wall (two nested shells) is not
+flagged, a shell poking into another of the same object is judged by itself, and a mirrored
+object's winding does not matter (the side is the one the vertex normals point to).
 
 `find` works on an atlas's `SurfaceTriangles` before the bake points (the panel's check and
 the bake call it); `flip` turns the flagged triangles' normals round (the setting "bake from
@@ -37,6 +39,8 @@ MODES = (OPEN_SIDE, AS_MODELLED, REFUSE)
 #: modelled twice back to back (a two-sided wall: two coincident surfaces, crossed as one) gives
 #: odd on one side only, so exactly half.
 PARITY_RAYS = 6
+#: Faces tested per patch (faces facing alike across shared edges, `facing_patches`).
+PATCH_SAMPLES = 16
 #: Most crossings followed along one parity ray.
 MAX_CROSSINGS = 256
 #: How far off its face (in ray offsets, `rays.ray_offset`) a face's parity rays start.
@@ -142,18 +146,85 @@ def inward_triangles(positions: np.ndarray, normals: np.ndarray, lights: np.ndar
     # the side each triangle's normals point to: its face normal turned to their mean
     face = cross[rows] / length[rows, None]
     mean = np.asarray(normals, np.float64)[rows].sum(axis=1)
-    face *= np.where(np.einsum("ij,ij->i", face, mean) < 0.0, -1.0, 1.0)[:, None]
+    turned = np.einsum("ij,ij->i", face, mean) < 0.0
+    face *= np.where(turned, -1.0, 1.0)[:, None]
+    # faces facing alike across every shared edge form a patch: judged by a few of its faces
+    patch = facing_patches(vertex[rows], turned)
+    sample = _samples(patch)
     shells = RayScene(positions[rows])
     offset = ray_offset(positions[rows])
-    start = positions[rows].mean(axis=1) + face * (START_OFFSETS * offset)
-    odd = _odd(shells, start, offset)
-    inside = odd.sum(axis=1) >= PARITY_RAYS - 1
+    start = positions[rows[sample]].mean(axis=1) + face[sample] * (START_OFFSETS * offset)
+    shell = np.unique(component[rows], return_inverse=True)[1].reshape(-1)
+    odd = _odd(shells, start, offset, shell, shell[sample], _boxes(positions[rows], shell))
+    inside_sample = odd.sum(axis=1) >= PARITY_RAYS - 1
+    votes = np.bincount(patch[sample], weights=inside_sample, minlength=patch.max() + 1)
+    count = np.bincount(patch[sample], minlength=patch.max() + 1)
+    inside = (2 * votes > count)[patch]
     lights = np.zeros((0, 3)) if lights is None else lights
     if inside.any() and len(lights):  # a shell holding a light or an emitter is a room seen from inside
         lit = _lit(shells, lights, component[rows], offset)
         inside &= ~np.isin(component[rows], lit)
     out[rows[inside]] = True
     return out
+
+
+def facing_patches(vertex: np.ndarray, turned: np.ndarray) -> np.ndarray:
+    """(T,) patch labels of closed-shell triangles with welded corners `vertex (T, 3)`: triangles
+    sharing an edge are in one patch when they face alike, i.e. their windings, each reversed
+    where `turned` (its normals point against its winding), run the shared edge in opposite
+    directions. A patch faces one way throughout, so a few of its faces decide it."""
+    v = np.where(turned[:, None], vertex[:, ::-1], vertex)
+    a = np.concatenate([v[:, 0], v[:, 1], v[:, 2]])
+    b = np.concatenate([v[:, 1], v[:, 2], v[:, 0]])
+    owner = np.tile(np.arange(len(v)), 3)
+    span = int(v.max()) + 1
+    directed = a * span + b
+    reverse = b * span + a
+    order = np.argsort(directed, kind="stable")
+    at = np.searchsorted(directed[order], reverse)
+    found = (at < len(order)) & (directed[order][np.minimum(at, len(order) - 1)] == reverse)
+    left, right = owner[found], owner[order[at[found]]]
+    return _components(len(v), left, right)
+
+
+def _components(n: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """(n,) labels of the connected components of n nodes joined by the pairs (left, right):
+    minimum-label propagation with full pointer jumping after each step."""
+    label = np.arange(n)
+    while True:
+        low = np.minimum(label[left], label[right])
+        new = label.copy()
+        np.minimum.at(new, left, low)
+        np.minimum.at(new, right, low)
+        while True:  # jump until every label is a root
+            jumped = new[new]
+            if np.array_equal(jumped, new):
+                break
+            new = jumped
+        if np.array_equal(new, label):
+            return label
+        label = new
+
+
+def _samples(patch: np.ndarray, per_patch: int = PATCH_SAMPLES) -> np.ndarray:
+    """Indices of up to `per_patch` triangles of each patch, spread over its triangles' order."""
+    order = np.argsort(patch, kind="stable")
+    labels, start, size = np.unique(patch[order], return_index=True, return_counts=True)
+    k = np.minimum(size, per_patch)
+    which = np.repeat(np.arange(len(labels)), k)
+    rank = np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)
+    return order[start[which] + (rank * size[which]) // k[which]]
+
+
+def _boxes(positions: np.ndarray, shell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(low (K, 3), high (K, 3)): the bounding box of each shell 0..K-1 (`shell (T,)`) of the
+    triangles `positions (T, 3, 3)`."""
+    k = int(shell.max()) + 1
+    low = np.full((k, 3), np.inf)
+    high = np.full((k, 3), -np.inf)
+    np.minimum.at(low, shell, positions.min(axis=1))
+    np.maximum.at(high, shell, positions.max(axis=1))
+    return low, high
 
 
 def closed_shells(vertex: np.ndarray, good: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -173,21 +244,11 @@ def closed_shells(vertex: np.ndarray, good: np.ndarray) -> tuple[np.ndarray, np.
     edge = np.minimum(a, b) * (int(v.max()) + 1) + np.maximum(a, b)  # one int64 key per edge
     _, edge_id, counts = np.unique(edge, return_inverse=True, return_counts=True)
     edge_id = edge_id.reshape(-1)
-    # union of triangles sharing an edge: label propagation with pointer jumping
+    # union of triangles sharing an edge
     order = np.argsort(edge_id, kind="stable")
     e_sorted, o_sorted = edge_id[order], owner[order]
     pair = e_sorted[1:] == e_sorted[:-1]
-    left, right = o_sorted[:-1][pair], o_sorted[1:][pair]
-    label = np.arange(len(tri))
-    while True:
-        low = np.minimum(label[left], label[right])
-        new = label.copy()
-        np.minimum.at(new, left, low)
-        np.minimum.at(new, right, low)
-        new = new[new]
-        if np.array_equal(new, label):
-            break
-        label = new
+    label = _components(len(tri), o_sorted[:-1][pair], o_sorted[1:][pair])
     open_edge = counts[edge_id] != 2  # per (triangle, edge) entry
     open_label = np.unique(label[owner[open_edge]])
     component[tri] = label
@@ -214,11 +275,25 @@ def _spread(n: int) -> np.ndarray:
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def _odd(shells: RayScene, start: np.ndarray, offset: float) -> np.ndarray:
-    """(S, PARITY_RAYS) bool: the parity rays from `start (S, 3)` cross `shells` an odd number
-    of times."""
-    ray, _prim = _count(shells, start, offset)
-    return (np.bincount(ray, minlength=len(start) * PARITY_RAYS) % 2 == 1).reshape(len(start), PARITY_RAYS)
+def _odd(
+    shells: RayScene,
+    start: np.ndarray,
+    offset: float,
+    shell: np.ndarray,
+    own: np.ndarray,
+    boxes: tuple[np.ndarray, np.ndarray],
+) -> np.ndarray:
+    """(S, PARITY_RAYS) bool: the parity rays from `start (S, 3)` cross an odd number of times
+    the shell `own (S,)` and the shells whose bounding box (`boxes`, `_boxes`) holds its box:
+    e.g. the outer skin of a thick wall around its inner one, but not a shell it merely pokes
+    into (a handle sunk into a drawer of the same object). `shell`: the shell of each of
+    `shells`' primitives."""
+    ray, prim = _count(shells, start, offset)
+    mine, theirs = own[ray // PARITY_RAYS], shell[prim]
+    low, high = boxes
+    holds = (low[theirs] <= low[mine]).all(axis=1) & (high[theirs] >= high[mine]).all(axis=1)
+    hits = np.bincount(ray[(theirs == mine) | holds], minlength=len(start) * PARITY_RAYS)
+    return (hits % 2 == 1).reshape(len(start), PARITY_RAYS)
 
 
 def _lit(shells: RayScene, points: np.ndarray, component: np.ndarray, offset: float) -> np.ndarray:

@@ -119,3 +119,27 @@ def test_a_room_lit_by_an_emitter_inside_or_its_own_glowing_panel_is_not_flagged
         emission[emissive] = 5.0
         scene = BakeScene(triangles, np.full((24, 3), 0.5), emission=emission)
         assert not inward.inward_triangles(room, n, inward.light_points(scene)).any()
+
+
+def test_parts_poking_into_each_other_are_judged_each_by_itself():
+    """Two outward cubes of one object overlapping (a handle sunk into a drawer): the faces of
+    each inside the other are not flagged; either cube flipped alone is found."""
+    v, f = meshes.cube(1.0)
+    a, b = _tris(v, f), _tris(v + [0.6, 0.3, 0.2], f)
+    both = tuple(np.concatenate([x, y]) for x, y in zip(a, b))
+    assert not inward.inward_triangles(*both).any()
+    b_flipped = _tris(v + [0.6, 0.3, 0.2], f, flip=slice(None))
+    found = inward.inward_triangles(*(np.concatenate([x, y]) for x, y in zip(a, b_flipped)))
+    assert not found[:12].any() and found[12:].all()
+
+
+def test_a_dense_sphere_half_flipped_is_found_by_patches():
+    """A sphere of thousands of triangles with its upper half flipped: two patches (faces facing
+    alike across shared edges), judged by a few faces each; every triangle of the flipped half
+    is found, none of the other."""
+    v, f = meshes.uv_sphere(rings=48, segments=48)
+    p = np.asarray(v, float)[f]
+    flip = p.mean(axis=1)[:, 2] > 0.0
+    found = inward.inward_triangles(*_tris(v, f, flip=flip))
+    assert len(f) > 4000 and flip.sum() > 1000
+    assert np.array_equal(found, flip)
