@@ -237,18 +237,32 @@ def read_shape(obj, depsgraph):
         if tris is None:
             return None
         positions, loops, _mat = tris
-        normals = np.zeros(len(mesh.loops) * 3)
-        mesh.corner_normals.foreach_get("vector", normals)
-        normal_matrix = np.linalg.inv(np.array(evaluated.matrix_world, dtype=np.float64)[:3, :3]).T
-        n_world = normals.reshape(-1, 3) @ normal_matrix.T
-        polygon = np.zeros(len(loops), np.int64)
-        mesh.loop_triangles.foreach_get("polygon_index", polygon)
+        n_world = world_corner_normals(mesh, evaluated.matrix_world)
+        polygon = triangle_polygons(mesh, len(loops))
     finally:
         evaluated.to_mesh_clear()
     t = len(loops)
     return SurfaceTriangles(
         positions, n_world[loops], np.zeros((t, 3, 2)), np.zeros(t, np.int64), np.zeros((t, 3)), polygon=polygon
     )
+
+
+def world_corner_normals(mesh, matrix_world) -> np.ndarray:
+    """(loops, 3) the mesh's corner normals (smooth/flat/custom as Blender shades them) in world
+    space, through the normal matrix (a mirrored object's normals stay outward), unit length."""
+    normals = np.zeros(len(mesh.loops) * 3)
+    mesh.corner_normals.foreach_get("vector", normals)
+    normal_matrix = np.linalg.inv(np.array(matrix_world, dtype=np.float64)[:3, :3]).T
+    n_world = normals.reshape(-1, 3) @ normal_matrix.T
+    n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
+    return n_world
+
+
+def triangle_polygons(mesh, count: int) -> np.ndarray:
+    """(count,) int64: the polygon of each of the mesh's `count` loop triangles."""
+    polygon = np.zeros(count, np.int64)
+    mesh.loop_triangles.foreach_get("polygon_index", polygon)
+    return polygon
 
 
 def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None = None, notes: list | None = None):
@@ -270,16 +284,11 @@ def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None =
             if tris is None:
                 continue
             positions, loops, mat_index = tris
-            normals = np.zeros(len(mesh.loops) * 3)
-            mesh.corner_normals.foreach_get("vector", normals)
+            n_world = world_corner_normals(mesh, evaluated.matrix_world)
             uv = np.zeros(len(mesh.loops) * 2)
             mesh.uv_layers[uv_layer].data.foreach_get("uv", uv)
-            normal_matrix = np.linalg.inv(np.array(evaluated.matrix_world, dtype=np.float64)[:3, :3]).T
-            n_world = normals.reshape(-1, 3) @ normal_matrix.T
-            n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
             albedo, tex_index, tex_uv = triangle_albedo(evaluated, mesh, loops, mat_index, cache, notes)
-            polygon = np.zeros(len(loops), np.int64)
-            mesh.loop_triangles.foreach_get("polygon_index", polygon)
+            polygon = triangle_polygons(mesh, len(loops))
             parts.append(
                 (
                     positions,
