@@ -292,7 +292,7 @@ class BakeSession:
     @property
     def inward_warnings(self) -> list[str]:
         """The finished bake's messages about faces that point into their own object."""
-        return [w for r in self.results for w in r.warnings if "normals point inwards" in w]
+        return [message for r in self.results for message in r.inward]
 
     @property
     def result_warnings(self) -> list[str]:

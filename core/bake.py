@@ -39,7 +39,7 @@ from . import (
 )
 from .bakepoints import BakePoints, SurfaceTriangles
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
-from .errors import BakeCancelled, BakeError
+from .errors import BakeCancelled, BakeError, InwardFacesRefused
 from .rays import RayScene
 from .scene import BakeScene
 from .stages import TracedAtlas
@@ -69,7 +69,7 @@ class PipelineSettings:
     surface split between charts reads the same on both sides of the split. A bake writes the
     atlas's seams file either way, so a re-encode can switch stitching on or off. inward_faces:
     what to do with faces that point into their own object (`core.inward`: OPEN_SIDE bakes them
-    from the side light reaches, AS_MODELLED as they are, with a warning; REFUSE: BakeError)."""
+    from the side light reaches, AS_MODELLED as they are, with a warning; REFUSE: InwardFacesRefused)."""
 
     trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
     encoder: EncoderSettings = field(default_factory=EncoderSettings)
@@ -82,8 +82,9 @@ class PipelineSettings:
 @dataclass
 class AtlasResult:
     """One written atlas (kind "atlas") or probe volume (kind "probes": texels are its probes):
-    seconds per stage; warnings: what a post stage could not do (e.g. no denoiser); sets: its
-    light sets (`core.light_sets`; none without light groups)."""
+    seconds per stage; warnings: what a post stage could not do (e.g. no denoiser), and `inward`;
+    sets: its light sets (`core.light_sets`; none without light groups); inward: one message per
+    object with faces that point into it (`core.inward`)."""
 
     name: str
     files: lightmap_files.AtlasFiles
@@ -93,6 +94,7 @@ class AtlasResult:
     warnings: list[str] = field(default_factory=list)
     sets: tuple[str, ...] = ()
     kind: str = "atlas"
+    inward: list[str] = field(default_factory=list)
 
 
 class Progress:
@@ -235,7 +237,8 @@ def run(
         else:
             results = _local_atlases(Staged(staging, Path(out_dir)), *args)
         for result, items in zip(results, found):
-            result.warnings[:0] = [item.message(settings.inward_faces) for item in items]
+            result.inward = [item.message(settings.inward_faces) for item in items]
+            result.warnings[:0] = result.inward
         if probe_grids:
             results.extend(_bake_probes(staging, probe_grids, scene, settings, Path(out_dir), report, cancel))
         _check_cancel(cancel)
@@ -251,13 +254,13 @@ def check_inward(
     """Faces that point into their own object (`core.inward`), found before any bake point:
     (the atlases to bake: with `mode` OPEN_SIDE those faces' normals turned round, else as
     given; per atlas the objects found; the scene to trace: with OPEN_SIDE those faces' winding
-    turned round, `inward.flip_scene`). REFUSE with any found: BakeError naming them."""
+    turned round, `inward.flip_scene`). REFUSE with any found: InwardFacesRefused naming them."""
     if mode not in inward.MODES:
         raise BakeError(f"inward faces: unknown setting {mode!r} (one of {', '.join(inward.MODES)})")
     lights = inward.light_points(scene)
     found = [inward.find(atlas.surface, atlas.objects, lights) for atlas in atlases]
     if mode == inward.REFUSE and any(found):
-        raise BakeError("\n".join(item.message(mode) for items in found for item in items))
+        raise InwardFacesRefused([item.message(mode) for items in found for item in items])
     if mode == inward.OPEN_SIDE and any(found):
         flipped = [np.concatenate([x.triangles for x in f]) if f else np.zeros(0, np.int64) for f in found]
         positions = np.concatenate([a.surface.positions[rows] for a, rows in zip(atlases, flipped)])

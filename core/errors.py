@@ -9,5 +9,14 @@ class BakeCancelled(BakeError):
     """The user cancelled the bake; nothing was written."""
 
 
+class InwardFacesRefused(BakeError):
+    """Faces Pointing In = Refuse, and some receivers have such faces: `messages`, one per object
+    (`core.inward`), are also the error's lines."""
+
+    def __init__(self, messages: list[str]):
+        super().__init__("\n".join(messages))
+        self.messages = messages
+
+
 class DependencyMissing(BakeError):
     """A compiled dependency (embreex, xatlas, OpenEXR) could not be imported."""

@@ -11,7 +11,7 @@ import bpy
 
 from ..bridge import bake_session
 from ..core.console import ConsoleProgress
-from ..core.errors import BakeError
+from ..core.errors import BakeError, InwardFacesRefused
 from ..core.tracer import BakeCancelled
 from . import modal_work
 
@@ -61,8 +61,8 @@ class HHD_OT_bake(modal_work.ModalWork, bpy.types.Operator):
             self.report({'WARNING'}, "Bake cancelled: nothing was changed")
             return {'CANCELLED'}
         if isinstance(error, (BakeError, OSError)):
-            if isinstance(error, BakeError) and "normals point inwards" in str(error):  # Faces Pointing In: Refuse
-                bake_session.set_inward_report(context.scene, str(error).splitlines())
+            if isinstance(error, InwardFacesRefused):
+                bake_session.set_inward_report(context.scene, error.messages)
             self.report({'ERROR'}, f"Bake failed: {error}")
             return {'CANCELLED'}
         if error is not None:
