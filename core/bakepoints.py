@@ -315,7 +315,7 @@ def build(
         triangle=tri,
         object_index=objects[tri].astype(_index_dtype(int(objects.max(initial=0)) + 1), copy=False),
         texel_size=np.empty(n),
-        offset=ray_offset(pos),
+        offset=ray_offset(pos, None if occluders is None else occluders.origin),
         buried=np.zeros(n, bool),
         mesh=mesh,
         near_cover=np.zeros(n, bool),

@@ -28,7 +28,7 @@ import weakref
 import numpy as np
 
 from . import kernels as _kernels
-from .rays import RayScene, bounds
+from .rays import RayScene, bounds, frame_origin
 
 #: How far every triangle is pushed back for the probe, as a fraction of the ray offset: far
 #: enough to break the coplanar tie at float32 precision (the offset is ≥ 32 ulps), near enough
@@ -39,30 +39,46 @@ COVER_PUSH = 0.25
 class CoverProbe:
     """Finds sample origins whose surface point is covered.
 
-    triangles (T, 3, 3) world space: all geometry (receivers included); offset: the distance
+    triangles (T, 3, 3): all geometry (receivers included), world space minus `origin` (3,)
+    (the frame of the ray scene they come from: `RayScene.local_triangles`; no origin: world
+    space, traced about `rays.frame_origin` of them); offset: the distance
     (scene units) sample origins sit off their surface along the face normal; receivers
-    (R, 3, 3), optional: the surfaces whose points will be probed. Only triangles whose bounding
-    box comes within 2 × offset of the receivers' bounding box can cover one of their points, so
-    only those are kept (a ground plane under a million-triangle field keeps the few that touch
-    it): a smaller probe scene builds faster (Embree's BVH build is linear in triangles)."""
+    (R, 3, 3), optional, world space: the surfaces whose points will be probed. Only triangles
+    whose bounding box comes within 2 × offset of the receivers' bounding box can cover one of
+    their points, so only those are kept (a ground plane under a million-triangle field keeps
+    the few that touch it): a smaller probe scene builds faster (Embree's BVH build is linear in
+    triangles). The probe works in the same frame, so its push is measured against the corners
+    the tracer's rays meet."""
 
-    def __init__(self, triangles: np.ndarray, offset: float, receivers: np.ndarray | None = None):
+    def __init__(
+        self,
+        triangles: np.ndarray,
+        offset: float,
+        receivers: np.ndarray | None = None,
+        origin: np.ndarray | None = None,
+    ):
         self.offset = offset
         tri = np.asarray(triangles).reshape(-1, 3, 3)
+        if origin is None:
+            origin = frame_origin(tri)
+            tri = tri - origin if origin.any() else tri
+        self.origin = np.asarray(origin, np.float64)
         if receivers is not None:  # filter first: convert only what is kept
-            tri = tri[_near_box(tri, receivers, 2.0 * offset)]
+            tri = tri[_near_box(tri, np.asarray(receivers, np.float64) - self.origin, 2.0 * offset)]
         tri = tri.astype(np.float64)
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         length = np.linalg.norm(n, axis=1, keepdims=True)
         n = np.divide(n, length, out=np.zeros_like(n), where=length > 0.0)  # degenerate: no push
-        self.scene = RayScene(tri - n[:, None, :] * (COVER_PUSH * offset)) if len(tri) else None
+        pushed = tri - n[:, None, :] * (COVER_PUSH * offset)
+        self.scene = RayScene(pushed, origin=np.zeros(3)) if len(tri) else None
 
     def covered(self, origins: np.ndarray, face_normals: np.ndarray) -> np.ndarray:
         """(R,) bool: a face lies on, or within the offset in front of, the surface point below
-        each origin (origins = surface point + face normal × offset)."""
+        each origin (world space: surface point + face normal × offset)."""
         if self.scene is None:
             return np.zeros(len(origins), bool)
-        return self.scene.occluded(origins, -np.asarray(face_normals), self.offset)
+        local = np.asarray(origins, np.float64) - self.origin if self.origin.any() else origins
+        return self.scene.occluded(local, -np.asarray(face_normals), self.offset)
 
 
 _shared: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # RayScene -> {key: CoverProbe}
@@ -70,14 +86,14 @@ _shared_lock = threading.Lock()
 
 
 def shared_probe(scene: RayScene, offset: float, receivers: np.ndarray) -> CoverProbe:
-    """The probe over `scene.triangles` (float32, Embree's own) for `offset` and `receivers`
+    """The probe over `scene.local_triangles` (float32, Embree's own) for `offset` and `receivers`
     (R, 3, 3), built on first request and kept as long as `scene` lives: the same object for
     every request with the same offset and receivers of equal content (shape, dtype, values)."""
     key = (float(offset), content_key(receivers))
     with _shared_lock:
         probes = _shared.setdefault(scene, {})
         if key not in probes:
-            probes[key] = CoverProbe(scene.triangles, offset, receivers=receivers)
+            probes[key] = CoverProbe(scene.local_triangles, offset, receivers=receivers, origin=scene.origin)
         return probes[key]
 
 

@@ -50,7 +50,8 @@ _GEOMETRY_TRIANGLE = 0
 _BUFFER_INDEX, _BUFFER_VERTEX = 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
 _RAY_WORDS = 32  # RTCRayHit is 80–96 bytes by build options; 128 is enough
-_UNBOUNDED = float(np.float32(3e38))  # the length of a shadow ray towards a direction
+_UNBOUNDED = float(np.float32(3e38))
+_CHUNK = 1 << 18  # triangles moved into a scene's frame at a time  # the length of a shadow ray towards a direction
 #: Rays per packet query of the compiled kernels (`rtcIntersect8` / `rtcOccluded8`), used where
 #: the library answers them (`library().packets`) and PACKETS is True (False: one ray per query,
 #: as before packets; bench/tracer.py compares the two).
@@ -403,18 +404,25 @@ def _answers_packets(c, device, kernels) -> bool:
 # ---- scenes -----------------------------------------------------------------------------------
 class Scene:
     """An Embree scene of one triangle geometry sharing `triangles` (T, 3, 3) float32 corners
-    (triangle i is primitive i). The BVH build starts at construction on Embree's threads;
-    queries wait for it."""
+    (triangle i is primitive i), held relative to `origin` (3,) (world space minus origin, in
+    float64 before rounding to float32); queries take world-space origins and subtract it. The
+    BVH build starts at construction on Embree's threads; queries wait for it."""
 
-    def __init__(self, triangles: np.ndarray):
+    def __init__(self, triangles: np.ndarray, origin: np.ndarray | None = None):
         self._lib = library()
         c = self._lib.c
         tri = np.asarray(triangles).reshape(-1, 3, 3)
         n = len(tri)
+        self.origin = np.zeros(3) if origin is None else np.asarray(origin, np.float64).reshape(3)
+        self._moved = bool(self.origin.any())
         # Embree reads vertices with 16-byte loads: one float of padding after the last
         self._vertices = np.zeros(9 * n + 1, np.float32)
         self.triangles = self._vertices[: 9 * n].reshape(n, 3, 3)  # (T, 3, 3) float32, Embree's
-        self.triangles[:] = tri
+        if self._moved:
+            for s in range(0, n, _CHUNK):  # in float64, a chunk at a time
+                self.triangles[s : s + _CHUNK] = np.asarray(tri[s : s + _CHUNK], np.float64) - self.origin
+        else:
+            self.triangles[:] = tri
         self.triangles.flags.writeable = False
         self._indices = np.arange(3 * n, dtype=np.uint32)
         self.handle = c.rtcNewScene(self._lib.device)
@@ -453,14 +461,14 @@ class Scene:
         ng = np.empty((r, 3), np.float32)
         u = np.empty(r, np.float32)
         v = np.empty(r, np.float32)
-        self._kernel("intersect")(self.handle, origins, directions, tmax, t, prim, ng, u, v)
+        self._kernel("intersect")(self.handle, self._local(origins), directions, tmax, t, prim, ng, u, v)
         return t, prim, ng, u, v
 
     def occluded(self, origins, directions, tmax) -> np.ndarray:
         """(R,) bool: anything within tmax along each ray."""
         self.wait()
         out = np.empty(len(origins), np.bool_)
-        self._kernel("occluded")(self.handle, origins, directions, tmax, out)
+        self._kernel("occluded")(self.handle, self._local(origins), directions, tmax, out)
         return out
 
     def shadow(self, origins, directions, dist, normals, offset, allowed, scale, cosine) -> tuple[np.ndarray, int]:
@@ -469,9 +477,24 @@ class Scene:
         self.wait()
         out = np.empty(len(origins))
         traced = self._kernel("shadow")(
-            self.handle, origins, directions, dist, normals, float(offset), allowed, float(scale), bool(cosine), out
+            self.handle,
+            self._local(origins),
+            directions,
+            dist,
+            normals,
+            float(offset),
+            allowed,
+            float(scale),
+            bool(cosine),
+            out,
         )
         return out, int(traced)
+
+    def _local(self, origins: np.ndarray) -> np.ndarray:
+        """Ray origins (R, 3) in the scene's frame (float64; as given when it is the world's)."""
+        if not self._moved:
+            return origins
+        return np.asarray(origins, np.float64) - self.origin
 
     def _kernel(self, query: str):
         """The compiled kernel of `query`: packets where the library answers them (and PACKETS)."""

@@ -12,14 +12,32 @@ from . import embree
 FLOAT32_EPS = float(np.finfo(np.float32).eps)
 
 
-def ray_offset(positions: np.ndarray) -> float:
-    """Origin offset (scene units) for rays leaving surfaces: 1e-5 of the scene's extent plus a
-    margin of 32 float32 ulps at its largest coordinate, so it works from millimetre to
-    kilometre scenes and far from the origin."""
+def ray_offset(positions: np.ndarray, origin: np.ndarray | None = None) -> float:
+    """Origin offset (scene units) for rays leaving surfaces at `positions`: 1e-5 of their extent
+    plus a margin of 32 float32 ulps at their largest coordinate in the ray scene's frame
+    (`origin`: the `RayScene.origin` they are traced against; default `frame_origin` of the
+    positions), so it works from millimetre to kilometre scenes, wherever the level sits."""
     lo, hi = bounds(positions)
     extent = float(np.linalg.norm(hi - lo))
-    magnitude = float(np.maximum(np.abs(lo), np.abs(hi)).max())
+    at = frame_origin(positions) if origin is None else np.asarray(origin, np.float64)
+    magnitude = float(np.maximum(np.abs(lo - at), np.abs(hi - at)).max())
     return 1e-5 * extent + 32.0 * FLOAT32_EPS * magnitude
+
+
+def frame_origin(points: np.ndarray) -> np.ndarray:
+    """(3,) float64: where a ray scene over `points` (..., 3) puts its origin. Embree holds
+    corners as float32, whose spacing grows with the coordinates (6 cm at 10⁶ m): a level far
+    from the world origin is traced about the centre of its bounds instead, so its precision is
+    that of the same level at the origin. A scene whose bounds already reach about the origin
+    (its centre no farther out than its extent) keeps the world origin (coordinates unchanged).
+    Non-finite corners are left out."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    if not len(p):
+        return np.zeros(3)
+    lo, hi = bounds(p)
+    centre = 0.5 * (lo + hi)
+    return np.zeros(3) if np.abs(centre).max() <= np.linalg.norm(hi - lo) else centre
 
 
 def bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -34,12 +52,15 @@ def bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class RayScene:
     """An Embree scene of triangles `(T, 3, 3)` (world space); primitive ids index them.
     Built through `core.embree` (Embree shares the corner array; its BVH builds on Embree's
-    threads while the caller carries on; the first query waits for it)."""
+    threads while the caller carries on; the first query waits for it). Queries take and give
+    world space; Embree works about `origin` (`frame_origin`), which they subtract."""
 
-    def __init__(self, triangles: np.ndarray):
-        self._scene = embree.Scene(triangles)
-        self.triangles = self._scene.triangles  # float32 (T, 3, 3), Embree's own (read-only)
-        self.n_triangles = len(self.triangles)
+    def __init__(self, triangles: np.ndarray, origin: np.ndarray | None = None):
+        self.origin = frame_origin(triangles) if origin is None else np.asarray(origin, np.float64)
+        self._scene = embree.Scene(triangles, self.origin)
+        #: (T, 3, 3) float32: the corners as Embree holds them, world space minus `origin` (read-only)
+        self.local_triangles = self._scene.triangles
+        self.n_triangles = len(self.local_triangles)
 
     def intersect(
         self,

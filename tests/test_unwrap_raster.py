@@ -224,8 +224,10 @@ def test_ray_offset_scales_with_the_scene(scale):
     v, f = meshes.cube(scale)
     off = rays.ray_offset(v)
     assert 1e-6 * scale < off < 1e-4 * scale
-    far = rays.ray_offset(v + 1e4 * scale)  # far from the origin: float32 margin dominates
-    assert far > 32 * 1.19e-7 * 1e4 * scale
+    far = v + 1e4 * scale
+    assert rays.ray_offset(far) == pytest.approx(off, rel=1e-6)  # traced about its own centre
+    world = rays.ray_offset(far, origin=np.zeros(3))  # traced about the world origin: the float32 margin
+    assert world > 32 * 1.19e-7 * 1e4 * scale
 
 
 def floor_with(obstacle_v, obstacle_f, resolution=256):
@@ -344,9 +346,9 @@ def test_texels_under_an_open_tray_resting_on_the_floor_are_flagged_near_cover()
     # the probe keeps only triangles near the receivers (the floor): a box 5 m up is left out,
     # and the flags are those of a probe over every triangle
     far_v, far_f = meshes.cube(1.0, centre=(0.0, 0.0, 5.0))
-    with_far = np.concatenate([scene.triangles, far_v[far_f].astype(np.float32)])
+    with_far = np.concatenate([scene.local_triangles, far_v[far_f].astype(np.float32)])
     near = CoverProbe(with_far, pts.offset, receivers=pts.mesh.positions)
-    assert near.scene.n_triangles == len(scene.triangles)
+    assert near.scene.n_triangles == scene.n_triangles
     np.testing.assert_array_equal(
         bakepoints.find_near_cover(pts, near), bakepoints.find_near_cover(pts, CoverProbe(with_far, pts.offset))
     )
@@ -354,7 +356,8 @@ def test_texels_under_an_open_tray_resting_on_the_floor_are_flagged_near_cover()
     from hhd_lightmapper.core import covers
 
     flagged_with = covers.shared_probe(scene, pts.offset, pts.mesh.positions.copy())  # the one build() made
-    bake_scene = BakeScene(scene.triangles.astype(float), np.full((len(scene.triangles), 3), 0.5))
+    corners = scene.local_triangles.astype(float) + scene.origin
+    bake_scene = BakeScene(corners, np.full((len(corners), 3), 0.5))
     np.testing.assert_array_equal(bakepoints.find_near_cover(pts, flagged_with), pts.near_cover)
     assert tracer.texel_estimator(pts, bake_scene, tracer.BakeSettings(), scene).covers is flagged_with
     own = tracer.texel_estimator(pts, bake_scene, tracer.BakeSettings()).covers

@@ -88,14 +88,15 @@ class TexelEstimator(shipping.Shipped):
 
     def _cover_probe(self) -> CoverProbe | Literal[False]:
         """Built over the triangles traced: the shared Embree scene's (the probe the bake points
-        flagged texels with, `covers.shared_probe`), or the BakeScene's; False when no texel is
-        flagged."""
+        flagged texels with, `covers.shared_probe`), or a probe of its own over the tracer's
+        scene (the same corners); False when no texel is flagged."""
         points = self.points
         if not _probed(points).any():
             return False
         if self.scene.shared_rays:
             return _covers.shared_probe(self.scene.rays, points.offset, points.mesh.positions)
-        return CoverProbe(self.scene.scene.triangles, points.offset, points.mesh.positions)
+        rays = self.scene.rays
+        return CoverProbe(rays.local_triangles, points.offset, points.mesh.positions, origin=rays.origin)
 
     def trace(self, unit: WorkUnit) -> UnitResult:
         """Radiance SH estimate `(len(unit.texels), 9, C)` from one pass's samples of the unit's

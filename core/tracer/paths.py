@@ -87,7 +87,7 @@ class TraceScene:
         self.back_faces_black = BACK_FACES_BLACK
         self.shared_rays = ray_scene is not None
         self._rays: RayScene | None = ray_scene if ray_scene is not None else RayScene(scene.triangles)
-        self.offset = max(min_offset, ray_offset(scene.triangles))
+        self.offset = max(min_offset, ray_offset(scene.triangles, self._rays.origin))
         self.lights = _lights.build(scene)
         groups = [light.group for light in self.lights] + ([scene.world_group] if scene.world is not None else [])
         self.sets = _light_sets.set_names(groups) if light_sets else ()
