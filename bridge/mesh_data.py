@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import blender_compat
 from ..core.errors import BakeError
 from ..core.unwrap import UnwrapMesh
+from . import materials
+from .materials import TextureCache
 
 MAX_UV_LAYERS = 8  # Blender's limit per mesh
 
@@ -58,15 +59,26 @@ def read_unwrap_mesh(obj) -> tuple[UnwrapMesh, np.ndarray]:
     mesh.loop_triangles.foreach_get("polygon_index", polygons)
     m = np.array(obj.matrix_world, dtype=np.float64)
     world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+    tri, loops = tri.reshape(-1, 3), loops.reshape(-1, 3)
+    if mirrors(m):
+        tri, loops = tri[:, ::-1].copy(), loops[:, ::-1].copy()
     overrides = obj.hhd
     return UnwrapMesh(
         obj.name,
         world,
-        tri.reshape(-1, 3),
+        tri,
         resolution=overrides.resolution or None,
         texel_density=overrides.texel_density or None,
         polygons=polygons,
-    ), loops.reshape(-1, 3)
+    ), loops
+
+
+def mirrors(matrix) -> bool:
+    """Whether a 4×4 object-to-world matrix turns space inside out (negative determinant: an odd
+    number of negative scales, the usual way to model symmetric props). Its triangles' corners
+    then wind the other way in world space, so the readers reverse them: the winding normal
+    points out again, as Blender and Cycles shade a mirrored object."""
+    return bool(np.linalg.det(np.asarray(matrix, dtype=np.float64)[:3, :3]) < 0.0)
 
 
 def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> None:
@@ -103,110 +115,28 @@ def write_uv_layer(obj, name: str, loops: np.ndarray, uv: np.ndarray) -> None:
     mesh.update()
 
 
-def surface_node(mat):
-    """The node feeding the active Material Output's Surface, or None."""
-    if mat is None or blender_compat.node_tree_of(mat) is None:
-        return None
-    output = next((n for n in mat.node_tree.nodes if n.type == 'OUTPUT_MATERIAL' and n.is_active_output), None)
-    if output is None or not output.inputs["Surface"].is_linked:
-        return None
-    return output.inputs["Surface"].links[0].from_node
-
-
-def material_albedo_source(mat):
-    """Where a material's albedo comes from: ('constant', rgb, note or None) or ('texture',
-    (Image Texture node, UV map name or '' for the render UV map), None). A Principled BSDF's
-    unlinked Base Color is a constant; linked straight from an Image Texture it is that image
-    through the texture's own UV map; an Emission shader alone reflects nothing (black); any
-    other setup falls back to the viewport colour with a note saying so."""
-    if mat is None:
-        return 'constant', (0.8, 0.8, 0.8), None
-    surface = surface_node(mat)
-    if surface is not None and surface.type == 'EMISSION':
-        return 'constant', (0.0, 0.0, 0.0), None  # an Emission shader reflects nothing
-    bsdf = None
-    if mat.node_tree is not None:
-        bsdf = next((n for n in mat.node_tree.nodes if n.type == 'BSDF_PRINCIPLED'), None)
-    if bsdf is None:
-        return (
-            'constant',
-            tuple(mat.diffuse_color[:3]),
-            (f"material '{mat.name}': no Principled BSDF; baking with its viewport colour"),
-        )
-    base = bsdf.inputs["Base Color"]
-    if not base.is_linked:
-        return 'constant', tuple(base.default_value[:3]), None
-    node = base.links[0].from_node
-    if node.type == 'TEX_IMAGE' and node.image is not None:
-        vector = node.inputs["Vector"]
-        uv_map = ''
-        if vector.is_linked and vector.links[0].from_node.type == 'UVMAP':
-            uv_map = vector.links[0].from_node.uv_map
-        return 'texture', (node, uv_map), None
-    return (
-        'constant',
-        tuple(mat.diffuse_color[:3]),
-        (
-            f"material '{mat.name}': Base Color comes from a {node.type.replace('_', ' ').lower()} node; "
-            "baking with its viewport colour"
-        ),
-    )
-
-
-class TextureCache:
-    """Image Texture nodes read once as core Textures (linear pixels, interpolation, extension),
-    shared by every triangle using them."""
-
-    def __init__(self):
-        self.images: list = []
-        self._index: dict = {}
-
-    def add(self, node) -> int:
-        from ..core.textures import Texture, srgb_to_linear
-
-        image = node.image
-        key = (image.name, node.interpolation, node.extension)
-        if key not in self._index:
-            w, h = image.size
-            if w == 0 or h == 0:
-                raise BakeError(f"image '{image.name}' has no pixels (missing file?)")
-            px = np.zeros(w * h * 4, dtype=np.float32)
-            image.pixels.foreach_get(px)
-            rgb = px.reshape(h, w, 4)[..., :3].astype(np.float64)
-            if image.colorspace_settings.name == 'sRGB' and not image.is_float:
-                rgb = srgb_to_linear(rgb)
-            self._index[key] = len(self.images)
-            self.images.append(Texture(rgb, node.interpolation, node.extension))
-        return self._index[key]
-
-
 def triangle_albedo(obj, mesh, loops, mat_index, cache: TextureCache, notes: list):
-    """(albedo (T, 3), texture_index (T,), texture_uv (T, 3, 2)) of a mesh's triangles."""
+    """(albedo (T, 3), texture_index (T,), texture_uv (T, 3, 2)) of a mesh's triangles, each
+    material's albedo as `materials.albedo_of` evaluates its node tree."""
     slots = [s.material for s in obj.material_slots] or [None]
     constant, texture, uv_name = [], [], []
     for mat in slots:
-        kind, value, note = material_albedo_source(mat)
-        if note and note not in notes:
-            notes.append(note)
-        constant.append(value if kind == 'constant' else (0.8, 0.8, 0.8))
-        texture.append(cache.add(value[0]) if kind == 'texture' else -1)
-        uv_name.append(value[1] if kind == 'texture' else None)
+        value, index, uv = materials.albedo_of(mat, cache, notes)
+        constant.append(value)
+        texture.append(index)
+        uv_name.append(uv)
     pick = np.minimum(mat_index, len(slots) - 1)
     texture_uv = np.zeros(loops.shape + (2,))
     for name in {n for n in uv_name if n is not None}:
-        layer = mesh.uv_layers.get(name) if name else next((l for l in mesh.uv_layers if l.active_render), None)
-        if layer is None:
-            raise BakeError(f"'{obj.name}' has no UV map '{name or '(render)'}' for its albedo texture")
-        uv = np.zeros(len(mesh.loops) * 2)
-        layer.data.foreach_get("uv", uv)
         rows = np.isin(pick, [i for i, n in enumerate(uv_name) if n == name])
-        texture_uv[rows] = uv.reshape(-1, 2)[loops[rows]]
+        texture_uv[rows] = materials.uv_layer(obj, mesh, name, "albedo")[loops[rows]]
     return np.array(constant)[pick], np.array(texture)[pick], texture_uv
 
 
 def read_triangles(mesh, matrix_world):
     """World-space triangles of a mesh: (positions (T, 3, 3), loop indices (T, 3), material
-    index (T,)), or None when it has no faces."""
+    index (T,)), or None when it has no faces. Corners wind counter-clockwise about the outward
+    normal in world space, also for a mirrored object (`mirrors`)."""
     mesh.calc_loop_triangles()
     n_tri = len(mesh.loop_triangles)
     if n_tri == 0:
@@ -221,7 +151,10 @@ def read_triangles(mesh, matrix_world):
     mesh.vertices.foreach_get("co", co)
     m = np.array(matrix_world, dtype=np.float64)
     world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
-    return world[verts].reshape(-1, 3, 3), loops.reshape(-1, 3), mat_index
+    verts, loops = verts.reshape(-1, 3), loops.reshape(-1, 3)
+    if mirrors(m):  # corners in reverse: the winding normal points out again (`mirrors`)
+        verts, loops = verts[:, ::-1], loops[:, ::-1]
+    return world[verts], np.ascontiguousarray(loops), mat_index
 
 
 def read_shape(obj, depsgraph):
@@ -252,10 +185,20 @@ def world_corner_normals(mesh, matrix_world) -> np.ndarray:
     space, through the normal matrix (a mirrored object's normals stay outward), unit length."""
     normals = np.zeros(len(mesh.loops) * 3)
     mesh.corner_normals.foreach_get("vector", normals)
-    normal_matrix = np.linalg.inv(np.array(matrix_world, dtype=np.float64)[:3, :3]).T
-    n_world = normals.reshape(-1, 3) @ normal_matrix.T
+    n_world = normals.reshape(-1, 3) @ normal_matrix(matrix_world).T
     n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
     return n_world
+
+
+def normal_matrix(matrix_world) -> np.ndarray:
+    """(3, 3) what carries a 4×4 object-to-world matrix's normals to world space, up to a positive
+    factor: the inverse transpose of its 3×3 part, computed as its cofactor matrix times the
+    sign of its determinant, so an object scaled flat (determinant 0: a cube at Z scale 0 is a
+    double-sided square) keeps the normals that survive (± the flattened axis) instead of
+    failing to invert."""
+    m = np.asarray(matrix_world, dtype=np.float64)[:3, :3]
+    cofactor = np.cross(m[:, [1, 2, 0]].T, m[:, [2, 0, 1]].T).T  # columns c1×c2, c2×c0, c0×c1
+    return cofactor * (-1.0 if np.linalg.det(m) < 0.0 else 1.0)
 
 
 def triangle_polygons(mesh, count: int) -> np.ndarray:
@@ -263,6 +206,11 @@ def triangle_polygons(mesh, count: int) -> np.ndarray:
     polygon = np.zeros(count, np.int64)
     mesh.loop_triangles.foreach_get("polygon_index", polygon)
     return polygon
+
+
+def no_faces_warning(name: str) -> str:
+    """The warning for a receiver whose evaluated mesh has no faces."""
+    return f"'{name}': its modifiers leave no faces; nothing baked for it, its texels stay empty"
 
 
 def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None = None, notes: list | None = None):
@@ -281,7 +229,10 @@ def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None =
             if uv_layer not in mesh.uv_layers:
                 raise BakeError(f"'{obj.name}' has no '{uv_layer}' UV layer: run Unwrap first")
             tris = read_triangles(mesh, evaluated.matrix_world)
-            if tris is None:
+            if tris is None:  # the base mesh has faces (`bake_session`): its modifiers removed them
+                line = no_faces_warning(obj.name)
+                if line not in notes:
+                    notes.append(line)
                 continue
             positions, loops, mat_index = tris
             n_world = world_corner_normals(mesh, evaluated.matrix_world)
@@ -304,6 +255,10 @@ def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None =
         finally:
             evaluated.to_mesh_clear()
     if not parts:
-        raise BakeError("none of the objects has faces to bake")
+        raise BakeError(
+            "none of the objects has faces to bake: "
+            + ", ".join(f"'{o.name}'" for o in objects)
+            + (" (their modifiers leave no faces)" if objects else "")
+        )
     *arrays, polygon = (np.concatenate(x) for x in zip(*parts))
     return SurfaceTriangles(*arrays, textures=cache.images, polygon=polygon)

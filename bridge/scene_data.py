@@ -2,8 +2,10 @@
 
 Reads the evaluated depsgraph: every mesh instance visible to render (modifiers, instancing
 and collection instances included) becomes occluding, reflecting geometry; lights and the
-world are converted to the Cycles units `core.scene` documents. What is not supported yet is
-reported by name, never silently approximated.
+world are converted to the Cycles units `core.scene` documents; materials are evaluated by
+`bridge.materials`. What is not supported yet is reported by name, never silently approximated;
+negative lights (Cycles subtracts them: the tracer cannot) and non-finite or absurd values
+(`materials.checked`) are refused by name.
 """
 
 from __future__ import annotations
@@ -14,23 +16,8 @@ from .. import blender_compat
 from ..core.errors import BakeError
 from ..core.probes import ProbeGrid
 from ..core.scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
-from .mesh_data import TextureCache, read_triangles, surface_node, triangle_albedo
-
-
-def _material_emission(mat) -> tuple:
-    """Emitted radiance (linear RGB) of a material: a Principled BSDF's Emission Color ×
-    Strength, or an Emission shader feeding the output; black otherwise."""
-    surface = surface_node(mat)
-    if surface is None:
-        return (0.0, 0.0, 0.0)
-    if surface.type == 'EMISSION':
-        colour, strength = surface.inputs["Color"].default_value[:3], surface.inputs["Strength"].default_value
-    elif surface.type == 'BSDF_PRINCIPLED':
-        colour = surface.inputs["Emission Color"].default_value[:3]
-        strength = surface.inputs["Emission Strength"].default_value
-    else:
-        return (0.0, 0.0, 0.0)
-    return tuple(float(c) * float(strength) for c in colour)
+from .materials import TextureCache, checked, triangle_emission
+from .mesh_data import read_triangles, triangle_albedo
 
 
 def _instance_triangles(instance, cache, notes):
@@ -44,9 +31,9 @@ def _instance_triangles(instance, cache, notes):
             return None
         positions, loops, mat_index = tris
         albedo, tex_index, tex_uv = triangle_albedo(obj, mesh, loops, mat_index, cache, notes)
-        emission = np.array([_material_emission(s.material) for s in obj.material_slots] or [(0.0, 0.0, 0.0)])
+        emission = triangle_emission(obj, mesh, loops, mat_index, cache, notes)
         group = np.full(len(positions), _light_group(obj), dtype=object)
-        return positions, albedo, tex_index, tex_uv, emission[np.minimum(mat_index, len(emission) - 1)], group
+        return positions, albedo, tex_index, tex_uv, emission, group
     finally:
         obj.to_mesh_clear()
 
@@ -66,7 +53,8 @@ def _light(instance):
 
 def _light_data(instance):
     light = instance.object.data
-    m = np.array(instance.matrix_world, dtype=np.float64)
+    m = checked(instance.matrix_world, f"light '{instance.object.name}': its transform")
+    _check_light(instance.object.name, light)
     colour = np.array(light.color[:3], dtype=np.float64)
     if light.type == 'SUN':
         towards = m[:3, 2] / np.linalg.norm(m[:3, 2])  # lights shine along their local -Z
@@ -111,12 +99,50 @@ def _light_data(instance):
     )
 
 
+def _check_light(name: str, light) -> None:
+    """Refuse a light the bake cannot honour: non-finite or absurd values (`materials.checked`)
+    and a negative power or colour (Cycles subtracts such a light; the tracer picks lights by
+    their power and cannot)."""
+    quantity, unit = ("strength", "W/m²") if light.type == 'SUN' else ("power", "W")
+    checked(light.energy, f"light '{name}': its {quantity}")
+    checked(light.color[:3], f"light '{name}': its colour")
+    checked(np.array(light.color[:3]) * light.energy, f"light '{name}': its colour × {quantity}")
+    for size in ("shadow_soft_size", "angle", "size", "size_y", "spot_size", "spot_blend"):
+        if hasattr(light, size):
+            checked(getattr(light, size), f"light '{name}': its {size.replace('_', ' ')}")
+    if light.energy < 0.0:
+        what = f"a negative {quantity} ({light.energy:g} {unit})"
+    elif min(light.color[:3]) < 0.0:
+        what = f"a negative colour {tuple(round(float(c), 3) for c in light.color[:3])}"
+    else:
+        return
+    raise BakeError(
+        f"light '{name}' has {what}: the bake cannot subtract light; give it a positive {quantity} "
+        "or hide it from render"
+    )
+
+
 def _world(scene):
     world = scene.world
     if world is None:
         return None
+    value = _world_value(scene)
+    if value is not None and not hasattr(value, "radiance"):
+        checked(value, f"world '{world.name}': its colour × strength")
+        if (value < 0.0).any():
+            raise BakeError(
+                f"world '{world.name}' has a negative colour × strength {tuple(round(float(v), 3) for v in value)}: "
+                "the bake cannot subtract light; give the Background a positive strength"
+            )
+    return value
+
+
+def _world_value(scene):
+    world = scene.world
+    if world is None:
+        return None
     if blender_compat.node_tree_of(world) is None:
-        return np.array(world.color[:3], dtype=np.float64)
+        return checked(world.color[:3], f"world '{world.name}': its colour")
     output = next((n for n in world.node_tree.nodes if n.type == 'OUTPUT_WORLD' and n.is_active_output), None)
     if output is None or not output.inputs["Surface"].is_linked:
         return None
@@ -128,10 +154,15 @@ def _world(scene):
         )
     if node.inputs["Strength"].is_linked:
         raise BakeError(f"world '{world.name}': a linked Background Strength is not supported; set a value")
-    strength = float(node.inputs["Strength"].default_value)
+    strength = float(checked(node.inputs["Strength"].default_value, f"world '{world.name}': the Background Strength"))
+    if strength < 0.0:
+        raise BakeError(
+            f"world '{world.name}' has a negative Background Strength ({strength:g}): the bake cannot "
+            "subtract light; give it a positive strength"
+        )
     if node.inputs["Color"].is_linked:
         return _environment(world, node.inputs["Color"].links[0].from_node, strength)
-    colour = np.array(node.inputs["Color"].default_value[:3], dtype=np.float64)
+    colour = checked(node.inputs["Color"].default_value[:3], f"world '{world.name}': the Background Color")
     return colour * strength
 
 
@@ -160,7 +191,13 @@ def _environment(world, node, strength):
     rgb = px.reshape(h, w, image.channels)[..., :3].astype(np.float64)
     if image.colorspace_settings.name == 'sRGB' and not image.is_float:
         rgb = srgb_to_linear(rgb)
-    return EnvironmentMap(rgb * strength, _vector_mapping(world, node))
+    radiance = checked(rgb * strength, f"world '{world.name}': the Environment Texture '{image.name}' × strength")
+    if (radiance < 0.0).any():
+        raise BakeError(
+            f"world '{world.name}': the Environment Texture '{image.name}' has negative pixels: the bake "
+            "cannot subtract light"
+        )
+    return EnvironmentMap(radiance, _vector_mapping(world, node))
 
 
 def _vector_mapping(world, node) -> np.ndarray:
@@ -240,5 +277,12 @@ def read_probe_grids(depsgraph) -> list[ProbeGrid]:
             int(getattr(probe, f"resolution_{a}", None) or getattr(probe, f"grid_resolution_{a}")) for a in "xyz"
         )
         threshold = float(getattr(probe, "validity_threshold", 0.4))
-        grids.append(ProbeGrid(obj.name, np.array(instance.matrix_world, dtype=np.float64), resolution, threshold))
+        matrix = np.array(instance.matrix_world, dtype=np.float64)
+        axes = np.linalg.norm(matrix[:3, :3], axis=0)
+        if not np.isfinite(matrix).all() or abs(np.linalg.det(matrix[:3, :3])) <= 1e-9 * axes.prod():
+            raise BakeError(
+                f"irradiance volume '{obj.name}' has a zero scale on some axis, so its probes have no "
+                "extent: give it a non-zero scale, or hide it from render to bake without it"
+            )
+        grids.append(ProbeGrid(obj.name, matrix, resolution, threshold))
     return grids
