@@ -573,6 +573,7 @@ def _finish_files(
         noise=traced.noise(),
         release=traced.release_points if release and last else None,
         release_sh=traced.release_sh_rows if release else None,
+        crop=True,  # an almost empty atlas: the window of its texels (the files are the same)
     )
     if release:
         traced.release_sh()
@@ -581,7 +582,7 @@ def _finish_files(
     with encoding.raw_files(raw, fill) as images_of:
         out.raw(name, parent, images_of)
     del images_of
-    restore = functools.partial(_restore_sh, raw.sh, fill.valid, out, name, parent)
+    restore = functools.partial(_restore_sh, raw.sh, fill.valid, out, name, parent, raw.window)
     data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams, in_place=True, restore=restore)
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
     del raw, restore  # `data` holds the SH now, denoised in place or as traced
@@ -596,12 +597,16 @@ def _finish_files(
     return post.warnings(sidecar["post"])
 
 
-def _restore_sh(sh: np.ndarray, valid: np.ndarray, out, name: str, parent: str) -> None:
+def _restore_sh(sh: np.ndarray, valid: np.ndarray, out, name: str, parent: str, window=None) -> None:
     """Put the traced SH of the baked texels (flat indices `valid`) back into `sh` `(H, W, 9, 3)`
     from the raw SH file staged (or kept) in `out`: a denoiser that failed half-way through
-    writing it (the file's other texels are dilated; the denoiser writes baked texels only)."""
+    writing it (the file's other texels are dilated; the denoiser writes baked texels only).
+    `window`: the rectangle of the atlas `sh` is (`TexelData.window`), None for the whole."""
     h, w = sh.shape[:2]
-    sh.reshape(h * w, -1)[valid] = out.traced_sh(name, parent).reshape(h * w, -1)[valid]
+    traced = out.traced_sh(name, parent)
+    if window is not None:
+        traced = traced[window.y0 : window.y0 + window.h, window.x0 : window.x0 + window.w]
+    sh.reshape(h * w, -1)[valid] = np.ascontiguousarray(traced).reshape(h * w, -1)[valid]
 
 
 def _same_fill(fill, data: encoding.TexelData):

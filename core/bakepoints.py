@@ -359,7 +359,8 @@ def other_triangles(
         return out
     chosen = np.asarray(chosen, np.int64)
     best = np.zeros(out.shape)  # the areas of out's triangles
-    point = np.zeros(int(cov.texel[chosen[-1]]) + 1, np.int32)  # sorted by texel: the last is the largest
+    ranks, _ = raster.texel_ranks(cov.texel)  # an almost empty atlas: the covered texels' ranks
+    point = np.zeros(int(ranks[chosen[-1]]) + 1, np.int32)  # sorted by texel: the last is the largest
     use_normals = face_normals is not None
     normals = np.asarray(face_normals, np.float64) if use_normals else np.zeros((1, 3))
     kernel = raster_kernels.get().other_triangles
@@ -367,7 +368,7 @@ def other_triangles(
     bounds = [len(chosen) * k // workers for k in range(workers + 1)]
 
     def work(k: int) -> None:
-        texel, triangle, area = cov.texel, cov.triangle, cov.area
+        texel, triangle, area = ranks, cov.triangle, cov.area
         kernel(
             texel, triangle, area, chosen, normals, use_normals, FOOTPRINT_MIN_COS, point, out, best, *bounds[k : k + 2]
         )

@@ -187,10 +187,13 @@ class Page:
     corners: list[tuple[int, int]] = field(default_factory=list)
 
 
-def layout(labels: np.ndarray, n: int, brightness: np.ndarray) -> list[Page]:
+def layout(labels: np.ndarray, n: int, brightness: np.ndarray, atlas_width: int | None = None) -> list[Page]:
     """Pages holding every chart whose `brightness` (n,) exceeds BLACK: charts grouped into
-    brightness bands of factor BRIGHTNESS_BAND, then packed by decreasing height (`_skyline`)."""
+    brightness bands of factor BRIGHTNESS_BAND, then packed by decreasing height (`_skyline`).
+    `atlas_width`: the atlas's width when `labels` is a window of it (`TexelData.window`; pages
+    are as wide as the whole atlas's would be), default the labels' own."""
     h, w = labels.shape
+    page_width = min(PAGE_SIZE, w if atlas_width is None else atlas_width)
     ys, xs = np.nonzero(labels >= 0)
     lab = labels[ys, xs]
     y0 = np.full(n, h, np.int64)
@@ -208,7 +211,7 @@ def layout(labels: np.ndarray, n: int, brightness: np.ndarray) -> list[Page]:
     for b in np.unique(band):
         members = lit[band == b]
         members = members[np.lexsort((-rw[members], -rh[members]))]
-        pages += _skyline(members, rh, rw, y0 - MARGIN, x0 - MARGIN, min(PAGE_SIZE, w))
+        pages += _skyline(members, rh, rw, y0 - MARGIN, x0 - MARGIN, page_width)
     return pages
 
 
@@ -320,7 +323,7 @@ def denoise_texels(
     written = np.zeros(h * w, bool)  # texels written (set before they are: `restore`)
     clamping = False
     try:
-        for page in layout(labels, n, brightness):
+        for page in layout(labels, n, brightness, data.atlas_shape[1]):
             if check is not None:
                 check()
             band = _band_rows(page.shape)

@@ -23,11 +23,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .encoding import EncodedAtlas, TexelData
+from .stages import PlacedImage, Window
 
 if TYPE_CHECKING:
     from .seams import Seams
@@ -97,9 +99,32 @@ def stitch_encoded(
         return encoded
     from . import seams as _seams
 
-    out, record = _seams.stitch_encoded(encoded, seams, coverage, check, settings.trace.threads)
+    window, placed = _windowed(encoded)
+    out, record = _seams.stitch_encoded(placed, seams, coverage, check, settings.trace.threads, window)
     records["stitch"]["encoded"] = _finite(record)
-    return out
+    return out if window is None else _placed(out, encoded)
+
+
+def _windowed(encoded: EncodedAtlas) -> tuple[Window | None, EncodedAtlas]:
+    """The window of `encoded`'s encoding file (its images `stages.PlacedImage`s: an almost
+    empty atlas's, `TexelData.window`) and the atlas with that file's window images; (None,
+    `encoded`) for whole images."""
+    key = encoded.encoding_file.key
+    spec, images = encoded.files[key]
+    first = next(iter(images.values()), None)
+    if not isinstance(first, PlacedImage):
+        return None, encoded
+    inner = {name: image.inner for name, image in images.items()}
+    return first.window, replace(encoded, files={**encoded.files, key: (spec, inner)})
+
+
+def _placed(out: EncodedAtlas, like: EncodedAtlas) -> EncodedAtlas:
+    """`out`'s encoding file (window images) placed in the atlas as `like`'s are (`_windowed`)."""
+    key = out.encoding_file.key
+    spec, images = out.files[key]
+    around = like.files[key][1]
+    placed = {name: replace(around[name], inner=image) for name, image in images.items()}
+    return replace(out, files={**out.files, key: (spec, placed)})
 
 
 def _finite(record):

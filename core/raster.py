@@ -105,5 +105,23 @@ def choose_per_texel(cov: Coverage):
     total coverage per chosen texel clipped to 1)."""
     if len(cov.texel) == 0:
         return np.zeros(0, np.int64), np.zeros(0)
-    texels = int(cov.texel.max()) + 1  # a scratch image of the texels up to the last covered one
-    return raster_kernels.get().choose_per_texel(cov.texel, cov.triangle, cov.area, texels)
+    texel, texels = texel_ranks(cov.texel)  # a scratch image of the texels up to the last covered one
+    return raster_kernels.get().choose_per_texel(texel, cov.triangle, cov.area, texels)
+
+
+#: Flat texel ids reach this many times the pairs' count before the compiled kernels' scratch
+#: images index the covered texels' ranks instead (`texel_ranks`): an almost empty atlas.
+SPARSE_TEXELS = 4
+
+
+def texel_ranks(texel: np.ndarray) -> tuple[np.ndarray, int]:
+    """Ids for the pairs' flat texel ids `texel` (N,) that a scratch image of every id below a
+    bound can index, and that bound: the ids themselves (bound: the last + 1) or, when that
+    image would be SPARSE_TEXELS times larger than the pairs (an almost empty atlas: memory
+    follows its texels, not its area), each id's rank among the covered texels (the same order,
+    so the kernels' results are the same)."""
+    texels = int(texel.max()) + 1 if len(texel) else 0
+    if texels <= SPARSE_TEXELS * len(texel):
+        return texel, texels
+    covered, rank = np.unique(texel, return_inverse=True)
+    return rank.reshape(-1).astype(np.int64, copy=False), len(covered)

@@ -145,6 +145,15 @@ class Seams:
             self, **{f.name: getattr(self, f.name)[keep] for f in fields(self) if f.name not in ("width", "height")}
         )
 
+    def within(self, window) -> Seams:
+        """These seams on the images of `window` (`stages.Window`, an atlas's rectangle: the
+        texel images of an almost empty atlas) instead of the whole atlas's: the positions moved
+        by its corner (exactly: whole texels), its size. None: these seams."""
+        if window is None:
+            return self
+        corner = np.array([window.x0, window.y0], np.float64)
+        return replace(self, a=self.a - corner, b=self.b - corner, width=int(window.w), height=int(window.h))
+
     @classmethod
     def empty(cls, width: int, height: int) -> Seams:
         z2, z3 = np.zeros((0, 2)), np.zeros((0, 3))
@@ -437,6 +446,16 @@ def _metric(read: Reader, seams: Seams, worst: int = 10, tilt: float = TILT) -> 
     return out
 
 
+def _placed(read: Reader, window) -> Reader:
+    """`read` (of a window's images, `stages.Window`) reading at atlas positions: the window's
+    corner taken off each point once it is made (exactly: whole texels), so the reads are those
+    of the whole atlas's images. `read` itself without a window."""
+    if window is None:
+        return read
+    corner = np.array([window.x0, window.y0], np.float64)
+    return lambda xy: read(xy - corner)
+
+
 def _probes(read: Reader, seams: Seams) -> dict:
     """The reads the metric takes, by place: 'a', 'b' (the seam) and (side, offset) inward."""
     probes: dict[Any, Callable] = {"a": read(seams.a), "b": read(seams.b)}
@@ -536,8 +555,9 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
     ratio; `tilted` likewise)."""
     start = time.perf_counter()
     h, w = data.coverage.shape
-    if (seams.width, seams.height) != (w, h):
+    if (seams.height, seams.width) != tuple(data.atlas_shape):
         raise ValueError(f"seams of a {seams.width}×{seams.height} atlas, texel images of {w}×{h}")
+    atlas_seams, seams = seams, seams.within(data.window)  # on the images (a window: `TexelData.window`)
     if len(seams) == 0:  # nothing to stitch: the same TexelData and record, without the image copies
         empty = {"seams": 0, "edges": 0, "texels": 0, "groups": 0, "iterations": 0}
         record0: dict[str, Any] = {"enabled": True, **empty, "samples_dropped": 0, "samples_hidden": 0}
@@ -580,10 +600,11 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
         # As the SH file will read (the stitched texels are sources; no other texel the
         # metric reads changes, up to gutter texels of thin charts whose nearest source moved).
         shape = (h, w) + data.sh.shape[2:]
-        visible = seams.select(shown)
-        record["before"] = _brief(_metric(sh_reader(prior.reshape(shape)), visible, worst=0))
+        visible = atlas_seams.select(shown)
+        read = _placed(sh_reader(prior.reshape(shape)), data.window)
+        record["before"] = _brief(_metric(read, visible, worst=0))
         prior[texels] = new  # the stitched SH, in place: prior is not needed any more (memory)
-        record["after"] = _brief(_metric(sh_reader(prior.reshape(shape)), visible, worst=0))
+        record["after"] = _brief(_metric(read, visible, worst=0))
     record["seconds"] = time.perf_counter() - start
     return out, record
 
@@ -662,7 +683,7 @@ def _brief(metric: dict) -> dict:
 
 
 def stitch_encoded(
-    atlas: EncodedAtlas, seams: Seams, coverage: np.ndarray, check=None, threads: int = 0
+    atlas: EncodedAtlas, seams: Seams, coverage: np.ndarray, check=None, threads: int = 0, window=None
 ) -> tuple[EncodedAtlas, dict]:
     """Least-squares seam stitching of an HHD/AHD atlas's encoded layers, as the preview filters
     them: I_z, w_a and the octahedral direction (packed: the GPU interpolates the packed values),
@@ -675,8 +696,11 @@ def stitch_encoded(
     fold, packed values of nearby directions are far apart and averaging them would be wrong).
     Values stay in range (I_z ≥ 0, w_a in [0, 1], packed direction in [-1, 1]).
     Returns the atlas with the encoding file's images replaced, and a record: enabled, texels
-    (changed), iterations, seconds, and the HHD-read `seam_metric` before and after."""
+    (changed), iterations, seconds, and the HHD-read `seam_metric` before and after.
+    `window` (`stages.Window`): the images and `coverage` are that rectangle of the atlas
+    `seams` are of (`TexelData.window`)."""
     start = time.perf_counter()
+    atlas_seams, seams = seams, seams.within(window)
     if len(seams) == 0:  # nothing to stitch: the same atlas and record, without the image copies
         nothing = _brief(_metric(lambda xy: None, seams))  # type: ignore[arg-type, return-value]
         record0 = {"enabled": True, "texels": 0, "iterations": 0, "before": nothing, "after": dict(nothing)}
@@ -690,8 +714,8 @@ def stitch_encoded(
     out = {name: np.array(image, copy=True) for name, image in images.items()}
     model = atlas.settings.get("model", "hhd")
     shown = ~reads_hidden(seams, hidden_texels(np.asarray(coverage)))
-    visible = seams.select(shown)
-    before = _metric(hhd_reader(images, model), visible, worst=0)
+    visible = atlas_seams.select(shown)
+    before = _metric(_placed(hhd_reader(images, model), window), visible, worst=0)
     packed = np.stack([images[n].reshape(-1) for n in directions], -1).astype(np.float64)
     gap = np.abs(bilinear(packed.reshape(h, w, 2), seams.a) - bilinear(packed.reshape(h, w, 2), seams.b)).max(axis=1)
     iterations, changed = 0, np.zeros(h * w, bool)
@@ -715,7 +739,7 @@ def stitch_encoded(
         "texels": int(np.count_nonzero(changed)),
         "iterations": iterations,
         "before": _brief(before),
-        "after": _brief(_metric(hhd_reader(out, model), visible, worst=0)),
+        "after": _brief(_metric(_placed(hhd_reader(out, model), window), visible, worst=0)),
         "seconds": time.perf_counter() - start,
     }
     return replace(atlas, files=files), record

@@ -198,3 +198,105 @@ class TracedAtlas:
         """The atlas as traced for light set k alone (`sets[k]`): its SH and standard error."""
         assert self.set_sh is not None and self.set_sh_error is not None, "an atlas traced without light sets"
         return self.with_sh(self.set_sh[k], self.set_sh_error[k])
+
+
+@dataclass(frozen=True)
+class Window:
+    """Where an atlas's texel images lie when they are not the whole atlas (`TexelData.window`):
+    rows y0 … y0 + h and columns x0 … x0 + w (rows bottom-up) of an `atlas` (height, width) whose
+    every texel outside them holds one value per image (an almost empty atlas: memory and time
+    follow its texels, not its area; `encoding.stage.window_of`)."""
+
+    y0: int
+    x0: int
+    h: int
+    w: int
+    atlas: tuple[int, int]
+
+    def local(self, texel: np.ndarray) -> np.ndarray:
+        """Flat atlas indices (row · width + column) → flat indices in the window."""
+        width = self.atlas[1]
+        return (texel // width - self.y0) * self.w + (texel % width - self.x0)
+
+
+@dataclass
+class PlacedImage:
+    """A full-size `(H, W)` image of one value, `background`, but for the rows and columns of
+    `window`, which hold `inner` `(h, w)` (any strides: a view of a TexelData's or a layer's
+    window image). What the files of an almost empty atlas are made of: the EXR writer takes it
+    a band of rows at a time (`[rows]` gives an ndarray), `[::-1]` turns it to EXR rows and
+    `astype` stores it, without the whole image ever existing (`np.asarray` makes it whole).
+    `flipped`: rows reversed (row 0 is the atlas's top)."""
+
+    inner: np.ndarray
+    window: Window
+    background: np.ndarray  # 0-d, of inner's dtype
+    flipped: bool = False
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.window.atlas
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.inner.dtype
+
+    @property
+    def ndim(self) -> int:
+        return 2
+
+    @property
+    def size(self) -> int:
+        return self.shape[0] * self.shape[1]
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def astype(self, dtype, copy: bool = True) -> PlacedImage:
+        if np.dtype(dtype) == self.dtype and not copy:
+            return self
+        background = np.asarray(self.background).astype(dtype)
+        return replace(self, inner=self.inner.astype(dtype, copy=copy), background=background)
+
+    def zeros(self) -> PlacedImage:
+        """An image of zeros of this one's shape and dtype (as np.zeros_like), as small."""
+        z = np.zeros((), self.dtype)
+        return PlacedImage(np.broadcast_to(z, self.inner.shape), self.window, z, self.flipped)
+
+    def fits_half(self) -> bool:
+        """Whether every finite value fits a half float (`exr.fits_half`)."""
+        from .exr import fits_half
+
+        return fits_half(self.inner) and fits_half(np.asarray(self.background).reshape(1))
+
+    def __getitem__(self, key) -> PlacedImage | np.ndarray:
+        """`[::-1]` (this image, rows reversed) or `[a:b]` (those rows, an ndarray)."""
+        if not isinstance(key, slice):
+            raise TypeError(f"a PlacedImage takes a slice of rows, not {key!r}")
+        h = self.shape[0]
+        if key == slice(None, None, -1):
+            return replace(self, flipped=not self.flipped)
+        start, stop, step = key.indices(h)
+        if step != 1:
+            raise ValueError("a PlacedImage gives rows in order or reversed only")
+        out = np.full((max(stop - start, 0), self.shape[1]), self.background, self.dtype)
+        w = self.window
+        # the window's rows in this image's order (flipped: atlas row y is row h - 1 - y)
+        first = h - w.y0 - w.h if self.flipped else w.y0
+        a, b = max(start, first), min(stop, first + w.h)
+        if a < b:
+            rows = self.inner[a - first : b - first] if not self.flipped else self.inner[::-1][a - first : b - first]
+            out[a - start : b - start, w.x0 : w.x0 + w.w] = rows
+        return out
+
+    def __array__(self, dtype=None, copy=None):
+        whole = self[0 : self.shape[0]]
+        return whole if dtype is None else whole.astype(dtype, copy=False)
+
+
+def placed(inner: np.ndarray, window: Window | None, background) -> np.ndarray | PlacedImage:
+    """`inner` itself without a window (it is the whole atlas), else the `PlacedImage` of it with
+    `background` (cast to its dtype) everywhere else."""
+    if window is None:
+        return inner
+    return PlacedImage(inner, window, np.asarray(background).astype(inner.dtype))

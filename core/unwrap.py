@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import deps, xatlas_worker
+from . import atlas_limits, deps, xatlas_worker
 from .errors import BakeCancelled, BakeError
 
 MIN_RESOLUTION, MAX_RESOLUTION = 256, 8192
@@ -203,6 +203,7 @@ def unwrap(
     groups = _group(meshes, settings)
     for _, resolution, density, _ in groups:
         _check_scale(resolution, density)
+    atlas_limits.check_density(meshes, settings.texel_density, MAX_RESOLUTION)  # before xatlas meets it
     deps.require("xatlas")  # a missing wheel is a clear message here, not in the child
     stats: dict = {"packs": 0, "tries": []}
     t0 = time.perf_counter()
@@ -231,10 +232,13 @@ def unwrap(
 
         for k, (part, atlas) in enumerate(_spill(indices, pack, charts, resolution, density, settings.padding)):
             # a density-driven atlas is xatlas's own size; a fixed one is resolution² (charts fit in it)
+            turn = _upright(atlas)
             w, h = (atlas["width"], atlas["height"]) if density is not None else (resolution, resolution)
+            if turn:
+                w, h = h, w
             _add_atlas(result, atlas, (w, h), shared, k)
             for j, i in enumerate(part):
-                result.objects[i] = _object_uv(meshes[i], atlas, j, len(result.atlas_sizes) - 1, w, h)
+                result.objects[i] = _object_uv(meshes[i], atlas, j, len(result.atlas_sizes) - 1, w, h, turn)
     stats["pack_s"] = time.perf_counter() - t0 - stats["chart_s"]
     if progress:
         progress(1.0, "xatlas: done")
@@ -728,10 +732,33 @@ def _describe_failure(run) -> str:
     return f"exit code {run.returncode}" + (f": {lines[-1]}" if lines else "")
 
 
-def _object_uv(mesh, atlas, k, atlas_index, w, h):
-    # the worker's UVs are normalised by xatlas's atlas size; rescale to the final atlas size.
-    scale = np.array([atlas["width"] / w, atlas["height"] / h], dtype=np.float64)
-    uv = (atlas["uv"][k] * scale).astype(np.float32)  # (T, 3, 2)
+def _upright(atlas) -> bool:
+    """Whether the charts xatlas packed span more rows than columns of its atlas (`_object_uv`
+    turns such an atlas a quarter)."""
+    uv = [u[u.any(axis=(1, 2))].reshape(-1, 2) for u in atlas["uv"]]  # placed triangles' corners
+    uv = np.concatenate(uv).astype(np.float64) * [atlas["width"], atlas["height"]] if uv else np.zeros((0, 2))
+    if not len(uv):
+        return False
+    span = uv.max(axis=0) - uv.min(axis=0)
+    return bool(span[1] > span[0])
+
+
+def _object_uv(mesh, atlas, k, atlas_index, w, h, turn=False):
+    """ObjectUV of mesh k of a packed `atlas` in the final w × h atlas. The worker's UVs are
+    normalised by xatlas's atlas size; they are rescaled to the final size, and with `turn`
+    (xatlas's atlas taller than wide; w, h are already the turned sizes) turned a quarter,
+    (u, v) → (v, 1 − u): texel centres land on texel centres and charts keep their handedness,
+    and the texels lie in few rows, which is what the files' writers and the post stages'
+    windows are cheapest for (a long thin strip packed upright would touch every row)."""
+    if turn:
+        scale = np.array([atlas["width"] / h, atlas["height"] / w], dtype=np.float64)
+        uv = atlas["uv"][k] * scale
+        unplaced = ~uv.any(axis=(1, 2))  # triangles without area keep UVs 0, turned or not
+        uv = np.stack([uv[..., 1], 1.0 - uv[..., 0]], axis=-1).astype(np.float32)
+        uv[unplaced] = 0.0
+    else:
+        scale = np.array([atlas["width"] / w, atlas["height"] / h], dtype=np.float64)
+        uv = (atlas["uv"][k] * scale).astype(np.float32)  # (T, 3, 2)
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     areas = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * w * h  # texels²
     live = areas > 0

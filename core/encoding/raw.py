@@ -35,9 +35,12 @@ NOISE = Channel(
     FLOAT,
     "standard error of the texel's luminance SH0 (radiance) from the spread between the tracer's "
     "p passes, widened by sqrt(nu / (nu - 2)), nu = p - 1, for the uncertainty of that estimate; "
-    "NaN where unknown (fewer than 4 passes) and outside charts",
+    "-1 where unknown (fewer than 4 passes) and outside charts",
     fill=NO_FILL,
 )
+#: `NOISE`'s value in the files where a texel's noise is unknown (a standard error is ≥ 0; files
+#: hold no NaN). In memory (`TexelData.noise`) unknown is NaN.
+NOISE_UNKNOWN = -1.0
 TEXELS_FILE = FileSpec("texels", "_texels.exr", (NORMAL, COVERAGE, NOISE))
 
 #: The raw files, in the order they are written after the encoding's file.

@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import dilate as _dilate
-from ..stages import releasable_zeros, release_zero_pages
-from .raw import SH_FILE, TEXELS_FILE
+from ..stages import PlacedImage, Window, placed, releasable_zeros, release_zero_pages
+from .raw import NOISE_UNKNOWN, SH_FILE, TEXELS_FILE
 from .spec import DILATE_BURIED_BLACK, NO_FILL, Channel, Encoding, FileSpec
 
 if TYPE_CHECKING:
@@ -39,6 +39,29 @@ IMAGE_ROWS = 1 << 18
 #: Texels encoded per Encoding.encode call: bounds the float64 copies an encoding makes.
 ENCODE_CHUNK = 1 << 17
 
+#: Texels around the baked ones a window (`window_of`) keeps: more than any stage reaches from a
+#: baked texel (the dilation's DILATE_RINGS from a stitched gutter texel, itself next to a chart;
+#: the denoiser's page margin), so every texel outside it takes the mean fill (or none), as in
+#: the whole atlas.
+WINDOW_MARGIN = DILATE_RINGS + 8
+
+
+def window_of(texel: np.ndarray, height: int, width: int) -> Window | None:
+    """The rectangle of an atlas `height` × `width` holding its baked texels (flat indices `texel`)
+    and WINDOW_MARGIN texels around them, clipped to the atlas: the images a bake's stages work
+    on (`TexelData.from_points(..., crop=True)`); None when it is the whole atlas. Outside it
+    every texel is farther than the dilation reaches from any texel a stage writes, so every
+    stage gives there what it gives the whole atlas (the mean fill, or nothing), and the files
+    are the same."""
+    if len(texel) == 0:
+        return None
+    rows, cols = texel // width, texel % width
+    y0, y1 = max(int(rows.min()) - WINDOW_MARGIN, 0), min(int(rows.max()) + 1 + WINDOW_MARGIN, height)
+    x0, x1 = max(int(cols.min()) - WINDOW_MARGIN, 0), min(int(cols.max()) + 1 + WINDOW_MARGIN, width)
+    if (y1 - y0, x1 - x0) == (height, width):
+        return None
+    return Window(y0, x0, y1 - y0, x1 - x0, (height, width))
+
 
 @dataclass
 class TexelData:
@@ -50,7 +73,10 @@ class TexelData:
     baked texels instead of being filled; noise `(H, W)`, optional: the standard error of each
     texel's luminance L0 (radiance) as traced, NaN where unknown (`TracedAtlas.noise`), as
     the texels file keeps it (the denoiser's noise clamp reads it). float32 as in the files, so
-    encoding a fresh bake and re-encoding its files agree exactly."""
+    encoding a fresh bake and re-encoding its files agree exactly.
+    window: None when the images are the whole atlas; else the rectangle of the atlas they are
+    (`window_of`: an almost empty atlas), every texel outside it empty (no chart, no value).
+    The stages work on the window's images; the files are written whole (`stages.PlacedImage`)."""
 
     sh: np.ndarray
     normal: np.ndarray
@@ -58,6 +84,12 @@ class TexelData:
     sh_error: np.ndarray | None = None
     extra_sources: np.ndarray | None = None
     noise: np.ndarray | None = None
+    window: Window | None = None
+
+    @property
+    def atlas_shape(self) -> tuple[int, int]:
+        """(height, width) of the atlas (the images' own without a window)."""
+        return self.coverage.shape if self.window is None else self.window.atlas
 
     @property
     def baked(self) -> np.ndarray:
@@ -75,6 +107,7 @@ class TexelData:
         noise: np.ndarray | None = None,
         release: Callable[[], None] | None = None,
         release_sh: Callable[[int], None] | None = None,
+        crop: bool = False,
     ) -> TexelData:
         """Images of per-point `sh` `(P, 9, 3)` (and optionally its standard error and the
         `noise` (P,) of `TracedAtlas.noise`) at `points`; noise is NaN outside the charts.
@@ -83,10 +116,19 @@ class TexelData:
         may drop the bake points there (as large as the SH image), this call keeps only their
         texel indices. `release_sh(n)`, if given, is called as the SH is imaged, a part at a
         time, once its first n rows are (`TracedAtlas.release_sh_rows`: the caller may free
-        them, so that the compact SH and its image are not both whole at once)."""
+        them, so that the compact SH and its image are not both whole at once). `crop`: the images
+        are of the atlas's `window_of` its texels (the whole atlas where that is all of it)."""
         texel, h, w = points.texel, points.height, points.width
+        window = window_of(texel, h, w) if crop else None
+        if window is not None:
+            texel, h, w = window.local(texel), window.h, window.w
         coverage = np.where(points.buried, -1.0, points.coverage)
-        error = None if sh_error is None else points.image(sh_error, dtype=np.float32)
+        if sh_error is None:
+            error = None
+        elif window is None:
+            error = points.image(sh_error, dtype=np.float32)
+        else:  # the window's image: `points.image`'s values, placed there
+            error = _image_at(sh_error, texel, h, w)
         normal = points.normal
         if release is not None:  # float32 casts of what is left to image: the values the images take
             coverage, normal = coverage.astype(np.float32), normal.astype(np.float32)
@@ -114,6 +156,7 @@ class TexelData:
             coverage=coverage,
             sh_error=error,
             noise=noise,
+            window=window,
         )
 
     def fill(self) -> _dilate.Fill:
@@ -124,13 +167,46 @@ class TexelData:
 
     def layers(self) -> dict[str, np.ndarray]:
         """The raw files' layers as `(H, W, components)` views: SH0 … SH8, Normal, Coverage,
-        Noise (NaN everywhere when unknown)."""
+        Noise (NOISE_UNKNOWN where unknown: files hold no NaN)."""
         out = {ch.name: self.sh[:, :, k] for k, ch in enumerate(SH_FILE.channels)}
         normal, coverage, noise = TEXELS_FILE.channels
         out.update({normal.name: self.normal, coverage.name: self.coverage[..., None]})
-        noise_image = np.full(self.coverage.shape, np.nan, np.float32) if self.noise is None else self.noise
+        if self.noise is None:
+            noise_image = np.full(self.coverage.shape, NOISE_UNKNOWN, np.float32)
+        else:
+            noise_image = np.where(np.isnan(self.noise), np.float32(NOISE_UNKNOWN), self.noise)
         out[noise.name] = noise_image[..., None]
         return out
+
+    def placed(self, name: str, image: np.ndarray, fill: _dilate.Fill | None = None) -> np.ndarray | PlacedImage:
+        """One raw file's channel image `(h, w)` of the window (layer `name`, `layers`) as the
+        atlas's: itself without a window, else a `PlacedImage` whose texels outside the window
+        hold what the whole atlas's would: the layer's mean fill (`fill` given: a filled
+        channel, `background`), unknown noise (NOISE_UNKNOWN), else 0."""
+        if self.window is None:
+            return image
+        if fill is not None:
+            value = background(fill, image)
+        else:
+            value = NOISE_UNKNOWN if name == TEXELS_FILE.channels[2].name else 0.0
+        return placed(image, self.window, value)
+
+
+def _image_at(values: np.ndarray, texel: np.ndarray, h: int, w: int, fill: float = 0.0) -> np.ndarray:
+    """`BakePoints.image` of `values` at flat indices `texel` of an `h` × `w` image, float32."""
+    out = np.full((h * w,) + values.shape[1:], fill, np.float32)
+    out[texel] = values
+    return out.reshape((h, w) + values.shape[1:])
+
+
+def background(fill: _dilate.Fill, image: np.ndarray) -> np.ndarray:
+    """The value `fill.apply` gives `image` `(h, w, ...)` (any strides)'s texels out of every
+    source's reach, in its dtype: the mean of its sources (0 without any). Outside a window,
+    every texel is one of those."""
+    if not len(fill.valid):
+        return np.zeros(image.shape[2:], image.dtype)
+    flat = image.reshape((-1,) + image.shape[2:])  # a copy of a strided view: a window's, small
+    return np.asarray(flat[fill.valid].mean(axis=0, dtype=np.float64)).astype(image.dtype)
 
 
 @dataclass
@@ -160,14 +236,14 @@ def encode_atlas(
     or a re-encode, which keeps the files it read). `fill`: `data.fill()`, if the caller has it. `spend` (only without `raw`): the caller no longer needs `data.sh`, which
     is dropped once the texels are encoded, before the layers are filled (memory: the atlas's SH
     is the largest image)."""
-    h, w = data.coverage.shape
+    h, w = data.atlas_shape
     fill = data.fill() if fill is None else fill
     images, summary = encode_images(data, encoding, fill, spend=spend and not raw)
     files = {encoding.file.key: (encoding.file, images)}
     if raw:
         layers = data.layers()
         for spec in (SH_FILE, TEXELS_FILE):
-            files[spec.key] = (spec, raw_images(spec, layers, fill))
+            files[spec.key] = (spec, raw_images(spec, layers, fill, data=data))
     stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.invalid)), **summary}
     return EncodedAtlas(w, h, files, encoding.file, dict(encoding.settings), stats)
 
@@ -179,7 +255,8 @@ def raw_files(data: TexelData, fill: _dilate.Fill) -> Iterator[dict[str, tuple[F
     channels are filled in `data.sh` itself (views of it, no copy of the atlas's SH), and on
     leaving every texel the fill wrote (`fill.empty`) holds its bits from before again, so the
     post stages and the encoder read `data` as if nothing had happened. The texels file's
-    channels are unfilled views. `fill`: `data.fill()`."""
+    channels are unfilled views. `fill`: `data.fill()`. With a window (`TexelData.window`) the
+    images are `stages.PlacedImage`s of the whole atlas around the window's."""
     h, w = data.coverage.shape
     flat = data.sh.reshape(h * w, -1)
     if not np.shares_memory(flat, data.sh):
@@ -187,7 +264,10 @@ def raw_files(data: TexelData, fill: _dilate.Fill) -> Iterator[dict[str, tuple[F
     index, values = _nonzero_rows(flat, fill.empty)  # all others are +0.0 in every channel
     try:
         layers = data.layers()
-        yield {spec.key: (spec, raw_images(spec, layers, fill, in_place=True)) for spec in (SH_FILE, TEXELS_FILE)}
+        yield {
+            spec.key: (spec, raw_images(spec, layers, fill, in_place=True, data=data))
+            for spec in (SH_FILE, TEXELS_FILE)
+        }
     finally:
         for s in range(0, len(fill.empty), ENCODE_CHUNK):
             flat[fill.empty[s : s + ENCODE_CHUNK]] = 0.0
@@ -210,7 +290,8 @@ def _nonzero_rows(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def encode_images(data: TexelData, encoding: Encoding, fill: _dilate.Fill, spend: bool = False) -> tuple[dict, dict]:
     """The encoding's channel images `(H, W)` (filled, packed) and its summary statistics.
-    `spend`: drop `data.sh` once the texels are encoded (`encode_atlas`)."""
+    `spend`: drop `data.sh` once the texels are encoded (`encode_atlas`). With a window
+    (`TexelData.window`) the images are `stages.PlacedImage`s of the whole atlas."""
     h, w = data.coverage.shape
     baked = fill.valid
     sh, normal = data.sh.reshape(h * w, 9, -1), data.normal.reshape(h * w, 3)
@@ -228,13 +309,23 @@ def encode_images(data: TexelData, encoding: Encoding, fill: _dilate.Fill, spend
         data.sh = np.zeros((0, 0) + data.sh.shape[2:], np.float32)
     images = {}
     for ch in channels:
-        images.update(layer_images(ch, values.pop(ch.name).reshape(h, w, ch.value_width), fill))
+        images.update(layer_images(ch, values.pop(ch.name).reshape(h, w, ch.value_width), fill, data.window))
     return images, encoding.summary(stats, len(baked))
 
 
-def layer_images(ch: Channel, image: np.ndarray, fill: _dilate.Fill) -> dict[str, np.ndarray]:
+def layer_images(
+    ch: Channel, image: np.ndarray, fill: _dilate.Fill, window: Window | None = None
+) -> dict[str, np.ndarray | PlacedImage]:
     """One layer's value image `(H, W, value_width)` (a contiguous array of the caller's, filled
-    in place), filled as a whole then packed, as {EXR channel name: `(H, W)` view}."""
+    in place), filled as a whole then packed, as {EXR channel name: `(H, W)` view}. With a
+    `window` (of the TexelData the image is of), each a `stages.PlacedImage` of the atlas whose
+    texels outside the window hold what the whole atlas's would: the layer's mean fill (0
+    unfilled), packed as the rest."""
+    outside = None
+    if window is not None:
+        outside = background(fill, image) if ch.fill != NO_FILL else np.zeros(image.shape[2:], image.dtype)
+        if ch.pack is not None:
+            outside = ch.pack(outside.reshape(1, -1))[0]
     if ch.fill != NO_FILL:
         image = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK, in_place=True)
     if ch.pack is not None:  # ENCODE_CHUNK texels at a time: a pack's float64 temporaries stay small
@@ -247,25 +338,33 @@ def layer_images(ch: Channel, image: np.ndarray, fill: _dilate.Fill) -> dict[str
             for s in range(ENCODE_CHUNK, len(flat), ENCODE_CHUNK):
                 packed[s : s + ENCODE_CHUNK] = ch.pack(flat[s : s + ENCODE_CHUNK])
         image = packed.reshape(h, w, len(ch.components))
-    return {name: image[..., k] for k, name in enumerate(ch.exr_names)}
+    if outside is None:
+        return {name: image[..., k] for k, name in enumerate(ch.exr_names)}
+    return {name: placed(image[..., k], window, outside[k]) for k, name in enumerate(ch.exr_names)}
 
 
 def raw_images(
-    spec: FileSpec, layers: dict[str, np.ndarray], fill: _dilate.Fill, in_place: bool = False
-) -> dict[str, np.ndarray]:
+    spec: FileSpec,
+    layers: dict[str, np.ndarray],
+    fill: _dilate.Fill,
+    in_place: bool = False,
+    data: TexelData | None = None,
+) -> dict[str, np.ndarray | PlacedImage]:
     """A raw file's channel images `(H, W)` from `layers` (`TexelData.layers`), each filled on
     its own when its Channel says so (unfilled ones are views of the TexelData). `in_place`:
-    filled in the TexelData itself, the images being views of it (`fill_in_place`)."""
+    filled in the TexelData itself, the images being views of it (`fill_in_place`). `data`: the
+    TexelData of `layers`, whose window (if any) places them in the atlas (`TexelData.placed`)."""
     out = {}
     for ch in spec.channels:
         for k, name in enumerate(ch.exr_names):
             image = layers[ch.name][..., k]
             if ch.fill == NO_FILL:
-                out[name] = image
+                filled = image
             elif in_place and fill_in_place(fill, image, keep_black=ch.fill == DILATE_BURIED_BLACK):
-                out[name] = image
+                filled = image
             else:
-                out[name] = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
+                filled = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
+            out[name] = filled if data is None else data.placed(ch.name, filled, None if ch.fill == NO_FILL else fill)
     return out
 
 

@@ -1,0 +1,144 @@
+"""Writing the EXR of an almost empty atlas at the cost of its window. No bpy.
+
+An almost empty atlas's images are `stages.PlacedImage`s: one value outside the window of its
+texels. `exr.write_file` would compress every 16-row ZIP block of the whole atlas, most of them
+the same rows of that one value, over and over (minutes for an 8192² SH file and its previews).
+`write` asks OpenEXR (through `exr.write_file`, so with the same header, compression and bytes
+per block) for the blocks that hold the window, as a file of those rows, and for one block of
+the background; then it lays out the whole file: the first file's header with the atlas's data
+and display windows, the offset table, and per block of the atlas its compressed bytes, the
+window's or the background's. A block's bytes depend on its pixels only (ZIP compresses each
+block on its own), so the file is byte for byte the one `exr.write_file` writes from the whole
+images (tests/test_sparse_atlas.py compares them).
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from . import exr
+from .stages import PlacedImage
+
+#: Scanlines per ZIP block (OpenEXR's ZIP_COMPRESSION, what `exr.write_file` writes).
+BLOCK_ROWS = 16
+_MAGIC = b"\x76\x2f\x31\x01"
+
+
+class _Rows:
+    """Rows a … b of a PlacedImage as an image of their own, read a band at a time."""
+
+    def __init__(self, image: PlacedImage, a: int, b: int):
+        self.image, self.a, self.b = image, a, b
+        self.shape, self.dtype = (b - a, image.shape[1]), image.dtype
+
+    def __getitem__(self, key: slice) -> np.ndarray:
+        start, stop, _ = key.indices(self.shape[0])
+        return self.image[self.a + start : self.a + stop]
+
+
+def placed_rows(channels: dict) -> tuple[int, int] | None:
+    """The rows (EXR order, a, b) of the window the images of `channels` share, when every one is
+    a `PlacedImage` of one window (and orientation) and the window leaves whole ZIP blocks out;
+    else None (write them as any image)."""
+    images = list(channels.values())
+    if not images or not all(isinstance(a, PlacedImage) for a in images):
+        return None
+    first = images[0]
+    if any(a.window != first.window or a.flipped != first.flipped for a in images):
+        return None
+    h = first.shape[0]
+    w = first.window
+    a = h - w.y0 - w.h if first.flipped else w.y0
+    a, b = a // BLOCK_ROWS * BLOCK_ROWS, min(-(-(a + w.h) // BLOCK_ROWS) * BLOCK_ROWS, h)
+    return None if (a, b) == (0, h) else (a, b)
+
+
+def write(path, channels: dict, attributes: dict | None, rows: tuple[int, int], write_file) -> None:
+    """Write `channels` (PlacedImages of one window, `placed_rows` gave `rows`) to `path` as
+    `write_file` (`exr.write_file`) would write them, compressing only the window's blocks and
+    one block of the background (and the last, shorter block of the atlas, if it has one); the
+    rows it writes are checked for NaN and infinity as `write_file` checks them."""
+    path = Path(path)
+    height, width = next(iter(channels.values())).shape
+    a, b = rows
+    tail = height % BLOCK_ROWS
+    parts = {"window": (a, b)}
+    full = range(0, height - tail, BLOCK_ROWS)  # the atlas's whole blocks; then one of `tail` rows
+    background = next((r for r in full if r + BLOCK_ROWS <= a or r >= b), None)
+    if background is not None:  # a block all of the background
+        parts["background"] = (background, background + BLOCK_ROWS)
+    if tail and height - tail >= b:
+        parts["tail"] = (height - tail, height)
+    chunks, header = {}, None
+    for name, (r0, r1) in parts.items():
+        tmp = exr._temporary_name(exr.target_of(path))  # a temporary of the same file (its messages name it)
+        try:
+            write_file(tmp, {n: _Rows(image, r0, r1) for n, image in channels.items()}, attributes)
+            data = tmp.read_bytes()
+        finally:
+            tmp.unlink(missing_ok=True)
+        file_header, blocks = _parse(data, -(-(r1 - r0) // BLOCK_ROWS))
+        chunks[name] = blocks
+        if name == "window":
+            header = file_header
+    assert header is not None
+    header = _with_windows(header, width, height)
+    count = -(-height // BLOCK_ROWS)
+    body = []
+    for i in range(count):
+        y = i * BLOCK_ROWS
+        if a <= y < b:
+            data = chunks["window"][(y - a) // BLOCK_ROWS]
+        elif tail and y == height - tail:
+            data = chunks["tail"][0]
+        else:
+            data = chunks["background"][0]
+        body.append(struct.pack("<ii", y, len(data)) + data)
+    offsets, at = [], len(header) + 8 * count
+    for chunk in body:
+        offsets.append(at)
+        at += len(chunk)
+    with open(path, "wb") as f:
+        f.write(header)
+        f.write(struct.pack(f"<{count}Q", *offsets))
+        for chunk in body:
+            f.write(chunk)
+
+
+def _parse(data: bytes, count: int) -> tuple[bytes, list[bytes]]:
+    """A single-part scanline EXR's magic, version and header (through its terminating null) and
+    its `count` blocks' compressed bytes, in order."""
+    if data[:4] != _MAGIC:
+        raise ValueError("not an EXR file")
+    at = 8
+    while data[at] != 0:  # attributes: name\0 type\0 size value
+        at = data.index(b"\0", at) + 1
+        at = data.index(b"\0", at) + 1
+        (size,) = struct.unpack_from("<i", data, at)
+        at += 4 + size
+    at += 1
+    header = data[:at]
+    offsets = struct.unpack_from(f"<{count}Q", data, at)
+    blocks = []
+    for offset in offsets:
+        _, size = struct.unpack_from("<ii", data, offset)
+        blocks.append(data[offset + 8 : offset + 8 + size])
+    return header, blocks
+
+
+def _with_windows(header: bytes, width: int, height: int) -> bytes:
+    """`header` with its dataWindow and displayWindow set to the whole `width` × `height`."""
+    out = bytearray(header)
+    at = 8
+    while out[at] != 0:
+        end = out.index(b"\0", at)
+        name = bytes(out[at:end])
+        at = out.index(b"\0", end + 1) + 1
+        (size,) = struct.unpack_from("<i", out, at)
+        if name in (b"dataWindow", b"displayWindow"):
+            struct.pack_into("<iiii", out, at + 4, 0, 0, width - 1, height - 1)
+        at += 4 + size
+    return bytes(out)
