@@ -63,6 +63,7 @@ class HHDLightSet(bpy.types.PropertyGroup):
         size=3,
         subtype='COLOR',
         min=0.0,
+        max=1000.0,  # core.light_sets.MAX_WEIGHT: larger weights overflow the blended lightmap
         soft_max=1.0,
         default=(1.0, 1.0, 1.0),
         description="RGB weight of this light set in the blend (1 = as baked, 0 = off; animatable)",

@@ -7,12 +7,24 @@ with y = v · height lives in EXR row `height - 1 - y`; `to_exr_rows` / `from_ex
 Writes never leave a half-written file under the final name: the data goes to a temporary file
 in the same folder, which is then renamed over the target (`os.replace` is atomic on one file
 system). `Staging` extends this to a set of files that must all be replaced together: a bake
-stages every file and renames them only once all were written.
+stages every file and renames them only once all were written. A temporary's name carries the
+host and process id of its writer (`.<name>.<host>-<pid>.<8 hex>.tmp`), so a process killed
+before it could delete its temporaries (SIGKILL, a power cut) leaves files the next `Staging`
+in that folder recognises as stale and removes; a live process's are never touched.
+
+No writer here stores a non-finite value: `write_file` refuses a channel holding NaN or
+infinity and `Staging.write_json` a document holding one (`NonFiniteValue`, naming the file
+and the channel or key), so no file the bake writes can hold one.
 """
 
 from __future__ import annotations
 
+import errno
+import json
+import math
 import os
+import re
+import socket
 import uuid
 from pathlib import Path
 
@@ -27,7 +39,10 @@ HALF_MAX = 65504.0
 
 def fits_half(values: np.ndarray) -> bool:
     """True when every finite value is within the half-float range (so nothing would clip to
-    infinity). Values below half's precision lose bits but not range: that is not clipping."""
+    infinity). Values below half's precision lose bits but not range: that is not clipping.
+    An image that knows (`stages.PlacedImage`: an almost empty atlas's) is asked."""
+    if hasattr(values, "fits_half"):
+        return values.fits_half()
     finite = np.asarray(values)[np.isfinite(values)]
     return finite.size == 0 or float(np.abs(finite).max()) <= HALF_MAX
 
@@ -42,8 +57,75 @@ def from_exr_rows(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image[::-1])
 
 
+class NonFiniteValue(BakeError):
+    """A writer was handed NaN or infinity: refused, the file is not written (the previous one
+    stays). Upstream validation should make this unreachable; the message names the file and
+    the channel or key."""
+
+
+def _host() -> str:
+    """This machine's name as it may appear in a temporary's name (letters, digits, '-')."""
+    return re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())[:40] or "host"
+
+
+#: `.<target>.<host>-<pid>.<8 hex>.tmp`; before the host was recorded `.<target>.<pid>.<8 hex>.tmp`.
+_TEMPORARY = re.compile(r"^\.(?P<target>.+)\.(?:(?P<host>[A-Za-z0-9-]+)-)?(?P<pid>\d+)\.[0-9a-f]{8}\.tmp$")
+
+
 def _temporary_name(path: Path) -> Path:
-    return path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    return path.with_name(f".{path.name}.{_host()}-{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+
+
+def target_of(path) -> Path:
+    """The file a temporary (`_temporary_name`) is written for; any other path as it is."""
+    path = Path(path)
+    match = _TEMPORARY.match(path.name)
+    return path.with_name(match["target"]) if match else path
+
+
+def _process_exists(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):  # another user's live process; a pid out of range
+        return True
+    return True
+
+
+def remove_stale_temporaries(folder) -> list[Path]:
+    """Delete the temporaries in `folder` (not its subfolders) left by writers on this machine
+    whose process no longer exists; returns them. Another host's temporaries (a shared folder)
+    and a live process's are left alone."""
+    removed: list[Path] = []
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return removed
+    host = _host()
+    for name in names:
+        match = _TEMPORARY.match(name)
+        if match is None or (match["host"] is not None and match["host"] != host):
+            continue
+        if _process_exists(int(match["pid"])):
+            continue
+        path = Path(folder) / name
+        try:
+            path.unlink()
+            removed.append(path)
+        except OSError:
+            pass
+    return removed
+
+
+def _check_finite(path, name: str, data: np.ndarray) -> None:
+    if not np.isfinite(data).all():
+        raise NonFiniteValue(
+            f"refused to write {target_of(path)}: channel {name!r} holds NaN or infinity (a bug upstream: "
+            "please report it; the previous file is intact)"
+        )
 
 
 def set_threads(threads: int) -> None:
@@ -65,13 +147,21 @@ WRITE_ROWS = 64
 def write_file(path, channels: dict[str, np.ndarray], attributes: dict | None = None) -> None:
     """Write one scanline EXR (ZIP compression) directly to `path`. Channel arrays are
     `(height, width)` float16 (HALF) or float32 (FLOAT), any strides (views of larger arrays,
-    rows reversed: nothing is copied whole); `attributes` are string header fields.
+    rows reversed: nothing is copied whole), every value finite (else NonFiniteValue naming the
+    file and channel, raised before that band is written: no file holds NaN or infinity);
+    `attributes` are string header fields.
 
     Written WRITE_ROWS scanlines at a time through the binding's scanline writer
     (`OpenEXR.OutputFile`), so the file never exists whole in memory a second time; its bytes
     are those of the binding's whole-image writer (`OpenEXR.File(header, pixels).write`, which
     wants every channel contiguous at once): the same header attributes, the same ZIP blocks
-    (tests/test_exr_write.py compares them)."""
+    (tests/test_exr_write.py compares them). An almost empty atlas's images
+    (`stages.PlacedImage`) compress their window's blocks only (`sparse_exr`), the same bytes."""
+    from . import sparse_exr
+
+    window_rows = sparse_exr.placed_rows(channels)
+    if window_rows is not None:
+        return sparse_exr.write(path, channels, attributes, window_rows, write_file)
     openexr = deps.require("OpenEXR")
     import Imath  # the OpenEXR wheel's own module of header types
 
@@ -91,8 +181,10 @@ def write_file(path, channels: dict[str, np.ndarray], attributes: dict | None = 
     out = openexr.OutputFile(str(path), header)
     try:
         for start in range(0, height, WRITE_ROWS):
-            rows = slice(start, min(start + WRITE_ROWS, height))
-            out.writePixels({name: data[rows].tobytes() for name, data in channels.items()}, rows.stop - start)
+            band = slice(start, min(start + WRITE_ROWS, height))
+            for name, data in channels.items():  # band by band: no image-sized mask
+                _check_finite(path, name, data[band])
+            out.writePixels({name: data[band].tobytes() for name, data in channels.items()}, band.stop - start)
     finally:
         out.close()
 
@@ -108,13 +200,30 @@ def read(path) -> tuple[dict[str, np.ndarray], dict]:
     """Channels `{name: (height, width) array}` (float16 or float32 as stored) and the header."""
     openexr = deps.require("OpenEXR")
     if not Path(path).is_file():
-        raise BakeError(f"EXR file not found: {path}")
+        raise BakeError(f"EXR file not found: {path} (bake again)")
     try:
         f = openexr.File(str(path), separate_channels=True)
-    except Exception as exc:  # the binding raises plain exceptions for corrupt files
-        raise BakeError(f"cannot read EXR file {path}: {exc}") from exc
-    channels = {name: ch.pixels for name, ch in f.channels().items()}
-    return channels, dict(f.header())
+        channels = {name: ch.pixels for name, ch in f.channels().items()}
+        header = dict(f.header())
+    except Exception as exc:  # the binding raises plain exceptions (ValueError, RuntimeError) for corrupt files
+        if isinstance(exc, OSError) and exc.errno in (errno.EACCES, errno.EPERM):
+            raise BakeError(f"cannot read {path}: permission denied (fix the file's permissions)") from None
+        raise BakeError(f"cannot read {path}: the file is damaged (truncated or corrupt): bake again") from None
+    if not channels or any(getattr(a, "ndim", 0) != 2 for a in channels.values()):
+        raise BakeError(f"cannot read {path}: the file is damaged (no image channels): bake again")
+    return channels, header
+
+
+def _non_finite_key(doc, where: str = "") -> str:
+    """The key path ('bake.time_budget') of the first non-finite number in `doc`, or ''."""
+    if isinstance(doc, float) and not math.isfinite(doc):
+        return where or "the document"
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc) if isinstance(doc, list | tuple) else ()
+    for key, value in items:
+        found = _non_finite_key(value, f"{where}.{key}" if where else str(key))
+        if found:
+            return found
+    return ""
 
 
 class Staging:
@@ -126,16 +235,34 @@ class Staging:
 
     def __init__(self):
         self._staged: list[tuple[Path, Path]] = []
+        self._swept: set[Path] = set()
 
     def stage(self, path) -> Path:
+        """The temporary to write for `path`; the first file staged in a folder first removes
+        the stale temporaries there (`remove_stale_temporaries`)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
+        if path.parent not in self._swept:
+            self._swept.add(path.parent)
+            remove_stale_temporaries(path.parent)
         tmp = _temporary_name(path)
         self._staged.append((tmp, path))
         return tmp
 
     def write_text(self, path, text: str) -> None:
         self.stage(path).write_text(text, encoding="utf-8")
+
+    def write_json(self, path, doc, **options) -> None:
+        """Stage `doc` as JSON (strict: NonFiniteValue naming the key instead of writing NaN or
+        Infinity, which JSON does not have); `options` go to json.dumps (indent, ensure_ascii)."""
+        try:
+            text = json.dumps(doc, allow_nan=False, **options)
+        except ValueError:
+            raise NonFiniteValue(
+                f"refused to write {path}: {_non_finite_key(doc) or 'a value'} is NaN or infinity (a bug upstream: "
+                "please report it; the previous file is intact)"
+            ) from None
+        self.write_text(path, text)
 
     def staged(self, path) -> Path:
         """The temporary file staged for `path` (the latest), to read back before the commit."""

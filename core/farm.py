@@ -545,6 +545,8 @@ def connect(address: str, chunks_per_task: int = CHUNKS_PER_TASK, timeout: float
     _probe(address, timeout)
     try:
         client = distributed.Client(address, timeout=timeout, set_as_default=False)
+    except ValueError as exc:  # a malformed address (the CLI refuses those before; a scene setting may hold one)
+        raise BakeError(f"'{address}' is not a Dask scheduler address ({exc}): give tcp://HOST:PORT") from None
     except (OSError, TimeoutError) as exc:
         raise BakeError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
     try:

@@ -28,6 +28,10 @@ from .hhd import HHDParams, from_linear_sh, to_linear_sh
 #: The set of the emitters in no light group.
 DEFAULT = "Default"
 
+#: The largest blend weight: 1 is the set as baked; far larger weights only overflow the HHD
+#: file's numbers (1e300 made most texels infinite), so they are refused.
+MAX_WEIGHT = 1000.0
+
 _NAME = re.compile(r"[^A-Za-z0-9_\-]")
 
 
@@ -53,8 +57,8 @@ def set_atlas_name(atlas: str, light_set: str) -> str:
 
 def weight_array(names: Sequence[str], weights: Mapping[str, object] | None) -> np.ndarray:
     """`(K, 3)` float64 RGB weights of the sets `names` from {set: weight} (a number or an RGB
-    triple; sets not given weigh 1). Raises BakeError for an unknown set or a negative or
-    non-finite weight."""
+    triple; sets not given weigh 1). Raises BakeError for an unknown set or a weight that is
+    negative, non-finite or above MAX_WEIGHT."""
     weights = dict(weights or {})
     unknown = sorted(set(weights) - set(names))
     if unknown:
@@ -64,10 +68,25 @@ def weight_array(names: Sequence[str], weights: Mapping[str, object] | None) -> 
     out = np.ones((len(names), 3))
     for k, name in enumerate(names):
         if name in weights:
-            out[k] = np.broadcast_to(np.asarray(weights[name], dtype=np.float64), (3,))
-    if not np.all(np.isfinite(out)) or (out < 0.0).any():
-        raise BakeError(f"light set weights must be finite and ≥ 0, got {dict(zip(names, out.tolist()))}")
+            try:
+                out[k] = np.broadcast_to(np.asarray(weights[name], dtype=np.float64), (3,))
+            except (TypeError, ValueError):
+                raise BakeError(
+                    f"light set '{name}': weight {weights[name]!r} is not a number or R,G,B triple"
+                ) from None
+    bad = ~(np.isfinite(out) & (out >= 0.0) & (out <= MAX_WEIGHT)).all(axis=1)
+    if bad.any():
+        name = names[int(np.argmax(bad))]
+        raise BakeError(
+            f"light set '{name}': weight {_format_weight(out[int(np.argmax(bad))])} is out of range: give 0–{MAX_WEIGHT:g} "
+            "(1 = as baked, 0 = off)"
+        )
     return out
+
+
+def _format_weight(rgb) -> str:
+    r, g, b = (float(v) for v in rgb)
+    return f"{r:g}" if r == g == b else f"{r:g},{g:g},{b:g}"
 
 
 def blend(params: Sequence[HHDParams], n_v: np.ndarray, weights: np.ndarray) -> HHDParams:
@@ -134,6 +153,12 @@ def blend_atlas(files, weights: Mapping[str, object] | None) -> dict:
     layers = [read_hhd(f) for f in files.light_sets(sidecar)]
     normal = _texel_normals(files)
     h, wid = normal.shape[:2]
+    for f, (p, _) in zip(files.light_sets(sidecar), layers):
+        if len(p.irradz) != h * wid:
+            raise BakeError(
+                f"{f.hhd} is not of the {wid}×{h} atlas of {files.texels.name}: the files come from different "
+                "bakes; bake again"
+            )
     blended = blend([p for p, _ in layers], normal.reshape(-1, 3), w)
     record = {"method": "linear_sh", "weights": {n: w[k].tolist() for k, n in enumerate(names)}}
     sidecar["blend"] = record
@@ -155,6 +180,8 @@ def read_hhd(files) -> tuple[HHDParams, list[str]]:
     except KeyError as exc:
         raise BakeError(f"{files.hhd} is not an HHD lightmap (no channel {exc}): encode with model 'hhd'") from None
     wa_names: list[str] = [n for n in ("Wa.V", "Wa.R", "Wa.G", "Wa.B") if n in channels]
+    if not wa_names or len({channels[n].shape for n in ("Iz.R", "Direction.X", *wa_names)}) != 1:
+        raise BakeError(f"{files.hhd} is damaged (its channels are missing or differ in size): bake again")
     wa = np.stack([exr.from_exr_rows(channels[n]) for n in wa_names], axis=-1).astype(np.float64)
     n = iz.shape[0] * iz.shape[1]
     params = HHDParams(
@@ -180,8 +207,6 @@ def _texel_normals(files) -> np.ndarray:
 def write_hhd(staging, files, p: HHDParams, shape: tuple[int, int], wa_names: list[str], sidecar: dict) -> None:
     """Stage an atlas's HHD file (Iz, Wa as `wa_names`, octahedral Direction; the HHD file's
     storage types), its preview images and `sidecar`."""
-    import json
-
     from . import exr, lightmap_files, octahedral
     from .encoding import HHD_FILE
 
@@ -196,7 +221,7 @@ def write_hhd(staging, files, p: HHDParams, shape: tuple[int, int], wa_names: li
     exr.write_file(staging.stage(files.hhd), channels, {**attributes, "hhdAtlas": files.name})
     lightmap_files.stage_preview(staging, files, spec, channels)
     sidecar.setdefault("channels", {})["hhd"] = lightmap_files.channel_table(spec, channels)
-    staging.write_text(files.sidecar, json.dumps(sidecar, indent=2, ensure_ascii=False))
+    staging.write_json(files.sidecar, sidecar, indent=2, ensure_ascii=False)
 
 
 class _Ambient:

@@ -175,7 +175,7 @@ def write_atlas(staging: exr.Staging, files: AtlasFiles, encoded: EncodedAtlas, 
             "stats": encoded.stats,
         }
     )
-    staging.write_text(files.sidecar, json.dumps(doc, indent=2, ensure_ascii=False))
+    staging.write_json(files.sidecar, doc, indent=2, ensure_ascii=False)
 
 
 def stage_files(staging: exr.Staging, files: AtlasFiles, images_of: dict) -> dict:
@@ -195,10 +195,12 @@ def stage_files(staging: exr.Staging, files: AtlasFiles, images_of: dict) -> dic
 
 def _rgb(channels: list[np.ndarray]) -> dict:
     """R, G, B of a preview image, float32 so nothing clips: one channel repeated, or up to
-    three with the missing ones zero."""
+    three with the missing ones zero. An almost empty atlas's images (`stages.PlacedImage`) stay
+    as small."""
     channels = list(channels) * 3 if len(channels) == 1 else list(channels)
-    channels += [np.zeros_like(channels[0])] * (3 - len(channels))
-    return {c: np.asarray(a, np.float32) for c, a in zip("RGB", channels)}
+    zero = channels[0].zeros() if hasattr(channels[0], "zeros") else np.zeros_like(channels[0])
+    channels += [zero] * (3 - len(channels))
+    return {c: a.astype(np.float32, copy=False) for c, a in zip("RGB", channels)}
 
 
 def stage_preview(staging: exr.Staging, files: AtlasFiles, spec: FileSpec, channels: dict) -> None:
@@ -225,8 +227,12 @@ def read_seams(files: AtlasFiles, shape: tuple[int, int]) -> Seams | None:
 
     try:
         seams = Seams.load(files.seams)
-    except (OSError, ValueError, KeyError) as exc:
-        raise BakeError(f"cannot read the seams file {files.seams}: {exc} (bake again)") from exc
+    except (OSError, ValueError, KeyError, EOFError, TypeError) as exc:
+        # numpy's own messages ("allow_pickle", zip errors) mean nothing to an artist
+        raise BakeError(
+            f"the seams file {files.seams} is damaged or not a seams file: bake again, or re-encode with "
+            "Stitch Seams off (--no-stitch)"
+        ) from exc
     if (seams.height, seams.width) != tuple(shape):
         raise BakeError(
             f"the seams file {files.seams} is of a {seams.width}×{seams.height} atlas, the bake's files of "
@@ -241,25 +247,52 @@ def read_sidecar(path) -> dict:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise BakeError(f"no bake found: {path} does not exist (bake first)") from None
-    except (OSError, ValueError) as exc:
-        raise BakeError(f"cannot read the bake sidecar {path}: {exc}") from exc
-    if doc.get("format") != FORMAT or doc.get("format_version", 0) > FORMAT_VERSION:
-        raise BakeError(f"{path} is not an HHD lightmap sidecar of format version ≤ {FORMAT_VERSION}")
+    except UnicodeDecodeError:
+        raise BakeError(f"the bake sidecar {path} is damaged (not UTF-8 text): bake again") from None
+    except ValueError as exc:
+        raise BakeError(f"the bake sidecar {path} is damaged (invalid JSON: {exc}): bake again") from None
+    except OSError as exc:
+        raise BakeError(f"cannot read the bake sidecar {path}: {exc.strerror or exc}") from None
+    if not isinstance(doc, dict):
+        raise BakeError(
+            f"the bake sidecar {path} is damaged (valid JSON, but a {type(doc).__name__}, not an object): bake again"
+        )
+    version = doc.get("format_version", 0)
+    if doc.get("format") != FORMAT or not isinstance(version, int) or version > FORMAT_VERSION:
+        raise BakeError(f"{path} is not an HHD lightmap sidecar of format version ≤ {FORMAT_VERSION}: bake again")
+    if not isinstance(doc.get("light_sets", []), list) or not all(
+        isinstance(e, dict) and isinstance(e.get("name"), str) and isinstance(e.get("atlas"), str)
+        for e in doc.get("light_sets", [])
+    ):
+        raise BakeError(f"the bake sidecar {path} is damaged (its light_sets list): bake again")
     return doc
 
 
 def read_texel_data(files: AtlasFiles) -> TexelData:
-    """The SH and texel EXRs of a finished bake, as the encoder's input."""
+    """The SH and texel EXRs of a finished bake, as the encoder's input. Raises BakeError for a
+    missing or damaged file, or files of different atlas sizes (of different bakes)."""
     sh = read_sh(files.sh)
     h, w = sh.shape[:2]
     tx_ch, _ = exr.read(files.texels)
     normal_layer, coverage_layer, noise_layer = TEXELS_FILE.channels
+    missing = [n for layer in (normal_layer, coverage_layer) for n in layer.exr_names if n not in tx_ch]
+    if missing:
+        raise BakeError(f"{files.texels} lacks the channels {missing}: it is not a texels file; bake again")
+    sizes = {a.shape for a in tx_ch.values()}
+    if sizes != {(h, w)}:
+        (th, tw) = next(iter(sizes)) if len(sizes) == 1 else (0, 0)
+        raise BakeError(
+            f"{files.texels} is of a {tw}×{th} atlas but {files.sh.name} of {w}×{h}: the files come from "
+            "different bakes; bake again"
+        )
     normal = np.stack([exr.from_exr_rows(tx_ch[n]) for n in normal_layer.exr_names], axis=-1).astype(
         np.float32, copy=False
     )
     coverage = exr.from_exr_rows(tx_ch[coverage_layer.exr_names[0]]).astype(np.float32, copy=False)
     noise_name = noise_layer.exr_names[0]  # absent from bakes made before it was kept
     noise = exr.from_exr_rows(tx_ch[noise_name]).astype(np.float32, copy=False) if noise_name in tx_ch else None
+    if noise is not None:  # unknown: NOISE_UNKNOWN in the file (NaN in bakes made before), NaN in memory
+        noise[~(noise >= 0.0)] = np.nan
     return TexelData(sh=sh, normal=normal, coverage=coverage, noise=noise)
 
 
@@ -268,7 +301,9 @@ def read_sh(path: Path) -> np.ndarray:
     sh_ch, _ = exr.read(path)
     missing = [n for n in SH_CHANNELS if n not in sh_ch]
     if missing:
-        raise BakeError(f"{path} lacks SH channels {missing[:3]}…")
+        raise BakeError(f"{path} lacks SH channels {missing[:3]}…: it is not an SH file; bake again")
+    if len({sh_ch[n].shape for n in SH_CHANNELS}) != 1:
+        raise BakeError(f"{path} is damaged (its SH channels differ in size): bake again")
     sh = np.stack([exr.from_exr_rows(sh_ch.pop(n)) for n in SH_CHANNELS], axis=-1).astype(np.float32, copy=False)
     return sh.reshape(sh.shape[:2] + (9, 3))
 

@@ -265,7 +265,7 @@ def write(staging, folder: Path, baked: list[BakedProbes]) -> dict:
         },
         "volumes": volumes,
     }
-    staging.write_text(folder / SIDECAR, json.dumps(doc, indent=2))
+    staging.write_json(folder / SIDECAR, doc, indent=2)
     return doc
 
 

@@ -8,6 +8,7 @@ warning). The loaded images are reloaded.
 """
 
 import os
+import traceback
 from pathlib import Path
 
 import bpy
@@ -35,8 +36,17 @@ class HHD_OT_encode(bpy.types.Operator):
         try:
             objects = bake_session.target_objects(context)
             summary, warnings = reencode_objects(objects, settings, threads=bake_session.scene_threads(context.scene))
-        except (BakeError, OSError) as exc:
+        except BakeError as exc:  # a damaged or mismatched bake: the message names the file and the fix
             self.report({'ERROR'}, f"Re-encode failed: {exc}")
+            return {'CANCELLED'}
+        except OSError as exc:
+            self.report(
+                {'ERROR'}, f"Re-encode failed: cannot write {exc.filename or 'the files'}: {exc.strerror or exc}"
+            )
+            return {'CANCELLED'}
+        except Exception as exc:  # a bug: the traceback goes to the console, the artist gets one line
+            traceback.print_exc()
+            self.report({'ERROR'}, f"Re-encode failed (a bug, please report it with the console's traceback): {exc}")
             return {'CANCELLED'}
         for warning in warnings:  # e.g. no denoiser: encoded undenoised
             self.report({'WARNING'}, warning)

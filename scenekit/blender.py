@@ -35,15 +35,18 @@ def clear_data(worlds: bool = False) -> None:
 
 def clear_scene():
     """An empty scene for the tests: no world, Cycles on the CPU without adaptive sampling or
-    denoising, every core (Render > Performance > Threads: Auto), the lightmap settings at
-    LAYER / RES in one shared atlas and no light sets listed (a .blend an earlier test opened
-    may have left them). Returns the scene."""
+    denoising, every core (Render > Performance > Threads: Auto), the lightmap settings at their
+    defaults but LAYER / RES in one shared atlas, and no light sets listed (a .blend an earlier
+    test opened may have left other settings). Returns the scene."""
     import bpy
 
     clear_data()
     scene = bpy.context.scene
     scene.world = None
     scene.render.threads_mode = 'AUTO'
+    for prop in scene.hhd.bl_rna.properties:  # every HHD setting at its default (an opened .blend set them)
+        if prop.identifier != "rna_type" and not prop.is_readonly:
+            scene.hhd.property_unset(prop.identifier)
     scene.hhd.light_sets.clear()
     scene.render.engine = 'CYCLES'
     scene.cycles.device = 'CPU'

@@ -42,6 +42,9 @@ def pytest_collection_modifyitems(config, items):
             raise pytest.UsageError(f"{item.nodeid}: marked {wrong} but not bpy")
 
 
+_EXIT_STATUS = pytest.StashKey[int]()
+
+
 class SuiteClock:
     """Each test's time (setup + call + teardown, seconds) and outcome, written at the end of
     the session to out/test-times/<label>.json (label: bpy's version, or `core` without bpy):
@@ -86,12 +89,25 @@ def pytest_configure(config):
     config.pluginmanager.register(SuiteClock(), "hhd_suite_clock")
 
 
+def pytest_sessionfinish(session, exitstatus):
+    session.config.stash[_EXIT_STATUS] = int(exitstatus)
+
+
+@pytest.hookimpl(trylast=True)
 def pytest_unconfigure(config):
     """The isolated user configuration goes with the session (the installed extension in it is
-    hundreds of megabytes; a machine running the suite often would fill its disk)."""
+    hundreds of megabytes; a machine running the suite often would fill its disk). On Blender
+    4.x the `bpy` module can crash in its destructors at interpreter exit (e.g. after any glTF
+    export: exit 139 though every test passed), so, as `blender_compat.exit_process` does for the
+    CLI, the session leaves directly with its own status once everything is reported."""
     import shutil
 
     shutil.rmtree(USER_RESOURCES, ignore_errors=True)
+    bpy = sys.modules.get("bpy")
+    if bpy is not None and bpy.app.version < (5, 0, 0) and _EXIT_STATUS in config.stash:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(config.stash[_EXIT_STATUS])
 
 
 @pytest.fixture(scope="session")

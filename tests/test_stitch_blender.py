@@ -81,6 +81,7 @@ def test_stitch_seams_is_a_scene_setting_on_by_default(extension, restore_hhd_se
     assert prop.type == 'BOOLEAN' and prop.default and prop.name == "Stitch Seams"
     assert core_bake.PipelineSettings().stitch_seams
     s = bpy.context.scene.hhd
+    s.stitch_seams = True
     for name in presets.PRESETS:  # every preset stitches: it is not one of a preset's knobs
         s.preset = name
         assert s.stitch_seams

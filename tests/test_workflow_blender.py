@@ -195,7 +195,7 @@ def test_command_line_exit_codes(baked_scene, cli_run, tmp_path):
     assert missing.returncode == cli.EXIT_INPUT and "no object named 'Nope'" in missing.stderr
     (tmp_path / "a_file").write_text("not a folder")
     unwritable = run_cli(
-        blend, "bake", "--out", str(tmp_path / "a_file" / "sub"), "--objects", "Floor", "--samples", "2"
+        blend, "bake", "--out", str(tmp_path / "a_file" / "sub"), "--objects", "Floor", "--samples", "4"
     )
     assert unwritable.returncode == cli.EXIT_OUTPUT and "cannot write the output" in unwritable.stderr
 
@@ -204,7 +204,7 @@ def test_command_line_exit_codes(baked_scene, cli_run, tmp_path):
     (blocked / "OpenEXR.py").write_text("raise ImportError('blocked by the test')\n")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(blocked), os.environ.get("PYTHONPATH", "")]))
     nodep = run_cli_process(
-        blend, "bake", "--out", str(tmp_path / "nodep"), "--objects", "Floor", "--samples", "2", env=env
+        blend, "bake", "--out", str(tmp_path / "nodep"), "--objects", "Floor", "--samples", "4", env=env
     )
     assert nodep.returncode == cli.EXIT_DEPENDENCY and "'OpenEXR'" in nodep.stderr
 
