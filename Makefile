@@ -1,6 +1,6 @@
 # Two commands on a fresh machine with Python 3.13 and 3.11 (see README):
 #   make demo   - create .venv (Python 3.13, bpy 5.3.0) with the pinned packages, bake the
-#                 embedded demo into out/demo/
+#                 embedded demo into out/demo/ and export it to out/demo/demo.glb (docs/gltf.md)
 #   make test   - the test suite against the newest and the oldest supported Blender, side by
 #                 side: every test on bpy 5.3.0 in .venv (Python 3.13), and on bpy 4.2 LTS in
 #                 .venv-4.2 (Python 3.11) every test that touches Blender plus the fast core
@@ -11,6 +11,9 @@
 #   make test-core - the quick loop: the tests that need no Blender, in .venv
 #   make check  - ruff (lint + format check) over the repository and mypy over core/, with the
 #                 versions pinned in requirements-check.txt (installed into .venv)
+#   make web-deps - the three.js runtime's npm packages (web/package-lock.json: three,
+#                 playwright-core, gltf-validator) into web/node_modules, when missing (`test` needs
+#                 them); the browser tests drive a system Chromium (Debian: apt-get install chromium)
 # PYTHON / PYTHON_OLD pick the interpreters; by default python3.13 / python3.11 on PATH or pyenv's.
 PYTHON     ?= $(shell tools/find_python.sh 3.13)
 PYTHON_OLD ?= $(shell tools/find_python.sh 3.11)
@@ -24,7 +27,7 @@ PYTEST_REPORT := --durations=25
 # bpy 4.2 LTS: what touches Blender, plus the core tests that are not heavy (those run on 5.3)
 SUITE_OLD_MARKERS := bpy or not (statistical or farm or slow)
 
-.PHONY: setup setup-4.2 setup-check check demo test test-new test-old test-core test-fast test-deps package oidn-weights bench clean
+.PHONY: setup setup-4.2 setup-check check demo demo-web test test-new test-old test-core test-fast test-deps web-deps package oidn-weights bench clean
 
 setup: $(VENV)/.installed
 setup-4.2: $(VENV_OLD)/.installed
@@ -63,10 +66,20 @@ check: setup setup-check
 
 demo: setup
 	$(PY) tools/demo.py --out out/demo
+	@$(MAKE) --no-print-directory demo-web
+
+# The exported demo.glb rendered by the three.js runtime in headless Chromium (web/test/render.mjs)
+# to out/demo/preview_web.png, when a Chromium is on the machine; else how to get one.
+demo-web: web-deps
+	@if node web/test/render.mjs --check >/dev/null 2>&1; then \
+	  node web/test/render.mjs out/demo/demo.glb out/demo/preview_web.png; \
+	else \
+	  echo "demo: no Chromium for the web preview (out/demo/preview_web.png): install Debian's chromium (sudo apt-get install chromium) or set HHD_CHROMIUM=/path/to/chromium, then make demo-web"; \
+	fi
 
 # Both suites always run, side by side (most tests use one core: together they keep both busy);
 # the 4.2 suite's output follows the 5.3 suite's. The target fails if either failed.
-test: setup setup-4.2 test-deps
+test: setup setup-4.2 test-deps web-deps
 	@status=0; rm -rf out/test-times; mkdir -p out/test-times; start=$$(date +%s); \
 	echo "== bpy 4.2 LTS (Python 3.11), in the background: $(PY_OLD) -m pytest -m \"$(SUITE_OLD_MARKERS)\""; \
 	( $(PY_OLD) -m pytest -q -m "$(SUITE_OLD_MARKERS)" $(PYTEST_REPORT) $(PYTEST_ARGS) \
@@ -83,6 +96,17 @@ test: setup setup-4.2 test-deps
 test-deps: setup
 	$(PY) tools/fetch_wheels.py --platform $$($(PY) tools/build_extension.py --print-platform)
 	$(PY) tools/fetch_oidn_weights.py
+
+# npm ci when web/node_modules is missing or older than the lock file (the runtime's pinned packages)
+web-deps: web/node_modules/.package-lock.json
+
+# (without npm: a warning, and the browser tests skip saying so; under CI they fail)
+web/node_modules/.package-lock.json: web/package-lock.json web/package.json
+	@if command -v npm >/dev/null; then \
+	  echo "cd web && npm ci"; (cd web && npm ci --no-audit --no-fund) && touch $@; \
+	else \
+	  echo "web-deps: npm not found: the browser tests of the three.js runtime need Node.js and npm (apt-get install nodejs npm)" >&2; \
+	fi
 
 test-new: setup
 	$(PY) -m pytest -q $(PYTEST_ARGS)

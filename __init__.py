@@ -18,6 +18,16 @@ def register():
         module.register()
 
 
+def __getattr__(name):
+    """`glTF2ExportUserExtension`: the hook Blender's glTF exporter looks up on every enabled add-on
+    or extension module (bridge/gltf_export.py, docs/gltf.md); imported only when asked for."""
+    if name == "glTF2ExportUserExtension":
+        from .bridge.gltf_export import glTF2ExportUserExtension
+
+        return glTF2ExportUserExtension
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def unregister():
     for module in reversed(_modules()):
         module.unregister()

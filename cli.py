@@ -8,22 +8,31 @@ point works with the `bpy` module from Python, without a Blender executable:
 (`standalone` parses the command line, then opens the .blend and registers the add-on). `--help`,
 at the top or after a command, lists every command and option without a .blend. Exit codes are
 stable, so build scripts can tell failures apart: see EXIT_* below; every failure prints one line
-saying why.
+saying why: the file or option, the problem and the fix (README: "Exit codes and what the bake
+refuses").
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 import time
 import traceback
 
-import bpy
+if __name__ == "__main__":  # a Ctrl-C or SIGTERM while bpy and numpy load: exit 5 at once, not a broken import
+    from hhd_lightmapper.core.console import exit_on_stop_signal
 
-from . import blender_compat
-from .core import encoding, presets
-from .core.errors import BakeError, DependencyMissing
-from .core.tracer import BakeCancelled
+    exit_on_stop_signal(5, "hhd_lightmapper")  # EXIT_CANCELLED, COMMAND below
+
+import bpy  # noqa: E402
+
+from . import blender_compat  # noqa: E402
+from .core import encoding, presets  # noqa: E402
+from .core.errors import BakeError, DependencyMissing  # noqa: E402
+from .core.light_sets import MAX_WEIGHT  # noqa: E402
+from .core.tracer import BakeCancelled  # noqa: E402
 
 COMMAND = "hhd_lightmapper"
 EXIT_OK = 0
@@ -31,20 +40,27 @@ EXIT_INPUT = 1  # the scene or the options cannot be baked as given (message nam
 EXIT_USAGE = 2  # bad command line (argparse)
 EXIT_DEPENDENCY = 3  # a compiled package (embreex, xatlas, OpenEXR), or Dask for --scheduler, is missing
 EXIT_OUTPUT = 4  # the output files could not be written (previous files are intact)
-EXIT_CANCELLED = 5  # interrupted (Ctrl-C): no file replaced
+EXIT_CANCELLED = 5  # interrupted (Ctrl-C, SIGTERM): no file replaced
 EXIT_INTERNAL = 70  # a bug: the traceback is printed
+
+#: The most worker threads --threads takes (Blender's own limit for Render > Performance > Threads).
+MAX_THREADS = 1024
 
 
 def _thread_count(text: str) -> int:
-    """argparse type of --threads: a whole number ≥ 0 (0 = every core)."""
+    """argparse type of --threads: a whole number 0–MAX_THREADS (0 = every core)."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"invalid thread count {text!r}: give a whole number ≥ 0 (0 = all cores)"
+            f"invalid thread count {text!r}: give a whole number 0–{MAX_THREADS} (0 = all cores)"
         ) from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"invalid thread count {value}: it must be ≥ 0 (0 = all cores)")
+    if value > MAX_THREADS:
+        raise argparse.ArgumentTypeError(
+            f"invalid thread count {value}: it must be ≤ {MAX_THREADS} (0 = all cores, the usual choice)"
+        )
     return value
 
 
@@ -54,11 +70,22 @@ STANDALONE_PROG = "python -m hhd_lightmapper.cli FILE.blend"  # standalone(), un
 #: Every exit code with its meaning, for the help's epilog (the EXIT_* constants above).
 EXIT_CODES = (
     (EXIT_OK, "ok: the command finished (its summary is the last line on stdout)"),
-    (EXIT_INPUT, "input: the scene or the options cannot be baked as given (the message names what)"),
-    (EXIT_USAGE, "usage: bad command line (unknown command or option, invalid value, no FILE.blend)"),
+    (
+        EXIT_INPUT,
+        "input: the scene, a file read (a damaged or mismatched bake) or the options together cannot be "
+        "baked as given (the message names what and the fix)",
+    ),
+    (
+        EXIT_USAGE,
+        "usage: bad command line (unknown command or option, a value out of its range, conflicting "
+        "options, no FILE.blend)",
+    ),
     (EXIT_DEPENDENCY, "dependency: a compiled package (embreex, xatlas, OpenEXR), or Dask for --scheduler, is missing"),
-    (EXIT_OUTPUT, "output: the output files could not be written (previous files are intact)"),
-    (EXIT_CANCELLED, "cancelled: interrupted (Ctrl-C); no output file was replaced"),
+    (
+        EXIT_OUTPUT,
+        "output: the output folder or the .blend (--save) cannot be written (previous files are intact)",
+    ),
+    (EXIT_CANCELLED, "cancelled: interrupted (Ctrl-C or SIGTERM); no output file was replaced"),
     (EXIT_INTERNAL, "internal error: a bug; the traceback is printed (please report it)"),
 )
 
@@ -96,6 +123,80 @@ def _span(name: str, unit: str = "") -> str:
     if high is None:
         return f"≥ {low:g}{unit}"
     return f"{low:g}–{high:g}{unit}"
+
+
+#: The largest value of an integer setting without a declared max (Blender stores a C int).
+INT_MAX = 2**31 - 1
+
+
+def _ranged(name: str, kind: type = float, unit: str = ""):
+    """argparse type of the option of numeric scene setting `name`: a finite number of `kind`
+    within the setting's hard range (properties.py's min/max, for an int at most INT_MAX:
+    Blender would clamp it silently, or fail), else a usage error quoting the range. Values
+    above a soft maximum are taken (_run warns)."""
+    keywords = _setting(name)
+    low, high = keywords.get("min"), keywords.get("max")
+    if kind is int and high is None:
+        high = INT_MAX
+    span = f"{low:g}–{high}{unit}" if kind is int else _span(name, unit)
+    what = "a whole number" if kind is int else "a number"
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid {kind.__name__} value: {text!r} (give {what}, {span})") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number: give {what}, {span}")
+        if (low is not None and value < low) or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"{value}{unit} is out of range: give {span}")
+        return value
+
+    parse.__name__ = kind.__name__
+    return parse
+
+
+def _soft_warnings(args) -> list[str]:
+    """One line per option above its setting's soft maximum (the panel's slider end): allowed, but
+    rarely meant."""
+    out = []
+    for key, unit in (("texel_density", " per metre"), ("time_budget", " s")):
+        value, soft = getattr(args, key, None), _setting(key).get("soft_max")
+        if value is not None and soft is not None and value > soft:
+            option = "--" + key.replace("_", "-")
+            out.append(f"{option} {value:g}{unit} is above the usual 0–{soft:g}{unit}: check it is meant")
+    return out
+
+
+#: Dask's address schemes that take HOST:PORT (docs/farm.md: tcp://, or tls:// with certificates).
+_SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss")
+
+
+def _scheduler_problem(address: str) -> str | None:
+    """Why `address` is not a Dask scheduler address SCHEME://HOST:PORT, or None. Checked before
+    Dask sees it: Dask raises ValueError deep inside its client for such an address, and the
+    half-made client then holds the process for 60 s at exit."""
+    scheme, sep, rest = address.rpartition("://")
+    if sep and scheme not in _SCHEDULER_SCHEMES:
+        return f"unknown protocol '{scheme}://' (use tcp://HOST:PORT, or tls:// with certificates)"
+    if rest.startswith("[") and "]" not in rest:
+        return "an IPv6 host goes in brackets: tcp://[::1]:8786"
+    host, colon, port = rest.rpartition(":")
+    if not colon or not host or not port:
+        return "no port: give tcp://HOST:PORT (a Dask scheduler listens on 8786 by default)"
+    if host.startswith("[") != host.endswith("]") or (":" in host and not host.startswith("[")):
+        return "an IPv6 host goes in brackets: tcp://[::1]:8786"
+    if not port.isdigit() or not 1 <= int(port) <= 65535:
+        return f"port '{port}' is not a number 1–65535"
+    return None
+
+
+def _scheduler(text: str) -> str:
+    """argparse type of --scheduler."""
+    problem = _scheduler_problem(text.strip())
+    if problem:
+        raise argparse.ArgumentTypeError(f"invalid scheduler address {text!r}: {problem}")
+    return text.strip()
 
 
 def _choices(name: str, choices) -> str:
@@ -143,14 +244,14 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
             "--objects",
             nargs="+",
             metavar="NAME",
-            help="receiver objects, by name (mesh objects only; wins over --collection) (default: the scene's "
+            help="receiver objects, by name (mesh objects only; not with --collection) (default: the scene's "
             "Receivers setting: the selection saved in the .blend, or its receiver collection)",
         )
         q.add_argument(
             "--collection",
             metavar="NAME",
-            help="receivers: the mesh objects of this collection, child collections included (default: the "
-            "scene's Receivers setting)",
+            help="receivers: the mesh objects of this collection, child collections included; not with "
+            "--objects (default: the scene's Receivers setting)",
         )
 
     def threads(q):
@@ -159,7 +260,7 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
             type=_thread_count,
             default=None,
             metavar="N",
-            help="worker threads, ≥ 0; 0 = every core this process may use (default: the scene's "
+            help=f"worker threads, 0–{MAX_THREADS}; 0 = every core this process may use (default: the scene's "
             "Render > Performance > Threads, as a headless Cycles render; Auto = every core)",
         )
 
@@ -218,7 +319,7 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
     def resolution(q, what):
         q.add_argument(
             "--resolution",
-            type=int,
+            type=_ranged("resolution", int),
             metavar="TEXELS",
             help=f"atlas width and height in texels, {_span('resolution')}: {what} ({_default('resolution')})",
         )
@@ -226,9 +327,10 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
     def texel_density(q, what):
         q.add_argument(
             "--texel-density",
-            type=float,
+            type=_ranged("texel_density"),
             metavar="PER_METRE",
-            help=f"texels per metre, {_span('texel_density')}, {what}; 0 = use --resolution instead "
+            help=f"texels per metre, {_span('texel_density')}, {what}; 0 = use --resolution instead (only "
+            "one of the two may be given) "
             f"({_default('texel_density')})",
         )
 
@@ -267,34 +369,34 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
     )
     q.add_argument(
         "--samples",
-        type=int,
+        type=_ranged("samples", int),
         metavar="N",
         help=f"hemisphere samples per texel (the most a texel takes with --noise-target), {_span('samples')} "
         f"({_default('samples')})",
     )
     q.add_argument(
         "--bounces",
-        type=int,
+        type=_ranged("bounces", int),
         metavar="N",
         help=f"diffuse interreflection bounces after the first hit, {_span('bounces')} ({_default('bounces')})",
     )
     q.add_argument(
         "--noise-target",
-        type=float,
+        type=_ranged("noise_target"),
         metavar="PERCENT",
         help="stop a texel once the standard error of its irradiance is below PERCENT of it, "
         f"{_span('noise_target')}; 0 = every texel takes every sample ({_default('noise_target')})",
     )
     q.add_argument(
         "--time-budget",
-        type=float,
+        type=_ranged("time_budget", unit=" s"),
         metavar="SECONDS",
         help=f"stop tracing after SECONDS, {_span('time_budget')} (the first pass always completes); "
         f"0 = no limit ({_default('time_budget', ' s')})",
     )
     q.add_argument(
         "--seed",
-        type=int,
+        type=_ranged("seed", int),
         metavar="N",
         help=f"random seed, {_span('seed')}: the same seed gives the same bake ({_default('seed')})",
     )
@@ -328,6 +430,7 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
     )
     q.add_argument(
         "--scheduler",
+        type=_scheduler,
         metavar="tcp://HOST:PORT",
         help="trace on the Dask cluster of this scheduler (docs/farm.md): the same files as a local bake; "
         "finished tasks are kept in the output folder's .hhd_farm, so the same command resumes "
@@ -352,14 +455,30 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
         type=_weight,
         default=[],
         metavar="NAME=W",
-        help="a light set's weight, W a number or R,G,B (≥ 0; 1 = as baked, 0 = off) (default: none given: "
+        help=f"a light set's weight, W a number or R,G,B (0–{MAX_WEIGHT:g}; 1 = as baked, 0 = off) (default: none given: "
         "every set keeps the scene's weight, else 1)",
+    )
+    q = command(
+        "export",
+        "export the scene to glTF 2.0 with its baked lightmaps, as File > Export > glTF 2.0 does with the "
+        "extension enabled (docs/gltf.md; no baking): every render-visible object, the receivers with their "
+        "atlases' lightmaps",
+    )
+    out(q, "folder of the bake")
+    target = q.add_mutually_exclusive_group(required=True)
+    target.add_argument(
+        "--glb", metavar="OUT.glb", help="write one binary .glb file (no default: one of --glb, --gltf is required)"
+    )
+    target.add_argument(
+        "--gltf",
+        metavar="OUT.gltf",
+        help="write OUT.gltf with OUT.bin beside it (no default: one of --glb, --gltf is required)",
     )
     return p
 
 
 def _weight(text: str) -> tuple[str, tuple[float, ...]]:
-    """'NAME=W' or 'NAME=R,G,B' -> (NAME, weight)."""
+    """'NAME=W' or 'NAME=R,G,B' -> (NAME, weight), each number finite and 0–MAX_WEIGHT."""
     name, sep, value = text.partition("=")
     try:
         parts = tuple(float(v) for v in value.split(","))
@@ -367,7 +486,25 @@ def _weight(text: str) -> tuple[str, tuple[float, ...]]:
         parts = ()
     if not sep or not name or len(parts) not in (1, 3):
         raise argparse.ArgumentTypeError(f"expected NAME=W or NAME=R,G,B, got '{text}'")
+    if not all(math.isfinite(v) and 0.0 <= v <= MAX_WEIGHT for v in parts):
+        raise argparse.ArgumentTypeError(
+            f"light set '{name}': weight '{value}' is out of range: give 0–{MAX_WEIGHT:g} per channel "
+            "(1 = as baked, 0 = off)"
+        )
     return name, parts if len(parts) == 3 else parts * 3
+
+
+def _conflicts(args) -> str | None:
+    """Options that contradict each other (argparse cannot see it), or None."""
+    if getattr(args, "objects", None) and getattr(args, "collection", None):
+        return "--objects and --collection both name the receivers: give one of them"
+    density = getattr(args, "texel_density", None)
+    if density and getattr(args, "resolution", None) is not None:
+        return (
+            f"--texel-density {density:g} and --resolution {args.resolution} both size the atlas: give one "
+            "(--texel-density 0 --resolution N to switch a density-sized scene to a fixed size)"
+        )
+    return None
 
 
 def _apply_options(settings, args) -> None:
@@ -393,14 +530,16 @@ def _apply_options(settings, args) -> None:
         value = getattr(args, key, None)
         if value is not None:
             setattr(settings, key, value.upper().replace("-", "_"))
-    if args.collection:
+    if getattr(args, "collection", None):
         if args.collection not in bpy.data.collections:
             raise BakeError(f"no collection named '{args.collection}'")
         settings.target, settings.target_collection = 'COLLECTION', bpy.data.collections[args.collection]
 
 
 def _unwrap(context, args) -> str:
-    """Unwrap the receivers with a progress line; Ctrl-C cancels (BakeCancelled, no mesh changed)."""
+    """Unwrap the receivers with a progress line; Ctrl-C cancels (BakeCancelled, no mesh changed).
+    A texel density no atlas can hold is refused before xatlas runs (`core.atlas_limits`, in the
+    core unwrap)."""
     from .bridge import bake_session
     from .core.console import ConsoleProgress, interrupt_as_cancel
     from .operators import unwrap
@@ -408,15 +547,15 @@ def _unwrap(context, args) -> str:
     objects = bake_session.target_objects(context, args.objects)
     if not objects:
         raise BakeError("no receivers: pass --objects or --collection, or save the .blend with them selected")
+    job = unwrap.read_objects(objects, context.scene.hhd, getattr(args, "make_single_user", False))
     print(f"unwrap: {len(objects)} object(s)", flush=True)
     progress = ConsoleProgress()
     try:
         with interrupt_as_cancel() as cancel:
-            summary, warnings = unwrap.unwrap_objects(
-                objects, context.scene.hhd, getattr(args, "make_single_user", False), progress, cancel
-            )
+            result = unwrap.compute(job, progress, cancel)
     finally:
         progress.close()
+    summary, warnings = unwrap.write_objects(job, context.scene.hhd, result)
     for w in warnings:
         print(f"warning: {w}")
     return summary
@@ -432,7 +571,12 @@ def _bake(context, args) -> str:
     for w in session.warnings:
         print(f"warning: {w}")
     print(f"bake: {session.describe()}", flush=True)
-    address = args.scheduler or session.scheduler  # the option, else the scene's Dask Scheduler
+    address = args.scheduler or session.scheduler.strip()  # the option, else the scene's Dask Scheduler
+    if address and not args.scheduler and _scheduler_problem(address):
+        raise BakeError(
+            f"the scene's Dask Scheduler setting {address!r} is not a scheduler address: "
+            f"{_scheduler_problem(address)}; fix it (Render > HHD Lightmapper) or pass --scheduler"
+        )
     farm = _farm(address, session.settings.trace) if address else None
     progress = ConsoleProgress()
     try:
@@ -459,6 +603,19 @@ def _farm(address: str, trace):
     for w in connected.warnings:
         print(f"warning: {w}")
     return connected
+
+
+def _export(context, args) -> str:
+    """`export`: Blender's glTF exporter with the HHD hook (bridge/gltf_export.py), as File > Export."""
+    from .bridge import gltf_export
+
+    if args.out:
+        context.scene.hhd.output_dir = args.out  # this run only (export never saves the .blend)
+    path = args.glb or args.gltf
+    result = gltf_export.export(path, glb=bool(args.glb))
+    for w in result["warnings"]:
+        print(f"warning: {w}")
+    return f"{len(result['exported'])} object(s) with lightmaps -> {path}"
 
 
 def _encode(context, args) -> str:
@@ -500,30 +657,126 @@ def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespa
         parser.print_help(sys.stderr)
         return EXIT_USAGE
     try:
-        return parser.parse_args(argv)
+        args = parser.parse_args(argv)
+        conflict = _conflicts(args)
+        if conflict:
+            _commands(parser)[args.action].error(conflict)  # usage line and message, SystemExit(2)
+        return args
     except SystemExit as exc:
         return EXIT_USAGE if exc.code else EXIT_OK
 
 
+class _OutputProblem(Exception):
+    """The output folder or the .blend cannot be written: EXIT_OUTPUT with this message."""
+
+
+def _output_problem(folder: str) -> str | None:
+    """Why the files cannot be written into `folder` (created if missing), or None: checked
+    before any work, so a bake does not run for minutes to fail at the end."""
+    path = os.path.abspath(folder)
+    if os.path.exists(path) and not os.path.isdir(path):
+        return f"cannot write the output: {path} is a file, not a folder; give --out a folder path (made if missing)"
+    existing = path
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        return f"cannot write the output: {existing} is a file, so the folder {path} cannot be made; give --out a folder path"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return (
+            f"cannot write the output: no permission to write in {existing}; choose another --out, or make it writable"
+        )
+    return None
+
+
+def _save_problem() -> str | None:
+    """Why --save cannot save the open .blend, or None (checked before the command runs)."""
+    path = bpy.data.filepath
+    if not bpy.data.is_saved or not path:
+        return None  # a BakeError (input) in _save
+    if os.path.exists(path) and not os.access(path, os.W_OK):
+        return f"--save: {path} is read-only: make it writable, or leave out --save (nothing was baked)"
+    folder = os.path.dirname(path) or "."
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return (
+            f"--save: the folder {folder} is not writable (Blender saves through a temporary file there): "
+            "make it writable, or leave out --save (nothing was baked)"
+        )
+    return None
+
+
+def _save(args) -> None:
+    """--save: the .blend, after the command (its files are already written)."""
+    if not bpy.data.is_saved:
+        raise BakeError("--save: the .blend has never been saved, so there is no file to save to")
+    try:
+        bpy.ops.wm.save_mainfile()
+    except RuntimeError as exc:
+        detail = " ".join(str(exc).replace("Error:", "").split())
+        raise _OutputProblem(
+            f"--save: cannot save {bpy.data.filepath}: {detail} (the {args.action}'s files were written; the "
+            ".blend on disk is unchanged)"
+        ) from None
+
+
+def _check_before(context, args) -> None:
+    """What can be known to fail before any work: an unwritable output folder or .blend (--save)."""
+    from .bridge import bake_session
+
+    if getattr(args, "save", False):
+        if not bpy.data.is_saved:
+            raise BakeError("--save: the .blend has never been saved, so there is no file to save to")
+        problem = _save_problem()
+        if problem:
+            raise _OutputProblem(problem)
+    if args.action != "unwrap":
+        problem = _output_problem(bake_session.output_folder(context.scene.hhd, args.out))
+        if problem:
+            raise _OutputProblem(problem)
+
+
+def _os_problem(exc: OSError) -> str:
+    """One line for an OSError met while writing: the file (not its temporary) and the fix."""
+    import errno
+
+    from .core.exr import target_of
+
+    name = target_of(exc.filename) if exc.filename else "the output"
+    if exc.errno in (errno.EEXIST, errno.ENOTDIR):
+        return f"cannot write {name}: a file stands where a folder is needed; give --out a folder path"
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return f"cannot write {name}: permission denied; choose another --out or make it writable"
+    if exc.errno == errno.ENOSPC:
+        return f"cannot write {name}: the disk is full; free some space and run again"
+    return f"cannot write {name}: {exc.strerror or exc}"
+
+
 def _run(args: argparse.Namespace) -> int:
-    """Run the parsed command on the open .blend; returns the exit code (never raises)."""
+    """Run the parsed command on the open .blend; returns the exit code (never raises). SIGTERM
+    is Ctrl-C here: the files being written are deleted, none is replaced (EXIT_CANCELLED)."""
+    from .core.console import terminate_as_interrupt
+
     context = bpy.context
     start = time.perf_counter()
     try:
-        _apply_options(context.scene.hhd, args)
-        summary = {"unwrap": _unwrap, "bake": _bake, "encode": _encode, "blend": _blend}[args.action](context, args)
-        if getattr(args, "save", False):
-            if not bpy.data.is_saved:
-                raise BakeError("--save: the .blend has never been saved, so there is no file to save to")
-            bpy.ops.wm.save_mainfile()
+        with terminate_as_interrupt():
+            _apply_options(context.scene.hhd, args)
+            for w in _soft_warnings(args):
+                print(f"warning: {w}", flush=True)
+            _check_before(context, args)
+            commands = {"unwrap": _unwrap, "bake": _bake, "encode": _encode, "blend": _blend, "export": _export}
+            summary = commands[args.action](context, args)
+            if getattr(args, "save", False):
+                _save(args)
     except DependencyMissing as exc:
         return _fail(EXIT_DEPENDENCY, exc)
     except (BakeCancelled, KeyboardInterrupt):
         return _fail(EXIT_CANCELLED, "interrupted: no output file was replaced")
     except BakeError as exc:
         return _fail(EXIT_INPUT, exc)
+    except _OutputProblem as exc:
+        return _fail(EXIT_OUTPUT, exc)
     except OSError as exc:
-        return _fail(EXIT_OUTPUT, f"cannot write the output: {exc} (previous files are intact)")
+        return _fail(EXIT_OUTPUT, f"{_os_problem(exc)} (previous files are intact)")
     except Exception:  # a bug: say so, with the traceback, and a distinct code
         traceback.print_exc()
         return _fail(EXIT_INTERNAL, "internal error (please report it with the traceback above)")
@@ -540,6 +793,16 @@ def standalone(argv: list[str]) -> int:
     """`python -m hhd_lightmapper.cli FILE.blend <command> ...` under the bpy module. The command
     line is parsed before the .blend is opened: `--help` (with or without FILE.blend, at the top or
     after a command) and usage errors never open a file."""
+    from .core.console import terminate_as_interrupt
+
+    with terminate_as_interrupt():  # the start-up's handlers (exit_on_stop_signal) end here
+        try:
+            return _standalone(argv)
+        except KeyboardInterrupt:  # while opening the .blend or registering: nothing written
+            return _fail(EXIT_CANCELLED, "interrupted while starting: nothing was written")
+
+
+def _standalone(argv: list[str]) -> int:
     parser = _parser(STANDALONE_PROG)
     has_blend = bool(argv) and argv[0].endswith(".blend")
     if argv and not has_blend and not argv[0].startswith("-") and argv[0] not in _commands(parser):

@@ -58,7 +58,7 @@ def extension_tool(blender: str | None) -> list[str]:
 
 
 #: Files a zip must not carry (the manifest's `paths_exclude_pattern` keeps them out).
-DEV_PREFIXES = ("tests/", "bench/", "tools/", ".ci/", "docs/", "scenekit/", ".venv")
+DEV_PREFIXES = ("tests/", "bench/", "tools/", ".ci/", "docs/", "scenekit/", ".venv", "web/")
 
 
 def build(output_dir: Path, blender: str | None = None, platform: str | None = None) -> list[Path]:
@@ -103,7 +103,7 @@ def _stage(staging: Path, platform: str) -> Path:
         lines.append(line)
     source = staging / "hhd_lightmapper"
     ignore = shutil.ignore_patterns(
-        "__pycache__", ".*", "*.egg-info", "wheels", "tests", "bench", "tools", "scenekit", "docs"
+        "__pycache__", ".*", "*.egg-info", "wheels", "tests", "bench", "tools", "scenekit", "docs", "web"
     )
     shutil.copytree(ROOT, source, ignore=_top_level(ignore, {"dist", "build", "out"}))
     (source / "blender_manifest.toml").write_text("".join(lines))

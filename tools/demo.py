@@ -13,6 +13,8 @@ Stages, in pipeline order:
            (as traced) + _texels.exr + .json; the images are loaded into demo.blend, which is saved
   encode   reads the files back: irradz.png (I_z), encoder.png (HHD vs baseline over one texel's
            hemisphere) and the encoder's hemispherical error on 4000 texels
+  export   python -m hhd_lightmapper.cli demo.blend export --glb demo.glb: glTF 2.0 through Blender's
+           exporter with the HHD_lightmap extension (docs/gltf.md) -> demo.glb
   preview  reopens demo.blend, Show Preview (HHD node group on every material), EEVEE render
            preview_eevee.png, saves demo.blend with the preview shown (Hide Preview restores it)
 Exits 0 and prints a summary; writes summary.json.
@@ -100,6 +102,26 @@ def main() -> int:
         f"{sidecar['stats']['texels_baked']} texels, {denoised_text(sidecar, weights_note)} "
         "-> lightmaps/Lightmap_hhd.exr, _sh.exr, .json"
     )
+
+    # glTF 2.0 with the lightmaps (docs/gltf.md), through Blender's exporter and the HHD hook:
+    #   python -m hhd_lightmapper.cli demo.blend export --glb demo.glb
+    t = time.perf_counter()
+    command = [
+        sys.executable,
+        "-m",
+        "hhd_lightmapper.cli",
+        str(out / "demo.blend"),
+        "export",
+        "--glb",
+        str(out / "demo.glb"),
+    ]
+    print("$ " + " ".join(command[2:]), flush=True)
+    code = subprocess.call(command)
+    timings["export"] = time.perf_counter() - t
+    if code != 0:
+        print(f"demo: the glTF export failed with exit code {code}")
+        return code
+    stages["export"] = f"glTF with HHD_lightmap, {(out / 'demo.glb').stat().st_size / 1e6:.2f} MB -> demo.glb"
 
     t = time.perf_counter()
     encoded = plot_results(out / "lightmaps", out / "irradz.png", out / "encoder.png")

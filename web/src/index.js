@@ -1,0 +1,2 @@
+export { DEBUG, EXTENSION, HHDLightmapControls, HHDLightmapPlugin } from './HHDLightmapPlugin.js';
+export { HHD_COMMON, blendGLSL } from './shaders.js';
