@@ -1,6 +1,6 @@
 """Peak memory and time of an almost empty atlas, stage by stage (issue 53, part 5); run by hand.
 
-    python bench/sparse_atlas.py [--resolution 8192] [--preset draft] [--label before] [--dense]
+    python bench/sparse_atlas.py [--resolution 8192] [--preset draft] [--label before] [--dense] [--whole-reencode]
 
 One 100 m × 1 cm quad, its lightmap UVs a strip one atlas long and two texels tall (~16k texels
 at 8192²), lit by a sun and a sky, baked with a quality preset (Draft by default: no denoiser;
@@ -8,7 +8,10 @@ seams stitched, as every preset) through the product's own path (`bench/memory.p
 bake points, trace, then `bake._write`: seams, image, raw files, post stages, encode, write),
 with the raw files' and the encoded file's writes and their preview images timed apart.
 `--dense`: `bench/memory.py`'s wavy sheet instead (one chart covering 60% of the atlas), the
-check that a full atlas costs no more than before.
+check that a full atlas costs no more than before. Then the atlas is re-encoded from its files
+(`bake.reencode`, the `encode` command's and the Re-encode operator's core), timed as the stage
+"reencode" (not in the bake's total); `--whole-reencode` reads the files whole, as before
+re-encoding read the window of their texels (`lightmap_files.texel_window` answering None).
 
 Per stage: wall and CPU seconds and the stage's own peak RSS (VmHWM, reset at each stage start),
 as `bench/memory.py` measures them; the machine is shared, so the load averages are recorded.
@@ -119,7 +122,15 @@ def table_rows(run: dict) -> list[dict]:
         "cpu_seconds": round(sum(r["cpu_seconds"] for r in rows), 2),
         "peak_rss_gb": round(run["peak_rss_mb"] / 1024, 3),
     }
-    return rows + [{**head, "stage": "total", **total, "load_1min": load[0]}]
+    rows.append({**head, "stage": "total", **total, "load_1min": load[0]})
+    if "reencode" in run:  # after the bake, apart from its total
+        r = run["reencode"]
+        figures = {k: round(r[k], 2) for k in ("seconds", "cpu_seconds")}
+        stage = "reencode (whole files)" if r["whole"] else "reencode"
+        rows.append(
+            {**head, "stage": stage, **figures, "peak_rss_gb": round(r["peak_rss_mb"] / 1024, 3), "load_1min": load[0]}
+        )
+    return rows
 
 
 def main() -> int:
@@ -130,6 +141,7 @@ def main() -> int:
     ap.add_argument("--label", default="", help="the run's name in the results (e.g. before, after)")
     ap.add_argument("--out", type=Path, default=RESULTS / "sparse_atlas.json")
     ap.add_argument("--keep", type=Path, help="write the atlas's files into this folder (default: a temporary one)")
+    ap.add_argument("--whole-reencode", action="store_true", help="re-encode from the whole files (as before windows)")
     args = ap.parse_args()
     load_before = os.getloadavg()
     v, f, uv = dense(args.resolution) if args.dense else quad(args.resolution)
@@ -156,6 +168,19 @@ def main() -> int:
     atlas = bake.AtlasInput("Lightmap", args.resolution, args.resolution, surface, ["quad"])
     exr.set_threads(parallel.resolve_threads(settings.trace.threads))  # as `bake.run`
     stages = Nested()
+    originals = [
+        (owner, attr, getattr(owner, attr))
+        for owner, attr in (
+            (stages_module.TracedAtlas, "noise"),
+            (seams, "find_seams"),
+            (post, "apply"),
+            (encoding, "encode_atlas"),
+            (post, "stitch_encoded"),
+            (lightmap_files, "write_atlas"),
+            (bake.Staged, "raw"),
+            (lightmap_files, "stage_preview"),
+        )
+    ]
     _memory._mark_at(stages, stages_module.TracedAtlas, "noise", "image")
     for module, attr, name in (
         (seams, "find_seams", "seams"),
@@ -184,7 +209,21 @@ def main() -> int:
             del traced
             staging.commit()
         stages.mark(None)
-    total = time.perf_counter() - t0
+        total = time.perf_counter() - t0
+        for owner, attr, f in originals:  # the re-encode is one stage: unwrap the bake's
+            setattr(owner, attr, f)
+        if args.whole_reencode:
+            lightmap_files.texel_window = lambda files, shape: None
+        stages.mark("reencode")
+        bake.reencode(
+            lightmap_files.AtlasFiles(Path(out), atlas.name),
+            settings.encoder,
+            settings.trace.threads,
+            denoise=denoise,
+            denoiser_library=library,
+        )
+        stages.mark(None)
+    reencode = stages.rows.pop("reencode")
     run = {
         "label": args.label,
         "scene": "sheet" if args.dense else "quad",
@@ -199,6 +238,7 @@ def main() -> int:
         "cpus": os.cpu_count(),
         "warnings": result.warnings,
         "stages": stages.rows,
+        "reencode": {**reencode, "whole": args.whole_reencode},
     }
     print(f"{args.resolution}² {run['scene']}, {texels} texels, {args.preset}: {total:.1f} s")
     print(f"  load {load_before} → {run['load_average_after']}")
@@ -208,6 +248,10 @@ def main() -> int:
             f"peak {row['peak_rss_mb'] / 1024:6.2f} GB  after {row['rss_after_mb'] / 1024:6.2f} GB"
         )
     print(f"  peak RSS over the stages {run['peak_rss_mb'] / 1024:.2f} GB")
+    print(
+        f"  re-encode{' (whole files)' if args.whole_reencode else ''}: {reencode['seconds']:.2f} s  "
+        f"cpu {reencode['cpu_seconds']:.2f} s   peak {reencode['peak_rss_mb'] / 1024:.2f} GB"
+    )
     rows = json.loads(args.out.read_text()) if args.out.is_file() else []
     rows += table_rows(run)
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -654,10 +654,10 @@ def _reencode_files(staging, files: lightmap_files.AtlasFiles, settings: Pipelin
     """Read → post stages → encode → stage the encoded file and sidecar of one atlas (or light set)."""
     sidecar = lightmap_files.read_sidecar(files.sidecar)
     sidecar.pop("blend", None)
-    data = lightmap_files.read_texel_data(files)
+    data = lightmap_files.read_texel_data(files, crop=True)  # an almost empty atlas: its texels' window
     sidecar["reencoded_from_sh"] = True
     sidecar["reencode_threads"] = threads
-    atlas_seams = lightmap_files.read_seams(files, data.coverage.shape) if settings.stitch_seams else None
+    atlas_seams = lightmap_files.read_seams(files, data.atlas_shape) if settings.stitch_seams else None
     data, sidecar["post"] = post.apply(data, settings, seams=atlas_seams)
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=False)
     encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"])

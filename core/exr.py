@@ -196,6 +196,14 @@ def write(path, channels: dict[str, np.ndarray], attributes: dict | None = None)
         staging.commit()
 
 
+def _unreadable(path, exc: Exception) -> BakeError:
+    """The BakeError of a file the binding could not read (it raises plain exceptions, ValueError,
+    RuntimeError, TypeError, for corrupt files)."""
+    if isinstance(exc, OSError) and exc.errno in (errno.EACCES, errno.EPERM):
+        return BakeError(f"cannot read {path}: permission denied (fix the file's permissions)")
+    return BakeError(f"cannot read {path}: the file is damaged (truncated or corrupt): bake again")
+
+
 def read(path) -> tuple[dict[str, np.ndarray], dict]:
     """Channels `{name: (height, width) array}` (float16 or float32 as stored) and the header."""
     openexr = deps.require("OpenEXR")
@@ -205,13 +213,82 @@ def read(path) -> tuple[dict[str, np.ndarray], dict]:
         f = openexr.File(str(path), separate_channels=True)
         channels = {name: ch.pixels for name, ch in f.channels().items()}
         header = dict(f.header())
-    except Exception as exc:  # the binding raises plain exceptions (ValueError, RuntimeError) for corrupt files
-        if isinstance(exc, OSError) and exc.errno in (errno.EACCES, errno.EPERM):
-            raise BakeError(f"cannot read {path}: permission denied (fix the file's permissions)") from None
-        raise BakeError(f"cannot read {path}: the file is damaged (truncated or corrupt): bake again") from None
+    except Exception as exc:
+        raise _unreadable(path, exc) from None
     if not channels or any(getattr(a, "ndim", 0) != 2 for a in channels.values()):
         raise BakeError(f"cannot read {path}: the file is damaged (no image channels): bake again")
     return channels, header
+
+
+#: Scanlines decompressed per call of a windowed read (`read_window`, a multiple of ZIP's 16-line
+#: blocks): the memory it adds is this many whole rows of the channels it reads.
+READ_ROWS = 32
+
+
+def shape_of(path) -> tuple[tuple[int, int], dict[str, np.dtype]]:
+    """The (height, width) of a scanline EXR and its channels' stored dtypes, from its header
+    only (no pixel is read)."""
+    openexr = deps.require("OpenEXR")
+    if not Path(path).is_file():
+        raise BakeError(f"EXR file not found: {path} (bake again)")
+    try:
+        f = openexr.InputFile(str(path))
+        try:
+            header = f.header()
+        finally:
+            f.close()
+        box = header["dataWindow"]
+        shape = (box.max.y - box.min.y + 1, box.max.x - box.min.x + 1)
+        dtypes = {name: _DTYPES[str(ch.type)] for name, ch in header["channels"].items()}
+    except Exception as exc:
+        raise _unreadable(path, exc) from None
+    if not dtypes or min(shape) <= 0:
+        raise BakeError(f"cannot read {path}: the file is damaged (no image channels): bake again")
+    return shape, dtypes
+
+
+_DTYPES: dict[str, np.dtype] = {
+    "HALF": np.dtype(np.float16),
+    "FLOAT": np.dtype(np.float32),
+    "UINT": np.dtype(np.uint32),
+}
+
+
+def read_window(path, names: list[str], rows: tuple[int, int], cols: tuple[int, int]) -> dict[str, np.ndarray]:
+    """Channels `names` of EXR rows a … b (top-down scanlines) and columns x0 … x1 only, as
+    `{name: (b - a, x1 - x0) array}` of the stored dtype (the bits of `read`'s). Read
+    READ_ROWS scanlines at a time through the binding's scanline reader (`OpenEXR.InputFile`:
+    OpenEXR decompresses only the ZIP blocks holding those rows), so memory and time follow the
+    window, not the file. BakeError as `read` for a missing or damaged file."""
+    openexr = deps.require("OpenEXR")
+    import Imath  # the OpenEXR wheel's own module of header types
+
+    (a, b), (x0, x1) = rows, cols
+    if not Path(path).is_file():
+        raise BakeError(f"EXR file not found: {path} (bake again)")
+    try:
+        f = openexr.InputFile(str(path))
+        try:
+            header = f.header()
+            ymin, width = header["dataWindow"].min.y, header["dataWindow"].max.x - header["dataWindow"].min.x + 1
+            stored = {name: str(header["channels"][name].type) for name in names}
+            out = {name: np.empty((b - a, x1 - x0), _DTYPES[t]) for name, t in stored.items()}
+            for kind in dict.fromkeys(stored.values()):  # one call per stored type: each block decompressed once
+                group = [name for name, t in stored.items() if t == kind]
+                pixel = Imath.PixelType(getattr(Imath.PixelType, kind))
+                for start in range(a, b, READ_ROWS):
+                    stop = min(start + READ_ROWS, b)
+                    band = f.channels(group, pixel, ymin + start, ymin + stop - 1)
+                    for name, data in zip(group, band):
+                        rows_of = np.frombuffer(data, _DTYPES[kind]).reshape(stop - start, width)
+                        out[name][start - a : stop - a] = rows_of[:, x0:x1]
+        finally:
+            f.close()
+    except BakeError:
+        raise
+    except Exception as exc:
+        raise _unreadable(path, exc) from None
+    return out
 
 
 def _non_finite_key(doc, where: str = "") -> str:

@@ -150,38 +150,54 @@ def blend_atlas(files, weights: Mapping[str, object] | None) -> dict:
         )
     names = [entry["name"] for entry in entries]
     w = weight_array(names, weights)
-    layers = [read_hhd(f) for f in files.light_sets(sidecar)]
-    normal = _texel_normals(files)
-    h, wid = normal.shape[:2]
+    normal, window = _texel_normals(files)
+    h, wid = normal.shape[:2] if window is None else window.atlas
+    for f in files.light_sets(sidecar):
+        if window is not None and exr.shape_of(f.hhd)[0] != (h, wid):
+            raise BakeError(_not_of_atlas(f, files, h, wid))
+    layers = [read_hhd(f, window) for f in files.light_sets(sidecar)]
     for f, (p, _) in zip(files.light_sets(sidecar), layers):
-        if len(p.irradz) != h * wid:
-            raise BakeError(
-                f"{f.hhd} is not of the {wid}×{h} atlas of {files.texels.name}: the files come from different "
-                "bakes; bake again"
-            )
+        if window is None and len(p.irradz) != h * wid:
+            raise BakeError(_not_of_atlas(f, files, h, wid))
     blended = blend([p for p, _ in layers], normal.reshape(-1, 3), w)
     record = {"method": "linear_sh", "weights": {n: w[k].tolist() for k, n in enumerate(names)}}
     sidecar["blend"] = record
     with exr.Staging() as staging:
-        write_hhd(staging, files, blended, (h, wid), layers[0][1], sidecar)
+        write_hhd(staging, files, blended, (h, wid), layers[0][1], sidecar, window)
         staging.commit()
     return record
 
 
-def read_hhd(files) -> tuple[HHDParams, list[str]]:
+def _not_of_atlas(f, files, h: int, w: int) -> str:
+    return (
+        f"{f.hhd} is not of the {w}×{h} atlas of {files.texels.name}: the files come from different bakes; bake again"
+    )
+
+
+def read_hhd(files, window=None) -> tuple[HHDParams, list[str]]:
     """The HHD parameters of every texel `(H·W,)` of an atlas's HHD file (rows bottom-up) and
-    the file's Wa channel names (["Wa.V"] or ["Wa.R", "Wa.G", "Wa.B"])."""
+    the file's Wa channel names (["Wa.V"] or ["Wa.R", "Wa.G", "Wa.B"]). With a `window`
+    (`stages.Window`: an almost empty atlas's, `lightmap_files.texel_window`), those of its
+    texels `(h·w,)` only, then one more: a texel outside it (every one there holds the same
+    fill), the only part of the file read besides the window's ZIP blocks."""
     from . import exr, octahedral
 
-    channels, _ = exr.read(files.hhd)
-    try:
-        iz = np.stack([exr.from_exr_rows(channels[f"Iz.{c}"]) for c in "RGB"], axis=-1).astype(np.float64)
-        oct_xy = np.stack([exr.from_exr_rows(channels[f"Direction.{c}"]) for c in "XY"], axis=-1)
-    except KeyError as exc:
-        raise BakeError(f"{files.hhd} is not an HHD lightmap (no channel {exc}): encode with model 'hhd'") from None
-    wa_names: list[str] = [n for n in ("Wa.V", "Wa.R", "Wa.G", "Wa.B") if n in channels]
-    if not wa_names or len({channels[n].shape for n in ("Iz.R", "Direction.X", *wa_names)}) != 1:
+    if window is None:
+        channels, _ = exr.read(files.hhd)
+        stored = list(channels)
+    else:
+        stored = list(exr.shape_of(files.hhd)[1])
+    for name in ("Iz.R", "Iz.G", "Iz.B", "Direction.X", "Direction.Y"):
+        if name not in stored:
+            raise BakeError(f"{files.hhd} is not an HHD lightmap (no channel {name!r}): encode with model 'hhd'")
+    wa_names: list[str] = [n for n in ("Wa.V", "Wa.R", "Wa.G", "Wa.B") if n in stored]
+    names = ["Iz.R", "Iz.G", "Iz.B", "Direction.X", "Direction.Y", *wa_names]
+    if window is not None:
+        channels = _window_and_one(files.hhd, names, window)
+    if not wa_names or len({channels[n].shape for n in names}) != 1:
         raise BakeError(f"{files.hhd} is damaged (its channels are missing or differ in size): bake again")
+    iz = np.stack([exr.from_exr_rows(channels[f"Iz.{c}"]) for c in "RGB"], axis=-1).astype(np.float64)
+    oct_xy = np.stack([exr.from_exr_rows(channels[f"Direction.{c}"]) for c in "XY"], axis=-1)
     wa = np.stack([exr.from_exr_rows(channels[n]) for n in wa_names], axis=-1).astype(np.float64)
     n = iz.shape[0] * iz.shape[1]
     params = HHDParams(
@@ -193,28 +209,65 @@ def read_hhd(files) -> tuple[HHDParams, list[str]]:
     return params, wa_names
 
 
-def _texel_normals(files) -> np.ndarray:
-    """n_v `(H, W, 3)` of the atlas's texels file, unit; texels without one (outside the charts)
-    take their nearest chart texel's, as the encoded layers were filled, else +z."""
+def _window_and_one(path, names: list[str], window) -> dict[str, np.ndarray]:
+    """Channels `names` of EXR `path` as `(h·w + 1, 1)` images in EXR order: turned by
+    `exr.from_exr_rows`, `window`'s texels (rows bottom-up), then one texel outside it."""
+    from . import exr
+
+    h, w = window.atlas
+    rows, cols = (h - window.y0 - window.h, h - window.y0), (window.x0, window.x0 + window.w)
+    inner = exr.read_window(path, names, rows, cols)
+    if window.h < h:  # a row outside the window's
+        y = 0 if rows[0] > 0 else h - 1
+        one = exr.read_window(path, names, (y, y + 1), (0, 1))
+    else:  # a column outside
+        x = 0 if cols[0] > 0 else w - 1
+        one = exr.read_window(path, names, (0, 1), (x, x + 1))
+    # reversed, as `from_exr_rows` turns them back: the window's texels bottom-up, then the outside one
+    return {n: np.concatenate([inner[n][::-1].reshape(-1), one[n].reshape(1)])[::-1, None] for n in names}
+
+
+def _texel_normals(files):
+    """n_v `(H, W, 3)` of the atlas's texels file, unit, and None; texels without one (outside
+    the charts) take their nearest chart texel's, as the encoded layers were filled, else +z.
+    An almost empty atlas's (`lightmap_files.texel_window`): n_v `(h·w + 1, 3)` of its window's
+    texels, then of those outside it (all alike: the fill's mean), and the window."""
     from . import lightmap_files
+    from .encoding.stage import background
 
-    data = lightmap_files.read_texel_data(files)
-    normal = data.fill().apply(data.normal.astype(np.float64))
+    data = lightmap_files.read_texel_data(files, crop=True)
+    fill = data.fill()
+    normal = data.normal.astype(np.float64)
+    if data.window is not None:
+        outside = background(fill, normal)
+        normal = np.concatenate([fill.apply(normal).reshape(-1, 3), outside.reshape(1, 3)])
+    else:
+        normal = fill.apply(normal)
     length = np.linalg.norm(normal, axis=-1, keepdims=True)
-    return np.where(length > 1e-6, normal / np.maximum(length, 1e-300), [0.0, 0.0, 1.0])
+    return np.where(length > 1e-6, normal / np.maximum(length, 1e-300), [0.0, 0.0, 1.0]), data.window
 
 
-def write_hhd(staging, files, p: HHDParams, shape: tuple[int, int], wa_names: list[str], sidecar: dict) -> None:
+def write_hhd(
+    staging, files, p: HHDParams, shape: tuple[int, int], wa_names: list[str], sidecar: dict, window=None
+) -> None:
     """Stage an atlas's HHD file (Iz, Wa as `wa_names`, octahedral Direction; the HHD file's
-    storage types), its preview images and `sidecar`."""
+    storage types), its preview images and `sidecar`. `window`: `p` is of its texels and one
+    outside it (`read_hhd`'s), written as the whole atlas's (`stages.PlacedImage`)."""
     from . import exr, lightmap_files, octahedral
     from .encoding import HHD_FILE
+    from .stages import placed
 
-    h, w = shape
-    images = {f"Iz.{c}": p.irradz[:, k].reshape(h, w) for k, c in enumerate("RGB")}
-    images.update({name: p.ambient_weight.reshape(h, w) for name in wa_names})
+    h, w = shape if window is None else (window.h, window.w)
+
+    def image(values: np.ndarray):
+        if window is None:
+            return values.reshape(h, w)
+        return placed(values[:-1].reshape(h, w), window, values[-1])
+
+    images = {f"Iz.{c}": image(p.irradz[:, k]) for k, c in enumerate("RGB")}
+    images.update({name: image(p.ambient_weight) for name in wa_names})
     oct_xy = octahedral.encode(p.direction)
-    images.update({f"Direction.{c}": oct_xy[:, k].reshape(h, w) for k, c in enumerate("XY")})
+    images.update({f"Direction.{c}": image(oct_xy[:, k]) for k, c in enumerate("XY")})
     spec = HHD_FILE.for_settings(_Ambient("luminance" if wa_names == ["Wa.V"] else "rgb"))
     channels = lightmap_files.exr_channels(spec, images)
     attributes = {"hhdFormat": lightmap_files.FORMAT, "hhdFormatVersion": lightmap_files.FORMAT_VERSION}

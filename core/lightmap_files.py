@@ -42,6 +42,7 @@ from .encoding import (
     TexelData,
 )
 from .errors import BakeError
+from .stages import Window
 
 if TYPE_CHECKING:
     from .seams import Seams
@@ -59,6 +60,7 @@ __all__ = [
     "read_seams",
     "read_sidecar",
     "read_texel_data",
+    "texel_window",
     "stage_preview",
     "stage_seams",
     "write_atlas",
@@ -268,9 +270,17 @@ def read_sidecar(path) -> dict:
     return doc
 
 
-def read_texel_data(files: AtlasFiles) -> TexelData:
+def read_texel_data(files: AtlasFiles, crop: bool = False) -> TexelData:
     """The SH and texel EXRs of a finished bake, as the encoder's input. Raises BakeError for a
-    missing or damaged file, or files of different atlas sizes (of different bakes)."""
+    missing or damaged file, or files of different atlas sizes (of different bakes).
+    `crop`: an almost empty atlas's are read as the window of its texels (`texel_window`: the
+    window its bake's stages worked on, `TexelData.window`), only the ZIP blocks of the files
+    that hold it decompressed; the whole atlas where that is all of it."""
+    if crop:
+        (h, w), _ = _raw_shapes(files)
+        window = texel_window(files, (h, w))
+        if window is not None:
+            return _read_window(files, window)
     sh = read_sh(files.sh)
     h, w = sh.shape[:2]
     tx_ch, _ = exr.read(files.texels)
@@ -281,10 +291,7 @@ def read_texel_data(files: AtlasFiles) -> TexelData:
     sizes = {a.shape for a in tx_ch.values()}
     if sizes != {(h, w)}:
         (th, tw) = next(iter(sizes)) if len(sizes) == 1 else (0, 0)
-        raise BakeError(
-            f"{files.texels} is of a {tw}×{th} atlas but {files.sh.name} of {w}×{h}: the files come from "
-            "different bakes; bake again"
-        )
+        _different_bakes(files, (th, tw), (h, w))
     normal = np.stack([exr.from_exr_rows(tx_ch[n]) for n in normal_layer.exr_names], axis=-1).astype(
         np.float32, copy=False
     )
@@ -294,6 +301,89 @@ def read_texel_data(files: AtlasFiles) -> TexelData:
     if noise is not None:  # unknown: NOISE_UNKNOWN in the file (NaN in bakes made before), NaN in memory
         noise[~(noise >= 0.0)] = np.nan
     return TexelData(sh=sh, normal=normal, coverage=coverage, noise=noise)
+
+
+def _different_bakes(files: AtlasFiles, texels: tuple[int, int], sh: tuple[int, int]):
+    (th, tw), (h, w) = texels, sh
+    raise BakeError(
+        f"{files.texels} is of a {tw}×{th} atlas but {files.sh.name} of {w}×{h}: the files come from "
+        "different bakes; bake again"
+    )
+
+
+def _raw_shapes(files: AtlasFiles) -> tuple[tuple[int, int], list[str]]:
+    """The atlas (height, width) of a bake's SH and texels files, from their headers, and the
+    texels file's channels; BakeError as `read_texel_data` for files that are not those (their
+    channels) or of different sizes."""
+    shape, sh_types = exr.shape_of(files.sh)
+    missing = [n for n in SH_CHANNELS if n not in sh_types]
+    if missing:
+        raise BakeError(f"{files.sh} lacks SH channels {missing[:3]}…: it is not an SH file; bake again")
+    texels_shape, tx_types = exr.shape_of(files.texels)
+    normal_layer, coverage_layer, _ = TEXELS_FILE.channels
+    missing = [n for layer in (normal_layer, coverage_layer) for n in layer.exr_names if n not in tx_types]
+    if missing:
+        raise BakeError(f"{files.texels} lacks the channels {missing}: it is not a texels file; bake again")
+    if texels_shape != shape:
+        _different_bakes(files, texels_shape, shape)
+    return shape, list(tx_types)
+
+
+def texel_window(files: AtlasFiles, shape: tuple[int, int]) -> Window | None:
+    """The window of an atlas of `shape` (height, width) that its bake's stages worked on
+    (`encoding.stage.window_of` of its texels: those of Coverage ≠ 0 in the texels file, every
+    bake point's), found decompressing only the texels file's ZIP blocks that are not its
+    background (`sparse_exr.uniform_blocks`; the background's, one block, is checked to hold
+    no texel). None for the whole atlas: when at most half its blocks are background (a dense
+    atlas: read whole, as before), or the file cannot be scanned so (read whole, which reports
+    a damaged file)."""
+    from . import sparse_exr
+    from .encoding.stage import window_of
+
+    scan = sparse_exr.uniform_blocks(files.texels)
+    if scan is None or scan[0] != tuple(shape) or 2 * scan[1].sum() <= len(scan[1]):
+        return None
+    (h, w), same = scan
+    coverage = TEXELS_FILE.channels[1].exr_names[0]
+    rows = sparse_exr.BLOCK_ROWS
+    first = int(np.argmax(same)) * rows
+    if exr.read_window(files.texels, [coverage], (first, min(first + rows, h)), (0, w))[coverage].any():
+        return None
+    lo, hi = [h, w], [-1, -1]  # EXR rows and columns of the texels
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], (~same).astype(np.int8), [0]])))
+    for a, b in zip(edges[::2] * rows, np.minimum(edges[1::2] * rows, h)):  # runs of other blocks
+        held = exr.read_window(files.texels, [coverage], (int(a), int(b)), (0, w))[coverage] != 0.0
+        ys, xs = np.flatnonzero(held.any(axis=1)), np.flatnonzero(held.any(axis=0))
+        if len(ys):
+            lo = [min(lo[0], int(a + ys[0])), min(lo[1], int(xs[0]))]
+            hi = [max(hi[0], int(a + ys[-1])), max(hi[1], int(xs[-1]))]
+    if hi[0] < 0:
+        return None
+    top, bottom = h - 1 - lo[0], h - 1 - hi[0]  # texel rows (bottom-up) of the first and last EXR rows
+    return window_of(np.array([bottom * w + lo[1], top * w + hi[1]]), h, w)
+
+
+def _read_window(files: AtlasFiles, window: Window) -> TexelData:
+    """`read_texel_data` of the rows and columns of `window` only (rows bottom-up, as the
+    whole's)."""
+    h, _ = window.atlas
+    rows, cols = (h - window.y0 - window.h, h - window.y0), (window.x0, window.x0 + window.w)
+    sh_ch = exr.read_window(files.sh, list(SH_CHANNELS), rows, cols)
+    sh = np.stack([exr.from_exr_rows(sh_ch.pop(n)) for n in SH_CHANNELS], axis=-1).astype(np.float32, copy=False)
+    sh = sh.reshape(sh.shape[:2] + (9, 3))
+    normal_layer, coverage_layer, noise_layer = TEXELS_FILE.channels
+    noise_name = noise_layer.exr_names[0]
+    _, tx_types = exr.shape_of(files.texels)
+    names = [*normal_layer.exr_names, coverage_layer.exr_names[0]] + ([noise_name] if noise_name in tx_types else [])
+    tx_ch = exr.read_window(files.texels, names, rows, cols)
+    normal = np.stack([exr.from_exr_rows(tx_ch[n]) for n in normal_layer.exr_names], axis=-1).astype(
+        np.float32, copy=False
+    )
+    coverage = exr.from_exr_rows(tx_ch[coverage_layer.exr_names[0]]).astype(np.float32, copy=False)
+    noise = exr.from_exr_rows(tx_ch[noise_name]).astype(np.float32, copy=False) if noise_name in tx_ch else None
+    if noise is not None:
+        noise[~(noise >= 0.0)] = np.nan
+    return TexelData(sh=sh, normal=normal, coverage=coverage, noise=noise, window=window)
 
 
 def read_sh(path: Path) -> np.ndarray:

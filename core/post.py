@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -123,8 +123,9 @@ def _placed(out: EncodedAtlas, like: EncodedAtlas) -> EncodedAtlas:
     key = out.encoding_file.key
     spec, images = out.files[key]
     around = like.files[key][1]
-    placed = {name: replace(around[name], inner=image) for name, image in images.items()}
-    return replace(out, files={**out.files, key: (spec, placed)})
+    placed = {name: replace(cast(PlacedImage, around[name]), inner=image) for name, image in images.items()}
+    # a PlacedImage stands in for the atlas's image (the writers take either: `exr.write_file`)
+    return replace(out, files={**out.files, key: (spec, cast(dict[str, np.ndarray], placed))})
 
 
 def _finite(record):

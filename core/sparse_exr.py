@@ -10,11 +10,17 @@ and display windows, the offset table, and per block of the atlas its compressed
 window's or the background's. A block's bytes depend on its pixels only (ZIP compresses each
 block on its own), so the file is byte for byte the one `exr.write_file` writes from the whole
 images (tests/test_sparse_atlas.py compares them).
+
+Reading it back at the cost of its window (a re-encode, a blend): `uniform_blocks` tells from the
+compressed bytes alone which blocks are the file's background (every block of that one value
+has the same bytes), so a reader decompresses only the others (`lightmap_files.texel_window`).
 """
 
 from __future__ import annotations
 
+import mmap
 import struct
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +42,7 @@ class _Rows:
 
     def __getitem__(self, key: slice) -> np.ndarray:
         start, stop, _ = key.indices(self.shape[0])
-        return self.image[self.a + start : self.a + stop]
+        return np.asarray(self.image[self.a + start : self.a + stop])
 
 
 def placed_rows(channels: dict) -> tuple[int, int] | None:
@@ -142,3 +148,61 @@ def _with_windows(header: bytes, width: int, height: int) -> bytes:
             struct.pack_into("<iiii", out, at + 4, 0, 0, width - 1, height - 1)
         at += 4 + size
     return bytes(out)
+
+
+#: OpenEXR's ZIP_COMPRESSION (16 scanlines per block), the header's compression byte.
+_ZIP = 3
+#: Version-field flags of a file that is not one single-part scanline image (tiled, deep, multi-part).
+_NOT_SCANLINE = 0x200 | 0x800 | 0x1000
+
+
+def uniform_blocks(path) -> tuple[tuple[int, int], np.ndarray] | None:
+    """The (height, width) of a single-part scanline ZIP EXR (what `exr.write_file` writes) and,
+    per ZIP block (BLOCK_ROWS scanlines, EXR order), whether its compressed bytes are those of
+    the block most blocks share (the background of an almost empty atlas's file, or a whole
+    atlas's rows without a chart: the same pixels compress to the same bytes). Reads the offset
+    table and the blocks' bytes, decompresses nothing (the blocks of that most common size
+    only are compared). None when the file is not such a file or cannot be walked (a damaged
+    one: the caller reads it whole, which says so), or no two blocks are alike."""
+    try:
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            return _uniform_blocks(data)
+    except (OSError, ValueError, IndexError, struct.error):
+        return None
+
+
+def _uniform_blocks(data) -> tuple[tuple[int, int], np.ndarray] | None:
+    if data[:4] != _MAGIC or data[4] != 2 or struct.unpack_from("<i", data, 4)[0] & _NOT_SCANLINE:
+        return None
+    at, box, compression = 8, None, None
+    while data[at] != 0:  # attributes: name\0 type\0 size value
+        end = data.find(b"\0", at)
+        name = data[at:end]
+        at = data.find(b"\0", end + 1) + 1
+        (size,) = struct.unpack_from("<i", data, at)
+        if name == b"dataWindow":
+            box = struct.unpack_from("<iiii", data, at + 4)
+        elif name == b"compression":
+            compression = data[at + 4]
+        at += 4 + size
+    if box is None or compression != _ZIP:
+        return None
+    x0, y0, x1, y1 = box
+    height, width = y1 - y0 + 1, x1 - x0 + 1
+    count = -(-height // BLOCK_ROWS)
+    offsets = struct.unpack_from(f"<{count}Q", data, at + 1)
+    sizes = np.zeros(count, np.int64)
+    for i, offset in enumerate(offsets):
+        y, size = struct.unpack_from("<ii", data, offset)
+        if y != y0 + i * BLOCK_ROWS or size <= 0 or offset + 8 + size > len(data):
+            return None
+        sizes[i] = size
+    common = Counter(sizes.tolist()).most_common(1)[0][0]
+    alike = np.flatnonzero(sizes == common)
+    blocks = Counter(data[offsets[i] + 8 : offsets[i] + 8 + common] for i in alike)
+    background, n = blocks.most_common(1)[0]
+    if n < 2:
+        return None
+    same = np.zeros(count, bool)
+    same[alike] = [data[offsets[i] + 8 : offsets[i] + 8 + common] == background for i in alike]
+    return (height, width), same

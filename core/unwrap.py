@@ -735,11 +735,12 @@ def _describe_failure(run) -> str:
 def _upright(atlas) -> bool:
     """Whether the charts xatlas packed span more rows than columns of its atlas (`_object_uv`
     turns such an atlas a quarter)."""
-    uv = [u[u.any(axis=(1, 2))].reshape(-1, 2) for u in atlas["uv"]]  # placed triangles' corners
-    uv = np.concatenate(uv).astype(np.float64) * [atlas["width"], atlas["height"]] if uv else np.zeros((0, 2))
-    if not len(uv):
+    placed = [u[u.any(axis=(1, 2))].reshape(-1, 2) for u in atlas["uv"]]  # placed triangles' corners
+    corners = np.concatenate(placed).astype(np.float64) if placed else np.zeros((0, 2))
+    if not len(corners):
         return False
-    span = uv.max(axis=0) - uv.min(axis=0)
+    corners *= [atlas["width"], atlas["height"]]
+    span = corners.max(axis=0) - corners.min(axis=0)
     return bool(span[1] > span[0])
 
 

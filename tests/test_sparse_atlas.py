@@ -4,12 +4,25 @@ stages after tracing work on the window of the atlas that holds its texels
 (`stages.PlacedImage`), byte for byte the files of the whole atlas's images. No Blender."""
 
 import json
+import shutil
 import tracemalloc
 
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, exr, raster, sparse_exr, stages, tracer, unwrap
+from hhd_lightmapper.core import (
+    bake,
+    bakepoints,
+    encoding,
+    exr,
+    light_sets,
+    lightmap_files,
+    raster,
+    sparse_exr,
+    stages,
+    tracer,
+    unwrap,
+)
 from hhd_lightmapper.core.encoding import stage as encode_stage
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
@@ -195,3 +208,118 @@ def test_a_long_strip_is_packed_across_rows_with_its_handedness(settings):
     plain = unwrap.unwrap([unwrap.UnwrapMesh("square", v, f)], unwrap.UnwrapSettings(resolution=256))
     assert np.sign(_signed_areas(res.objects[0].uv)).tolist() == np.sign(_signed_areas(plain.objects[0].uv)).tolist()
     assert res.objects[0].texels == pytest.approx(float(np.abs(_signed_areas(px.reshape(-1, 3, 2))).sum() / 2))
+
+
+def reencoded(folder, monkeypatch, whole: bool) -> tuple[dict[str, bytes], list]:
+    """Re-encode the bake in `folder` (in place): from the window of its texels, or (`whole`) from
+    the whole atlas's images as before windows; its files and the windows it read."""
+    read = []
+    with monkeypatch.context() as m:
+        if whole:
+            m.setattr(lightmap_files, "texel_window", lambda files, shape: None)
+        else:
+            real = lightmap_files.texel_window
+            m.setattr(lightmap_files, "texel_window", lambda *a: (read.append(real(*a)), read[-1])[1])
+        bake.reencode(lightmap_files.AtlasFiles(folder, "Lightmap"), bake.EncoderSettings(), threads=2)
+    files = files_of(folder)
+    doc = json.loads(files["Lightmap.json"])
+    assert doc.pop("reencoded_from_sh") and doc.pop("reencode_threads") == 2
+    files["Lightmap.json"] = json.dumps(doc, sort_keys=True).encode()
+    return files, read
+
+
+def test_reencoding_an_almost_empty_atlas_reads_its_window_and_writes_the_bake_s_files(tmp_path, monkeypatch):
+    """Re-encode reads only the window of the atlas its bake's stages worked on (the same
+    rectangle, found from the texels file's blocks that are not its background) and writes the
+    bake's files bit for bit, as a re-encode of the whole atlas's images does."""
+    surface, scene = sphere_in_corner(1024, 0.25, (0.3, 0.55))
+    windows = []
+    real = encode_stage.window_of
+    monkeypatch.setattr(encode_stage, "window_of", lambda *a: (windows.append(real(*a)), windows[-1])[1])
+    bake_files = baked(tmp_path, "bake", monkeypatch, surface, scene, 1024, whole=False)
+    monkeypatch.setattr(encode_stage, "window_of", real)
+    for name in ("window", "whole"):
+        shutil.copytree(tmp_path / "bake", tmp_path / name)
+    window, read = reencoded(tmp_path / "window", monkeypatch, whole=False)
+    whole, _ = reencoded(tmp_path / "whole", monkeypatch, whole=True)
+    assert read == [windows[0]] and read[0] is not None
+    assert bake_files.keys() == window.keys() == whole.keys()
+    for name in bake_files:
+        assert window[name] == whole[name], name
+        if name.endswith(".json"):  # the stitch's count of texels it changed: the bake's gutters held 0
+            for files in (window, bake_files):  # before it, a re-encode's their dilated SH (as before windows)
+                doc = json.loads(files[name])
+                doc["post"]["stitch"].pop("texels")
+                files[name] = json.dumps(doc, sort_keys=True).encode()
+        assert window[name] == bake_files[name], name
+
+
+def test_reencoding_an_almost_empty_8192_atlas_allocates_for_its_texels_not_its_area(tmp_path):
+    """A strip across an 8192² atlas (its files written from the window, as a bake writes them):
+    reading, stitching, encoding and writing it again allocate a small fraction of one
+    whole-atlas SH image (8192² × 27 float32 = 7.2 GB)."""
+    n = 8192
+    texel = (n // 2 + np.arange(2))[:, None] * n + np.arange(4, n - 4)[None, :]  # two texel rows
+    window = encode_stage.window_of(texel.reshape(-1), n, n)
+    assert window is not None and window.h == 2 + 2 * encode_stage.WINDOW_MARGIN
+    h, w = window.h, window.w
+    local = window.local(texel.reshape(-1))
+    rng = np.random.default_rng(3)
+    sh = np.zeros((h * w, 9, 3), np.float32)
+    sh[local] = rng.random((len(local), 9, 3)) * 0.1
+    sh[local, 0] += 1.0
+    normal = np.zeros((h * w, 3), np.float32)
+    normal[local] = [0.0, 0.0, 1.0]
+    coverage = np.zeros(h * w, np.float32)
+    coverage[local] = 1.0
+    data = encoding.TexelData(
+        sh=sh.reshape(h, w, 9, 3), normal=normal.reshape(h, w, 3), coverage=coverage.reshape(h, w), window=window
+    )
+    files = lightmap_files.AtlasFiles(tmp_path, "Lightmap")
+    fill = data.fill()
+    with exr.Staging() as staging:
+        with encoding.raw_files(data, fill) as images_of:
+            lightmap_files.stage_files(staging, files, images_of)
+        encoded = encoding.encode_atlas(data, encoding.for_settings(bake.EncoderSettings()), raw=False)
+        lightmap_files.write_atlas(staging, files, encoded, {"objects": []})
+        staging.commit()
+    before = files.hhd.read_bytes()
+    dense_sh = n * n * 27 * 4
+    tracemalloc.start()
+    try:
+        bake.reencode(files, bake.EncoderSettings(), threads=1)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < dense_sh / 20, f"{peak / 2**20:.0f} MB traced"
+    assert files.hhd.read_bytes() == before
+
+
+def test_blending_the_light_sets_of_an_almost_empty_atlas_reads_its_window(tmp_path, monkeypatch):
+    """`blend_atlas` reads the sets' HHD files and the texels file in the window of the atlas's
+    texels only (and one texel outside it) and writes the file a blend of the whole files writes,
+    bit for bit; a re-encode then restores the bake's files of the sets' sum."""
+    surface, scene = sphere_in_corner(1024, 0.25, (0.3, 0.55))
+    scene.lights = [SunLight(np.array([0.5, 0.3, 0.8]), np.full(3, 3.0), group="Sun")]  # + the world: Default
+    atlas = bake.AtlasInput("Lightmap", 1024, 1024, surface, ["sphere"])
+    trace = BakeSettings(samples=4, pass_samples=4, bounces=1, seed=2, threads=2)
+    bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "bake")
+    baked_files = files_of(tmp_path / "bake")
+    assert "Lightmap.Sun_hhd.exr" in baked_files
+    weights = {"Sun": [0.5, 1.0, 2.0], "Default": 0.25}
+    read = []
+    real = lightmap_files.texel_window
+    for name, window in (("window", lambda *a: (read.append(real(*a)), read[-1])[1]), ("whole", lambda *a: None)):
+        shutil.copytree(tmp_path / "bake", tmp_path / name)
+        with monkeypatch.context() as m:
+            m.setattr(lightmap_files, "texel_window", window)
+            light_sets.blend_atlas(lightmap_files.AtlasFiles(tmp_path / name, "Lightmap"), weights)
+    assert read and read[0] is not None and read[0].h * read[0].w < 1024**2 / 4
+    window, whole = files_of(tmp_path / "window"), files_of(tmp_path / "whole")
+    assert window == whole and window["Lightmap_hhd.exr"] != baked_files["Lightmap_hhd.exr"]
+    bake.reencode(lightmap_files.AtlasFiles(tmp_path / "window", "Lightmap"), bake.EncoderSettings(), threads=2)
+    assert (
+        exr.read(tmp_path / "window" / "Lightmap_hhd.exr")[0].keys()
+        == exr.read(tmp_path / "bake" / "Lightmap_hhd.exr")[0].keys()
+    )
+    assert files_of(tmp_path / "window")["Lightmap_hhd.exr"] == baked_files["Lightmap_hhd.exr"]

@@ -185,6 +185,7 @@ class TexelData:
         channel, `background`), unknown noise (NOISE_UNKNOWN), else 0."""
         if self.window is None:
             return image
+        value: np.ndarray | float
         if fill is not None:
             value = background(fill, image)
         else:
@@ -218,7 +219,7 @@ class EncodedAtlas:
 
     width: int
     height: int
-    files: dict[str, tuple[FileSpec, dict[str, np.ndarray]]]
+    files: dict[str, tuple[FileSpec, dict[str, np.ndarray]]]  # images: PlacedImage where windowed
     encoding_file: FileSpec
     settings: dict
     stats: dict
@@ -249,7 +250,9 @@ def encode_atlas(
 
 
 @contextmanager
-def raw_files(data: TexelData, fill: _dilate.Fill) -> Iterator[dict[str, tuple[FileSpec, dict[str, np.ndarray]]]]:
+def raw_files(
+    data: TexelData, fill: _dilate.Fill
+) -> Iterator[dict[str, tuple[FileSpec, dict[str, np.ndarray | PlacedImage]]]]:
     """The raw files' images of `data` (as `EncodedAtlas.files`: {sidecar key: (FileSpec, {EXR
     channel name: `(H, W)` image})}) for the duration of the block, which writes them: the SH
     channels are filled in `data.sh` itself (views of it, no copy of the atlas's SH), and on
