@@ -271,6 +271,26 @@ class HHDSettings(bpy.types.PropertyGroup):
         update=_probe_mode_changed,
         description="How objects previewed with the probes are lit (compare the talk's occlusion modes)",
     )
+    view_mode: EnumProperty(
+        name="View",
+        default='LIGHTING',
+        items=[
+            ('LIGHTING', "Lighting", "The baked lighting (Show Preview, in the Preview mode below)"),
+            (
+                'DENSITY',
+                "Texel Density",
+                "Texels per metre against the target, before any bake: blue half, green on target, red double",
+            ),
+            ('CHECKER', "Texel Checker", "A checker of exactly one texel per cell, before any bake"),
+            (
+                'PROBLEMS',
+                "Problems",
+                "Texels shared by two charts, flipped or degenerate UV faces, objects with too few texels, before any bake",
+            ),
+        ],
+        description="What Show Preview shows: the baked lighting, or a view of the lightmap UVs that needs no bake",
+    )
+    view_summary: StringProperty(name="Last View", default="", options={'SKIP_SAVE'})
     preview_self_bounce: BoolProperty(
         name="Self Bounce",
         default=False,

@@ -10,6 +10,7 @@ from .encode import HHD_OT_encode, HHD_OT_open_output
 from .light_sets import HHD_OT_blend_light_sets, HHD_OT_refresh_light_sets
 from .preview import HHD_OT_preview_hide, HHD_OT_preview_show
 from .probes import HHD_OT_probe_preview_hide, HHD_OT_probe_preview_show
+from .texel_views import HHD_OT_view_show
 from .unwrap import HHD_OT_unwrap
 
 classes = (
@@ -21,6 +22,7 @@ classes = (
     HHD_OT_open_output,
     HHD_OT_preview_show,
     HHD_OT_preview_hide,
+    HHD_OT_view_show,
     HHD_OT_refresh_light_sets,
     HHD_OT_blend_light_sets,
     HHD_OT_probe_preview_show,

@@ -100,11 +100,19 @@ class HHD_PT_main(bpy.types.Panel):
         if settings.bake_summary:
             box.label(text=settings.bake_summary)
         col = box.column()
-        col.prop(settings, "preview_mode")
-        col.prop(settings, "preview_self_bounce")
+        col.prop(settings, "view_mode")
+        if settings.view_mode == 'LIGHTING':
+            col.prop(settings, "preview_mode")
+            col.prop(settings, "preview_self_bounce")
         row = box.row(align=True)
-        row.operator("hhd.preview_show", icon='HIDE_OFF')
+        if settings.view_mode == 'LIGHTING':
+            row.operator("hhd.preview_show", icon='HIDE_OFF')
+        else:  # the views before a bake: from the lightmap UVs alone
+            row.operator("hhd.view_show", text="Show Preview", icon='HIDE_OFF').mode = settings.view_mode
         row.operator("hhd.preview_hide", icon='HIDE_ON')
+        if settings.view_mode != 'LIGHTING':
+            for line in settings.view_summary.splitlines():
+                box.label(text=line)
         col = box.column()
         col.prop(settings, "probe_mode")
         row = box.row(align=True)

@@ -14,6 +14,9 @@ the units of docs/conventions.md#irradiance-units):
   "HHD Light Set Blend ×K": the live blend of K light sets (core.light_sets.blend per pixel):
       per set k inputs "Iz k", "Wa k", "Direction k", "Weight k" (RGB), then the HHD group's
       Normal, Vertex Normal, Albedo, Self Bounce; its reconstruction is the HHD group's.
+  "HHD Texel Checker" (the views before a bake, shaders/texel_views.py): inputs UV (the lightmap
+      UV), Atlas Size (width, height), Light, Dark (colours); outputs Color (Light on texels
+      (i, j) = floor(UV × Atlas Size) with i + j even, else Dark) and Parity (1 there, else 0).
 Each group carries GROUP_VERSION in a custom property and is rebuilt when it differs, so a .blend
 made with an older extension gets the current maths.
 """
@@ -38,6 +41,8 @@ GROUPS = {
 BLEND_GROUP = "HHD Light Set Blend ×{}"
 #: The blend group's per-set weight input (RGB), `set_input(WEIGHT, k)`.
 WEIGHT = "Weight"
+#: The texel checker of the views before a bake (`build_checker`).
+CHECKER_GROUP = "HHD Texel Checker"
 
 
 class Builder:
@@ -385,3 +390,45 @@ def ensure(kind: str):
     if kind in ("L1", "L2"):
         return build_sh(int(kind[1]))
     return build_scalar()
+
+
+def build_checker():
+    """The texel checker (module docstring): cells exactly one texel of the atlas,
+    parity = (floor(u·w) + floor(v·h)) mod 2 = 0, so texel (0, 0) is Light."""
+    tree = _new_tree(CHECKER_GROUP)
+    for name, kind, default in (
+        ("UV", 'NodeSocketVector', None),
+        ("Atlas Size", 'NodeSocketVector', (256.0, 256.0, 0.0)),
+        ("Light", 'NodeSocketColor', (0.8, 0.8, 0.8, 1.0)),
+        ("Dark", 'NodeSocketColor', (0.2, 0.2, 0.2, 1.0)),
+    ):
+        socket = tree.interface.new_socket(name, in_out='INPUT', socket_type=kind)
+        if default is not None:
+            socket.default_value = default
+    tree.interface.new_socket("Color", in_out='OUTPUT', socket_type='NodeSocketColor')
+    tree.interface.new_socket("Parity", in_out='OUTPUT', socket_type='NodeSocketFloat')
+    b = Builder(tree)
+    i = b.node("NodeGroupInput").outputs
+    x, y, _ = b.xyz(b.vec("FLOOR", b.vec("MULTIPLY", i["UV"], i["Atlas Size"])))
+    odd = b.math("FLOORED_MODULO", b.math("ADD", x, y), 2.0)
+    parity = b.math("SUBTRACT", 1.0, odd)
+    mix = b.node("ShaderNodeMix", data_type='RGBA')
+    tree.links.new(parity, _socket(mix.inputs, "Factor_Float"))
+    tree.links.new(i["Dark"], _socket(mix.inputs, "A_Color"))
+    tree.links.new(i["Light"], _socket(mix.inputs, "B_Color"))
+    out = b.node("NodeGroupOutput")
+    tree.links.new(_socket(mix.outputs, "Result_Color"), out.inputs["Color"])
+    tree.links.new(parity, out.inputs["Parity"])
+    return tree
+
+
+def ensure_checker():
+    """The texel checker group, built or rebuilt if stale."""
+    tree = bpy.data.node_groups.get(CHECKER_GROUP)
+    if tree is not None and tree.get("hhd_version") == GROUP_VERSION:
+        return tree
+    return build_checker()
+
+
+def _socket(sockets, identifier):
+    return next(s for s in sockets if s.identifier == identifier)

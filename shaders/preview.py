@@ -21,6 +21,8 @@ Show adds the sets to `scene.hhd.light_sets` (weight 1) if they are missing ther
 The material's original Surface link is recorded in the material (`hhd_preview` property); Hide
 removes every preview node, restores that link and deletes the record and the object attributes,
 so the node tree is exactly as before. Edits the artist makes to the material meanwhile are kept.
+The views before a bake (shaders/texel_views.py) insert their nodes under the same prefix and
+record, so Hide removes them too.
 """
 
 from __future__ import annotations
@@ -269,11 +271,15 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
 
 
 def hide(objects=None) -> int:
-    """Remove the preview from every material that has one and the switch from the objects
-    (all objects when None); returns how many materials were restored."""
+    """Remove the preview (or a view before a bake, shaders/texel_views.py) from every material
+    that has one and the switch from the objects (all objects when None), and what a view added to
+    meshes and images; returns how many materials were restored."""
+    from . import texel_views  # it builds on this module
+
     restored = sum(hide_on_material(m) for m in bpy.data.materials)
     for obj in objects if objects is not None else bpy.data.objects:
         for key in (RECORD, ATLAS):
             if key in obj:
                 del obj[key]
+    texel_views.clear(objects)
     return restored
