@@ -235,13 +235,32 @@ def _layer_textures(b: _Builder, label: str, layers: dict, yup: bool) -> dict:
 
 
 def _uv_bounds(obj, layer: str):
+    """(lo, hi) of the lightmap UVs of the faces that can hold texels: faces whose UVs span no
+    area are left out. xatlas charts no zero-area face (a degenerate face of the model: its
+    corners coincide or lie on a line) and leaves its UVs at (0, 0), where it gets no texel, so
+    the box of all UVs would reach (0, 0) while the bake's `uv_rect` (the box of the baked texels)
+    does not. None: no such layer (or no faces)."""
     mesh = obj.data
     uvl = mesh.uv_layers.get(layer)
-    if uvl is None or len(mesh.loops) == 0:
+    if uvl is None or len(mesh.loops) == 0 or len(mesh.polygons) == 0:
         return None
     uv = np.zeros(len(mesh.loops) * 2, np.float32)
     uvl.data.foreach_get("uv", uv)
-    uv = uv.reshape(-1, 2)
+    uv = uv.reshape(-1, 2).astype(np.float64)
+    n = len(mesh.polygons)
+    start = np.zeros(n, np.int64)
+    total = np.zeros(n, np.int64)
+    mesh.polygons.foreach_get("loop_start", start)
+    mesh.polygons.foreach_get("loop_total", total)
+    poly = np.repeat(np.arange(n), total)
+    loop = np.repeat(start - (np.cumsum(total) - total), total) + np.arange(total.sum())
+    first = start[poly]
+    nxt = np.where(loop + 1 < first + total[poly], loop + 1, first)
+    a, b = uv[loop] - uv[first], uv[nxt] - uv[first]  # the polygon's triangle fan
+    area = np.bincount(poly, weights=np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), minlength=n)
+    keep = area[poly] > 0.0
+    if keep.any():
+        uv = uv[loop[keep]]
     return uv.min(axis=0), uv.max(axis=0)
 
 
@@ -260,9 +279,12 @@ def _check_object(obj, atlas: _Atlas, layer: str) -> str | None:
     outside = lo[0] < rect[0] - tx or lo[1] < rect[1] - ty or hi[0] > rect[2] + tx or hi[1] > rect[3] + ty
     shrunk = lo[0] > rect[0] + tx or lo[1] > rect[1] + ty or hi[0] < rect[2] - tx or hi[1] < rect[3] - ty
     if outside or shrunk:
+        w, h = atlas.width, atlas.height
         return (
             f"'{obj.name}': its lightmap UVs no longer lie where the bake put them (unwrapped again "
-            "since the bake?): the bake is stale; bake it again"
+            f"since the bake?): they span texels x {lo[0] * w:.1f}–{hi[0] * w:.1f}, y {lo[1] * h:.1f}–"
+            f"{hi[1] * h:.1f}, the baked texels x {rect[0] * w:.0f}–{rect[2] * w:.0f}, y {rect[1] * h:.0f}–"
+            f"{rect[3] * h:.0f}: the bake is stale; bake it again"
         )
     return None
 

@@ -322,3 +322,66 @@ def test_cli_export_gltf_same_path_and_bad_input_warns_per_object(baked, cli_run
     assert "'Floor' exported without its lightmap" in run.stdout and "0 object(s) with lightmaps" in run.stdout
     doc, _ = read_glb(work / "out" / "missing.glb")
     assert "HHD_lightmap" not in doc.get("extensionsUsed", [])
+
+
+def test_staleness_check_ignores_faces_without_uv_area_and_catches_moved_uvs(extension):
+    """A fresh bake is not stale: xatlas leaves a zero-area face (coincident corners, as the
+    bedroom's Boxes_Mesh002 and WoodFurniture_Mesh006 have) uncharted at UV (0, 0), where it gets
+    no texel, so the bake's `uv_rect` (the box of the baked texels) stops short of (0, 0); that face
+    does not count. UVs moved, shrunk or grown since the bake still do."""
+    from types import SimpleNamespace
+
+    import bpy
+
+    from hhd_lightmapper.bridge import gltf_export
+
+    scene = bpy.context.scene
+    layer = scene.hhd.uv_layer
+    # a quad charted at texels x 100–300, y 200–400 of a 512² atlas, and a degenerate triangle
+    mesh = bpy.data.meshes.new("StaleCheck")
+    mesh.from_pydata(
+        [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 2, 0), (2, 2, 0), (2, 2, 0)], [], [(0, 1, 2, 3), (4, 5, 6)]
+    )
+    mesh.update()
+    obj = bpy.data.objects.new("StaleCheck", mesh)
+    scene.collection.objects.link(obj)
+    try:
+        uv_layer = mesh.uv_layers.new(name=layer)
+        quad = np.array([(100, 200), (300, 200), (300, 400), (100, 400)], float) / 512.0
+
+        def set_uv(quad_uv, degenerate=(0.0, 0.0)):
+            for loop, uv in zip(uv_layer.data, list(quad_uv) + [degenerate] * 3):
+                loop.uv = tuple(uv)
+
+        # the baked texels: centres inside the chart, so the texel box is within a texel of it
+        atlas = SimpleNamespace(
+            name="Lightmap",
+            width=512,
+            height=512,
+            files=SimpleNamespace(sidecar="Lightmap.json"),
+            objects={"StaleCheck": {"uv_rect": [100 / 512, 200 / 512, 300 / 512, 400 / 512]}},
+        )
+        check = lambda: gltf_export._check_object(obj, atlas, layer)  # noqa: E731
+        set_uv(quad)
+        assert check() is None  # the degenerate face's (0, 0) is ignored
+        set_uv(quad, degenerate=(0.5, 0.5))
+        assert check() is None  # wherever it lies
+        set_uv(quad + 1.0 / 512)
+        assert check() is None  # within the 1.5-texel tolerance
+        for label, moved in {
+            "moved": quad + 10.0 / 512,
+            "shrunk": (quad - quad.mean(axis=0)) * 0.8 + quad.mean(axis=0),
+            "grown": (quad - quad.mean(axis=0)) * 1.2 + quad.mean(axis=0),
+            "re-unwrapped": quad[:, ::-1],
+        }.items():
+            set_uv(moved)
+            problem = check()
+            assert problem is not None and "stale" in problem, label
+        # a face with UV area at (0, 0) (a chart moved there) counts
+        set_uv(quad, degenerate=(0.0, 0.0))
+        uv_layer.data[5].uv = (3.0 / 512, 0.0)
+        uv_layer.data[6].uv = (0.0, 3.0 / 512)
+        assert "stale" in (check() or "")
+    finally:
+        bpy.data.objects.remove(obj)
+        bpy.data.meshes.remove(mesh)

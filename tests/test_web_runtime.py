@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 import web_harness
-from hhd_lightmapper.core import hhd, light_sets, sh
+from hhd_lightmapper.core import hhd, light_sets, octahedral, sh
+from hhd_lightmapper.core.encoding import web_packing
 
 # figures of the comparisons, printed at the end of the module (pytest -s) and kept in
 # out/test-times/web_runtime.json for the reports
@@ -84,6 +85,41 @@ def test_lightmap_only_render_equals_the_numpy_decode_on_a_synthetic_file(browse
     mask = gbuf["uv"][..., 3] > 0
     cos = np.einsum("ij,ij->i", gbuf["n"][mask][:, :3], gbuf["nv"][mask][:, :3])
     assert np.median(np.degrees(np.arccos(np.clip(cos, -1, 1)))) > 5.0
+    assert [e for e in browser.errors() if "favicon" not in e] == []
+
+
+def test_direction_is_decoded_per_texel_then_blended_across_the_octahedral_fold(browser, tmp_path):
+    """d is filtered as unit vectors, not as octahedral bytes (docs/gltf.md "Filtering"): on a
+    direction texture whose neighbouring texels lie on opposite edges of the octahedral map (z < 0,
+    x flipping sign every few texels) the browser's d (DEBUG.DIRECTION) and its lightmap-only render
+    equal the numpy decode-then-blend; blending the bytes before decoding (what the runtime did)
+    turns d by tens of degrees there, which these bounds reject."""
+    glb = web_harness.synthetic_glb(tmp_path / "fold.glb", seed=7, size=32, with_sets=False, probes=False, fold=True)
+    summary = browser.load(glb)
+    assert summary["receivers"] == 1 and summary["warnings"] == [], summary
+    w, h = 128, 128
+    gbuf = web_harness.gbuffer(browser, w, h)
+    mask = gbuf["uv"][..., 3] > 0
+    assert mask.sum() > 0.2 * w * h
+    uv = gbuf["uv"][mask][:, :2].astype(np.float64)
+    doc = web_harness.Glb(glb)
+    atlas = doc.ext["atlases"][0]
+    want = web_harness.sample_direction(doc.layers(atlas)["dir"], uv)
+    got = web_harness.unit(browser.render("dir", w, h)[mask][:, :3].astype(np.float64))
+    angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", got, want), -1.0, 1.0)))
+    # the old way: the encoded bytes blended, then decoded
+    raw = doc.texture_image(atlas["direction"]["index"]).astype(np.float64)[..., :2] / 255.0
+    bytes_first = octahedral.decode(web_packing.sample_bilinear(raw, uv) * 2.0 - 1.0)
+    old = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", bytes_first, want), -1.0, 1.0)))
+    FIGURES["fold"] = figures = {
+        "direction_max_deg": float(angle.max()),
+        "bytes_first_p95_deg": float(np.percentile(old, 95)),
+        "bytes_first_max_deg": float(old.max()),
+    }
+    assert np.percentile(old, 95) > 10.0, figures  # the file straddles the fold
+    assert angle.max() <= 0.5, figures
+    FIGURES["fold_lightmap"] = lm = compare(browser, glb, w, h)
+    assert lm["median"] <= 1e-4 and lm["p95"] <= 1e-3 and lm["max"] <= 1e-2, lm
     assert [e for e in browser.errors() if "favicon" not in e] == []
 
 

@@ -165,15 +165,16 @@ class Glb:
 
     def layers(self, layer: dict) -> dict:
         """Decoded float images of one layer set (an atlas or a LightSetLayers): I_z (H, W, 3),
-        the raw direction/w_a texels / 255 (interpolated before decoding, as the runtime does)."""
+        the direction of every texel decoded to a unit vector (H, W, 3), the w_a texels / 255."""
         packed = layer["irradiance"]
         iz = web_packing.decode(self.texture_image(packed["index"]), packed["packing"], packed["range"])
-        direction = self.texture_image(layer["direction"]["index"]).astype(np.float64) / 255.0
+        raw = self.texture_image(layer["direction"]["index"]).astype(np.float64) / 255.0
+        e = raw[..., [CHANNEL[c] for c in layer["direction"].get("channels", "rg")]]
+        direction = octahedral.decode(e.reshape(-1, 2) * 2.0 - 1.0).reshape(e.shape[:2] + (3,))
         wa = self.texture_image(layer["ambientWeight"]["index"]).astype(np.float64) / 255.0
         return {
             "iz": iz,
             "dir": direction,
-            "dir_channels": layer["direction"].get("channels", "rg"),
             "wa": wa,
             "wa_channels": layer["ambientWeight"]["channels"],
         }
@@ -182,11 +183,24 @@ class Glb:
 CHANNEL = {"r": 0, "g": 1, "b": 2, "a": 3}
 
 
+def sample_direction(direction: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Unit directions (N, 3) at glTF UVs from per-texel unit vectors (H, W, 3): the four texels'
+    vectors blended with the bilinear weights and normalised (docs/gltf.md "Filtering"; never the
+    encoded bytes, which fold); a blend of length ≤ 1e-6 falls back to the first texel (x0, y0)."""
+    s = web_packing.sample_bilinear(direction, uv)
+    h, w = direction.shape[:2]
+    x0 = np.floor(np.clip(uv[:, 0] * w - 0.5, 0.0, w - 1.0)).astype(int)
+    y0 = np.floor(np.clip(uv[:, 1] * h - 0.5, 0.0, h - 1.0)).astype(int)
+    length = np.linalg.norm(s, axis=1, keepdims=True)
+    return np.where(length > 1e-6, s / np.maximum(length, 1e-30), direction[y0, x0])
+
+
 def sample_params(layers: dict, uv: np.ndarray) -> hhd.HHDParams:
-    """HHD parameters (N,) at glTF UVs, each texture bilinear over decoded texels (docs/gltf.md)."""
+    """HHD parameters (N,) at glTF UVs, each texture bilinear over decoded texels (docs/gltf.md):
+    I_z decoded then blended, d decoded to unit vectors then blended and normalised, w_a (linear
+    in its bytes) blended."""
     iz = web_packing.sample_bilinear(layers["iz"], uv)
-    e = web_packing.sample_bilinear(layers["dir"], uv)[:, [CHANNEL[c] for c in layers["dir_channels"]]]
-    d = octahedral.decode(e * 2.0 - 1.0)
+    d = sample_direction(layers["dir"], uv)
     wa_all = web_packing.sample_bilinear(layers["wa"], uv)
     wa = wa_all[:, [CHANNEL[c] for c in layers["wa_channels"]]]
     wa = wa[:, 0] if wa.shape[1] == 1 else wa
@@ -303,10 +317,14 @@ def _lookat_quaternion(eye, target, up=(0.0, 1.0, 0.0)):
     return [float(v) for v in q]
 
 
-def synthetic_glb(path: Path, seed: int = 0, size: int = 64, with_sets: bool = True, probes: bool = True) -> Path:
+def synthetic_glb(
+    path: Path, seed: int = 0, size: int = 64, with_sets: bool = True, probes: bool = True, fold: bool = False
+) -> Path:
     """A bumpy 2 m grid (normal-mapped, on TEXCOORD_0) receiving a size² HHD atlas on TEXCOORD_1,
     RGBM I_z, octahedral d + luminance w_a in one PNG, and (with_sets) two light sets; (probes) a
-    box without a lightmap inside a 4×3×4 probe volume of random L2 SH; a camera."""
+    box without a lightmap inside a 4×3×4 probe volume of random L2 SH; a camera. With `fold` the
+    directions straddle the octahedral map's fold: glTF z < 0 (the folded half) and x changing
+    sign every few texels, so neighbouring texels' encodings lie on opposite edges of the map."""
     rng = np.random.default_rng(seed)
     n = 24
     gx, gz = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
@@ -331,6 +349,9 @@ def synthetic_glb(path: Path, seed: int = 0, size: int = 64, with_sets: bool = T
         # directions within 45° of up (+y), w_a in [0.15, 0.85]
         t = _smooth_field(rng, (size, size), 3)
         d = unit(np.stack([(t[..., 0] - 0.5) * 1.6, np.ones((size, size)), (t[..., 1] - 0.5) * 1.6], axis=-1))
+        if fold:  # within 40° of up, z < 0, x's sign flipping along bands ~3 texels wide
+            x = 0.35 * np.sign(np.sin(np.pi * (np.arange(size)[None, :] + 8.0 * t[..., 0]) / 3.0))
+            d = unit(np.stack([x * (0.6 + 0.4 * t[..., 1]), np.ones((size, size)), -0.3 - 0.3 * t[..., 1]], -1))
         wa = 0.15 + 0.7 * t[..., 2]
         return iz, d, wa
 

@@ -87,7 +87,7 @@ vec3 NAME(vec2 uv, float range) {                                               
   vec3 d = DECODE(texelFetch(TEX, ivec2(i1.x, i1.y), 0), range);                                \\
   return mix(mix(a, b, f.x), mix(c, d, f.x), f.y);                                               \\
 }
-vec4 hhdBilinearRaw(sampler2D tex, vec2 uv) {                    // unorm8 data (w_a, direction)
+vec4 hhdBilinearRaw(sampler2D tex, vec2 uv) {                    // unorm8 data that is linear (w_a)
   ivec2 size = textureSize(tex, 0);
   vec2 p = uv * vec2(size) - 0.5;
   vec2 fl = floor(p);
@@ -101,35 +101,59 @@ vec4 hhdBilinearRaw(sampler2D tex, vec2 uv) {                    // unorm8 data 
 vec3 hhdWorld(vec3 viewDir) { return normalize((vec4(viewDir, 0.0) * viewMatrix).xyz); }
 `;
 
+// The direction d: each of the four texels decoded to a unit vector (octahedral), the vectors
+// blended with the bilinear weights and normalised (docs/gltf.md "Filtering"). Blending the
+// encoded bytes instead is wrong where the octahedral map folds (directions near the lower
+// hemisphere's edge: neighbouring texels far apart in the encoding average to a wrong direction).
+// `channels`: the two channels holding the encoding ("rg"). A blend of length ~0 (opposite
+// directions, equal weights) falls back to the first texel's direction.
+function directionGLSL(name, tex, channels) {
+  const dec = (i) => `hhdOctDecode(vec2(texelFetch(${tex}, ${i}, 0).${channels}) * 2.0 - 1.0)`;
+  return /* glsl */ `
+vec3 ${name}(vec2 uv) {
+  ivec2 size = textureSize(${tex}, 0);
+  vec2 p = uv * vec2(size) - 0.5;
+  vec2 fl = floor(p);
+  vec2 f = p - fl;
+  ivec2 i0 = clamp(ivec2(fl), ivec2(0), size - 1);
+  ivec2 i1 = clamp(ivec2(fl) + 1, ivec2(0), size - 1);
+  vec3 a = ${dec('ivec2(i0.x, i0.y)')}, b = ${dec('ivec2(i1.x, i0.y)')};
+  vec3 c = ${dec('ivec2(i0.x, i1.y)')}, d = ${dec('ivec2(i1.x, i1.y)')};
+  vec3 s = mix(mix(a, b, f.x), mix(c, d, f.x), f.y);
+  float len = length(s);
+  return len > 1e-6 ? s / len : a;
+}
+`;
+}
+
 const CHANNELS = { r: 0, g: 1, b: 2, a: 3 };
 
 /** GLSL that reads one layer set (I_z, w_a, d) into an HHDTexel `dst` at `uv`. */
 function readLayerGLSL(layer, dst, uv) {
   const { prefix, packing, waChannels, dirChannels, waSeparate } = layer;
-  const dir = `hhdBilinearRaw(${prefix}Dir, ${uv})`;
-  const wa = waSeparate ? `hhdBilinearRaw(${prefix}Wa, ${uv})` : dir;
+  const wa = `hhdBilinearRaw(${waSeparate ? `${prefix}Wa` : `${prefix}Dir`}, ${uv})`;
   const waExpr =
     waChannels.length === 3
       ? `${wa}.${waChannels}`
       : `vec3(${wa}.${waChannels})`;
   return `
   {
-    vec4 hhdD = ${dir};
     ${dst}.Iz = ${prefix}Iz_${packing}(${uv}, ${prefix}Range);
     ${dst}.wa = ${waExpr};
-    ${dst}.d = hhdOctDecode(vec2(hhdD.${dirChannels}) * 2.0 - 1.0);
+    ${dst}.d = ${prefix}Dir_oct(${uv});
   }`;
 }
 
 function layerDeclGLSL(layer) {
-  const { prefix, packing, waSeparate } = layer;
+  const { prefix, packing, waSeparate, dirChannels } = layer;
+  if (!/^[rgba]{2}$/.test(dirChannels)) throw new Error(`${EXTENSION}: direction channels '${dirChannels}'`);
   return `
 uniform sampler2D ${prefix}Iz;
 uniform sampler2D ${prefix}Dir;
 ${waSeparate ? `uniform sampler2D ${prefix}Wa;` : ''}
 uniform float ${prefix}Range;
 HHD_BILINEAR(${prefix}Iz_${packing}, ${prefix}Iz, hhdUnpack_${packing})
-`;
+${directionGLSL(`${prefix}Dir_oct`, `${prefix}Dir`, dirChannels)}`;
 }
 
 /** The fragment code that replaces three.js's lightmap term (docs/format.md, "Reconstruction"). */
