@@ -37,14 +37,17 @@ from . import (
     stages,
     tracer,
 )
+from . import progress as meter
 from .bakepoints import BakePoints, SurfaceTriangles
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError, InwardFacesRefused
+from .progress import Progress, Tick, ticker
 from .rays import RayScene
 from .scene import BakeScene
 from .stages import TracedAtlas
 
-#: Share of the progress bar per stage (bake points, tracing, encoding + writing).
+#: A farm bake's shares of the progress bar (bake points, tracing, finishing + writing); a bake
+#: here shares it out by the stages' estimated costs (`core.progress`, `_atlas_costs`).
 _STAGES = (0.08, 0.84, 0.08)
 
 
@@ -95,26 +98,6 @@ class AtlasResult:
     sets: tuple[str, ...] = ()
     kind: str = "atlas"
     inward: list[str] = field(default_factory=list)
-
-
-class Progress:
-    """Turns stage progress into one fraction plus a status line with speed and ETA."""
-
-    def __init__(self, callback: Callable[[float, str], None] | None):
-        self.callback = callback
-        self.start = time.perf_counter()
-
-    def report(self, fraction: float, message: str) -> None:
-        if self.callback is None:
-            return
-        elapsed = time.perf_counter() - self.start
-        eta = elapsed / fraction * (1.0 - fraction) if fraction > 0.02 else None
-        tail = f", ETA {_format_seconds(eta)}" if eta is not None else ""
-        self.callback(min(max(fraction, 0.0), 1.0), f"{message}{tail}")
-
-
-def _format_seconds(s: float) -> str:
-    return f"{s:.0f} s" if s < 90 else f"{s / 60:.1f} min"
 
 
 def _check_cancel(cancel) -> None:
@@ -202,7 +185,13 @@ def run(
     `parallel.resolve_threads(settings.trace.threads)` worker threads. `farm`: a
     `core.farm.Farm` building the bake points, tracing the atlases and running their post stages
     and encoding on a Dask cluster, this process writing the files (`_farm_atlases`; the same
-    files; its checkpoints go when the files are committed)."""
+    files; its checkpoints go when the files are committed).
+
+    Progress (`core.progress.Progress`): every stage has its share of the range, estimated
+    from the texels it works on (`_atlas_costs`), and reports within it (per tracer chunk,
+    denoiser band, stitch iteration, encode chunk, band of written rows), its name in the
+    message; the fraction never goes back and is 1.0 only once the files are committed. A
+    cancel is honoured at the same grain."""
     if not atlases and not probe_grids:
         raise BakeError("nothing to bake: no target objects")
     if farm is not None:
@@ -210,20 +199,26 @@ def run(
     threads = parallel.resolve_threads(settings.trace.threads)
     settings = replace(settings, trace=replace(settings.trace, threads=threads))
     exr.set_threads(threads)
-    report = Progress(progress)
+    report = Progress(progress, cancel)
     t0 = time.perf_counter()
     atlases, found, scene = check_inward(atlases, scene, settings.inward_faces)
     ray_scene = ray_scene_of(scene)
     points = []
+    # until the bake points are known, half of each atlas's texels is a guess of its baked texels
+    guess = [a.width * a.height // 2 for a in atlases]
+    report.plan(sum(meter.COST_POINTS * n + sum(_atlas_costs(n, 2 * n, settings)) for n in guess))
+    report.plan(_probes_cost(probe_grids or [], settings.trace))
     remote = farm.bake_points(atlases, scene, cancel) if farm is not None else None  # on the farm's workers
     for i, atlas in enumerate(atlases):
+        tick = report.span(meter.COST_POINTS * guess[i])
         _check_cancel(cancel)
         points.append(check_points(atlas, remote[i]()) if remote else points_of(atlas, ray_scene, threads, cancel))
         inward.count_texels(found[i], points[-1].triangle)
-        report.report(
-            _STAGES[0] * (i + 1) / len(atlases), f"bake points of '{atlas.name}': {len(points[-1].texel)} texels"
-        )
+        tick.show(1.0, f"bake points of '{atlas.name}': {len(points[-1].texel)} texels")
     t_points = time.perf_counter() - t0
+    # what is left, from the texels now known
+    report.left = sum(sum(_atlas_costs(len(p.texel), _window_texels(a, p), settings)) for a, p in zip(atlases, points))
+    report.plan(_probes_cost(probe_grids or [], settings.trace))
     if farm is not None:  # every atlas's tracing starts now; the loop below collects them in turn
         for atlas, pts in zip(atlases, points):
             farm.submit(
@@ -245,7 +240,63 @@ def run(
         staging.commit()
     if farm is not None:
         farm.finished()
+    report.finish(f"baked {_counted(len(atlases), 'atlas', 'atlases')}")
     return results
+
+
+def _counted(n: int, one: str, many: str) -> str:
+    return f"{n} {one if n == 1 else many}"
+
+
+def _window_texels(atlas: AtlasInput | None, pts: BakePoints) -> int:
+    """The texels of the images the stages after the trace work on and write (`window_of`)."""
+    window = encoding.stage.window_of(pts.texel, pts.height, pts.width)
+    return pts.width * pts.height if window is None else window.h * window.w
+
+
+def _window_texels_of(traced: TracedAtlas) -> int:
+    return _window_texels(None, traced.points)
+
+
+def _trace_cost(texels: int, trace: tracer.BakeSettings) -> float:
+    """The estimated cost of tracing `texels` (`core.progress`): its samples, at most its time budget."""
+    samples = -(-trace.samples // trace.pass_samples) * trace.pass_samples
+    cost = meter.COST_SAMPLE * texels * samples * (1.0 + trace.bounces / 2)
+    return min(cost, trace.time_budget * 1e6) if trace.time_budget else cost
+
+
+def _write_channels(spec) -> int:
+    """EXR channels of a file of `spec` and of its preview images (RGB each)."""
+    return sum(len(ch.exr_names) + (3 if ch.preview is not None else 0) for ch in spec.channels)
+
+
+def _set_costs(texels: int, area: int, settings: PipelineSettings) -> dict[str, float]:
+    """The estimated costs (`core.progress`) of the stages after the trace for one atlas's SH (or
+    one light set's), in the order they run (`_finish_files`): `texels` baked, `area` texels in
+    the images written."""
+    raw = sum(_write_channels(spec) for spec in encoding.RAW_FILES)
+    encoded = _write_channels(encoding.for_settings(settings.encoder).file)
+    stitch = meter.COST_STITCH if settings.stitch_seams else 0.0
+    return {
+        "image": meter.COST_IMAGE * texels,
+        "raw": meter.COST_WRITE * area * raw,
+        "post": (meter.COST_DENOISE if settings.denoise else 0.0) * texels + 0.6 * stitch * texels,
+        "encode": meter.COST_ENCODE * texels,
+        "stitch encoded": 0.4 * stitch * texels,
+        "write": meter.COST_WRITE * area * encoded,
+    }
+
+
+def _atlas_costs(texels: int, area: int, settings: PipelineSettings, sets: int = 0) -> tuple[float, float]:
+    """The estimated costs of tracing one atlas and of finishing it (`finish_atlas`; `sets`: its
+    light sets, each finished as the atlas is)."""
+    finish = meter.COST_SEAMS * texels + (1 + sets) * sum(_set_costs(texels, area, settings).values())
+    return _trace_cost(texels, settings.trace), finish
+
+
+def _probes_cost(grids, trace: tracer.BakeSettings) -> float:
+    samples = -(-trace.samples // trace.pass_samples) * trace.pass_samples
+    return sum(meter.COST_PROBE * g.count * samples * (1.0 + trace.bounces / 2) for g in grids)
 
 
 def check_inward(
@@ -297,28 +348,23 @@ def _local_atlases(
     t_trace = time.perf_counter()
     for i, atlas in enumerate(atlases):
         pts, points[i] = points[i], None  # held by the traced atlas only: freed once it is imaged
-        n = len(pts.texel)
-
-        def on_trace(f, msg, base=done_texels, n=n, written=i / len(atlases), name=atlas.name):
-            frac = (base + f * n) / total_texels
-            report.report(_STAGES[0] + _STAGES[1] * frac + _STAGES[2] * written, f"'{name}': {msg}")
-
+        n, area = len(pts.texel), _window_texels(atlas, pts)
         trace = _atlas_settings(settings.trace, time.perf_counter() - t_trace, n, total_texels - done_texels)
+        planned_trace, planned_finish = _atlas_costs(n, area, settings)
+        report.left += _trace_cost(n, trace) - planned_trace  # its share of a time budget is known now
+        tracing = report.span(_trace_cost(n, trace), f"'{atlas.name}'")
         # compact: the SH the files take (float32) and L0's standard error, streamed chunk by chunk
-        traced = tracer.bake(pts, scene, trace, progress=on_trace, cancel=cancel, ray_scene=ray_scene, compact=True)
+        traced = tracer.bake(pts, scene, trace, progress=tracing.show, cancel=cancel, ray_scene=ray_scene, compact=True)
         del pts
         done_texels += n
         _check_cancel(cancel)
-        on_trace(1.0, _post_message(settings))
-        info = finish_atlas(
-            atlas, traced, settings, t_points, extras[i], out, lambda: _check_cancel(cancel), release=True
-        )
+        _, finish = _atlas_costs(n, area, settings, len(traced.sets))
+        report.plan(finish - planned_finish)  # its light sets, known now
+        finishing = report.span(finish, f"'{atlas.name}'")
+        info = finish_atlas(atlas, traced, settings, t_points, extras[i], out, finishing, release=True)
         results.append(atlas_result(atlas, out.out_dir, info))
         del traced
-        report.report(
-            _STAGES[0] + _STAGES[1] * done_texels / total_texels + _STAGES[2] * (i + 1) / len(atlases),
-            f"wrote '{atlas.name}'",
-        )
+        finishing.show(1.0, "written")
     return results
 
 
@@ -391,12 +437,10 @@ def _bake_probes(staging, grids, scene: BakeScene, settings: PipelineSettings, o
     (its files: the volume's EXR; texels: its probes)."""
     baked = []
     for grid in grids:
-
-        def on_trace(f, msg, name=grid.name):
-            report.report(_STAGES[0] + _STAGES[1] + _STAGES[2] * f, f"probes of '{name}': {msg}")
-
-        baked.append(probes.bake(grid, scene, settings.trace, progress=on_trace, cancel=cancel))
+        tick = report.span(_probes_cost([grid], settings.trace), f"probes of '{grid.name}'")
+        baked.append(probes.bake(grid, scene, settings.trace, progress=tick.show, cancel=cancel))
         _check_cancel(cancel)
+    report.report(report.shown, "writing the probe volumes")
     probes.write(staging, out_dir, baked)
     return [
         AtlasResult(
@@ -439,10 +483,11 @@ class Staged:
     def _files(self, name: str, parent: str = "") -> lightmap_files.AtlasFiles:
         return lightmap_files.AtlasFiles(self.out_dir, name, parent)
 
-    def raw(self, name: str, parent: str, images_of: dict) -> None:
+    def raw(self, name: str, parent: str, images_of: dict, tick: Tick | None = None) -> None:
         """Stage the raw files of one atlas or light set now (`encoding.raw_files`'s images), before its
-        post stages; `atlas` adds their channel tables to its sidecar."""
-        self._tables[name] = lightmap_files.stage_files(self.staging, self._files(name, parent), images_of)
+        post stages; `atlas` adds their channel tables to its sidecar. `tick`: progress and cancel
+        per band of rows written."""
+        self._tables[name] = lightmap_files.stage_files(self.staging, self._files(name, parent), images_of, tick)
 
     def traced_sh(self, name: str, parent: str) -> np.ndarray:
         """The SH image `(H, W, 9, 3)` float32 of the raw SH file `raw` staged for `name`, read back
@@ -450,10 +495,12 @@ class Staged:
         files = self._files(name, parent)
         return lightmap_files.read_sh(self.staging.staged(files.sh))
 
-    def atlas(self, name: str, parent: str, encoded: encoding.EncodedAtlas, sidecar: dict) -> None:
+    def atlas(
+        self, name: str, parent: str, encoded: encoding.EncodedAtlas, sidecar: dict, tick: Tick | None = None
+    ) -> None:
         """Stage the files of one atlas or light set (`parent`: the atlas of a light set, else "")."""
         sidecar = {**sidecar, "channels": {**sidecar.get("channels", {}), **self._tables.pop(name, {})}}
-        lightmap_files.write_atlas(self.staging, self._files(name, parent), encoded, sidecar)
+        lightmap_files.write_atlas(self.staging, self._files(name, parent), encoded, sidecar, tick)
 
     def seams(self, name: str, atlas_seams: seams.Seams) -> None:
         """Stage the seams file of atlas `name`."""
@@ -506,9 +553,18 @@ def finish_atlas(
     `traced`'s SH and standard error once they are imaged (`TracedAtlas.release_sh`; the caller
     no longer needs them, and they are the largest arrays of a bake), and without light sets its
     bake points too (`TracedAtlas.release_points`: the sets' images need them later). Returns the
-    atlas's summary: texels, rays, seconds per stage, warnings, light sets."""
+    atlas's summary: texels, rays, seconds per stage, warnings, light sets. `check` may be a
+    `core.progress.Tick` (a bake's): each stage gets its part, by `_set_costs`, and reports in it.
+    """
     t = time.perf_counter()
     texels = len(traced.points.texel)
+    tick = ticker(check)
+    costs = _set_costs(texels, _window_texels(atlas, traced.points), settings)
+    seams_part, *set_parts = tick.split(
+        [meter.COST_SEAMS * texels] + [sum(costs.values())] * (1 + len(traced.sets)),
+        [f"seams {tick.name}".strip()] + [None] * (1 + len(traced.sets)),
+    )
+    seams_part.at(0.0, "finding the seams")
     atlas_seams = seams.find_seams(traced.points.mesh, atlas.width, atlas.height)
     seconds = {"bake_points": t_points, "trace": traced.seconds, "seams": time.perf_counter() - t}
     t = time.perf_counter()
@@ -531,14 +587,33 @@ def finish_atlas(
     if traced.sets:
         sidecar["light_sets"] = [{"name": s, "atlas": n} for s, n in zip(traced.sets, set_names)]
     warnings = _finish_files(
-        out, atlas.name, "", traced, settings, sidecar, atlas_seams, seconds, check, release, last=not traced.sets
+        out,
+        atlas.name,
+        "",
+        traced,
+        settings,
+        sidecar,
+        atlas_seams,
+        seconds,
+        set_parts[0],
+        release,
+        last=not traced.sets,
     )
     out.seams(atlas.name, atlas_seams)
     for k, (name, set_name) in enumerate(zip(traced.sets, set_names)):
         set_sidecar = {key: v for key, v in sidecar.items() if key not in ("light_sets", "timings_seconds")}
         set_sidecar["light_set"] = {"name": name, "of": atlas.name}
+        set_parts[k + 1].name = f"'{set_name}'"
         warnings += _finish_files(
-            out, set_name, atlas.name, traced.light_set(k), settings, set_sidecar, atlas_seams, seconds, check
+            out,
+            set_name,
+            atlas.name,
+            traced.light_set(k),
+            settings,
+            set_sidecar,
+            atlas_seams,
+            seconds,
+            set_parts[k + 1],
         )
     seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
     warnings = [f"atlas '{atlas.name}', {w}" for w in dict.fromkeys(warnings)]
@@ -563,8 +638,18 @@ def _finish_files(
     one light set's), handed to `out.atlas`; adds the post stages' seconds to seconds["post"];
     returns their warnings.
     `release`: `traced.release_sh()` once imaged, and with `last` (no image of these bake points
-    follows) `traced.release_points()`."""
+    follows) `traced.release_points()`. `check` may be a `core.progress.Tick`: split among the
+    stages by `_set_costs`, each named ("encode 'Lightmap'")."""
     t = time.perf_counter()
+    tick = ticker(check)
+    costs = _set_costs(len(traced.points.texel), _window_texels_of(traced), settings)
+    parts = dict(
+        zip(
+            costs,
+            tick.split(list(costs.values()), [f"{k} {tick.name}".strip() if k != "post" else None for k in costs]),
+        )
+    )
+    parts["image"].at(0.0, "imaging the texels")
     # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH);
     # the bake points go before the SH is imaged when nothing else needs them
     raw = encoding.TexelData.from_points(
@@ -579,22 +664,39 @@ def _finish_files(
         traced.release_sh()
     # the raw files first, as traced: then the post stages may write into `raw`'s SH (memory)
     fill = raw.fill()
+    parts["raw"].at(0.0, "raw files")
     with encoding.raw_files(raw, fill) as images_of:
-        out.raw(name, parent, images_of)
+        out.raw(name, parent, images_of, *_tick_for(out, parts["raw"]))
     del images_of
     restore = functools.partial(_restore_sh, raw.sh, fill.valid, out, name, parent, raw.window)
-    data, sidecar["post"] = post.apply(raw, settings, check, atlas_seams, in_place=True, restore=restore)
+    data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, in_place=True, restore=restore)
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
     del raw, restore  # `data` holds the SH now, denoised in place or as traced
     data = replace(data, noise=None)  # in the texels file already; the encoder does not read it
     stages.trim_heap()  # what the post stages' threads freed (memory)
+    parts["encode"].at(0.0, "encoding")
     encoded = encoding.encode_atlas(
-        data, encoding.for_settings(settings.encoder), raw=False, fill=_same_fill(fill, data), spend=True
+        data,
+        encoding.for_settings(settings.encoder),
+        raw=False,
+        fill=_same_fill(fill, data),
+        spend=True,
+        tick=parts["encode"],
     )
-    encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"], check)
+    parts["stitch encoded"].at(0.0)
+    encoded = post.stitch_encoded(
+        encoded, data.coverage, settings, atlas_seams, sidecar["post"], parts["stitch encoded"]
+    )
     del data, fill
-    out.atlas(name, parent, encoded, sidecar)  # write (here) or keep (a farm worker)
+    parts["write"].at(0.0, "encoded files")
+    out.atlas(name, parent, encoded, sidecar, *_tick_for(out, parts["write"]))  # write (here) or keep (a farm worker)
     return post.warnings(sidecar["post"])
+
+
+def _tick_for(out, tick: Tick) -> tuple:
+    """The optional tick argument of `out.raw` / `out.atlas`: `Staged` writes and reports; other
+    keepers of the files (a farm worker's) take none."""
+    return (tick,) if isinstance(out, Staged) else ()
 
 
 def _restore_sh(sh: np.ndarray, valid: np.ndarray, out, name: str, parent: str, window=None) -> None:

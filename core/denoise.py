@@ -62,6 +62,7 @@ from . import dilate
 from .colour import LUMINANCE
 from .encoding import TexelData
 from .oidn import Denoiser, DenoiserError
+from .progress import ticker
 from .sh import IRRADZ_FROM_R10, hemisphere_irradz
 
 #: Texels of each chart's own (dilated) values around it in its page.
@@ -322,19 +323,23 @@ def denoise_texels(
     out = sh if in_place else data.sh.copy().reshape(h * w, 9, 3)
     written = np.zeros(h * w, bool)  # texels written (set before they are: `restore`)
     clamping = False
+    tick = ticker(check)
     try:
-        for page in layout(labels, n, brightness, data.atlas_shape[1]):
-            if check is not None:
-                check()
+        pages = layout(labels, n, brightness, data.atlas_shape[1])
+        parts = tick.split([page.shape[0] * page.shape[1] for page in pages] + [0.02 * h * w])
+        for k, (page, part) in enumerate(zip(pages, parts)):
+            part.at(0.0, f"page {k + 1} of {len(pages)}")
             band = _band_rows(page.shape)
             if band:
-                _denoise_banded(page, labels, sh, normal, noise, finite, out, denoiser, band, check, written)
+                part.name = ": ".join(x for x in (part.name, f"page {k + 1} of {len(pages)}") if x)
+                _denoise_banded(page, labels, sh, normal, noise, finite, out, denoiser, band, part, written)
             else:
                 _denoise_page(page, labels, sh, normal, noise, finite, out, denoiser, written)
             report.charts += len(page.charts)
             report.pages += 1
             report.page_texels += page.shape[0] * page.shape[1]
         del labels, flat, finite, noise
+        parts[-1].at(0.0, f"{len(pages)} pages denoised, clamping to the noise")
         if data.noise is not None:  # the clamp of the texels no page changed (traced + 0: as `clamp_to_noise`)
             clamping = True
             _clamp_unwritten(out.reshape(data.sh.shape), data.noise, written)
@@ -562,16 +567,21 @@ def _denoise_banded(
         )
         return features, unit_normals, source, kept, near
 
+    tick = ticker(check)
+    rounds = 2 if _within(ok, rows, cols, page.shape, halo) else 3  # the passes over the bands below
+    done_passes = [0]
+
     def passes():
-        """Band indices in order, with cancellation between them."""
+        """Band indices in order, with cancellation (and progress) between them."""
         for i in range(len(windows)):
-            if check is not None and i:
-                check()
+            if i:
+                tick.at(done_passes[0] / (rounds * len(windows)), f"band {i + 1} of {len(windows)}")
             yield i
+            done_passes[0] += 1
 
     # the page mean of the fill (`dilate.Fill.apply`'s: added up in the same order) if it is used
     mean: np.ndarray | None = None
-    if not _within(ok, rows, cols, page.shape, halo):
+    if rounds == 3:
         total: np.ndarray | None = None
         count, seed = 0, None
         for i in passes():

@@ -26,6 +26,7 @@ import os
 import re
 import socket
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -144,7 +145,12 @@ def set_threads(threads: int) -> None:
 WRITE_ROWS = 64
 
 
-def write_file(path, channels: dict[str, np.ndarray], attributes: dict | None = None) -> None:
+def write_file(
+    path,
+    channels: dict[str, np.ndarray],
+    attributes: dict | None = None,
+    rows_done: Callable[[int, int], None] | None = None,
+) -> None:
     """Write one scanline EXR (ZIP compression) directly to `path`. Channel arrays are
     `(height, width)` float16 (HALF) or float32 (FLOAT), any strides (views of larger arrays,
     rows reversed: nothing is copied whole), every value finite (else NonFiniteValue naming the
@@ -156,12 +162,14 @@ def write_file(path, channels: dict[str, np.ndarray], attributes: dict | None = 
     are those of the binding's whole-image writer (`OpenEXR.File(header, pixels).write`, which
     wants every channel contiguous at once): the same header attributes, the same ZIP blocks
     (tests/test_exr_write.py compares them). An almost empty atlas's images
-    (`stages.PlacedImage`) compress their window's blocks only (`sparse_exr`), the same bytes."""
+    (`stages.PlacedImage`) compress their window's blocks only (`sparse_exr`), the same bytes.
+    `rows_done(done, of)`, if given, is called after each band of rows (progress; it may raise
+    to cancel: the file is then left half-written, as a staged temporary is)."""
     from . import sparse_exr
 
     window_rows = sparse_exr.placed_rows(channels)
     if window_rows is not None:
-        return sparse_exr.write(path, channels, attributes, window_rows, write_file)
+        return sparse_exr.write(path, channels, attributes, window_rows, write_file, rows_done)
     openexr = deps.require("OpenEXR")
     import Imath  # the OpenEXR wheel's own module of header types
 
@@ -185,6 +193,8 @@ def write_file(path, channels: dict[str, np.ndarray], attributes: dict | None = 
             for name, data in channels.items():  # band by band: no image-sized mask
                 _check_finite(path, name, data[band])
             out.writePixels({name: data[band].tobytes() for name, data in channels.items()}, band.stop - start)
+            if rows_done is not None:
+                rows_done(band.stop, height)
     finally:
         out.close()
 

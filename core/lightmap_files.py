@@ -42,6 +42,7 @@ from .encoding import (
     TexelData,
 )
 from .errors import BakeError
+from .progress import Tick, ticker
 from .stages import Window
 
 if TYPE_CHECKING:
@@ -153,14 +154,17 @@ def channel_table(spec: FileSpec, channels: dict[str, np.ndarray]) -> dict:
     }
 
 
-def write_atlas(staging: exr.Staging, files: AtlasFiles, encoded: EncodedAtlas, sidecar: dict) -> None:
+def write_atlas(
+    staging: exr.Staging, files: AtlasFiles, encoded: EncodedAtlas, sidecar: dict, tick: Tick | None = None
+) -> None:
     """Stage every file of `encoded` (nothing is replaced until `staging.commit()`): its EXRs,
     their preview images and the sidecar. `sidecar` carries the bake's settings/objects/timings
     and the channel tables of files staged before (`stage_files`: a bake's raw files) or not
     written now (after a re-encode, the previous sidecar's); format, files, channel tables,
     conventions, encoder settings and statistics are added here. Consumes `encoded`'s images;
-    memory: one file's EXR channels at a time."""
-    tables = stage_files(staging, files, encoded.files)
+    memory: one file's EXR channels at a time. `tick` (`core.progress`): progress and cancel per
+    band of rows written (`stage_files`)."""
+    tables = stage_files(staging, files, encoded.files, tick)
     tables.update({k: v for k, v in sidecar.get("channels", {}).items() if k not in tables})
     doc = dict(sidecar)
     doc.update(
@@ -180,19 +184,49 @@ def write_atlas(staging: exr.Staging, files: AtlasFiles, encoded: EncodedAtlas, 
     staging.write_json(files.sidecar, doc, indent=2, ensure_ascii=False)
 
 
-def stage_files(staging: exr.Staging, files: AtlasFiles, images_of: dict) -> dict:
+def stage_files(staging: exr.Staging, files: AtlasFiles, images_of: dict, tick: Tick | None = None) -> dict:
     """Stage the EXRs of `images_of` ({sidecar key: (FileSpec, {EXR channel name: `(H, W)`
     image, rows bottom-up})}, as `EncodedAtlas.files`) and their preview images, one file's
-    channels at a time (consumed); returns their channel tables for the sidecar."""
+    channels at a time (consumed); returns their channel tables for the sidecar. `tick`
+    (`core.progress.Tick`): each file's and preview's share of it in proportion to the texels
+    it compresses (`write_cost`), reported (and cancellable) per band of rows."""
     attributes = {"hhdFormat": FORMAT, "hhdFormatVersion": FORMAT_VERSION, "hhdAtlas": files.name}
     tables = {}
-    for key, (spec, images) in images_of.items():
+    tick = ticker(tick)
+    parts = tick.split([write_cost(images) * (1 + _preview_share(spec)) for spec, images in images_of.values()])
+    for part, (key, (spec, images)) in zip(parts, images_of.items()):
         channels = exr_channels(spec, images)
-        exr.write_file(staging.stage(files.path(spec)), channels, attributes)
+        path = files.path(spec)
+        own, previews = part.split([1.0, _preview_share(spec)])
+        exr.write_file(staging.stage(path), channels, attributes, _rows_done(own, f"writing {path.name}"))
         tables[key] = channel_table(spec, channels)
-        stage_preview(staging, files, spec, channels)
+        stage_preview(staging, files, spec, channels, previews)
         del channels
     return tables
+
+
+def write_cost(images) -> int:
+    """The texels an EXR of `images` (a dict or list of `(H, W)` images) compresses: per channel
+    its image's, or a `stages.PlacedImage`'s window's (`sparse_exr` compresses only that)."""
+    values = images.values() if isinstance(images, dict) else images
+    total = 0
+    for a in values:
+        inner = getattr(a, "inner", None)
+        total += int(np.prod(np.shape(inner if inner is not None else a)))
+    return total
+
+
+def _preview_share(spec: FileSpec) -> float:
+    """A file's preview images' cost beside the file's own (1): their RGB channels over its channels."""
+    exr_count = sum(len(ch.exr_names) for ch in spec.channels) or 1
+    return 3.0 * sum(1 for ch in spec.channels if ch.preview is not None) / exr_count
+
+
+def _rows_done(tick: Tick, what: str):
+    """`exr.write_file`'s `rows_done` reporting to `tick` ("writing <file>: rows 64 of 1024")."""
+    if not tick.reports:
+        return lambda done, of: tick()
+    return lambda done, of: tick.at(done / max(of, 1), f"{what}: rows {done} of {of}")
 
 
 def _rgb(channels: list[np.ndarray]) -> dict:
@@ -205,12 +239,44 @@ def _rgb(channels: list[np.ndarray]) -> dict:
     return {c: a.astype(np.float32, copy=False) for c, a in zip("RGB", channels)}
 
 
-def stage_preview(staging: exr.Staging, files: AtlasFiles, spec: FileSpec, channels: dict) -> None:
+def stage_preview(staging: exr.Staging, files: AtlasFiles, spec: FileSpec, channels: dict, tick=None) -> None:
     """Stage the preview images of one file's layers that have a preview key, from its EXR
-    channels (EXR rows, as every file here)."""
-    for ch in spec.channels:
-        if ch.preview is not None and all(n in channels for n in ch.exr_names):
-            exr.write_file(staging.stage(files.preview_image(ch.preview)), _rgb([channels[n] for n in ch.exr_names]))
+    channels (EXR rows, as every file here); `tick` (`core.progress.Tick`): progress and cancel."""
+    shown = [ch for ch in spec.channels if ch.preview is not None and all(n in channels for n in ch.exr_names)]
+    for part, ch in zip(ticker(tick).split([1.0] * len(shown)), shown):
+        path = files.preview_image(str(ch.preview))
+        images = [channels[n] for n in ch.exr_names]
+        rgb = dict(zip("RGB", _unpacked(ch.unpack, images))) if ch.unpack else _rgb(images)
+        attributes = PREVIEW_UNPACKED if ch.unpack else None
+        exr.write_file(staging.stage(path), rgb, attributes, _rows_done(part, f"preview {path.name}"))
+
+
+#: Header attribute of a packed layer's preview image (the direction's): it holds the unpacked
+#: value (x, y, z), which the preview's bilinear filter may blend; images written before it was
+#: added hold the octahedral pair (`encoding.preview.upgrade_direction`).
+PREVIEW_UNPACKED = {"hhdPreviewValue": "unpacked"}
+#: Rows unpacked at a time (the memory of a band's float64 temporaries, not the atlas's).
+_UNPACK_ROWS = 256
+
+
+def _unpacked(unpack, images: list) -> list:
+    """The components of a packed layer's value, half floats, from its EXR channel images
+    (`Channel.unpack`: the direction's unit vector from its octahedral pair), a band of rows at a
+    time; an almost empty atlas's (`stages.PlacedImage`) stay as small."""
+    from dataclasses import replace
+
+    if hasattr(images[0], "inner"):
+        inner = _unpacked(unpack, [a.inner for a in images])
+        outside = unpack(np.array([[float(a.background) for a in images]]))[0].astype(np.float16)
+        return [replace(images[0], inner=a, background=np.asarray(b)) for a, b in zip(inner, outside)]
+    h, w = images[0].shape
+    out = None
+    for y in range(0, h, _UNPACK_ROWS):
+        value = unpack(np.stack([a[y : y + _UNPACK_ROWS].reshape(-1) for a in images], axis=-1))
+        if out is None:
+            out = np.empty((value.shape[1], h, w), np.float16)
+        out[:, y : y + _UNPACK_ROWS] = value.T.reshape(value.shape[1], -1, w)
+    return list(out) if out is not None else [np.zeros((h, w), np.float16)] * 3
 
 
 def stage_seams(staging: exr.Staging, files: AtlasFiles, seams: Seams) -> None:

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
+from . import progress
 from .encoding import EncodedAtlas, TexelData
 from .stages import PlacedImage, Window
 
@@ -164,13 +165,20 @@ def apply(
     atlas's seam sample pairs (`core.seams.Seams`; None: unknown, stitching is then skipped with
     a warning). `in_place`: the denoiser writes into `data.sh` and keeps nothing of what it
     overwrote (a bake, whose raw files are written: `data` is spent), calling `restore()` (which
-    must put the traced SH back into `data.sh`) if it fails half-way."""
+    must put the traced SH back into `data.sh`) if it fails half-way. `check` may be a
+    `core.progress.Tick`: each stage gets its part of it (by `progress.POST_COSTS`), named after
+    the stage ("denoise 'Lightmap'"), which a stage may report to (`Tick.at`) or just call."""
     records = {"denoise": {"enabled": False}, "stitch": {"enabled": False}}
-    for name, stage in stages_for(settings, seams):
+    tick = progress.ticker(check)
+    stages = stages_for(settings, seams)
+    names = [f"{name} {tick.name}".strip() for name, _ in stages]
+    parts = tick.split([progress.POST_COSTS.get(name, progress.COST_DENOISE) for name, _ in stages], names)
+    for part, (name, stage) in zip(parts, stages):
+        part.at(0.0)
         if in_place and name == "denoise":  # `denoise_stage`'s, which takes them
-            data, records[name] = stage(data, check or (lambda: None), in_place=True, restore=restore)  # type: ignore[call-arg]
+            data, records[name] = stage(data, part, in_place=True, restore=restore)  # type: ignore[call-arg]
         else:
-            data, records[name] = stage(data, check or (lambda: None))
+            data, records[name] = stage(data, part)
     return data, records
 
 

@@ -45,6 +45,7 @@ import numpy as np
 
 from . import parallel
 from .colour import LUMINANCE
+from .progress import Tick, ticker
 
 if TYPE_CHECKING:
     from .bakepoints import SurfaceMesh
@@ -315,19 +316,23 @@ def sh_reader(sh_image: np.ndarray) -> Reader:
 def hhd_reader(images: Mapping[str, np.ndarray], model: str = "hhd") -> Reader:
     """Irradiance read from an HHD/AHD file's channel images {EXR name: `(H, W)`} (Iz.R/G/B,
     Wa.V or Wa.R/G/B, Direction.X/Y) as the preview's node group does (shaders/node_groups.py):
-    each layer bilinear, the octahedral direction decoded after filtering, d·n_v floored at
-    core.hhd.MIN_COS, I = I_z [w_a (1 + n·n_v)/2 + (1 − w_a) max(n·d, 0)/(d·n_v)] (AHD: w_a + …)."""
+    each layer bilinear, the octahedral direction decoded per texel before filtering and
+    renormalised after (filtering the encoded pair across the map's fold turns it: docs/format.md,
+    "Filtering the direction"), d·n_v floored at core.hhd.MIN_COS,
+    I = I_z [w_a (1 + n·n_v)/2 + (1 − w_a) max(n·d, 0)/(d·n_v)] (AHD: w_a + …)."""
     from . import octahedral
     from .hhd import MIN_COS
 
     wa_names = [k for k in ("Wa.R", "Wa.G", "Wa.B") if k in images] or ["Wa.V"]
-    names = ["Iz.R", "Iz.G", "Iz.B", *wa_names, "Direction.X", "Direction.Y"]
-    layers = np.stack([images[k] for k in names], -1)
+    oct_xy = np.stack([images["Direction.X"], images["Direction.Y"]], -1).astype(np.float64)
+    direction = octahedral.decode(oct_xy.reshape(-1, 2)).reshape(oct_xy.shape[:-1] + (3,))
+    layers = np.concatenate([np.stack([images[k] for k in ["Iz.R", "Iz.G", "Iz.B", *wa_names]], -1), direction], -1)
     hhd = model.lower() == "hhd"
 
     def read(xy):
         values = bilinear(layers, xy)
-        iz, wa, d = values[:, :3], values[:, 3:-2], octahedral.decode(values[:, -2:])
+        iz, wa, d = values[:, :3], values[:, 3:-3], values[:, -3:]
+        d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-30)
 
         def at(n_v, n):
             cos_nv = np.einsum("si,si->s", n, n_v)[:, None]
@@ -554,6 +559,7 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
     `seam_metric` before and after, hidden samples left out (mean, p95, interior, edge_step,
     ratio; `tilted` likewise)."""
     start = time.perf_counter()
+    tick = ticker(check)
     h, w = data.coverage.shape
     if (seams.height, seams.width) != tuple(data.atlas_shape):
         raise ValueError(f"seams of a {seams.width}×{seams.height} atlas, texel images of {w}×{h}")
@@ -570,8 +576,11 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
     shown = ~reads_hidden(seams, hidden)
     outside = (coverage == 0.0)[:, None]
     normal = np.where(outside, fill.apply(data.normal).reshape(h * w, 3), data.normal.reshape(h * w, 3))
+    setup, solving, rest = tick.split([0.15, 0.7, 0.15])
+    setup.at(0.0, f"setting up {len(seams)} seam samples")
     system = _system(seams, coverage, prior, shown)
-    delta, iterations = _solve(system, prior, check, parallel.resolve_threads(threads))
+    delta, iterations = _solve(system, prior, solving, parallel.resolve_threads(threads))
+    rest.at(0.0, "bounding the stitched texels")
     texels = system.texels
     new, bounded = _bounded(system, prior, delta, normal, data.sh.dtype)
     gutter = texels[coverage[texels] == 0.0]
@@ -602,8 +611,10 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
         shape = (h, w) + data.sh.shape[2:]
         visible = atlas_seams.select(shown)
         read = _placed(sh_reader(prior.reshape(shape)), data.window)
+        rest.at(0.3, "measuring the seams")
         record["before"] = _brief(_metric(read, visible, worst=0))
         prior[texels] = new  # the stitched SH, in place: prior is not needed any more (memory)
+        rest.at(0.65, "measuring the seams")
         record["after"] = _brief(_metric(read, visible, worst=0))
     record["seconds"] = time.perf_counter() - start
     return out, record
@@ -700,6 +711,7 @@ def stitch_encoded(
     `window` (`stages.Window`): the images and `coverage` are that rectangle of the atlas
     `seams` are of (`TexelData.window`)."""
     start = time.perf_counter()
+    tick = ticker(check)
     atlas_seams, seams = seams, seams.within(window)
     if len(seams) == 0:  # nothing to stitch: the same atlas and record, without the image copies
         nothing = _brief(_metric(lambda xy: None, seams))  # type: ignore[arg-type, return-value]
@@ -715,15 +727,19 @@ def stitch_encoded(
     model = atlas.settings.get("model", "hhd")
     shown = ~reads_hidden(seams, hidden_texels(np.asarray(coverage)))
     visible = atlas_seams.select(shown)
+    measure, *solves, after = tick.split([0.1, 0.4, 0.4, 0.1])
+    measure.at(0.0, "measuring the seams")
     before = _metric(_placed(hhd_reader(images, model), window), visible, worst=0)
     packed = np.stack([images[n].reshape(-1) for n in directions], -1).astype(np.float64)
     gap = np.abs(bilinear(packed.reshape(h, w, 2), seams.a) - bilinear(packed.reshape(h, w, 2), seams.b)).max(axis=1)
     iterations, changed = 0, np.zeros(h * w, bool)
     workers = parallel.resolve_threads(threads)
-    for layer, use in ((names, shown), (directions, shown & (gap <= FOLD_GAP))):
+    layers: list[tuple[list[str], np.ndarray]] = [(list(names), shown), (list(directions), shown & (gap <= FOLD_GAP))]
+    for part, (layer, use) in zip(solves, layers):
+        part.at(0.0, "setting up")
         prior = np.stack([images[n].reshape(-1) for n in layer], -1).astype(np.float64)
         system = _system(seams, cover, prior, use)
-        delta, k = _solve(system, prior, check, workers)
+        delta, k = _solve(system, prior, part, workers)
         iterations = max(iterations, k)
         new = prior[system.texels] + delta
         for i, n in enumerate(layer):
@@ -734,6 +750,7 @@ def stitch_encoded(
             flat[system.texels] = values
     files = dict(atlas.files)
     files[key] = (spec, out)
+    after.at(0.0, "measuring the seams")
     record = {
         "enabled": True,
         "texels": int(np.count_nonzero(changed)),
@@ -831,25 +848,46 @@ def _solve(s: _System, prior: np.ndarray, check=None, threads: int = 1) -> tuple
     """The change `(N, C)` of the unknowns minimising Σ λ (A(x0 + δ) + c)² + Σ μ δ²: the normal
     equations (AᵀΛA + M) δ = −AᵀΛ(A x0 + c), solved by Jacobi-preconditioned CG from δ = 0,
     each channel on its own (the channels vectorised, split over `threads` workers). Returns δ
-    and the most iterations a channel took."""
+    and the most iterations a channel took. `check`: cancels (and, a `core.progress.Tick`,
+    reports how far the residuals are towards the tolerance) every few iterations."""
     n, c = len(s.texels), prior.shape[1]
     if n == 0:
         return np.zeros((0, c)), 0
+    tick = ticker(check)
     x0 = np.ascontiguousarray(prior[s.texels].T, dtype=np.float64)
     b = -_apply_at(s, (_apply_a(s, x0) + s.constant) * s.seam_weight)
     parts = np.array_split(np.arange(c), max(1, min(threads, c)))
     if len(parts) == 1:
-        x, iterations = _cg(s, b, check)
+        x, iterations = _cg(s, b, tick, _on_step(tick, n, [(0.0, 0)], 0))
         return x.T, iterations
+    reached = [(0.0, 0)] * len(parts)  # each worker's fraction (its channels' mean) and iterations
     with ThreadPoolExecutor(max_workers=len(parts)) as pool:
-        done = list(pool.map(lambda rows: _cg(s, b[rows], check), parts))
+        done = list(pool.map(lambda k: _cg(s, b[parts[k]], tick, _on_step(tick, n, reached, k)), range(len(parts))))
     return np.concatenate([x for x, _ in done]).T, max(k for _, k in done)
 
 
-def _cg(s: _System, b: np.ndarray, check=None) -> tuple[np.ndarray, int]:
+def _on_step(tick: Tick, unknowns: int, reached: list[tuple[float, int]], k: int):
+    """`_cg`'s `on_step(fraction, iterations)` for worker `k` of `_solve`: the mean of the
+    workers' fractions to `tick`, with the most iterations any has done (None when `tick`
+    reports nothing: `_cg` then only checks)."""
+    if not tick.reports:
+        return None
+
+    def on_step(fraction: float, iterations: int) -> None:
+        reached[k] = (fraction, iterations)
+        mean = sum(f for f, _ in reached) / len(reached)
+        tick.at(mean, f"{unknowns} texels, iteration {max(i for _, i in reached)}")
+
+    return on_step
+
+
+def _cg(s: _System, b: np.ndarray, check=None, on_step=None) -> tuple[np.ndarray, int]:
     """Jacobi-preconditioned conjugate gradients for (AᵀΛA + M) x = b, `b (C, N)`, one
     independent solve per row of b (vectorised), in float32 (the texels' precision; the
-    tolerance is far above its rounding): x `(C, N)` float64 and the iterations taken."""
+    tolerance is far above its rounding): x `(C, N)` float64 and the iterations taken.
+    Every 8 iterations `check()` (cancel), or `on_step(fraction, iterations)` if given (which
+    checks too): the fraction is how far the residuals have come from ‖b‖ towards the tolerance
+    (on a log scale, the channels' mean; at least iterations / CG_MAX_ITERATIONS)."""
     lam = s.seam_weight.astype(np.float32)
     mu = s.data_weight.astype(np.float32)
 
@@ -867,9 +905,12 @@ def _cg(s: _System, b: np.ndarray, check=None) -> tuple[np.ndarray, int]:
     p = z.copy()
     rz = np.einsum("cn,cn->c", r, z, dtype=np.float64)
     iterations = 0
-    active = np.linalg.norm(r, axis=1) > target
+    norm = np.linalg.norm(r, axis=1)
+    active = norm > target
     while iterations < CG_MAX_ITERATIONS and active.any():
-        if check is not None and iterations % 8 == 0:
+        if on_step is not None and iterations % 8 == 0:
+            on_step(_cg_fraction(norm, target, active, iterations), iterations)
+        elif check is not None and iterations % 8 == 0:
             check()
         q = matvec(p)
         pq = np.einsum("cn,cn->c", p, q, dtype=np.float64)
@@ -882,9 +923,20 @@ def _cg(s: _System, b: np.ndarray, check=None) -> tuple[np.ndarray, int]:
         beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=rz > 0.0).astype(np.float32)
         p = z + beta[:, None] * p
         rz = rz_new
-        active &= np.linalg.norm(r, axis=1) > target
+        norm = np.linalg.norm(r, axis=1)
+        active &= norm > target
         iterations += 1
     return x.astype(np.float64), iterations
+
+
+def _cg_fraction(norm: np.ndarray, target: np.ndarray, active: np.ndarray, iterations: int) -> float:
+    """How far `_cg` is: per channel log(‖r‖ / ‖b‖) / log(CG_TOLERANCE) (1 once converged), their
+    mean, at least iterations / CG_MAX_ITERATIONS (progress only: nothing computed depends on it)."""
+    start = target / CG_TOLERANCE  # ‖b‖
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gone = np.log(np.maximum(norm, 1e-300) / start) / np.log(CG_TOLERANCE)
+    per = np.where(active & (start > 0.0), np.clip(np.nan_to_num(gone, nan=0.0), 0.0, 1.0), 1.0)
+    return max(float(per.mean()) if len(per) else 1.0, iterations / CG_MAX_ITERATIONS)
 
 
 def _groups(s: _System) -> int:

@@ -62,11 +62,12 @@ def placed_rows(channels: dict) -> tuple[int, int] | None:
     return None if (a, b) == (0, h) else (a, b)
 
 
-def write(path, channels: dict, attributes: dict | None, rows: tuple[int, int], write_file) -> None:
+def write(path, channels: dict, attributes: dict | None, rows: tuple[int, int], write_file, rows_done=None) -> None:
     """Write `channels` (PlacedImages of one window, `placed_rows` gave `rows`) to `path` as
     `write_file` (`exr.write_file`) would write them, compressing only the window's blocks and
     one block of the background (and the last, shorter block of the atlas, if it has one); the
-    rows it writes are checked for NaN and infinity as `write_file` checks them."""
+    rows it writes are checked for NaN and infinity as `write_file` checks them. `rows_done(done,
+    of)`: `write_file`'s, for the window's rows (the rest is a block or two)."""
     path = Path(path)
     height, width = next(iter(channels.values())).shape
     a, b = rows
@@ -82,7 +83,12 @@ def write(path, channels: dict, attributes: dict | None, rows: tuple[int, int], 
     for name, (r0, r1) in parts.items():
         tmp = exr._temporary_name(exr.target_of(path))  # a temporary of the same file (its messages name it)
         try:
-            write_file(tmp, {n: _Rows(image, r0, r1) for n, image in channels.items()}, attributes)
+            write_file(
+                tmp,
+                {n: _Rows(image, r0, r1) for n, image in channels.items()},
+                attributes,
+                rows_done if name == "window" else None,
+            )
             data = tmp.read_bytes()
         finally:
             tmp.unlink(missing_ok=True)

@@ -231,15 +231,17 @@ def encode_atlas(
     raw: bool = True,
     fill: _dilate.Fill | None = None,
     spend: bool = False,
+    tick=None,
 ) -> EncodedAtlas:
     """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
     files' images of `data` (False: a bake that wrote them before its post stages, `raw_files`,
     or a re-encode, which keeps the files it read). `fill`: `data.fill()`, if the caller has it. `spend` (only without `raw`): the caller no longer needs `data.sh`, which
     is dropped once the texels are encoded, before the layers are filled (memory: the atlas's SH
-    is the largest image)."""
+    is the largest image). `tick` (`core.progress.Tick`): progress and cancel per chunk of texels
+    encoded and per layer filled."""
     h, w = data.atlas_shape
     fill = data.fill() if fill is None else fill
-    images, summary = encode_images(data, encoding, fill, spend=spend and not raw)
+    images, summary = encode_images(data, encoding, fill, spend=spend and not raw, tick=tick)
     files = {encoding.file.key: (encoding.file, images)}
     if raw:
         layers = data.layers()
@@ -291,28 +293,39 @@ def _nonzero_rows(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.nd
     return np.concatenate(index), np.concatenate(values)
 
 
-def encode_images(data: TexelData, encoding: Encoding, fill: _dilate.Fill, spend: bool = False) -> tuple[dict, dict]:
+def encode_images(
+    data: TexelData, encoding: Encoding, fill: _dilate.Fill, spend: bool = False, tick=None
+) -> tuple[dict, dict]:
     """The encoding's channel images `(H, W)` (filled, packed) and its summary statistics.
     `spend`: drop `data.sh` once the texels are encoded (`encode_atlas`). With a window
-    (`TexelData.window`) the images are `stages.PlacedImage`s of the whole atlas."""
+    (`TexelData.window`) the images are `stages.PlacedImage`s of the whole atlas. `tick`
+    (`core.progress.Tick`): reported per ENCODE_CHUNK texels and per layer filled."""
+    from ..progress import ticker
+
     h, w = data.coverage.shape
     baked = fill.valid
     sh, normal = data.sh.reshape(h * w, 9, -1), data.normal.reshape(h * w, 3)
     channels = encoding.file.channels
     values = {ch.name: np.zeros((h * w, ch.value_width), np.float32) for ch in channels}
     stats = []
+    # the fill and packing of a layer: about a fifth of encoding its texels (per atlas texel, not baked)
+    texels_part, layers_part = ticker(tick).split([len(baked), 0.2 * h * w * len(channels)])
+    step = texels_part.counter(len(baked), lambda done, of: f"encoding texels {done} of {of}")
     for s in range(0, len(baked), ENCODE_CHUNK):
         rows = baked[s : s + ENCODE_CHUNK]
         out = encoding.encode(sh[rows], normal[rows])
         for name, v in out.values.items():
             values[name][rows] = v
         stats.append(out.stats)
+        step(s + len(rows))
     if spend:
         del sh
         data.sh = np.zeros((0, 0) + data.sh.shape[2:], np.float32)
     images = {}
-    for ch in channels:
+    step = layers_part.counter(len(channels), lambda done, of: f"filling layer {done} of {of}")
+    for k, ch in enumerate(channels):
         images.update(layer_images(ch, values.pop(ch.name).reshape(h, w, ch.value_width), fill, data.window))
+        step(k + 1)
     return images, encoding.summary(stats, len(baked))
 
 
