@@ -5,9 +5,11 @@ samples (`core.encoding.preview`), so shaders/preview.py links every preview ima
 of its layer's name. Groups (all output `Irradiance` and `Radiance` = Albedo × Irradiance, in
 the units of docs/conventions.md#irradiance-units):
   "HHD Lightmap" / "AHD Lightmap": inputs Iz, Wa (colour; equal channels in luminance mode),
-      Direction (octahedral X, Y in the vector's x, y), Normal (shading), Vertex Normal, Albedo,
-      Self Bounce (0/1). The formula and octahedral decode are docs/format.md's, d·n_v floored at
-      core.hhd.MIN_COS.
+      Direction (the highlight direction's unit vector x, y, z as its preview image holds it,
+      bilinearly filtered: the group renormalises it), Normal (shading), Vertex Normal, Albedo,
+      Self Bounce (0/1). The formula is docs/format.md's, d·n_v floored at core.hhd.MIN_COS.
+      The preview images never hold the octahedral pair: filtering it across the map's folds
+      blends unrelated directions (docs/format.md, "Filtering the direction").
   "L1 SH Lightmap" / "L2 SH Lightmap": inputs SH0 … SH3 (or SH8) radiance SH colours, Normal,
       Albedo; irradiance = Σ_k cosine_kernel_k · SH_k · Y_k(n) with core.sh's basis.
   "Scalar Lightmap": Iz only (no directional response), Albedo.
@@ -29,7 +31,7 @@ from ..core import hhd, sh
 from ..core.colour import LUMINANCE
 from ..core.encoding.preview import sampled
 
-GROUP_VERSION = 2
+GROUP_VERSION = 3  # 3: Direction inputs are unit vectors (2: octahedral pairs)
 GROUPS = {
     "HHD": "HHD Lightmap",
     "AHD": "AHD Lightmap",
@@ -119,17 +121,10 @@ def _finish(b: Builder, irradiance, albedo):
     b.tree.links.new(b.vec("MULTIPLY", irradiance, albedo), out.inputs["Radiance"])
 
 
-def octahedral_decode(b: Builder, oct_xy):
-    """The inverse octahedral map (docs/format.md), as nodes: unit direction."""
-    x, y, _ = b.xyz(oct_xy)
-    z = b.math("SUBTRACT", b.math("SUBTRACT", 1.0, b.math("ABSOLUTE", x)), b.math("ABSOLUTE", y))
-    t = b.math("MAXIMUM", b.math("MULTIPLY", z, -1.0), 0.0)
-
-    def fold(c):  # c − t·sign_not_zero(c), sign_not_zero(c) = 1 − 2·[c < 0]
-        sign = b.math("SUBTRACT", 1.0, b.math("MULTIPLY", b.math("LESS_THAN", c, 0.0), 2.0))
-        return b.math("SUBTRACT", c, b.math("MULTIPLY", t, sign))
-
-    return b.vec("NORMALIZE", b.combine(fold(x), fold(y), z))
+def direction(b: Builder, sampled):
+    """The highlight direction from its preview image's bilinear sample: the blend of the
+    texels' unit vectors, renormalised (a blend of nearby unit vectors stays close to each)."""
+    return b.vec("NORMALIZE", sampled)
 
 
 def hhd_irradiance(b: Builder, iz, wa, d, n, nv, albedo, self_bounce, model: str = "HHD"):
@@ -177,7 +172,7 @@ def build_hhd(model: str):
     i = b.node("NodeGroupInput").outputs
     n = b.vec("NORMALIZE", i["Normal"])
     nv = b.vec("NORMALIZE", i["Vertex Normal"])
-    d = octahedral_decode(b, i[dir_layer.name])
+    d = direction(b, i[dir_layer.name])
     irradiance = hhd_irradiance(b, i[iz_layer.name], i[wa_layer.name], d, n, nv, i["Albedo"], i["Self Bounce"], model)
     _finish(b, irradiance, i["Albedo"])
     return tree
@@ -198,13 +193,13 @@ def _luminance(b: Builder, colour):
     return b.vec("DOT_PRODUCT", colour, tuple(float(c) for c in LUMINANCE))
 
 
-def _set_terms(b: Builder, iz, wa, oct_xy, weight, nv):
+def _set_terms(b: Builder, iz, wa, dir_xyz, weight, nv):
     """One set's share of the blend, in the b-space of core.hhd.to_linear_sh (b_c = 2C_a + C_d,
     b = C_a n_v + C_d d per channel, the linear SH up to constants that from_linear_sh undoes):
     returns (W⊙C_a, W⊙C_d, d, d·n_v) with C_a = wa⊙Iz, C_d = (1 − wa)⊙Iz / (d·n_v), W the set's
     RGB weight. d·n_v is floored at MIN_COS/2, as in to_linear_sh and reconstruct (the encoder
     keeps d·n_v ≥ MIN_COS; the floor guards the bilinear filter's mixes of directions)."""
-    d = octahedral_decode(b, oct_xy)
+    d = direction(b, dir_xyz)
     dz = b.math("MAXIMUM", b.vec("DOT_PRODUCT", d, nv), 0.5 * float(hhd.MIN_COS))
     weighted = b.vec("MULTIPLY", weight, iz)
     ca = b.vec("MULTIPLY", weighted, wa)
@@ -285,7 +280,7 @@ def _solve(b: Builder, ca, cd, cdz, directional, nv):
 def build_blend(sets: int):
     """The live light-set blend of `sets` sets (core.light_sets.blend per pixel, then the HHD
     reconstruction): inputs per set k = 1 … sets 'Iz k', 'Wa k' (colours as the preview images hold
-    them), 'Direction k' (octahedral), 'Weight k' (RGB), then Normal, Vertex Normal, Albedo, Self
+    them), 'Direction k' (unit vector), 'Weight k' (RGB), then Normal, Vertex Normal, Albedo, Self
     Bounce as the HHD group. Each set's HHD → b-space linear SH (to_linear_sh), weighted sum, the
     closed-form solve back to HHD (from_linear_sh, `_solve`), reconstruction at the shading normal
     (`hhd_irradiance`, shared with the HHD group). Wa is used per channel as to_linear_sh does:

@@ -5,7 +5,10 @@ the preview images of the layers the mode samples (`core.encoding.preview`) samp
 lightmap UV map (linear filtering) into the node-group inputs of the same names, the chosen node group
 fed by the Principled BSDF's Base Color and Normal links (image textures, normal maps; constants
 when unlinked) and Geometry's Normal as n_v, an Emission shader of albedo × irradiance, and a
-Mix Shader between the material's own surface (factor 0) and the preview (factor 1). The mix
+Mix Shader between the material's own surface (factor 0) and the preview (factor 1). The
+direction's image holds its unit vector (`Channel.unpack`), never the octahedral pair the
+bilinear filter would blend wrongly across the map's folds; Show rewrites one that a bake made
+before holds as the pair (`encoding.preview.upgrade_direction`). The mix
 factor is the object attribute `hhd_preview`, set to 1 on the baked objects only: a material shared
 with objects that were not baked keeps its own look on them. A material shared by objects of
 several atlases samples every atlas's images and picks the object's own by a second object
@@ -32,7 +35,7 @@ import json
 import bpy
 
 from .. import blender_compat
-from ..core.encoding.preview import sampled
+from ..core.encoding.preview import sampled, upgrade_direction
 from ..core.errors import BakeError
 from ..core.lightmap_files import read_sidecar
 from ..properties import sync_light_sets, weight_path
@@ -129,6 +132,7 @@ def light_sets_of(files) -> list[tuple[str, object]]:
             raise BakeError(
                 f"atlas '{files.name}' lists light set '{name}' but {set_files.preview} is missing: bake again"
             )
+        upgrade_direction(set_files)  # a bake made before the preview held d as a vector
     return sets
 
 
@@ -250,6 +254,8 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
     notes, set_names = [], []
     index = {name: i for i, name in enumerate(sorted({f.name for f in atlas_files.values()}))}
     materials: dict[str, tuple] = {}  # material name → (material, {atlas name: files})
+    for files in {f.name: f for f in atlas_files.values()}.values():
+        upgrade_direction(files)  # a bake made before the preview held d as a vector
     for obj in objects:
         files = atlas_files[obj.name]
         obj[RECORD], obj[ATLAS] = 1.0, float(index[files.name])

@@ -26,10 +26,10 @@ import json
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import encoding, exr, hhd, light_sets, octahedral, sh
+from hhd_lightmapper.core import encoding, exr, hhd, light_sets, sh
 from hhd_lightmapper.core.lightmap_files import AtlasFiles, write_atlas
 from scenekit import blender as kit
-from test_preview_eevee import normal_mapped_material, read_rgb, render, render_inputs, texel_corners
+from test_preview_eevee import normal_mapped_material, read_rgb, render, render_inputs, texel_corners, unit
 
 pytestmark = [pytest.mark.bpy, pytest.mark.eevee]
 ATLAS = "Lightmap"  # bridge.bake_session.DEFAULT_ATLAS: the atlas of objects never unwrapped
@@ -189,13 +189,13 @@ def key_weights(scene):
 
 def blend_at(images: dict, weights: dict, n, nv, rgb: bool = False):
     """numpy's irradiance: the sets' sampled HHD (iz, wa: its one channel, or RGB with `rgb`,
-    octahedral dir per set) blended by `core.light_sets.blend`, reconstructed at the shading
+    dir: the blend of unit vectors, renormalised, per set) blended by `core.light_sets.blend`, reconstructed at the shading
     normals n."""
     params = [
         hhd.HHDParams(
             images[s]["iz"],
             images[s]["wa"] if rgb else images[s]["wa"][:, 0],
-            octahedral.decode(images[s]["dir"][:, :2]),
+            unit(images[s]["dir"]),
         )
         for s in SETS
     ]

@@ -176,3 +176,24 @@ def test_a_cancelled_bake_replaces_no_file(tmp_path):
             cancel=lambda: calls.append(1) or len(calls) > 3,
         )
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_the_direction_preview_holds_the_unit_vector_and_old_previews_are_upgraded(tmp_path):
+    """The preview's `dir` image holds each texel's direction decoded (x, y, z: a bilinear filter
+    may blend it), not the octahedral pair of the HHD file (filtering that across the map's folds
+    blends unrelated directions); Show Preview rewrites one a bake made before holds as the pair
+    (`encoding.preview.upgrade_direction`), once."""
+    from hhd_lightmapper.core.encoding.preview import upgrade_direction
+
+    files = plane_bake(tmp_path)
+    channels, _ = exr.read(files.hhd)
+    oct_xy = np.stack([channels["Direction.X"], channels["Direction.Y"]], -1).reshape(-1, 2).astype(float)
+    preview, header = exr.read(files.preview_image("dir"))
+    assert header["hhdPreviewValue"] == "unpacked" and preview["R"].dtype == np.float16
+    vector = np.stack([preview[c] for c in "RGB"], -1).reshape(-1, 3).astype(float)
+    np.testing.assert_allclose(vector, octahedral.decode(oct_xy), atol=1e-3)  # half precision
+    assert not upgrade_direction(files)
+    old = {"R": channels["Direction.X"].astype(np.float32), "G": channels["Direction.Y"].astype(np.float32)}
+    exr.write(files.preview_image("dir"), {**old, "B": np.zeros_like(old["R"])})  # as written before
+    assert upgrade_direction(files) and not upgrade_direction(files)
+    assert exr.read(files.preview_image("dir"))[0]["B"].tobytes() == preview["B"].tobytes()

@@ -2,7 +2,9 @@
 
 Layers: Iz (I_z, RGB), Wa (w_a: one channel V with ambient "luminance", R/G/B with "rgb") and
 Direction (the highlight direction, world space, octahedral X/Y). The encoding returns the
-direction as a unit vector; it is filled (dilated) as a vector and packed afterwards.
+direction as a unit vector; it is filled (dilated) as a vector and packed afterwards. Its preview
+image holds the unit vector (x, y, z), never the octahedral pair: a bilinear filter blends
+vectors safely, not octahedral pairs across the map's folds (docs/format.md).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ DIRECTION = Channel(
     preview="dir",
     width=3,
     pack=octahedral.encode,
+    unpack=octahedral.decode,
 )
 
 #: Every layer the HHD file may hold (the file of one setting: `FILE.for_settings`).

@@ -36,10 +36,12 @@ class Channel:
     dtype: HALF | FLOAT | HALF_OR_FLOAT;  meaning: the sidecar's text for each of its channels;
     fill: NO_FILL | DILATE | DILATE_BURIED_BLACK (see above);
     preview: key of the RGB preview image that shows it (`AtlasFiles.preview_image`), or None;
-      one component is repeated into R, G, B, two are R, G with B = 0;
+      one component is repeated into R, G, B, two are R, G with B = 0; a packed layer's shows
+      its value unpacked (`unpack`: the direction as x, y, z, which a bilinear filter may blend);
     width: columns of the value an encoding returns for it, when they differ from the stored
       components (a unit vector of 3 stored as 2 octahedral coordinates);
     pack: `(M, width)` value -> `(M, len(components))` stored components, applied after filling;
+    unpack: its inverse, `(M, len(components))` -> `(M, width)` (for the preview image);
     when: (setting, value): written only under that encoder setting (docs show it), or None.
     """
 
@@ -51,6 +53,7 @@ class Channel:
     preview: str | None = None
     width: int | None = None
     pack: Callable[[np.ndarray], np.ndarray] | None = field(default=None, compare=False)
+    unpack: Callable[[np.ndarray], np.ndarray] | None = field(default=None, compare=False)
     when: tuple[str, str] | None = None
 
     @property
