@@ -20,7 +20,7 @@ from hhd_lightmapper.core import hhd, light_sets, octahedral, sh
 from hhd_lightmapper.core.encoding import web_packing
 
 # figures of the comparisons, printed at the end of the module (pytest -s) and kept in
-# out/test-times/web_runtime.json for the reports
+# out/web/figures-<Blender version>.json for the reports
 FIGURES: dict = {}
 
 
@@ -37,9 +37,12 @@ def browser(tmp_path_factory):
     FIGURES["launch_seconds"] = round(time.perf_counter() - start, 2)
     yield b
     b.close()
-    folder = web_harness.ROOT / "out" / "test-times"
+    import bpy
+
+    folder = web_harness.ROOT / "out" / "web"
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "web_runtime.json").write_text(json.dumps(FIGURES, indent=1) + "\n")
+    version = ".".join(map(str, bpy.app.version))
+    (folder / f"figures-{version}.json").write_text(json.dumps(FIGURES, indent=1) + "\n")
     print("\nweb runtime figures:", json.dumps(FIGURES, indent=1))
 
 

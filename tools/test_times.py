@@ -24,6 +24,8 @@ def summary(folder: Path, wall: float | None, slowest: int) -> dict:
     for name in names:
         path = folder / f"{name}.json"
         record = json.loads(path.read_text()) if path.exists() else None
+        if record is not None and "slowest" not in record:
+            continue  # not a suite's record
         if record is not None:
             record.pop("all", None)
             record["slowest"] = record["slowest"][:slowest]
