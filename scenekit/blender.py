@@ -308,3 +308,54 @@ def externalise_images(folder) -> None:
             image.source = 'FILE'
             image.filepath = str(path)
             image.reload()
+
+
+def scene_hash(objects: bool = False) -> str:
+    """Hash of what a bake, a view or an export must not change: every mesh's UV layers, every
+    material's node tree (nodes, inputs, links) and every image's identity and source; with
+    `objects`, every object's location and recorded atlas too."""
+    import hashlib
+
+    import bpy
+
+    h = hashlib.sha256()
+    for mesh in sorted(bpy.data.meshes, key=lambda m: m.name):
+        for layer in mesh.uv_layers:
+            uv = np.zeros(len(mesh.loops) * 2, np.float32)
+            layer.data.foreach_get("uv", uv)
+            h.update(layer.name.encode() + uv.tobytes())
+    for mat in sorted(bpy.data.materials, key=lambda m: m.name):
+        h.update(mat.name.encode())
+        for node in mat.node_tree.nodes:
+            h.update(f"{node.name}{node.bl_idname}{tuple(node.location)}".encode())
+            for socket in node.inputs:
+                value = getattr(socket, "default_value", None)
+                h.update(repr(tuple(value) if hasattr(value, "__len__") else value).encode())
+        for link in mat.node_tree.links:
+            h.update(
+                f"{link.from_node.name}.{link.from_socket.identifier}>{link.to_node.name}.{link.to_socket.identifier}".encode()
+            )
+    for image in sorted(bpy.data.images, key=lambda i: i.name):
+        h.update(f"{image.name}|{image.filepath}|{image.packed_file is not None}".encode())
+    if objects:
+        for obj in sorted(bpy.data.objects, key=lambda o: o.name):
+            h.update(f"{obj.name}{tuple(obj.matrix_world.col[3])}{obj.hhd.atlas}".encode())
+        h.update(f"{len(bpy.data.materials)} {len(bpy.data.images)} {len(bpy.data.meshes)}".encode())
+    return h.hexdigest()
+
+
+def two_lamp_room(floor_grey=(0.8, 0.8, 0.8), box_white=(0.8, 0.8, 0.8)):
+    """A 4 m floor and a box lit by a lamp in the Light Group "Red" and one in "Blue" under a dim
+    world, unwrapped into one 256² atlas and selected (the small light-set bake of the CLI and
+    export tests). Returns (scene, [floor, box])."""
+    scene = clear_scene()
+    floor = plane("Floor", (0, 0, 0), 4, material("grey", floor_grey))
+    cube = box("Box", (0.5, 0.3, 0.4), (0.8, 0.8, 0.8), material("white", box_white))
+    red = light('POINT', (-1.0, -1.0, 1.5), energy=150.0, name="RedLamp")
+    blue = light('POINT', (1.2, 1.0, 1.2), energy=100.0, name="BlueLamp")
+    world((0.05, 0.05, 0.08))
+    red.lightgroup, blue.lightgroup = "Red", "Blue"
+    scene.hhd.resolution, scene.hhd.texel_density = 256, 0.0
+    unwrap([floor, cube])
+    select([floor, cube])
+    return scene, [floor, cube]

@@ -7,7 +7,6 @@ GLB reader below.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -67,28 +66,8 @@ def texture_png(doc, binary, texture) -> np.ndarray:
 
 
 def scene_hash() -> str:
-    """What an export must not change (tests/test_workflow_blender.py's scene_hash, plus objects)."""
-    import bpy
-
-    h = hashlib.sha256()
-    for mesh in sorted(bpy.data.meshes, key=lambda m: m.name):
-        for layer in mesh.uv_layers:
-            uv = np.zeros(len(mesh.loops) * 2, np.float32)
-            layer.data.foreach_get("uv", uv)
-            h.update(layer.name.encode() + uv.tobytes())
-    for mat in sorted(bpy.data.materials, key=lambda m: m.name):
-        h.update(mat.name.encode())
-        for node in mat.node_tree.nodes:
-            h.update(f"{node.name}{node.bl_idname}{tuple(node.location)}".encode())
-            for socket in node.inputs:
-                value = getattr(socket, "default_value", None)
-                h.update(repr(tuple(value) if hasattr(value, "__len__") else value).encode())
-    for image in sorted(bpy.data.images, key=lambda i: i.name):
-        h.update(f"{image.name}|{image.filepath}|{image.packed_file is not None}".encode())
-    for obj in sorted(bpy.data.objects, key=lambda o: o.name):
-        h.update(f"{obj.name}{tuple(obj.matrix_world.col[3])}{obj.hhd.atlas}".encode())
-    h.update(f"{len(bpy.data.materials)} {len(bpy.data.images)} {len(bpy.data.meshes)}".encode())
-    return h.hexdigest()
+    """What an export must not change: the bake's (materials, UVs, images) and the objects'."""
+    return kit.scene_hash(objects=True)
 
 
 @pytest.fixture(scope="module")
@@ -97,23 +76,12 @@ def baked(extension, tmp_path_factory) -> Path:
     import bpy
 
     folder = tmp_path_factory.mktemp("gltf")
-    scene = kit.clear_scene()
-    floor = kit.plane("Floor", (0, 0, 0), 4, kit.material("grey", (0.7, 0.7, 0.7)))
-    if not floor.data.uv_layers.get("UVMap"):
-        floor.data.uv_layers.new(name="UVMap")
-    floor.data.uv_layers.move(floor.data.uv_layers.find("UVMap"), 0) if hasattr(floor.data.uv_layers, "move") else None
-    box = kit.box("Box", (0.5, 0.3, 0.4), (0.8, 0.8, 0.8), kit.material("white", (0.8, 0.8, 0.8)))
-    red = kit.light('POINT', (-1.0, -1.0, 1.5), energy=150.0, name="RedLamp")
-    blue = kit.light('POINT', (1.2, 1.0, 1.2), energy=100.0, name="BlueLamp")
-    kit.world((0.05, 0.05, 0.08))
-    red.lightgroup, blue.lightgroup = "Red", "Blue"
+    scene, (floor, _box) = kit.two_lamp_room(floor_grey=(0.7, 0.7, 0.7))
+    assert floor.data.uv_layers.find("UVMap") == 0  # the material UVs first, the lightmap's after
     s = scene.hhd
-    s.resolution, s.texel_density = 256, 0.0
-    kit.unwrap([floor, box])
     s.preset = 'CUSTOM'
     s.samples, s.bounces, s.denoise, s.stitch_seams, s.pack_images = 4, 1, False, False, False
     s.output_dir = "//lightmaps"
-    kit.select([floor, box])
     bpy.ops.wm.save_as_mainfile(filepath=str(folder / "scene.blend"))
     assert cli.main(["bake", *OBJECTS]) == cli.EXIT_OK
     assert (folder / "lightmaps" / "Lightmap.Red_hhd.exr").is_file()

@@ -1,7 +1,6 @@
 """The bake workflow in Blender: operators in background mode end to end, re-encode, errors
 naming the object, cancel leaving the .blend untouched, and the command line's exit codes."""
 
-import hashlib
 import json
 import os
 import signal
@@ -16,6 +15,7 @@ from hhd_lightmapper import cli
 from hhd_lightmapper.core import presets
 from hhd_lightmapper.core.tracer import BakeCancelled
 from scenekit import blender as kit
+from scenekit.blender import scene_hash
 
 pytestmark = pytest.mark.bpy
 ROOT = Path(__file__).resolve().parent.parent
@@ -38,33 +38,6 @@ def baked_scene(extension, oidn_weights, tmp_path):
     kit.unwrap([floor, cube])
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
     return scene, [floor, cube], tmp_path
-
-
-def scene_hash() -> str:
-    """Hash of what a bake must not change: every mesh's UV layers, every material's node tree
-    and every image's identity and source."""
-    import bpy
-
-    h = hashlib.sha256()
-    for mesh in sorted(bpy.data.meshes, key=lambda m: m.name):
-        for layer in mesh.uv_layers:
-            uv = np.zeros(len(mesh.loops) * 2, np.float32)
-            layer.data.foreach_get("uv", uv)
-            h.update(layer.name.encode() + uv.tobytes())
-    for mat in sorted(bpy.data.materials, key=lambda m: m.name):
-        h.update(mat.name.encode())
-        for node in mat.node_tree.nodes:
-            h.update(f"{node.name}{node.bl_idname}{tuple(node.location)}".encode())
-            for socket in node.inputs:
-                value = getattr(socket, "default_value", None)
-                h.update(repr(tuple(value) if hasattr(value, "__len__") else value).encode())
-        for link in mat.node_tree.links:
-            h.update(
-                f"{link.from_node.name}.{link.from_socket.identifier}>{link.to_node.name}.{link.to_socket.identifier}".encode()
-            )
-    for image in sorted(bpy.data.images, key=lambda i: i.name):
-        h.update(f"{image.name}|{image.filepath}|{image.packed_file is not None}".encode())
-    return h.hexdigest()
 
 
 def test_bake_and_reencode_operators_end_to_end(baked_scene):
