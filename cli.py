@@ -1,4 +1,4 @@
-"""Headless use: `blender -b scene.blend --command hhd_lightmapper <unwrap|bake|encode|blend> [options]`.
+"""Headless use: `blender -b scene.blend --command hhd_lightmapper <unwrap|bake|encode|blend|uv-report|export> [options]`.
 
 Registered with `bpy.utils.register_cli_command` when the extension is enabled. The same entry
 point works with the `bpy` module from Python, without a Blender executable:
@@ -459,6 +459,22 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
         "every set keeps the scene's weight, else 1)",
     )
     q = command(
+        "uv-report",
+        "check the receivers' lightmap UVs before a bake, changing nothing: per atlas and object the texels "
+        "per metre against the target (and the ratio), texels, and the problems the Problems view shows "
+        "(texels shared by two charts, flipped and degenerate UV faces, too few texels); problems are "
+        f"reported with exit code {EXIT_OK}, a receiver without the lightmap UV layer is an input error "
+        f"({EXIT_INPUT})",
+    )
+    receivers(q)
+    q.add_argument(
+        "--json",
+        metavar="OUT.json",
+        help="also write the report as a JSON document (finite numbers only; written even when a receiver "
+        "lacks the UV layer, which it lists under missing_uv_layer) (default: none: print the report only)",
+    )
+
+    q = command(
         "export",
         "export the scene to glTF 2.0 with its baked lightmaps, as File > Export > glTF 2.0 does with the "
         "extension enabled (docs/gltf.md; no baking): every render-visible object, the receivers with their "
@@ -605,6 +621,50 @@ def _farm(address: str, trace):
     return connected
 
 
+def _uv_report(context, args) -> str:
+    """`uv-report`: the views' figures (`shaders.texel_views.report`), printed and with --json
+    written; the .blend is not changed. Receivers without the lightmap UV layer: EXIT_INPUT,
+    named, after the report of the others."""
+    import json
+
+    from .bridge import bake_session
+    from .shaders import texel_views
+
+    objects = bake_session.target_objects(context, args.objects)
+    if not objects:
+        raise BakeError("no receivers: pass --objects or --collection, or save the .blend with them selected")
+    document, lines = texel_views.report(objects, context.scene.hhd)
+    for line in lines:
+        print(line)
+    if args.json:
+        path = os.path.abspath(args.json)
+        text = json.dumps({"blend": bpy.data.filepath, **document}, indent=1, allow_nan=False) + "\n"
+        temporary = f"{path}.{os.getpid()}.tmp"
+        try:
+            with open(temporary, "w", encoding="utf-8") as f:
+                f.write(text)
+            os.replace(temporary, path)
+        finally:
+            if os.path.exists(temporary):
+                os.remove(temporary)
+    missing = document["missing_uv_layer"]
+    if missing:
+        them = "it" if len(missing) == 1 else "them"
+        raise BakeError(
+            f"{', '.join(repr(n) for n in missing)} ha{'s' if len(missing) == 1 else 've'} no lightmap UV layer "
+            f"'{context.scene.hhd.uv_layer}' (or no faces): unwrap {them} first, or leave {them} out of the "
+            "receivers (the others are reported above)"
+        )
+    t = document["totals"]
+    problems = t["shared_texels"] + t["flipped_faces"] + t["degenerate_faces"] + t["too_few_texels"]
+    written = f"; JSON -> {os.path.abspath(args.json)}" if args.json else ""
+    return (
+        f"{t['objects']} object(s) in {len(document['atlases'])} atlas(es): {problems} problem(s): "
+        f"{t['shared_texels']} texels shared by two charts, {t['flipped_faces']} flipped, "
+        f"{t['degenerate_faces']} degenerate faces, {t['too_few_texels']} object(s) with too few texels{written}"
+    )
+
+
 def _export(context, args) -> str:
     """`export`: Blender's glTF exporter with the HHD hook (bridge/gltf_export.py), as File > Export."""
     from .bridge import gltf_export
@@ -728,7 +788,7 @@ def _check_before(context, args) -> None:
         problem = _save_problem()
         if problem:
             raise _OutputProblem(problem)
-    if args.action != "unwrap":
+    if args.action not in ("unwrap", "uv-report"):  # uv-report writes only --json, checked as it is written
         problem = _output_problem(bake_session.output_folder(context.scene.hhd, args.out))
         if problem:
             raise _OutputProblem(problem)
@@ -763,7 +823,14 @@ def _run(args: argparse.Namespace) -> int:
             for w in _soft_warnings(args):
                 print(f"warning: {w}", flush=True)
             _check_before(context, args)
-            commands = {"unwrap": _unwrap, "bake": _bake, "encode": _encode, "blend": _blend, "export": _export}
+            commands = {
+                "unwrap": _unwrap,
+                "bake": _bake,
+                "encode": _encode,
+                "blend": _blend,
+                "export": _export,
+                "uv-report": _uv_report,
+            }
             summary = commands[args.action](context, args)
             if getattr(args, "save", False):
                 _save(args)

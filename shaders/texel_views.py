@@ -35,7 +35,7 @@ import numpy as np
 
 from .. import blender_compat
 from ..bridge import bake_session, view_data
-from ..core import exr, texel_density, uv_problems
+from ..core import exr, texel_density, unwrap, uv_problems
 from ..core.errors import BakeError
 from . import node_groups, preview
 
@@ -141,15 +141,32 @@ def write_mask(atlas: ViewAtlas, problems: uv_problems.AtlasProblems) -> Path:
     return path
 
 
+def measure(atlas: ViewAtlas) -> tuple[list[texel_density.Density], float]:
+    """The densities of the atlas's viewed objects and the target they are compared with (the
+    views' and `report`'s one computation): the atlas's Texel Density setting, else the density
+    the unwrap reached; 1 when there is no texel or no area at all (every density is then 0)."""
+    densities = [texel_density.density(m, atlas.width, atlas.height) for _, m in atlas.objects]
+    target = texel_density.target_density(densities, atlas.setting)
+    return densities, target if target > 0 else 1.0
+
+
+def find_problems(atlas: ViewAtlas, target: float) -> uv_problems.AtlasProblems:
+    """`core.uv_problems.find` over the atlas's viewed objects, then its other objects (whose UVs
+    count for the shared texels): `found.objects` starts with the viewed ones, in order."""
+    meshes = [m for _, m in atlas.objects] + [m for _, m in atlas.others]
+    return uv_problems.find(meshes, atlas.width, atlas.height, target)
+
+
+def _source(atlas: ViewAtlas) -> str:
+    return "its Texel Density setting" if atlas.setting else "the density the unwrap reached"
+
+
 def _view_atlas(atlas: ViewAtlas, mode: str, lines: list[str]) -> Path | None:
     """Compute `mode` for one atlas: write the face colours of its objects, add report lines,
     and return the Problems view's mask file."""
-    densities = [texel_density.density(m, atlas.width, atlas.height) for _, m in atlas.objects]
-    target = texel_density.target_density(densities, atlas.setting)
-    if not target > 0:
-        target = 1.0
+    densities, target = measure(atlas)
     size = f"atlas '{atlas.name}' {atlas.width}×{atlas.height}"
-    source = "its Texel Density setting" if atlas.setting else "the density the unwrap reached"
+    source = _source(atlas)
     if mode == 'DENSITY':
         for (obj, _), d in zip(atlas.objects, densities):
             view_data.write_face_colours(obj, texel_density.heat(d.density / target))
@@ -162,8 +179,7 @@ def _view_atlas(atlas: ViewAtlas, mode: str, lines: list[str]) -> Path | None:
     if mode == 'CHECKER':
         lines.append(f"Texel checker, {size}: a cell is one texel, {100.0 / target:.3g} cm at {target:.3g} texels/m")
         return None
-    meshes = [m for _, m in atlas.objects] + [m for _, m in atlas.others]
-    found = uv_problems.find(meshes, atlas.width, atlas.height, target)
+    found = find_problems(atlas, target)
     for (obj, mesh), problems in zip(atlas.objects, found.objects):
         view_data.write_face_colours(obj, uv_problems.face_colours(mesh, problems))
         lines.append(problems.line())
@@ -210,6 +226,73 @@ def show(objects, mode: str, settings) -> tuple[list[str], list[str]]:
     elif mode == 'PROBLEMS':
         lines.append("Legend: " + uv_problems.legend_text())
     return lines, notes
+
+
+def report(objects, settings) -> tuple[dict, list[str]]:
+    """What the Texel Density and Problems views show, as figures, changing nothing (no node,
+    attribute, image or property): the CLI's `uv-report` and Python's way to check lightmap UVs
+    before a bake. Same reading (`gather`, `bridge.view_data`) and math (`measure`,
+    `find_problems`) as the views. Returns (document, report lines): the document is
+    JSON-ready (finite numbers only): per atlas its size, target texels per metre and where it
+    comes from, the texels two charts share, and per object its texels per metre, the ratio to
+    the target, texels, m², shared texels, flipped and degenerate faces (polygons), too few
+    texels, and its problem count (`uv_problems.ObjectProblems.count`); `missing_uv_layer`
+    names the objects without the layer (or faces). Raises BakeError when no object has it."""
+    atlases, skipped = gather(objects, settings, others=True)
+    if not atlases:
+        raise BakeError(
+            f"no receiver has the lightmap UV layer '{settings.uv_layer}': unwrap them first"
+            + (f" ({', '.join(repr(n) for n in skipped)})" if skipped else "")
+        )
+    document = {"uv_layer": settings.uv_layer, "min_texels": float(unwrap.FEW_TEXELS), "atlases": []}
+    lines: list[str] = []
+    totals = dict.fromkeys(("objects", "shared_texels", "flipped_faces", "degenerate_faces", "too_few_texels"), 0)
+    for atlas in sorted(atlases, key=lambda a: a.name):
+        densities, target = measure(atlas)
+        found = find_problems(atlas, target)
+        entries = []
+        for (obj, _), d, problems in zip(atlas.objects, densities, found.objects):
+            entries.append(
+                {
+                    "name": obj.name,
+                    "texels_per_metre": d.mean_density,
+                    "ratio": d.mean_density / target,
+                    "texels": d.total_texels,
+                    "area_m2": d.total_area,
+                    "shared_texels": int(problems.shared),
+                    "flipped_faces": int(problems.flipped_faces),
+                    "degenerate_faces": int(problems.degenerate_faces),
+                    "too_few_texels": bool(problems.few),
+                    "problems": int(problems.count),
+                }
+            )
+            lines.append(
+                f"  {problems.line()}: {d.mean_density:.3g} texels/m, {d.mean_density / target:.2f}× the target"
+            )
+            totals["objects"] += 1
+            totals["flipped_faces"] += int(problems.flipped_faces)
+            totals["degenerate_faces"] += int(problems.degenerate_faces)
+            totals["too_few_texels"] += int(problems.few)
+        totals["shared_texels"] += len(found.shared)
+        lines.insert(
+            len(lines) - len(entries),
+            f"atlas '{atlas.name}' {atlas.width}×{atlas.height}: target {target:.3g} texels/m ({_source(atlas)}), "
+            f"{len(found.shared)} texels shared by two charts",
+        )
+        document["atlases"].append(
+            {
+                "name": atlas.name,
+                "width": atlas.width,
+                "height": atlas.height,
+                "target_texels_per_metre": target,
+                "target_source": "setting" if atlas.setting else "reached",
+                "shared_texels": len(found.shared),
+                "objects": entries,
+            }
+        )
+    document["missing_uv_layer"] = list(skipped)
+    document["totals"] = totals
+    return document, lines
 
 
 def _new(tree, kind, name, location, parent):

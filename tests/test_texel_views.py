@@ -222,7 +222,7 @@ def test_views_show_and_hide_restore_everything_exactly(unwrapped_scene):
     import bpy
 
     from hhd_lightmapper.bridge import view_data
-    from test_workflow_blender import scene_hash
+    from scenekit.blender import scene_hash
 
     scene, floor, cube, other = unwrapped_scene
     texels = unwrap_texels(scene.hhd.unwrap_summary)
