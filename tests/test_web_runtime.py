@@ -233,6 +233,10 @@ def exported(extension, tmp_path_factory):
     kit.world((0.05, 0.05, 0.08))
     red.lightgroup, blue.lightgroup = "Red", "Blue"
     kit.camera((3.2, -3.6, 2.8), (-0.62, 0.62, -0.48), lens=24.0)
+    # the exported camera's field of view follows the render's aspect: Blender's default 16:9, which
+    # frames the receivers in the 4:3 renders here (an earlier test may have left another size)
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 1920, 1080, 100
+    scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
     s = scene.hhd
     s.resolution, s.texel_density = 128, 0.0
     kit.unwrap([floor, box])
