@@ -788,7 +788,8 @@ def _check_before(context, args) -> None:
         problem = _save_problem()
         if problem:
             raise _OutputProblem(problem)
-    if args.action not in ("unwrap", "uv-report"):  # uv-report writes only --json, checked as it is written
+    # unwrap, uv-report and export write no bake files (--json, --glb are checked as they are written)
+    if args.action not in ("unwrap", "uv-report", "export"):
         problem = _output_problem(bake_session.output_folder(context.scene.hhd, args.out))
         if problem:
             raise _OutputProblem(problem)
