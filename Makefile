@@ -9,8 +9,9 @@
 #                 Fails if either fails; the suites' times go to out/test-times/. This is what
 #                 .ci/run calls (after `make check` and `make package`).
 #   make test-core - the quick loop: the tests that need no Blender, in .venv
-#   make check  - ruff (lint + format check) over the repository and mypy over core/, with the
-#                 versions pinned in requirements-check.txt (installed into .venv)
+#   make check  - ruff (lint + format check) over the repository, mypy over core/ and the import
+#                 contracts (import-linter: core imports no bpy, no stage a later stage; pyproject.toml),
+#                 with the versions pinned in requirements-check.txt (installed into .venv)
 #   make web-deps - the three.js runtime's npm packages (web/package-lock.json: three,
 #                 playwright-core, gltf-validator) into web/node_modules, when missing (`test` needs
 #                 them); the browser tests drive a system Chromium (Debian: apt-get install chromium)
@@ -62,6 +63,7 @@ check: setup setup-check
 	echo "== ruff check ."; $(PY) -m ruff check . || status=1; \
 	echo "== ruff format --check ."; $(PY) -m ruff format --check . || status=1; \
 	echo "== mypy core"; $(PY) -m mypy core || status=1; \
+	echo "== lint-imports (contracts: pyproject.toml [tool.importlinter])"; $(VENV)/bin/lint-imports --no-cache || status=1; \
 	exit $$status
 
 demo: setup
