@@ -11,12 +11,12 @@ as bench/time_to_error.py sets them up, BOUNCES bounces, `--resolution` atlas. V
 
 - `per pass`: half the directions uniform, half cosine-weighted, in four groups each Latin-
   hypercube stratified within its pass only, β of the control variate from the other half's
-  cosine samples (`kernels.hemisphere_rays`, `kernels.project_hemisphere`), the origins a
+  cosine samples (`hemisphere_kernels.hemisphere_rays`, `hemisphere_kernels.project_hemisphere`), the origins a
   shifted Hammersley set per pass (until 2026-12-02);
 - `directions across passes`: the mixture α/(2π) + (1 − α)·cosθ/π (α ½) sampled by inversion,
   in two halves each from its texel's own scrambled (0,2)-sequence stratified across all the
-  texel's passes, β from the other half's mean (`kernels.texel_hemisphere_rays`,
-  `kernels.project_halves`);
+  texel's passes, β from the other half's mean (`hemisphere_kernels.texel_hemisphere_rays`,
+  `hemisphere_kernels.project_halves`);
 - `+ origins across passes`: the origins' first tries from the texel's own (0,2)-sequence too
   (`BakePoints.sample_origins`);
 - `+ first bounce across passes`: each path's first bounce (its light samples and its next

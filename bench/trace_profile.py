@@ -5,7 +5,7 @@
 
 The scenes and atlases of bench/time_to_error.py (512², 3 bounces). Each is baked once untimed,
 then traced once more on one thread (the bake points built before) with every Embree query (`RayScene.intersect`, `occluded`, `shadow`) and
-every compiled kernel (`kernels.get()`) timed; what is left of the trace is the numpy and Python
+every compiled kernel (`core.compiled`'s sets) timed; what is left of the trace is the numpy and Python
 between them. One thread, so the parts add up to the trace; raw Embree is measured on one
 thread too, in the same run: embreex's own `TriangleMesh` + `run()` on 1M incoherent rays (random
 origins in the scene's box, random directions; issue 23's "raw"), median of 3.
@@ -117,7 +117,8 @@ class Timers:
 def profile(surface, bake_scene, resolution: int, samples: int) -> dict:
     """One 1-thread trace of `samples` spp (the bake points built before, untimed) with its
     Embree queries and kernels timed."""
-    from hhd_lightmapper.core import bake, kernels, rays, tracer
+    from hhd_lightmapper.core import bake, bakepoint_kernels, rays, sampling, tracer
+    from hhd_lightmapper.core.tracer import hemisphere_kernels, light_kernels, path_kernels, statistics_kernels
     from time_to_error import EmbreexRays
 
     ray_scene = rays.RayScene(bake_scene.triangles)
@@ -128,9 +129,10 @@ def profile(surface, bake_scene, resolution: int, samples: int) -> dict:
     points = bake.points_of(bake.AtlasInput("atlas", resolution, resolution, surface, objects), ray_scene)
     tracer.bake(points, bake_scene, settings, ray_scene=ray_scene)  # untimed: warm
     timers = Timers()
-    compiled = kernels.get()
-    for name in sorted(vars(compiled)):
-        timers.wrap(compiled, name, name)
+    for module in (sampling, bakepoint_kernels, hemisphere_kernels, light_kernels, path_kernels, statistics_kernels):
+        compiled = module.get()
+        for name in sorted(vars(compiled)):
+            timers.wrap(compiled, name, name)
     for query in ("intersect", "occluded", "shadow"):
         timers.wrap(rays.RayScene, query, f"embree.{query}", rays_arg=1)  # a[0] is the RayScene
     try:

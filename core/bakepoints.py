@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import covers, kernels, parallel, raster, raster_kernels
+from . import bakepoint_kernels, covers, parallel, raster, raster_kernels
 from .covers import CoverProbe
 from .errors import BakeError
 from .rays import RayScene, ray_offset
@@ -207,7 +207,7 @@ class BakePoints:
     ) -> np.ndarray:
         """k ray origins `(len(idx)·k, 3)` per texel, uniform over the part of the texel's
         footprint (`footprint` texels wide, default FOOTPRINT) covered by its triangles: its
-        chosen one and `others` (`kernels.footprint_origins`; without `others`, the chosen one
+        chosen one and `others` (`bakepoint_kernels.footprint_origins`; without `others`, the chosen one
         alone, as Cycles bakes a texel): rejection sampling,
         JITTER_TRIES tries, then as many over the whole texel, then the bake point (the centroid
         of texel ∩ triangle); offset along the face normal. A texel's first tries cover the
@@ -222,7 +222,7 @@ class BakePoints:
             tris = np.concatenate([tri[:, None], self.others[idx]], axis=1)
             count = 1 + (tris[:, 1:] >= 0).sum(axis=1)
             tris = np.maximum(tris, 0)
-        return kernels.get().footprint_origins(
+        return bakepoint_kernels.get().footprint_origins(
             corner,
             self.mesh.texel_uv[tris],
             self.mesh.positions[tris],

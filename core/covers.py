@@ -27,7 +27,7 @@ import weakref
 
 import numpy as np
 
-from . import kernels as _kernels
+from . import bakepoint_kernels as _kernels
 from .rays import RayScene, bounds, frame_origin
 
 #: How far every triangle is pushed back for the probe, as a fraction of the ray offset: far

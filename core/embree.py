@@ -7,7 +7,7 @@ README has the figures) and be called per ray from compiled code. So:
 - the scene is built through ctypes (`Scene`), sharing a padded float32 vertex array and a
   uint32 index array with Embree; ctypes releases the GIL, so Embree's own threads build the
   BVH while Python does other work;
-- queries are numba kernels (`nogil`, cached like `core.kernels`) calling `rtcIntersect8` /
+- queries are numba kernels (`nogil`, cached like `core.compiled`'s sets) calling `rtcIntersect8` /
   `rtcOccluded8` once per 8 consecutive rays (a packet, `PACKET`) on an `RTCRayHit8` in a small
   aligned scratch buffer: callers put rays that start near each other next to each other (a
   texel's samples, a bake point's spokes), and Embree traverses the BVH once for the packet.
@@ -365,7 +365,7 @@ def _compile(lib) -> SimpleNamespace:
     module["_ray_scratch"] = jit(_ray_scratch)
     module["_packet_scratch"] = jit(_packet_scratch)
     # called per ray or packet: compiled without reference counting (they make no array), else
-    # each call counts the arrays it is passed up and down atomically (`core.kernels.get`)
+    # each call counts the arrays it is passed up and down atomically (`core.compiled`)
     for helper in (_set_ray, _store_hit, _set_valid, _shadow_packet):
         module[helper.__name__] = numba.njit(nogil=True, cache=True, _nrt=False)(helper)
     return SimpleNamespace(

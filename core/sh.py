@@ -43,7 +43,7 @@ IRRADZ_FROM_R10 = 2.0 / np.sqrt(3.0 * np.pi)
 def basis(x, y, z):
     """The 9 basis values at the unit direction (x, y, z), as a tuple. Plain arithmetic on its
     arguments (floats, or arrays of one shape, the first value then being a float), so numba
-    compiles it for the tracer's kernels (`kernels.sh_basis`) and `evaluate` uses it on arrays."""
+    compiles it for the tracer's kernels (`hemisphere_kernels.sh_basis`) and `evaluate` uses it on arrays."""
     return (
         Y00,
         -C1 * y,
@@ -60,7 +60,7 @@ def basis(x, y, z):
 def zonal_band1(s1m1, s10, s11, nx, ny, nz):
     """r_1^0 in the frame whose z is the unit n: v·n with v = (-r_1^1, -r_1^-1, r_1^0), from the
     world-space band-1 coefficients r_1^-1, r_1^0, r_1^1. Plain arithmetic (floats or arrays;
-    numba compiles it for `kernels.add_pass`)."""
+    numba compiles it for `statistics_kernels.add_pass`)."""
     return -s11 * nx - s1m1 * ny + s10 * nz
 
 

@@ -122,7 +122,7 @@ def test_a_far_lamp_falls_back_to_surface_points_and_stays_unbiased():
 
 @pytest.mark.parametrize("shape", ["RECTANGLE", "ELLIPSE"])
 def test_the_compiled_samples_are_the_numpy_spec(shape):
-    """`kernels.sample_area_light` against `Area.sample_numpy` on the same numbers, from points
+    """`light_kernels.sample_area_light` against `Area.sample_numpy` on the same numbers, from points
     far, near, beside, behind and on the lamp's plane. A point on the lamp can draw itself (a
     sample at distance ~1e-17, carrying nothing): its direction is rounding noise, which differs
     between CPUs, so directions are compared where the sample lies apart."""

@@ -1,12 +1,16 @@
 """The tracer's compiled kernels against numpy references written from their definitions."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 import quadrature as quad
-from hhd_lightmapper.core import kernels, sh
+from hhd_lightmapper.core import bakepoint_kernels, sampling, sh
+from hhd_lightmapper.core.tracer import hemisphere_kernels, path_kernels, statistics_kernels
 
-K = kernels.get()
+SETS = (sampling, hemisphere_kernels, path_kernels, statistics_kernels, bakepoint_kernels)
+K = SimpleNamespace(**{name: f for module in SETS for name, f in vars(module.get()).items()})
 
 
 @pytest.fixture
@@ -73,7 +77,7 @@ def test_hemisphere_ray_groups_are_stratified_uniform_and_cosine():
 
 
 def texel_rays(normals, k, passes, texels=None, seed=11, alpha=0.5):
-    """`kernels.texel_hemisphere_rays` over `passes` passes of k, concatenated per texel:
+    """`hemisphere_kernels.texel_hemisphere_rays` over `passes` passes of k, concatenated per texel:
     directions (n, passes·k, 3) in pass order, and the pdf (n, passes·k)."""
     texels = np.arange(len(normals)) if texels is None else texels
     out = [K.texel_hemisphere_rays(normals, k, texels, p * k, seed, alpha) for p in range(passes)]
@@ -139,7 +143,7 @@ def test_texel_hemisphere_rays_are_uniform_and_independent_between_halves_texels
 def test_mixture_cosine_solves_the_cdf_to_rounding_from_1e_300_to_1():
     """cosθ = z with α z + (1 − α) z² = u, to a relative 1e-14 of u even where u ≪ α² (the
     textbook root (−α + √(α² + 4(1 − α)u)) / (2(1 − α)) cancels to 0 there)."""
-    mixture_cos = kernels.mixture_cos  # the compiled helper (`get()` rebinds it)
+    mixture_cos = sampling.mixture_cos  # the compiled helper (`get()` rebinds it)
     for alpha in (0.0, 1e-9, 0.25, 0.5, 1.0):
         assert mixture_cos(0.0, alpha) == 0.0
         assert abs(mixture_cos(1.0, alpha) - 1.0) < 1e-15
@@ -150,7 +154,7 @@ def test_mixture_cosine_solves_the_cdf_to_rounding_from_1e_300_to_1():
 
 
 def project_halves_reference(dirs, radiance, pdf, normals, k):
-    """The control-variate estimator of kernels.project_halves, from its docstring."""
+    """The control-variate estimator of hemisphere_kernels.project_halves, from its docstring."""
     half = k // 2
     r = radiance.reshape(-1, k, 3)
     beta_a, beta_b = r[:, half:].mean(axis=1), r[:, :half].mean(axis=1)
@@ -209,7 +213,7 @@ def test_kernels_depend_on_the_seed_only():
 
 
 def project_reference(dirs, radiance, pdf, normals, k):
-    """The control-variate estimator of kernels.project_hemisphere, from its docstring."""
+    """The control-variate estimator of hemisphere_kernels.project_hemisphere, from its docstring."""
     q = k // 4
     r = radiance.reshape(-1, k, 3)
     beta_a, beta_b = r[:, 3 * q :].mean(axis=1), r[:, q : 2 * q].mean(axis=1)

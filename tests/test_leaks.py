@@ -127,16 +127,16 @@ def test_back_faces_black_ends_paths_at_the_back_of_a_surface():
 
 
 def test_hidden_samples_take_a_visible_sample_of_their_own_texel():
-    """`kernels.replace_hidden`: visible samples keep their origin, hidden ones take a visible
+    """`hemisphere_kernels.replace_hidden`: visible samples keep their origin, hidden ones take a visible
     sample of the same texel, drawn uniformly (each visible one about equally often), and a
     texel with none visible gets -1 (the tracer then uses its bake point)."""
-    from hhd_lightmapper.core import kernels
+    from hhd_lightmapper.core.tracer import hemisphere_kernels
 
     k = 8
     hidden = np.zeros((3000, k), bool)
     hidden[:, :5] = True  # 5 hidden, 3 visible in every texel
     hidden[-1] = True  # the last texel: all hidden
-    source = kernels.get().replace_hidden(hidden.reshape(-1), k, 7).reshape(-1, k)
+    source = hemisphere_kernels.get().replace_hidden(hidden.reshape(-1), k, 7).reshape(-1, k)
     own = np.arange(hidden.size).reshape(-1, k)
     assert (source[:, 5:][:-1] == own[:, 5:][:-1]).all()
     picked = source[:-1, :5] - own[:-1, :1]  # index within the texel

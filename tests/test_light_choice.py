@@ -8,9 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import kernels
 from hhd_lightmapper.core.scene import AreaLight, BakeScene, PointLight, SpotLight
-from hhd_lightmapper.core.tracer import lights
+from hhd_lightmapper.core.tracer import light_kernels, lights
 from hhd_lightmapper.core.tracer.paths import Paths, TraceScene
 from test_emitter_clusters import polygon_irradiance
 
@@ -88,7 +87,7 @@ def test_a_lamp_that_cannot_light_a_point_is_never_picked_there():
     choice = lights.Choice([lights.Area(lamp) for lamp in LAMPS])
     u = np.random.default_rng(0).random(50_000)
     x, n = np.tile(X, (len(u), 1)), np.tile(N, (len(u), 1))
-    picked, probability = kernels.get().choose_lights(x, n, u, choice.table, lights.CHOICE_SHARE)
+    picked, probability = light_kernels.get().choose_lights(x, n, u, choice.table, lights.CHOICE_SHARE)
     assert set(np.unique(picked)) == {0, 2}  # lamp 1 faces the ceiling, away from X
     # each pick's probability is how often it is picked
     for lamp in (0, 2):
@@ -99,7 +98,7 @@ def test_a_lamp_that_cannot_light_a_point_is_never_picked_there():
     # below the lamp that faces the ceiling, looking up at its back: no lamp, no ray
     below = np.tile([-0.5, 0.0, 1.4], (len(u), 1))
     up = np.tile([0.0, 0.0, 1.0], (len(u), 1))
-    picked, probability = kernels.get().choose_lights(below, up, u, choice.table[1:2], lights.CHOICE_SHARE)
+    picked, probability = light_kernels.get().choose_lights(below, up, u, choice.table[1:2], lights.CHOICE_SHARE)
     assert (picked == -1).all() and not probability.any()
 
 
@@ -138,7 +137,7 @@ def test_spot_and_point_lights_without_normals_are_chosen_by_distance():
     )
     choice = lights.Choice([lights.Point(near), lights.Spot(far)])
     u = np.linspace(0.0, 1.0, 10_001)[:-1]
-    picked, probability = kernels.get().choose_lights(
+    picked, probability = light_kernels.get().choose_lights(
         np.zeros((len(u), 3)), np.zeros((0, 3)), u, choice.table, lights.CHOICE_SHARE
     )
     share_far = (picked == 1).mean()
@@ -162,7 +161,7 @@ def test_a_spot_is_never_picked_outside_its_cone_and_stays_unbiased_inside():
     u = np.random.default_rng(1).random(20_000)
     assert scene.choice is not None
     outside = np.tile([2.0, 0.0, 0.0], (len(u), 1))  # 45° off the axis
-    picked, _ = kernels.get().choose_lights(
+    picked, _ = light_kernels.get().choose_lights(
         outside, np.tile(N, (len(u), 1)), u, scene.choice.table, lights.CHOICE_SHARE
     )
     assert (picked == 1).all()

@@ -10,10 +10,10 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bakepoints, kernels, rays, sh, tracer
+from hhd_lightmapper.core import bakepoints, rays, sh, tracer
 from hhd_lightmapper.core.environment import EnvironmentMap
 from hhd_lightmapper.core.scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
-from hhd_lightmapper.core.tracer import lights
+from hhd_lightmapper.core.tracer import hemisphere_kernels, lights
 from scenekit import meshes
 
 
@@ -191,9 +191,9 @@ def test_welded_corner_ids_join_equal_positions_only():
 
 
 def test_the_kernels_sh_basis_is_sh_basis_compiled():
-    kernels.get()
+    hemisphere_kernels.get()
     dirs = np.random.default_rng(2).normal(size=(100, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    compiled = np.array([kernels.sh_basis(*d) for d in dirs])
+    compiled = np.array([hemisphere_kernels.sh_basis(*d) for d in dirs])
     np.testing.assert_array_equal(compiled, sh.evaluate(dirs))
     np.testing.assert_array_equal(np.array([sh.basis(*d) for d in dirs]), sh.evaluate(dirs))

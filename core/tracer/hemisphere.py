@@ -2,7 +2,7 @@
 
 Estimator. For each texel, directions ω over the hemisphere of n_v are drawn from the mixture
 p(ω) = α/(2π) + (1 − α)·cosθ/π with α = UNIFORM_SHARE = ½, by inverting its distribution in
-cosθ (`kernels.texel_hemisphere_rays`). Every SH coefficient then has finite variance (pure
+cosθ (`hemisphere_kernels.texel_hemisphere_rays`). Every SH coefficient then has finite variance (pure
 cosine sampling gives r_0 infinite variance from the 1/cosθ weight at the horizon) while I_z
 keeps most of the cosine-sampling benefit (bench/estimator.py: α ¼ lowers I_z's per-sample
 variance by 5–13% and raises bands 0 and 1's by ~20%). The samples come in two independent
@@ -10,11 +10,11 @@ halves, each from the texel's own scrambled (0,2)-sequence, stratified across al
 texel's passes (so 16 passes of 16 samples cover the hemisphere as one 256-sample net would);
 so are the samples' origins and their paths' first bounce (its light samples and its next
 direction: `paths.TexelSamples`), each from a sequence of its own whose order is shuffled
-(`kernels.sobol_pair`), so no two pair the same strata pass after pass. bench/estimator.py
+(`sampling.sobol_pair`), so no two pair the same strata pass after pass. bench/estimator.py
 measures what each step saves.
 The radiance L arriving along ω is `paths.Paths.radiance` from the sample's origin, and
 Σ (L(ω) − β) Y(ω) / (K p(ω)) + β·∫Y estimates the radiance SH over the hemisphere, with a
-constant β per half of the samples taken from the other half (`kernels.project_halves`):
+constant β per half of the samples taken from the other half (`hemisphere_kernels.project_halves`):
 unbiased, exact for constant radiance, every sample used by every coefficient.
 
 Every sample's origin is jittered over the texel's footprint (`BakePoints.sample_origins`, the
@@ -27,7 +27,7 @@ texel a coplanar face covers receive nothing (core.covers).
 Lights are added by next-event estimation at the bake point too: one shadow ray per light per
 sample (its random numbers from the texel's own stratified sequence across all its passes,
 `lights.TexelStream`; emitters chosen by what they bring to the texel, `lights.EmissiveTriangles`),
-projected to SH along the light's direction (`kernels.accumulate_grouped`; a delta
+projected to SH along the light's direction (`hemisphere_kernels.accumulate_grouped`; a delta
 light has an exact direction: an unshadowed sun adds exactly s·Y(l), no noise), MIS-weighted
 against the mixture pdf for the lights rays can reach. Light from below n_v's horizon is not
 part of the hemisphere's SH.
@@ -43,13 +43,13 @@ from .. import bakepoints as _bakepoints
 from .. import covers as _covers
 from ..bakepoints import BakePoints
 from ..covers import CoverProbe
-from . import lights, shipping
+from . import hemisphere_kernels, lights, shipping
 from .paths import Paths, TexelSamples, TraceScene, seed
 from .scheduler import UnitResult, WorkUnit
 
 #: Each texel's hemisphere directions from its own scrambled (0,2)-sequences, stratified
-#: across all its passes (`kernels.texel_hemisphere_rays`); False: the estimator until
-#: 2026-12-02, stratified within each pass only (`kernels.hemisphere_rays`, α ½;
+#: across all its passes (`hemisphere_kernels.texel_hemisphere_rays`); False: the estimator until
+#: 2026-12-02, stratified within each pass only (`hemisphere_kernels.hemisphere_rays`, α ½;
 #: bench/estimator.py measures what this saves).
 STRATIFIED_DIRECTIONS = True
 #: Each texel's first tries of its sample origins from its own scrambled (0,2)-sequence,
@@ -108,11 +108,11 @@ class TexelEstimator(shipping.Shipped):
         idx = unit.texels
         normals = self.points.normal[idx]
         if STRATIFIED_DIRECTIONS:  # (n·k, 3), (n·k,)
-            dirs, pdf = paths.kernels.texel_hemisphere_rays(
+            dirs, pdf = hemisphere_kernels.get().texel_hemisphere_rays(
                 normals, k, idx, unit.pass_index * k, unit.seed, UNIFORM_SHARE
             )
         else:
-            dirs, pdf = paths.kernels.hemisphere_rays(normals, k, seed(rng))
+            dirs, pdf = hemisphere_kernels.get().hemisphere_rays(normals, k, seed(rng))
         texel = np.repeat(np.arange(len(idx)), k)
         first = unit.pass_index * k if STRATIFIED_ORIGINS else None
         origins = self.points.sample_origins(rng, idx, k, self.footprint, first, unit.seed)
@@ -126,7 +126,11 @@ class TexelEstimator(shipping.Shipped):
         if STRATIFIED_FIRST_BOUNCE:
             texels = TexelSamples(np.ascontiguousarray(idx, np.int64), k, unit.pass_index * k, unit.seed)
         radiance = paths.radiance(rng, origins, dirs, pdf, uncovered, normal, texels)  # (n·k, C)
-        project = paths.kernels.project_halves if STRATIFIED_DIRECTIONS else paths.kernels.project_hemisphere
+        project = (
+            hemisphere_kernels.get().project_halves
+            if STRATIFIED_DIRECTIONS
+            else hemisphere_kernels.get().project_hemisphere
+        )
         estimate = project(dirs, radiance, pdf, normals, k)
         stream = lights.TexelStream(idx, k, unit.pass_index * k, unit.seed) if STRATIFIED_LIGHTS else None
         estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered, stream)
@@ -136,7 +140,7 @@ class TexelEstimator(shipping.Shipped):
         """`origins` (n·k, 3) with those hidden from their texel's bake point (a wall or a box
         side between them, in the texels `crossed` (n,) bool: `BakePoints.crossed`) or under a
         coplanar face (not `uncovered`)
-        replaced by visible origins of the same texel (`kernels.replace_hidden`), or by the bake
+        replaced by visible origins of the same texel (`hemisphere_kernels.replace_hidden`), or by the bake
         point when none is: the texel averages the part of its footprint one can see on the
         bake point's side."""
         hidden = np.zeros(len(origins), bool) if uncovered is None else ~uncovered
@@ -150,7 +154,7 @@ class TexelEstimator(shipping.Shipped):
             hidden[rows] |= self.scene.rays.occluded(anchor, direction, length) & (length > 0.0)
         if not hidden.any():
             return origins
-        source = paths.kernels.replace_hidden(hidden, k, seed(rng))
+        source = hemisphere_kernels.get().replace_hidden(hidden, k, seed(rng))
         out = origins[np.maximum(source, 0)]
         none = np.flatnonzero(source < 0)
         out[none] = self.points.origins(idx[none // k])
@@ -189,7 +193,7 @@ class TexelEstimator(shipping.Shipped):
             weight, traced = paths.shadow(origins, dirs, dist, normal, 1.0 / k, cosine=False, allowed=allowed)
             if not traced:
                 continue
-            paths.kernels.accumulate_grouped(dirs, value, weight, k, out[:, :, c : c + 3])
+            hemisphere_kernels.get().accumulate_grouped(dirs, value, weight, k, out[:, :, c : c + 3])
         return out
 
 

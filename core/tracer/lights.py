@@ -32,7 +32,7 @@ luminance; emission is two-sided, so both sides count alike), then a uniform poi
 triangle or, where the triangle subtends a solid angle within SOLID_ANGLE_RANGE, a uniform
 direction in that solid angle (Arvo 1995: no 1/d² spikes beside a lamp): a lamp across the room
 no longer takes as many samples as the one beside the texel. Sampling and densities are compiled
-(`kernels.sample_emitters`, `kernels.emitter_pdf`). The density therefore depends on x: `pdf`
+(`light_kernels.sample_emitters`, `light_kernels.emitter_pdf`). The density therefore depends on x: `pdf`
 and `evaluate` take the rays' origins. Array conventions: x (R, 3) shading points, directions (R, 3)
 unit, world space; densities per steradian.
 """
@@ -45,12 +45,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import kernels as _kernels
+from .. import sampling
 from .. import sh as _sh
 from ..colour import LUMINANCE
 from ..environment import EnvironmentMap
 from ..errors import BakeError
 from ..scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
+from . import light_kernels as _kernels
 
 #: A light sample at R points: directions (R, 3), value (R, 3) (radiance × solid angle, or
 #: radiance × MIS weight / pdf), distances (R,) to the sampled point (inf: a direction).
@@ -121,7 +122,7 @@ class Light(ABC):
         return np.zeros(0, np.int64)
 
     def choice_row(self) -> list[float]:
-        """A `chosen` light's row of `Choice.table` (`kernels.choose_lights`)."""
+        """A `chosen` light's row of `Choice.table` (`light_kernels.choose_lights`)."""
         raise NotImplementedError(f"{type(self).__name__} is not one of the lights a point chooses from")
 
     @property
@@ -217,7 +218,7 @@ class Spot(Point):
 class Area(Light):
     """A one-sided Lambertian rectangle, square, disk or ellipse (core.scene.AreaLight) of
     radiance P / (π A). Sampled by a uniform direction in the solid angle of its rectangle
-    (`sample_spherical_rectangles`; compiled: `kernels.sample_area_light`, whose numpy spec is
+    (`sample_spherical_rectangles`; compiled: `light_kernels.sample_area_light`, whose numpy spec is
     `sample_numpy`): no 1/d² spikes beside the lamp. A disk or ellipse is counted
     where that direction meets it (its bounding rectangle's solid angle × inside: unbiased, and
     bounded by 2π × the radiance); where the rectangle subtends less than SOLID_ANGLE_RANGE's
@@ -261,7 +262,7 @@ class Area(Light):
         return dirs, radiance[None, :] * solid_angle[:, None], dist
 
     def sample_numpy(self, rng, x, strata=1) -> Sample:
-        """`sample` in numpy: the spec of the compiled `kernels.sample_area_light`, the tests
+        """`sample` in numpy: the spec of the compiled `light_kernels.sample_area_light`, the tests
         compare them."""
         u1, u2 = uniforms(rng, len(x), strata, 2), uniforms(rng, len(x), strata, 3)
         corner = self.position - self.axis_u - self.axis_v
@@ -403,7 +404,7 @@ class EmissiveTriangles(Light):
         # (T + 1,): does triangle t emit; the last entry, False, is what prim −1 (a miss) reads
         self.emits = np.zeros(len(self.triangles) + 1, bool)
         self.emits[self.index] = True
-        # each emitter's bounding sphere (T, 4): centroid, farthest corner (kernels._surely_small)
+        # each emitter's bounding sphere (T, 4): centroid, farthest corner (light_kernels._surely_small)
         self.bound = np.zeros((len(self.triangles), 4))
         corners = self.triangles[self.index]
         centroid = corners.mean(axis=1)
@@ -478,7 +479,7 @@ class EmissiveTriangles(Light):
         POWER_SHARE ∝ power alone (power alone where every child is below the horizon); a leaf
         of one triangle seen from within NEAR_RADII of its radius weighs its luminance × the
         triangle's solid angle instead of power over distance² (where that is finite). numpy:
-        the spec of the compiled choice (`kernels.sample_emitters`, `kernels.emitter_pdf`), the
+        the spec of the compiled choice (`light_kernels.sample_emitters`, `light_kernels.emitter_pdf`), the
         tests compare them."""
         phi = self.cluster_power
         if len(phi) == 1:
@@ -533,7 +534,7 @@ class EmissiveTriangles(Light):
     def _sample_points(self, rng, x, strata=1, normals=None, u=None):
         """One point per shading point x (R, 3) (normals (R, 3) or None): directions (R, 3),
         distances (R,), emitted radiance (R, 3) and the pdf per steradian (R,) (0: no sample, a
-        grazing or coincident point). Compiled (`kernels.sample_emitters`); its random numbers
+        grazing or coincident point). Compiled (`light_kernels.sample_emitters`); its random numbers
         u (4, R): cluster, triangle, then two for the point or direction, from `uniforms`
         (strata) unless given."""
         r = len(x)
@@ -546,7 +547,7 @@ class EmissiveTriangles(Light):
         return dirs, dist, self.emission[pick], pdf
 
     def _emitters(self) -> tuple:
-        """The cluster arrays the kernels take (`kernels.sample_emitters`)."""
+        """The cluster arrays the kernels take (`light_kernels.sample_emitters`)."""
         radius2 = self.radius2
         rows = [self.centre.T, radius2, np.sqrt(radius2), self.cluster_power, self.lone, self.luminance]
         rows += [NEAR_RADII**2 * radius2, DESCEND_RADII**2 * radius2]
@@ -557,7 +558,7 @@ class EmissiveTriangles(Light):
     def pdf(self, d, t=None, prim=None, origins=None, normals=None) -> np.ndarray:
         """Density per steradian of sampling, from `origins` (R, 3) with `normals` (R, 3) or
         None, the point at distance t (float64) along d on triangle prim (an emitter or not: 0
-        for non-emitters). Compiled (`kernels.emitter_pdf`)."""
+        for non-emitters). Compiled (`light_kernels.emitter_pdf`)."""
         if origins is None:
             raise ValueError("the emitters' density depends on where the ray starts: pass origins")
         if not len(self.index):
@@ -609,7 +610,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def spherical_triangles(x: np.ndarray, tri: np.ndarray):
-    """(numpy: the spec of the compiled `kernels._spherical`, the tests compare them.)
+    """(numpy: the spec of the compiled `light_kernels._spherical`, the tests compare them.)
     The spherical triangles triangles tri (R, 3, 3) make seen from points x (R, 3): unit
     directions a, b, c (R, 3) to their corners, the cosine and sine of the angle at a (R,) and
     the solid angle (R,) in steradians (0 seen edge-on, NaN from a corner). With D = |a·(b×c)|:
@@ -627,7 +628,7 @@ def spherical_triangles(x: np.ndarray, tri: np.ndarray):
 def sample_spherical_triangles(x: np.ndarray, tri: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     """Unit directions (R, 3) from x (R, 3) uniform in the solid angle of triangles tri (R, 3, 3)
     for uniform numbers u1, u2 (R,) (Arvo 1995, in PBRT-v4's SampleSphericalTriangle form).
-    numpy: the spec of the compiled `kernels._spherical_direction`, the tests compare them."""
+    numpy: the spec of the compiled `light_kernels._spherical_direction`, the tests compare them."""
     a, b, c, cos_a, sin_a, area = spherical_triangles(x, tri)
     s, q = -np.sin(u1 * area), -np.cos(u1 * area)  # sine and cosine of π + the sub-triangle's area
     sin_phi = s * cos_a - q * sin_a
@@ -804,7 +805,7 @@ class Choice:
     probability ∝ its largest radiant intensity × a bound on the cosine at the light (0 behind
     a one-sided area light's plane) × the horizon bound at the point, over max(d², r²), mixed
     with CHOICE_SHARE of intensity alone among the lights that can light the point
-    (`kernels.choose_lights`). Its sample is divided by that probability: unbiased. A light that
+    (`light_kernels.choose_lights`). Its sample is divided by that probability: unbiased. A light that
     cannot light a point (behind a one-sided lamp, outside a spot's cone, or wholly below the
     point's horizon) is never picked there, and a point no light can light samples none (no
     shadow ray)."""
@@ -844,7 +845,7 @@ class TexelStream:
     """Where a pass's light samples come from when they are grouped by texel: the texels (n,)
     (bake point ids), k samples each, the pass's first sample index (pass × k) and the bake's
     seed. `uniforms` then takes dimension `dim` of each texel's own sequence
-    (`kernels.texel_sequence`), stratified across every pass of the texel, not only this one."""
+    (`sampling.texel_sequence`), stratified across every pass of the texel, not only this one."""
 
     texels: np.ndarray
     k: int
@@ -853,7 +854,7 @@ class TexelStream:
 
     def uniforms(self, dim: int) -> np.ndarray:
         texels = np.ascontiguousarray(self.texels, np.int64)
-        return _kernels.get().texel_sequence(texels, self.k, self.first, dim, self.seed)
+        return sampling.get().texel_sequence(texels, self.k, self.first, dim, self.seed)
 
 
 @dataclass
@@ -862,7 +863,7 @@ class RowStream:
     samples (row t·k + j: sample j of texel `texels[t]`, global ids (n,)), k samples per texel,
     the pass's first sample index (pass × k), the bake's seed and the first stream number.
     `uniforms(dim)` takes each row's number from its texel's own (0,2)-sequence for the pair of
-    dimensions dim // 2 (`kernels.row_sequence`), stratified across every pass of the texel:
+    dimensions dim // 2 (`sampling.row_sequence`), stratified across every pass of the texel:
     the light sample at a path's first bounce, say, is stratified like the texel's own."""
 
     rows: np.ndarray
@@ -878,7 +879,7 @@ class RowStream:
         if self._pair is None or self._pair[0] != stream:  # dims 2j and 2j + 1 share one pair
             rows = np.ascontiguousarray(self.rows, np.int64)
             texels = np.ascontiguousarray(self.texels, np.int64)
-            self._pair = (stream, _kernels.get().row_sequence(rows, texels, self.k, self.first, self.seed, stream))
+            self._pair = (stream, sampling.get().row_sequence(rows, texels, self.k, self.first, self.seed, stream))
         return self._pair[1][dim % 2]
 
 

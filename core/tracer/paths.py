@@ -11,7 +11,7 @@ vertex: `lights.Choice`), then continues diffusely (two-sided,
 cosine-distributed; with BACK_FACES_BLACK a path that reaches the back of a triangle ends
 there, carrying no more light) with Russian roulette from RR_START bounces on (survival
 √(throughput / ½), none ended above ½: RR_SURVIVAL_POWER, RR_REFERENCE), at most `bounces`
-reflections. The per-sample work between two Embree queries runs in `kernels.advance_paths`.
+reflections. The per-sample work between two Embree queries runs in `path_kernels.advance_paths`.
 
 Light sets (`core.light_sets`): with `TraceScene.sets` the radiance has 3 columns per set (RGB of
 set 0, RGB of set 1, ...) and every contribution (next-event estimation, emitters and the world
@@ -29,13 +29,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import kernels as _kernels
 from .. import light_sets as _light_sets
+from .. import sampling
 from ..errors import BakeError
 from ..rays import RayScene, ray_offset
 from ..scene import BakeScene
 from . import lights as _lights
-from . import shipping
+from . import path_kernels, shipping
 
 RR_START = 2  # bounces before Russian roulette may end a path
 #: A path survives the roulette with probability min((max(throughput) / RR_REFERENCE)^
@@ -55,7 +55,7 @@ RR_MAX_SURVIVAL = 1.0
 #: normals face outwards: README, "Leaks"); the bake points keep samples out of solids instead
 #: (`bakepoints.settle`).
 BACK_FACES_BLACK = False
-_BLACK = np.zeros((1, 3))  # the sky of a scene without a world (kernels.advance_paths)
+_BLACK = np.zeros((1, 3))  # the sky of a scene without a world (path_kernels.advance_paths)
 _NO_ROWS = np.zeros((0, 3))  # no per-row albedo: the kernel takes the triangles' own
 _NO_NUMBERS = np.zeros((2, 0))  # no given numbers: advance_paths draws its own
 #: `Paths.light_samples`' entries: (sample, the rows that sampled it or None for all, column)
@@ -128,7 +128,7 @@ class Paths:
         self.scene = scene
         self.traced = 0
         self._rays = scene.rays
-        self.kernels = _kernels.get()
+        self.kernels = path_kernels.get()
 
     def count(self, n: int) -> None:
         """Count n rays traced elsewhere for this unit (e.g. cover probes)."""
@@ -330,7 +330,7 @@ class TexelSamples:
     """Whose samples a batch of rays is: texels (n,) (global ids), k rays each (row t·k + j is
     sample j of texel t), the pass's first sample index (pass × k) and the bake's seed. The
     paths' first bounce takes its numbers from the texels' own (0,2)-sequences
-    (`kernels.row_sequence`; streams FIRST_BOUNCE_STREAM on, apart from the texel's other
+    (`sampling.row_sequence`; streams FIRST_BOUNCE_STREAM on, apart from the texel's other
     sequences), so a texel's first bounces are stratified across its passes as its own
     directions are."""
 
@@ -341,7 +341,7 @@ class TexelSamples:
 
     def directions(self, rows: np.ndarray) -> np.ndarray:
         """(2, R): the numbers of the new directions leaving the first hits of rows (R,)."""
-        return _kernels.get().row_sequence(
+        return sampling.get().row_sequence(
             np.ascontiguousarray(rows, np.int64), self.texels, self.k, self.first, self.seed, FIRST_BOUNCE_STREAM
         )
 
@@ -350,7 +350,7 @@ class TexelSamples:
         return _lights.RowStream(rows, self.texels, self.k, self.first, self.seed, FIRST_BOUNCE_STREAM + 2)
 
 
-#: The first `kernels.row_sequence` stream of a path's first bounce (its direction; its light
+#: The first `sampling.row_sequence` stream of a path's first bounce (its direction; its light
 #: samples take the next ones), apart from `kernels`' direction and origin streams.
 FIRST_BOUNCE_STREAM = 128
 

@@ -278,7 +278,7 @@ def run_streamed(
     """`run` for settings that `streams`, into `reduced` (`statistics.Reduced`, of every texel)
     instead of whole-atlas running statistics: every pass of chunk 0, then of chunk 1, and so on
     (the same units, added in another order), each chunk reduced as soon as its last pass is in.
-    A texel's statistics depend only on its own estimates in pass order (`kernels.add_pass`), so
+    A texel's statistics depend only on its own estimates in pass order (`statistics_kernels.add_pass`), so
     the numbers are `run`'s, while full statistics exist for one chunk at a time."""
     if not streams(settings):
         raise ValueError("a noise target or a time budget needs every pass over the atlas in turn: use `run`")

@@ -14,7 +14,7 @@ class BakeSettings:
     process may use (`parallel.resolve_threads`; the result does not depend on it; with an
     executor of the caller's, the workers it has); chunk_texels: texels per work unit (bounds
     memory: ~1 KB per texel-sample). pass_samples is a multiple of 4 (two independent halves of
-    uniform + cosine samples, see `kernels.hemisphere_rays`).
+    uniform + cosine samples, see `hemisphere_kernels.hemisphere_rays`).
 
     noise_target: 0 (off) or the relative standard error of I_z (luminance) at which a texel
     stops: after at least MIN_ADAPTIVE_PASSES passes a texel whose pass-to-pass standard error

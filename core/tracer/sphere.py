@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import shipping
+from . import hemisphere_kernels, shipping
 from .paths import Paths, TraceScene, take_rows
 from .scheduler import UnitResult, WorkUnit
 
@@ -74,7 +74,7 @@ class ProbeEstimator(shipping.Shipped):
             weight = np.zeros(len(origins))
             rows = slice(None) if chose is None else np.flatnonzero(chose)
             weight[rows] = paths.unoccluded(origins[rows], dirs[rows], dist[rows]) * (1.0 / k)
-            paths.kernels.accumulate_grouped(dirs, value, weight, k, out[:, :, c : c + 3])
+            hemisphere_kernels.get().accumulate_grouped(dirs, value, weight, k, out[:, :, c : c + 3])
 
 
 def project_sphere(dirs: np.ndarray, radiance: np.ndarray, n: int, k: int) -> np.ndarray:

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import kernels as _kernels
 from ..colour import LUMINANCE
 from ..stages import releasable_zeros
+from . import statistics_kernels as _kernels
 from .settings import NOISE_FLOOR
 
 
@@ -29,7 +29,7 @@ class Statistics:
 
     def add(self, idx: np.ndarray, estimate: np.ndarray) -> None:
         """Add one pass's estimate (len(idx), 9, C) for the texels idx (unique: a work unit's);
-        compiled (`kernels.add_pass`): runs on the scheduling thread beside the tracing workers,
+        compiled (`statistics_kernels.add_pass`): runs on the scheduling thread beside the tracing workers,
         where numpy was several times slower (the README has the figures)."""
         self.texel_passes += len(idx)
         _kernels.get().add_pass(
