@@ -9,7 +9,7 @@ receivers and atlas as bench/time_to_error.py sets them up. Cycles' reference: t
 `--reference` samples with their own seeds (its noise, the floor, is removed from every error in
 quadrature); Cycles' rows and ours at `--samples`, BOUNCES bounces (`--direct`: 0, light straight
 from the emitters only). Our rows turn the parts of the emitter sampling on one after another
-(`lights.EmissiveTriangles`, `hemisphere.STRATIFIED_LIGHTS`):
+(`lights.emitters.EmissiveTriangles`, `hemisphere.STRATIFIED_LIGHTS`):
 
 - `power, area`: emitters picked by power alone, a uniform point on the triangle, independent
   random numbers per sample (the sampling before 2026-12-02);
@@ -18,10 +18,10 @@ from the emitters only). Our rows turn the parts of the emitter sampling on one 
 - `+ solid angle`: triangles that subtend more than SOLID_ANGLE_RANGE[0] sampled by direction,
   and so are Blender's area lights (spherical rectangles; before it, a uniform point on the lamp);
 - `+ near solid angle`: a cluster of one triangle picked by the solid angle it subtends from
-  points inside its bounding sphere (`lights.NEAR_RADII`), not by power over distance²;
+  points inside its bounding sphere (`lights.emitters.NEAR_RADII`), not by power over distance²;
 - `+ one lamp per point`: a shading point samples one of the point, spot and area lights,
-  picked by intensity, cosine bounds and distance (`lights.Choice`), not every one of them;
-- `+ light tree`: clusters of more than one emitting triangle split again (`lights.LIGHT_TREE`),
+  picked by intensity, cosine bounds and distance (`lights.choice.Choice`), not every one of them;
+- `+ light tree`: clusters of more than one emitting triangle split again (`lights.emitters.LIGHT_TREE`),
   descended level by level down to single triangles, not a triangle by power within a cluster.
 
 `area-lamp-room` (scenekit's `area_lamp_room`, on request): lit by Blender area lights, two of
@@ -103,12 +103,12 @@ def variant(name: str) -> None:
     from hhd_lightmapper.core.tracer import hemisphere, lights
 
     level = VARIANTS.index(name)
-    lights.CLUSTERS = 32 if level >= 1 else 1
+    lights.emitters.CLUSTERS = 32 if level >= 1 else 1
     hemisphere.STRATIFIED_LIGHTS = level >= 2
-    lights.SOLID_ANGLE_RANGE = (3e-4, 6.22) if level >= 3 else (math.inf, math.inf)
-    lights.NEAR_RADII = 1.0 if level >= 4 else 0.0
-    lights.CHOOSE = level >= 5
-    lights.LIGHT_TREE = level >= 6
+    lights.emitters.SOLID_ANGLE_RANGE = (3e-4, 6.22) if level >= 3 else (math.inf, math.inf)
+    lights.emitters.NEAR_RADII = 1.0 if level >= 4 else 0.0
+    lights.choice.CHOOSE = level >= 5
+    lights.emitters.LIGHT_TREE = level >= 6
 
 
 def measure(tte, name: str, args) -> dict:

@@ -21,8 +21,8 @@ CENTRE = np.array([0.1, -0.2, 1.0])
 POWER = np.array([60.0, 40.0, 20.0])
 
 
-def lamp(shape: str) -> lights.Area:
-    return lights.Area(AreaLight(CENTRE, AXIS_U, AXIS_V, NORMAL, POWER, shape))
+def lamp(shape: str) -> lights.lamps.Area:
+    return lights.lamps.Area(AreaLight(CENTRE, AXIS_U, AXIS_V, NORMAL, POWER, shape))
 
 
 def outline(shape: str, sides: int = 2048) -> np.ndarray:
@@ -55,7 +55,7 @@ def test_the_spherical_rectangles_solid_angle_is_the_closed_form_and_its_points_
     x = np.tile([0.2, 0.1, -h], (1000, 1))
     rng = np.random.default_rng(1)
     corner, ex, ey = np.array([-1.0, -0.5, 0.0]), np.array([2.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
-    p, solid_angle = lights.sample_spherical_rectangles(x, corner, ex, ey, rng.random(1000), rng.random(1000))
+    p, solid_angle = lights.lamps.sample_spherical_rectangles(x, corner, ex, ey, rng.random(1000), rng.random(1000))
 
     def quadrant(a, b):
         return np.arcsin(a * b / np.sqrt((a * a + h * h) * (b * b + h * h)))

@@ -50,17 +50,17 @@ def polygon_irradiance(x, n, polygon, radiance) -> np.ndarray:
 def test_clusters_split_separate_groups_and_stay_within_the_limit():
     rng = np.random.default_rng(1)
     groups = [rng.normal(c, 0.01, (40, 3)) for c in ((0, 0, 0), (5, 0, 0), (0, 5, 0), (0, 0, 5))]
-    ids = lights.cluster_splits(np.concatenate(groups), 4)
+    ids = lights.tree.cluster_splits(np.concatenate(groups), 4)
     assert sorted(np.unique(ids)) == [0, 1, 2, 3]
     for g in range(4):  # one cluster per group
         assert len(np.unique(ids[40 * g : 40 * (g + 1)])) == 1
-    assert lights.cluster_splits(np.concatenate(groups), 32).max() < 32
-    assert (lights.cluster_splits(np.zeros((7, 3)), 32) == 0).all()  # coincident points: one cluster
+    assert lights.tree.cluster_splits(np.concatenate(groups), 32).max() < 32
+    assert (lights.tree.cluster_splits(np.zeros((7, 3)), 32) == 0).all()  # coincident points: one cluster
 
 
 def lamp_grid(n=8, spacing=0.5, size=0.2, height=2.0):
     """n × n lamps (`lamps`) in a grid `spacing` apart around the origin: 2n² emitting
-    triangles, more than `lights.CLUSTERS`, so the light tree splits its top clusters."""
+    triangles, more than `lights.emitters.CLUSTERS`, so the light tree splits its top clusters."""
     offsets = (np.arange(n) - (n - 1) / 2) * spacing
     return lamps([(x, y, height) for x in offsets for y in offsets], size=size)
 
@@ -76,7 +76,7 @@ SCENES = {
 @pytest.mark.parametrize("scene", SCENES)
 def test_picked_triangles_follow_the_reported_density(normal, scene):
     tris, emission = SCENES[scene]()
-    light = lights.EmissiveTriangles(tris, emission)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
     assert len(light.cluster_power) > 1
     x = np.tile([[0.1, 0.0, 0.0]], (400_000, 1))
     normals = None if normal is None else np.tile(normal, (len(x), 1))
@@ -94,8 +94,8 @@ def test_picked_triangles_follow_the_reported_density(normal, scene):
     # and the density is that probability spread uniformly over the triangle, per steradian
     cos = np.abs(np.einsum("ri,ri->r", dirs, light.normal[pick]))
     chosen = row[light.cluster_of[pick]] * light.within[pick]
-    solid_angle = lights.spherical_triangles(x, tris[pick])[-1]
-    spherical = lights.by_solid_angle(solid_angle)
+    solid_angle = lights.emitters.spherical_triangles(x, tris[pick])[-1]
+    spherical = lights.emitters.by_solid_angle(solid_angle)
     assert spherical.any() and not spherical.all()  # both ways of sampling a triangle are exercised
     want = np.where(spherical, chosen / solid_angle, chosen / light.area[pick] * dist**2 / cos)
     np.testing.assert_allclose(p, want, rtol=1e-9)
@@ -104,7 +104,7 @@ def test_picked_triangles_follow_the_reported_density(normal, scene):
 def test_next_event_estimate_is_unbiased_against_lamberts_formula():
     centres = [(0, 0, 2), (1.5, 0.5, 2), (-4, -3, 2), (0.2, 0.1, 2.5)]
     tris, emission = lamps(centres, size=0.3)
-    light = lights.EmissiveTriangles(tris, emission)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
     n = np.array([0.0, 0.0, 1.0])
     for x in (np.zeros(3), np.array([1.4, 0.4, 0.0]), np.array([-3.0, -2.0, 0.0])):
         exact = sum(polygon_irradiance(x, n, quad(c, 0.3).reshape(-1, 3)[[0, 1, 2, 5]], emission[1]) for c in centres)
@@ -117,20 +117,20 @@ def test_next_event_estimate_is_unbiased_against_lamberts_formula():
 
 def test_a_near_lamp_takes_more_samples_than_an_equal_far_one_and_the_far_one_keeps_some():
     tris, emission = lamps([(0, 0, 2), (8, 0, 2)])
-    light = lights.EmissiveTriangles(tris, emission)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
     p = light.cluster_probability(np.array([[0.0, 0.0, 0.0], [8.0, 0.0, 0.0]]))
     near, far = np.unique(light.cluster_of[1:3]), np.unique(light.cluster_of[3:5])  # each lamp's clusters
     assert not set(near) & set(far)
     assert p[0, near].sum() > 0.85 and p[1, far].sum() > 0.85
-    assert p[0, far].sum() >= 0.5 * lights.POWER_SHARE  # never starved: the distance knows nothing of walls
+    assert p[0, far].sum() >= 0.5 * lights.emitters.POWER_SHARE  # never starved: the distance knows nothing of walls
 
 
 def test_the_light_tree_splits_the_top_clusters_down_to_single_triangles(monkeypatch):
     tris, emission = lamp_grid(12)  # 288 emitting triangles
-    light = lights.EmissiveTriangles(tris, emission)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
     n = len(light.parent)
     first, count, parent = light.child_first, light.child_count, light.parent
-    assert count[n] == len(np.unique(lights.cluster_splits(tris[1:].mean(axis=1), lights.CLUSTERS)))
+    assert count[n] == len(np.unique(lights.tree.cluster_splits(tris[1:].mean(axis=1), lights.emitters.CLUSTERS)))
     for c in range(n + 1):  # each node's children: a consecutive run naming it their parent
         np.testing.assert_array_equal(parent[first[c] : first[c] + count[c]], c)
         assert count[c] != 1
@@ -147,13 +147,13 @@ def test_the_light_tree_splits_the_top_clusters_down_to_single_triangles(monkeyp
             reach = np.linalg.norm(tris[t] - light.centre[c], axis=1).max()
             assert reach <= np.sqrt(light.radius2[c]) * (1 + 1e-9)
             c = parent[c]
-    monkeypatch.setattr(lights, "MAX_LEAVES", 50)
-    capped = lights.EmissiveTriangles(tris, emission)
+    monkeypatch.setattr(lights.emitters, "MAX_LEAVES", 50)
+    capped = lights.emitters.EmissiveTriangles(tris, emission)
     assert 32 < (capped.child_count[:-1] == 0).sum() <= 50
     np.testing.assert_allclose(np.bincount(capped.cluster_of[1:], capped.within[1:]), capped.child_count[:-1] == 0)
-    monkeypatch.setattr(lights, "LIGHT_TREE", False)
-    flat = lights.EmissiveTriangles(tris, emission)
-    assert (flat.child_count[:-1] == 0).all() and flat.child_count[-1] == len(flat.parent) <= lights.CLUSTERS
+    monkeypatch.setattr(lights.emitters, "LIGHT_TREE", False)
+    flat = lights.emitters.EmissiveTriangles(tris, emission)
+    assert (flat.child_count[:-1] == 0).all() and flat.child_count[-1] == len(flat.parent) <= lights.emitters.CLUSTERS
 
 
 def test_among_many_lamps_the_tree_gives_the_one_overhead_several_times_the_samples(monkeypatch):
@@ -176,8 +176,8 @@ def test_among_many_lamps_the_tree_gives_the_one_overhead_several_times_the_samp
     k = 100_000
     share, variance = {}, {}
     for tree in (False, True):
-        monkeypatch.setattr(lights, "LIGHT_TREE", tree)
-        light = lights.EmissiveTriangles(tris, emission)
+        monkeypatch.setattr(lights.emitters, "LIGHT_TREE", tree)
+        light = lights.emitters.EmissiveTriangles(tris, emission)
         p = light.cluster_probability(x[None], n[None])[0]
         share[tree] = (p[light.cluster_of[1 + overhead]] * light.within[1 + overhead]).sum()
         dirs, value, _ = light.sample(
@@ -192,7 +192,7 @@ def test_among_many_lamps_the_tree_gives_the_one_overhead_several_times_the_samp
 
 def test_the_density_needs_the_rays_origins():
     tris, emission = lamps([(0, 0, 2), (3, 0, 2)])
-    light = lights.EmissiveTriangles(tris, emission)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
     with pytest.raises(ValueError, match="origins"):
         light.pdf(np.array([[0.0, 0.0, 1.0]]), np.ones(1), np.array([1]))
 
@@ -200,10 +200,10 @@ def test_the_density_needs_the_rays_origins():
 def numpy_pdf(light, x, normals, d, t, prim):
     """The emitters' density from the numpy specs (`cluster_probability`, `spherical_triangles`)."""
     chosen = light.cluster_probability(x, normals)[np.arange(len(x)), light.cluster_of[prim]] * light.within[prim]
-    solid_angle = lights.spherical_triangles(x, light.triangles[prim])[-1]
+    solid_angle = lights.emitters.spherical_triangles(x, light.triangles[prim])[-1]
     cos = np.abs(np.einsum("ri,ri->r", d, light.normal[prim]))
     by_area = chosen / light.area[prim] * t * t / cos
-    return np.where(lights.by_solid_angle(solid_angle), chosen / solid_angle, by_area)
+    return np.where(lights.emitters.by_solid_angle(solid_angle), chosen / solid_angle, by_area)
 
 
 @pytest.mark.parametrize("with_normals", [False, True])
@@ -212,7 +212,7 @@ def test_the_compiled_density_is_the_numpy_spec(with_normals, many):
     tris, emission = lamps([(0, 0, 2), (3, 0, 2), (-6, 1, 2), (0.3, 0.2, 2), (2, 2, 3)], size=0.6)
     if many:  # a light tree several levels deep
         tris, emission = lamp_grid(10, spacing=0.7, size=0.6)
-    light = lights.EmissiveTriangles(tris, emission)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
     rng = np.random.default_rng(5)
     x = rng.uniform(-8, 8, (3000, 3))
     # a third of them inside a lamp triangle's bounding sphere (weighed by solid angle there)
@@ -242,9 +242,9 @@ def test_beside_one_triangle_of_a_quad_that_triangle_is_picked_by_its_solid_angl
     exact = polygon_irradiance(x, n, quad((0.0, 0.0, 0.01), 1.0).reshape(-1, 3)[[0, 1, 2, 5]], emission[1])
     k = 200_000
     variance = {}
-    for near in (0.0, lights.NEAR_RADII):
-        monkeypatch.setattr(lights, "NEAR_RADII", near)
-        light = lights.EmissiveTriangles(tris, emission)
+    for near in (0.0, lights.emitters.NEAR_RADII):
+        monkeypatch.setattr(lights.emitters, "NEAR_RADII", near)
+        light = lights.emitters.EmissiveTriangles(tris, emission)
         p = light.cluster_probability(x[None], n[None])[0][light.cluster_of[1:]]
         dirs, value, _ = light.sample(np.random.default_rng(8), np.tile(x, (k, 1)), lambda w: np.zeros(len(w)))
         irradiance = value[:, 0] * np.maximum(dirs @ n, 0.0)
@@ -254,22 +254,22 @@ def test_beside_one_triangle_of_a_quad_that_triangle_is_picked_by_its_solid_angl
             assert p.max() > 0.8  # the triangle the point sits beside
         else:
             assert abs(p[0] - p[1]) < 0.05  # alike
-    assert lights.NEAR_RADII > 0 and variance[lights.NEAR_RADII] < 0.5 * variance[0.0]
+    assert lights.emitters.NEAR_RADII > 0 and variance[lights.emitters.NEAR_RADII] < 0.5 * variance[0.0]
 
 
 def test_stratified_uniforms_put_one_number_in_each_stratum_of_every_group():
     rng = np.random.default_rng(2)
-    u = lights.uniforms(rng, 16 * 1000, 16)
+    u = lights.light.uniforms(rng, 16 * 1000, 16)
     assert u.min() >= 0.0 and u.max() < 1.0
     strata = np.sort(np.floor(u * 16).reshape(1000, 16), axis=1)
     np.testing.assert_array_equal(strata, np.tile(np.arange(16), (1000, 1)))
     assert abs(u.mean() - 0.5) < 0.01  # uniform overall
-    assert len(lights.uniforms(rng, 10, 4)) == 10  # not a multiple: plain uniforms
+    assert len(lights.light.uniforms(rng, 10, 4)) == 10  # not a multiple: plain uniforms
 
 
 def test_stratified_light_samples_lower_the_noise_of_a_texel_and_stay_unbiased():
     tris, emission = lamps([(0, 0, 1.0), (1.5, 0.5, 2)], size=1.0)
-    light = lights.EmissiveTriangles(tris, emission)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
     n, k = np.array([0.0, 0.0, 1.0]), 16
     x = np.zeros((20_000 * k, 3))
     exact = sum(
@@ -287,15 +287,15 @@ def test_stratified_light_samples_lower_the_noise_of_a_texel_and_stay_unbiased()
 
 def test_clusters_below_the_horizon_keep_only_their_power_share():
     tris, emission = lamps([(0, 0, 2), (0, 0, -2), (5, 0, -1)])
-    light = lights.EmissiveTriangles(tris, emission)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
     x = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
     up = light.cluster_probability(x, np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]))
     above = np.unique(light.cluster_of[1:3])
     below = np.setdiff1d(np.arange(up.shape[1]), above)
     power_only = light.cluster_power / light.cluster_power.sum()
     # facing up: the lamps below get their power share only; facing down: the lamp above does
-    np.testing.assert_allclose(up[0, below], lights.POWER_SHARE * power_only[below])
-    np.testing.assert_allclose(up[1, above], lights.POWER_SHARE * power_only[above])
+    np.testing.assert_allclose(up[0, below], lights.emitters.POWER_SHARE * power_only[below])
+    np.testing.assert_allclose(up[1, above], lights.emitters.POWER_SHARE * power_only[above])
     # every cluster below the horizon: power alone
     sideways = light.cluster_probability(np.array([[0.0, 0.0, 10.0]]), np.array([[0.0, 0.0, 1.0]]))
     np.testing.assert_allclose(sideways[0], power_only)
@@ -310,7 +310,8 @@ def test_a_texels_sequence_is_stratified_across_its_passes_and_independent_betwe
     k, passes = 16, 8
     for dim in range(4):
         u = np.stack(
-            [lights.TexelStream(texels, k, p * k, 123).uniforms(dim).reshape(-1, k) for p in range(passes)], axis=1
+            [lights.light.TexelStream(texels, k, p * k, 123).uniforms(dim).reshape(-1, k) for p in range(passes)],
+            axis=1,
         ).reshape(len(texels), passes * k)  # (texels, all samples)
         assert u.min() >= 0.0 and u.max() < 1.0
         if dim == 0:  # base 2: 128 consecutive samples fill the 128 strata exactly once
@@ -321,8 +322,8 @@ def test_a_texels_sequence_is_stratified_across_its_passes_and_independent_betwe
         # the offsets make texels (and seeds) independent: first samples spread uniformly
         first = u[:, 0]
         assert abs(first.mean() - 0.5) < 0.05 and abs(first.var() - 1 / 12) < 0.02
-    other_seed = lights.TexelStream(texels, k, 0, 124).uniforms(0)
-    assert not np.allclose(other_seed, lights.TexelStream(texels, k, 0, 123).uniforms(0))
+    other_seed = lights.light.TexelStream(texels, k, 0, 124).uniforms(0)
+    assert not np.allclose(other_seed, lights.light.TexelStream(texels, k, 0, 123).uniforms(0))
 
 
 def test_directions_sampled_in_a_spherical_triangle_hit_it_uniformly():
@@ -330,8 +331,8 @@ def test_directions_sampled_in_a_spherical_triangle_hit_it_uniformly():
     tri = np.array([[0.0, 0.0, 1.0], [2.0, 0.0, 1.5], [0.0, 1.5, 0.8]])
     x = np.zeros((200_000, 3))
     tris = np.broadcast_to(tri, (len(x), 3, 3))
-    w = lights.sample_spherical_triangles(x, tris, rng.random(len(x)), rng.random(len(x)))
-    _, _, _, cos_a, sin_a, solid_angle = (v[0] for v in lights.spherical_triangles(x[:1], tris[:1]))
+    w = lights.emitters.sample_spherical_triangles(x, tris, rng.random(len(x)), rng.random(len(x)))
+    _, _, _, cos_a, sin_a, solid_angle = (v[0] for v in lights.emitters.spherical_triangles(x[:1], tris[:1]))
     # Girard's theorem agrees on the solid angle (the angles' excess over π, each angle between
     # the planes of the great circles through its corner), and on the angle at a
     a, b, c = (v / np.linalg.norm(v) for v in tri)
@@ -361,7 +362,7 @@ def test_directions_sampled_in_a_spherical_triangle_hit_it_uniformly():
 
 def test_the_compiled_samples_are_the_numpy_spec():
     tris, emission = lamps([(0, 0, 0.5), (3, 0, 2), (-80, 0, 30)], size=0.8)  # the far one: by area
-    light = lights.EmissiveTriangles(tris, emission)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
     rng = np.random.default_rng(9)
     x = rng.uniform(-2, 2, (10000, 3)) * [1, 1, 0.1]
     x[0] = tris[1, 0]  # from an emitter's own corner: degenerate, no sample or a finite one
@@ -370,10 +371,12 @@ def test_the_compiled_samples_are_the_numpy_spec():
     assert np.isfinite(pdf).all() and np.isfinite(dirs[pdf > 0]).all()
     point = x + dirs * dist[:, None]
     pick = 1 + np.argmin(np.linalg.norm(point[:, None] - tris[1:].mean(axis=1)[None], axis=2), axis=1)
-    solid_angle = lights.spherical_triangles(x, tris[pick])[-1]
-    spherical = lights.by_solid_angle(solid_angle) & (pdf > 0)
+    solid_angle = lights.emitters.spherical_triangles(x, tris[pick])[-1]
+    spherical = lights.emitters.by_solid_angle(solid_angle) & (pdf > 0)
     assert spherical.sum() > 1000 and (~spherical).sum() > 100
-    want = lights.sample_spherical_triangles(x[spherical], tris[pick[spherical]], u[2, spherical], u[3, spherical])
+    want = lights.emitters.sample_spherical_triangles(
+        x[spherical], tris[pick[spherical]], u[2, spherical], u[3, spherical]
+    )
     np.testing.assert_allclose(dirs[spherical], want, atol=1e-9)
     ok = pdf > 0
     np.testing.assert_allclose(pdf[ok], numpy_pdf(light, x[ok], None, dirs[ok], dist[ok], pick[ok]), rtol=1e-9)
@@ -412,15 +415,25 @@ def test_the_new_emitter_sampling_bakes_what_power_and_area_sampling_bakes():
     points, scene = lamp_room()
     settings = tracer.BakeSettings(samples=64, pass_samples=16, bounces=1, seed=3)
     results = {}
-    saved = (lights.CLUSTERS, lights.LIGHT_TREE, lights.SOLID_ANGLE_RANGE, hemisphere.STRATIFIED_LIGHTS)
+    saved = (
+        lights.emitters.CLUSTERS,
+        lights.emitters.LIGHT_TREE,
+        lights.emitters.SOLID_ANGLE_RANGE,
+        hemisphere.STRATIFIED_LIGHTS,
+    )
     try:
         for on in (False, True):
-            lights.CLUSTERS, lights.LIGHT_TREE = (32, True) if on else (1, False)
-            lights.SOLID_ANGLE_RANGE = (3e-4, 6.22) if on else (np.inf, np.inf)
+            lights.emitters.CLUSTERS, lights.emitters.LIGHT_TREE = (32, True) if on else (1, False)
+            lights.emitters.SOLID_ANGLE_RANGE = (3e-4, 6.22) if on else (np.inf, np.inf)
             hemisphere.STRATIFIED_LIGHTS = on
             results[on] = tracer.bake(points, scene, settings)
     finally:
-        lights.CLUSTERS, lights.LIGHT_TREE, lights.SOLID_ANGLE_RANGE, hemisphere.STRATIFIED_LIGHTS = saved
+        (
+            lights.emitters.CLUSTERS,
+            lights.emitters.LIGHT_TREE,
+            lights.emitters.SOLID_ANGLE_RANGE,
+            hemisphere.STRATIFIED_LIGHTS,
+        ) = saved
     total = {on: r.sh[:, 0, :].sum(axis=0) for on, r in results.items()}
     error = {on: np.sqrt(np.square(r.sh_error[:, 0, :].astype(np.float64)).sum(axis=0)) for on, r in results.items()}
     np.testing.assert_array_less(np.abs(total[True] - total[False]), 4 * np.hypot(error[True], error[False]))

@@ -53,7 +53,7 @@ def exact_irradiance(lamps, point=None) -> np.ndarray:
     facing away gives 0) and a point light (P / 4πd² · cosθ)."""
     total = np.zeros(3)
     for lamp in lamps:
-        light = lights.Area(lamp)
+        light = lights.lamps.Area(lamp)
         if (X - lamp.position) @ lamp.normal <= 0.0:
             continue
         a, b = np.array([-1, 1, 1, -1.0]), np.array([-1, -1, 1, 1.0])
@@ -84,10 +84,10 @@ def test_one_lamp_per_point_is_unbiased_against_lamberts_formula():
 
 
 def test_a_lamp_that_cannot_light_a_point_is_never_picked_there():
-    choice = lights.Choice([lights.Area(lamp) for lamp in LAMPS])
+    choice = lights.choice.Choice([lights.lamps.Area(lamp) for lamp in LAMPS])
     u = np.random.default_rng(0).random(50_000)
     x, n = np.tile(X, (len(u), 1)), np.tile(N, (len(u), 1))
-    picked, probability = light_kernels.get().choose_lights(x, n, u, choice.table, lights.CHOICE_SHARE)
+    picked, probability = light_kernels.get().choose_lights(x, n, u, choice.table, lights.choice.CHOICE_SHARE)
     assert set(np.unique(picked)) == {0, 2}  # lamp 1 faces the ceiling, away from X
     # each pick's probability is how often it is picked
     for lamp in (0, 2):
@@ -98,7 +98,7 @@ def test_a_lamp_that_cannot_light_a_point_is_never_picked_there():
     # below the lamp that faces the ceiling, looking up at its back: no lamp, no ray
     below = np.tile([-0.5, 0.0, 1.4], (len(u), 1))
     up = np.tile([0.0, 0.0, 1.0], (len(u), 1))
-    picked, probability = light_kernels.get().choose_lights(below, up, u, choice.table[1:2], lights.CHOICE_SHARE)
+    picked, probability = light_kernels.get().choose_lights(below, up, u, choice.table[1:2], lights.choice.CHOICE_SHARE)
     assert (picked == -1).all() and not probability.any()
 
 
@@ -118,12 +118,12 @@ def test_a_single_lamp_is_sampled_where_it_can_light_the_point_only():
     paths, k = Paths(scene), 4000
     x = np.concatenate([np.tile(X, (k, 1)), np.tile([0.2, 0.1, 1.3], (k, 1))])  # below, then behind
     n = np.tile(N, (2 * k, 1))
-    stream = lights.TexelStream(np.arange(2), k, 0, 1)
+    stream = lights.light.TexelStream(np.arange(2), k, 0, 1)
     rng = np.random.default_rng(7)
     ((dirs, value, dist), allowed, column) = paths.light_samples(rng, x, None, stream, normals=n)[0]
     assert column == 0
     assert allowed[:k].all() and not allowed[k:].any() and not value[k:].any()
-    own = lights.Area(LAMPS[0]).sample(rng, x[:k], None, lights.TexelStream(np.arange(1), k, 0, 1))
+    own = lights.lamps.Area(LAMPS[0]).sample(rng, x[:k], None, lights.light.TexelStream(np.arange(1), k, 0, 1))
     for got, want in zip((dirs[:k], value[:k], dist[:k]), own):
         np.testing.assert_array_equal(got, want)
 
@@ -135,13 +135,13 @@ def test_spot_and_point_lights_without_normals_are_chosen_by_distance():
     far = SpotLight(
         np.array([0.0, 0.0, 10.0]), np.array([10.0, 10.0, 10.0]), direction=np.array([0, 0, -1.0]), size=1.0
     )
-    choice = lights.Choice([lights.Point(near), lights.Spot(far)])
+    choice = lights.choice.Choice([lights.lamps.Point(near), lights.lamps.Spot(far)])
     u = np.linspace(0.0, 1.0, 10_001)[:-1]
     picked, probability = light_kernels.get().choose_lights(
-        np.zeros((len(u), 3)), np.zeros((0, 3)), u, choice.table, lights.CHOICE_SHARE
+        np.zeros((len(u), 3)), np.zeros((0, 3)), u, choice.table, lights.choice.CHOICE_SHARE
     )
     share_far = (picked == 1).mean()
-    assert lights.CHOICE_SHARE / 2 <= share_far < 0.1
+    assert lights.choice.CHOICE_SHARE / 2 <= share_far < 0.1
     assert probability[picked == 1][0] == pytest.approx(share_far, abs=1e-3)
 
 
@@ -162,7 +162,7 @@ def test_a_spot_is_never_picked_outside_its_cone_and_stays_unbiased_inside():
     assert scene.choice is not None
     outside = np.tile([2.0, 0.0, 0.0], (len(u), 1))  # 45° off the axis
     picked, _ = light_kernels.get().choose_lights(
-        outside, np.tile(N, (len(u), 1)), u, scene.choice.table, lights.CHOICE_SHARE
+        outside, np.tile(N, (len(u), 1)), u, scene.choice.table, lights.choice.CHOICE_SHARE
     )
     assert (picked == 1).all()
     edge = np.array([2.0 * np.tan(0.3), 0.0, 0.0])  # on the cone: half lit through the blend
@@ -172,20 +172,23 @@ def test_a_spot_is_never_picked_outside_its_cone_and_stays_unbiased_inside():
     rng = np.random.default_rng(4)
     own = sum(
         (value * np.maximum(dirs @ N, 0.0)[:, None]).mean(axis=0) / np.pi
-        for dirs, value, _ in (lights.Spot(spot).sample(rng, x, None), lights.Point(POINT).sample(rng, x, None))
+        for dirs, value, _ in (
+            lights.lamps.Spot(spot).sample(rng, x, None),
+            lights.lamps.Point(POINT).sample(rng, x, None),
+        )
     )
     err = terms.std(axis=0) / np.sqrt(k)
     np.testing.assert_array_less(np.abs(terms.mean(axis=0) - own), 5 * err + 1e-3 * own)
 
 
 def test_sampling_every_lamp_instead_agrees_and_traces_a_ray_per_lamp(monkeypatch):
-    """`lights.CHOOSE` off (bench/light_sampling.py's earlier rows): every lamp sampled at every
+    """`lights.choice.CHOOSE` off (bench/light_sampling.py's earlier rows): every lamp sampled at every
     point, one shadow ray each, the same irradiance within the noise of both."""
     k = 100_000
     x, n = np.tile(X, (k, 1)), np.tile(N, (k, 1))
     chosen = Paths(trace_scene(LAMPS + [POINT]))
     picked = chosen.irradiance_at(np.random.default_rng(8), x, n)
-    monkeypatch.setattr(lights, "CHOOSE", False)
+    monkeypatch.setattr(lights.choice, "CHOOSE", False)
     every = Paths(trace_scene(LAMPS + [POINT]))
     assert every.scene.choice is None
     each = every.irradiance_at(np.random.default_rng(9), x, n)

@@ -139,12 +139,12 @@ def test_every_light_type_samples_itself_in_scene_order_then_hdri_then_emitters(
     points, scene, _ = every_light_scene()
     built = lights.build(scene)
     assert [type(light) for light in built] == [
-        lights.Sun,
-        lights.Point,
-        lights.Spot,
-        lights.Area,
-        lights.Environment,
-        lights.EmissiveTriangles,
+        lights.lamps.Sun,
+        lights.lamps.Point,
+        lights.lamps.Spot,
+        lights.lamps.Area,
+        lights.world.Environment,
+        lights.emitters.EmissiveTriangles,
     ]
     assert [light.reachable for light in built] == [False] * 4 + [True] * 2
     assert [light.at_infinity for light in built] == [True, False, False, False, True, False]
@@ -163,10 +163,10 @@ def test_emission_groups_make_one_emitter_light_each():
     group = np.full(len(every_light_scene()[1].triangles), "", dtype=object)
     group[-12:-6], group[-6:] = "lamp_a", "lamp_b"
     points, scene, _ = every_light_scene(emission_group=group)
-    emitters = [light for light in lights.build(scene) if isinstance(light, lights.EmissiveTriangles)]
+    emitters = [light for light in lights.build(scene) if isinstance(light, lights.emitters.EmissiveTriangles)]
     assert [e.group for e in emitters] == ["lamp_a", "lamp_b"]
     assert [len(e) for e in emitters] == [6, 6]
-    whole = lights.EmissiveTriangles(scene.triangles, scene.emission)
+    whole = lights.emitters.EmissiveTriangles(scene.triangles, scene.emission)
     assert sum(e.power for e in emitters) == pytest.approx(whole.power)
     result = tracer.bake(points, scene, tracer.BakeSettings(samples=4, pass_samples=4, bounces=0))
     assert np.isfinite(result.sh).all()

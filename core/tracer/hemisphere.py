@@ -26,7 +26,7 @@ so light from the far side of the wall does not leak in; samples starting on a p
 texel a coplanar face covers receive nothing (core.covers).
 Lights are added by next-event estimation at the bake point too: one shadow ray per light per
 sample (its random numbers from the texel's own stratified sequence across all its passes,
-`lights.TexelStream`; emitters chosen by what they bring to the texel, `lights.EmissiveTriangles`),
+`lights.light.TexelStream`; emitters chosen by what they bring to the texel, `lights.emitters.EmissiveTriangles`),
 projected to SH along the light's direction (`hemisphere_kernels.accumulate_grouped`; a delta
 light has an exact direction: an unshadowed sun adds exactly s·Y(l), no noise), MIS-weighted
 against the mixture pdf for the lights rays can reach. Light from below n_v's horizon is not
@@ -61,7 +61,7 @@ STRATIFIED_FIRST_BOUNCE = True
 #: α, the uniform share of the hemisphere mixture α/(2π) + (1 − α)·cosθ/π the directions are
 #: drawn from (with STRATIFIED_DIRECTIONS; else ½).
 UNIFORM_SHARE = 0.5
-#: The bake point's light samples from each texel's stratified sequence (`lights.TexelStream`);
+#: The bake point's light samples from each texel's stratified sequence (`lights.light.TexelStream`);
 #: False: independent random numbers (bench/light_sampling.py measures what this saves).
 STRATIFIED_LIGHTS = True
 
@@ -132,7 +132,7 @@ class TexelEstimator(shipping.Shipped):
             else hemisphere_kernels.get().project_hemisphere
         )
         estimate = project(dirs, radiance, pdf, normals, k)
-        stream = lights.TexelStream(idx, k, unit.pass_index * k, unit.seed) if STRATIFIED_LIGHTS else None
+        stream = lights.light.TexelStream(idx, k, unit.pass_index * k, unit.seed) if STRATIFIED_LIGHTS else None
         estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered, stream)
         return UnitResult(estimate, paths.traced)
 

@@ -27,7 +27,7 @@ def _unit3(x, y, z):
 def _spherical(x, i, triangles, t):
     """Seen from x[i] (of (R, 3)), triangle triangles[t] (T, 3, 3): unit directions a, b, c
     (3-tuples) to its corners, the cosine and sine of the angle at a and the solid angle
-    (`lights.spherical_triangles`, one row; 0 seen edge-on, NaN from a corner)."""
+    (`lights.emitters.spherical_triangles`, one row; 0 seen edge-on, NaN from a corner)."""
     px, py, pz = x[i, 0], x[i, 1], x[i, 2]
     a = _unit3(triangles[t, 0, 0] - px, triangles[t, 0, 1] - py, triangles[t, 0, 2] - pz)
     b = _unit3(triangles[t, 1, 0] - px, triangles[t, 1, 1] - py, triangles[t, 1, 2] - pz)
@@ -46,7 +46,7 @@ def _spherical(x, i, triangles, t):
 def _spherical_direction(a, b, c, cos_a, sin_a, area, u1, u2):
     """A unit direction (3-tuple) uniform in the spherical triangle a, b, c with angle at a of
     cosine cos_a and sine sin_a and solid angle area (`_spherical`) for uniform numbers u1, u2
-    (Arvo 1995, as `lights.sample_spherical_triangles`)."""
+    (Arvo 1995, as `lights.emitters.sample_spherical_triangles`)."""
     s, q = -math.sin(u1 * area), -math.cos(u1 * area)  # sine and cosine of π + u1·area
     sin_phi = s * cos_a - q * sin_a
     cos_phi = q * cos_a + s * sin_a
@@ -90,14 +90,14 @@ def _emitter_density(chance, area, solid_angle, cos, dist, lo, hi):
 
 
 def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emitters, share, window):
-    """One emitter sample per point x (R, 3) (`lights.EmissiveTriangles._sample_points`, one
+    """One emitter sample per point x (R, 3) (`lights.emitters.EmissiveTriangles._sample_points`, one
     row at a time): a leaf of the light tree by `u[0]` (`_pick_leaf`, with normals (R, 3) or
     no rows), the triangle of the leaf by `u[1]` (the first of its rows of `key` above leaf +
     u), then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
     (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (10,
     K): the tree's K nodes, rows as `_cluster_weights` takes them; key (E,), order (E,),
     first (K,), last (K,): each leaf's rows of key; each triangle's bounding sphere (T, 4):
-    centre, radius; child_first, child_count (K + 1,), parent (K,): `lights.light_tree`).
+    centre, radius; child_first, child_count (K + 1,), parent (K,): `lights.tree.light_tree`).
     Returns directions (R, 3), distances (R,), triangles (R,) int64 and densities (R,)."""
     clusters, key, order, first, last, bound, child_first, child_count, _ = emitters
     n = x.shape[0]
@@ -210,7 +210,7 @@ def _spherical_rectangle(px, py, pz, rect, u1, u2):
     """Seen from (px, py, pz), the rectangle rect (4, 3) (its corner, unit edges ax and ay and
     az = ax × ay) with edge lengths (exl, eyl) in rect[3, 0:2]: a point on it (3-tuple) whose
     direction is uniform in its solid angle for uniform numbers u1, u2, and that solid angle
-    (0 from its plane). `lights.sample_spherical_rectangles`, one row: the four corner angles
+    (0 from its plane). `lights.lamps.sample_spherical_rectangles`, one row: the four corner angles
     as complex numbers multiplied together, one atan2 in all."""
     dx, dy, dz = rect[0, 0] - px, rect[0, 1] - py, rect[0, 2] - pz
     ax0, ax1, ax2 = rect[1, 0], rect[1, 1], rect[1, 2]
@@ -258,7 +258,7 @@ def _spherical_rectangle(px, py, pz, rect, u1, u2):
 
 
 def sample_area_light(x, u1, u2, rect, light, disk, lo):
-    """One sample per point x (R, 3) of an area light (`lights.Area.sample`, one row at a time):
+    """One sample per point x (R, 3) of an area light (`lights.lamps.Area.sample`, one row at a time):
     a point uniform in the solid angle of its rectangle rect (`_spherical_rectangle`) by u1, u2
     (R,) where that solid angle is at least lo (a disk or ellipse counted where the point lies
     in it), else a uniform point on its surface. light (4, 3): its centre, half-extent vectors
@@ -384,7 +384,7 @@ def _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, first
 
 
 def _pick_leaf(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_first, child_count, u, share):
-    """(leaf, chance): a leaf of the light tree (`lights.light_tree`: child_first, child_count
+    """(leaf, chance): a leaf of the light tree (`lights.tree.light_tree`: child_first, child_count
     (N + 1,), the last entry the root) picked at (px, py, pz) by the uniform number u, one level
     at a time among a node's children (`_child_chance`), u rescaled to the picked child's
     interval for the next level; below a node the point lies far from (distance² at least its
@@ -476,7 +476,7 @@ def _horizon_bound(a, d2, r2, r):
 
 
 def choose_lights(x, normals, u, table, share):
-    """Which one light of `table` (L, 13) each point x (R, 3) samples (`lights.Choice`), by its
+    """Which one light of `table` (L, 13) each point x (R, 3) samples (`lights.choice.Choice`), by its
     number u (R,): light l with probability (1 − share)·w_l / Σw + share·I_l / ΣI over the
     lights with w_l > 0, w_l = I_l × b_l × h_l / max(d², r²): I its largest radiant intensity,
     b its bound on the cosine at the light (one-sided lights, m ≠ 0: 0 where the point lies

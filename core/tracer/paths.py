@@ -7,7 +7,7 @@ over bounces on compacted live arrays: rays that escape take the world's radianc
 world, or the HDRI weighted by MIS), hits take the emission of the triangle they reach (MIS
 against emitter sampling), and every hit adds next-event estimation (`irradiance_at`: one
 shadow ray per light and vertex, the point, spot and area lights being one light chosen per
-vertex: `lights.Choice`), then continues diffusely (two-sided,
+vertex: `lights.choice.Choice`), then continues diffusely (two-sided,
 cosine-distributed; with BACK_FACES_BLACK a path that reaches the back of a triangle ends
 there, carrying no more light) with Russian roulette from RR_START bounces on (survival
 √(throughput / ½), none ended above ½: RR_SURVIVAL_POWER, RR_REFERENCE), at most `bounces`
@@ -59,7 +59,7 @@ _BLACK = np.zeros((1, 3))  # the sky of a scene without a world (path_kernels.ad
 _NO_ROWS = np.zeros((0, 3))  # no per-row albedo: the kernel takes the triangles' own
 _NO_NUMBERS = np.zeros((2, 0))  # no given numbers: advance_paths draws its own
 #: `Paths.light_samples`' entries: (sample, the rows that sampled it or None for all, column)
-LightSample = tuple[_lights.Sample, np.ndarray | None, int]
+LightSample = tuple[_lights.light.Sample, np.ndarray | None, int]
 
 
 class TraceScene:
@@ -95,8 +95,8 @@ class TraceScene:
         for light in self.lights:
             light.column = self.column(light.group)
         self.world_column = self.column(scene.world_group) if scene.world is not None else 0
-        chosen = [light for light in self.lights if light.chosen] if _lights.CHOOSE else []
-        self.choice = _lights.Choice(chosen) if chosen else None
+        chosen = [light for light in self.lights if light.chosen] if _lights.choice.CHOOSE else []
+        self.choice = _lights.choice.Choice(chosen) if chosen else None
         self.surface_lights = [light for light in self.lights if light.reachable and not light.at_infinity]
         self.sky_lights = [light for light in self.lights if light.reachable and light.at_infinity]
 
@@ -153,7 +153,7 @@ class Paths:
         wavefront over bounces, the arrays compacted to the live paths. `start` (R,) bool, if
         given: only those paths are traced (the others receive nothing). `normals` (R, 3), if
         given: the origins' normals, as the light samples taken there got them (the emitters'
-        density depends on them: `lights.EmissiveTriangles`). C = `TraceScene.channels`
+        density depends on them: `lights.emitters.EmissiveTriangles`). C = `TraceScene.channels`
         (3 per light set). `texels`, if given: whose samples the rows are; the paths' first
         bounce (its light samples and its new direction) then takes its numbers from each
         texel's own sequences, stratified across its passes. Each live path gathers
@@ -248,17 +248,17 @@ class Paths:
         rng: np.random.Generator,
         x: np.ndarray,
         ray_pdf,
-        strata: _lights.Strata = 1,
+        strata: _lights.light.Strata = 1,
         normals: np.ndarray | None = None,
     ) -> list[LightSample]:
-        """Light samples at the points x (R, 3), each entry (sample, rows, column): a `lights.Sample`
+        """Light samples at the points x (R, 3), each entry (sample, rows, column): a `lights.light.Sample`
         over all R points, the rows (R,) bool that sampled a light (None: all) and the first of
         the 3 radiance columns it adds to. One entry per light that is not chosen, in sampling
         order (that of `TraceScene.lights`), then one per light set of the point, spot and area
-        lights, which are one choice per point (`lights.Choice`): each sampled only at the points
+        lights, which are one choice per point (`lights.choice.Choice`): each sampled only at the points
         that chose it, its value divided by the choice's probability, 0 elsewhere.
         `ray_pdf(dirs)`: the density of the strategy sampling rays at x (MIS); strata: x comes
-        in groups of that many points of one texel (`lights.uniforms`); normals (R, 3): x's
+        in groups of that many points of one texel (`lights.light.uniforms`); normals (R, 3): x's
         normals (rays leaving x must be evaluated with the same)."""
         ts = self.scene
         choice = ts.choice
@@ -283,7 +283,7 @@ class Paths:
         for j, light in enumerate(choice.lights):
             rows = order[ends[j] : ends[j + 1]]
             if len(rows):
-                sub = _lights.Subset(strata, r, rows, rng, drawn)
+                sub = _lights.light.Subset(strata, r, rows, rng, drawn)
                 d, v, t = light.sample(
                     rng, take_rows(x, rows), ray_pdf, sub, None if normals is None else take_rows(normals, rows)
                 )
@@ -294,13 +294,13 @@ class Paths:
         return [((dirs, value, dist), column_of == c, int(c)) for c in np.unique(columns)]
 
     def irradiance_at(
-        self, rng: np.random.Generator, x: np.ndarray, n: np.ndarray, strata: _lights.Strata = 1
+        self, rng: np.random.Generator, x: np.ndarray, n: np.ndarray, strata: _lights.light.Strata = 1
     ) -> np.ndarray:
         """Next-event estimate of the irradiance (R, C) (docs/conventions.md units, E/π·π = outgoing radiance
         per unit albedo; C: 3 per light set) at surface points x (R, 3) with unit normals n (R, 3)
         from every light (one of the point, spot and area lights: `light_samples`), one shadow
         ray per light sampled and point; MIS against cosine sampling at x. strata: where the
-        light samples' numbers come from (`lights.uniforms`)."""
+        light samples' numbers come from (`lights.light.uniforms`)."""
         total = np.zeros((len(x), self.scene.channels))
         cosine_pdf = lambda w: np.maximum(np.einsum("ri,ri->r", w, n), 0.0) / np.pi
         for (dirs, value, dist), rows, c in self.light_samples(rng, x, cosine_pdf, strata, normals=n):
@@ -345,9 +345,9 @@ class TexelSamples:
             np.ascontiguousarray(rows, np.int64), self.texels, self.k, self.first, self.seed, FIRST_BOUNCE_STREAM
         )
 
-    def lights(self, rows: np.ndarray) -> _lights.RowStream:
+    def lights(self, rows: np.ndarray) -> _lights.light.RowStream:
         """Where the light samples at the first hits of rows (R,) take their numbers."""
-        return _lights.RowStream(rows, self.texels, self.k, self.first, self.seed, FIRST_BOUNCE_STREAM + 2)
+        return _lights.light.RowStream(rows, self.texels, self.k, self.first, self.seed, FIRST_BOUNCE_STREAM + 2)
 
 
 #: The first `sampling.row_sequence` stream of a path's first bounce (its direction; its light
