@@ -96,7 +96,7 @@ def farm_trace(points, scene, ray_scene, settings, workers, repeats, chunks_per_
         for _ in range(200):
             f.client.submit(int, 0, pure=False).result()
         empty = (time.perf_counter() - t0) / 200
-        digest, payload = farm.ship(tracer.texel_estimator(points, scene, settings, ray_scene))
+        digest, payload = farm.names.ship(tracer.texel_estimator(points, scene, settings, ray_scene))
         remote_points = []
         if atlas is not None:  # the bake points on one worker (one thread), best of repeats + 1
             for _ in range(repeats + 1):

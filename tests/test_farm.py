@@ -183,7 +183,7 @@ def test_a_farm_bake_writes_the_bytes_of_the_local_bake(workers, local_files, lo
             context.close()
     assert exr_bytes(tmp_path) == local_files
     same_files(tmp_path, local_folder)
-    assert not (tmp_path / farm.CHECKPOINTS).exists()  # gone once the files are committed
+    assert not (tmp_path / farm.client.CHECKPOINTS).exists()  # gone once the files are committed
 
 
 def test_denoised_with_a_noise_target_on_workers_with_the_clients_oidn(local_denoised, library, two_workers, tmp_path):
@@ -193,7 +193,7 @@ def test_denoised_with_a_noise_target_on_workers_with_the_clients_oidn(local_den
         results = bake.run(atlases, scene, settings, tmp_path, farm=f)
         assert len(f.tasks) == 2 * (2 + 1)  # 4 + 1 chunks of 4096 texels, 2 per task, in two stages
         finished_on_workers(f, 2, f.client.run(os.getpid))  # the workers found the same OIDN (the bpy module's)
-        assert f._oidn == {farm.denoiser_identity(library): sorted(f.client.scheduler_info()["workers"])}
+        assert f._oidn == {farm.finishing.denoiser_identity(library): sorted(f.client.scheduler_info()["workers"])}
     assert [r.warnings for r in results] == [[], []]
     same_files(tmp_path, local_denoised)
 
@@ -203,10 +203,12 @@ def test_workers_without_the_clients_oidn_leave_the_denoising_to_the_client(
 ):
     atlases, scene = two_atlases()
     settings = bake.PipelineSettings(trace=NOISY, denoise=True, denoiser_library=library)
-    monkeypatch.setenv(farm.OIDN_ENV, str(tmp_path / "no-oidn-here"))  # the workers' environment
+    monkeypatch.setenv(farm.finishing.OIDN_ENV, str(tmp_path / "no-oidn-here"))  # the workers' environment
     messages = []
     with cluster(1) as c, farm.connect(c.scheduler_address, chunks_per_task=2) as f:
-        assert f.client.run(farm.local_denoiser) == {w: ("", None) for w in f.client.scheduler_info()["workers"]}
+        assert f.client.run(farm.finishing.local_denoiser) == {
+            w: ("", None) for w in f.client.scheduler_info()["workers"]
+        }
         bake.run(atlases, scene, settings, tmp_path / "out", progress=lambda _, m: messages.append(m), farm=f)
         assert [r["finished_on"] for r in f.finishing] == ["client", "client"]
     assert any("here (no farm worker has this OIDN)" in m for m in messages)
@@ -233,13 +235,13 @@ def test_with_a_noise_target_the_farm_traces_what_the_local_bake_traces(two_work
 
 
 def test_the_denoiser_identity_is_of_the_library_files_beside_it_too(library, tmp_path):
-    identity = farm.denoiser_identity(library)
-    assert identity is not None and farm.local_denoiser() == (library, identity)  # a worker of this Python
+    identity = farm.finishing.denoiser_identity(library)
+    assert identity is not None and farm.finishing.local_denoiser() == (library, identity)  # a worker of this Python
     alone = tmp_path / Path(library).name  # the same loader without its core and CPU-device libraries
     alone.write_bytes(Path(library).read_bytes())
-    assert farm.denoiser_identity(str(alone)) not in (None, identity)
-    assert farm.denoiser_identity(str(tmp_path / "missing.so")) is None
-    assert farm.denoiser_identity("") is None
+    assert farm.finishing.denoiser_identity(str(alone)) not in (None, identity)
+    assert farm.finishing.denoiser_identity(str(tmp_path / "missing.so")) is None
+    assert farm.finishing.denoiser_identity("") is None
 
 
 def test_a_worker_killed_mid_bake_costs_only_a_retry(local_files, tmp_path):
@@ -298,7 +300,7 @@ def test_cancel_stops_the_farm_and_the_same_bake_resumes_from_its_checkpoints(lo
 
         with pytest.raises(BakeCancelled):
             bake.run(atlases, scene, settings, tmp_path, progress=progress, cancel=lambda: len(tasks_done) >= 2, farm=f)
-        saved = sorted((tmp_path / farm.CHECKPOINTS).rglob("task-*.npz"))
+        saved = sorted((tmp_path / farm.client.CHECKPOINTS).rglob("task-*.npz"))
         assert 2 <= len(saved) < 10
         assert not exr_bytes(tmp_path)  # nothing written
         # no task of the cancelled bake is left on the farm
@@ -310,7 +312,7 @@ def test_cancel_stops_the_farm_and_the_same_bake_resumes_from_its_checkpoints(lo
         bake.run(atlases, scene, settings, tmp_path, farm=f)
         assert len(f.tasks) == 10 - len(saved)  # only what was not checkpointed ran
     assert exr_bytes(tmp_path) == local_files
-    assert not (tmp_path / farm.CHECKPOINTS).exists()
+    assert not (tmp_path / farm.client.CHECKPOINTS).exists()
 
 
 def test_cancel_while_an_atlas_finishes_on_the_farm(two_workers, tmp_path):
@@ -338,7 +340,7 @@ def test_cancel_while_an_atlas_finishes_on_the_farm(two_workers, tmp_path):
         while f.client.run_on_scheduler(_task_count) and time.monotonic() < deadline:
             time.sleep(0.1)
         assert f.client.run_on_scheduler(_task_count) == 0  # no finishing (nor tracing) task left
-    assert len(list((tmp_path / farm.CHECKPOINTS).rglob("task-*.npz"))) == 5  # kept for the next run
+    assert len(list((tmp_path / farm.client.CHECKPOINTS).rglob("task-*.npz"))) == 5  # kept for the next run
 
 
 def _task_count(dask_scheduler):
@@ -354,10 +356,10 @@ def test_other_settings_or_inputs_do_not_reuse_checkpoints(two_workers, tmp_path
             run = f.runner("a", tmp_path)
             settings = tracer.BakeSettings(samples=4, pass_samples=4, bounces=0, seed=seed, chunk_texels=8192)
             tracer.bake(points, scene, settings, ray_scene=ray_scene, runner=run)
-        assert len(list((tmp_path / farm.CHECKPOINTS).iterdir())) == 2  # one folder per key
+        assert len(list((tmp_path / farm.client.CHECKPOINTS).iterdir())) == 2  # one folder per key
         assert len(f.tasks) == 2  # 16384 texels: 2 chunks, one task
         f.finished()
-    assert not (tmp_path / farm.CHECKPOINTS).exists()
+    assert not (tmp_path / farm.client.CHECKPOINTS).exists()
 
 
 def test_a_time_budget_is_refused_on_a_farm():
@@ -367,22 +369,22 @@ def test_a_time_budget_is_refused_on_a_farm():
 
 
 def test_workers_of_other_code_or_packages_are_refused_with_what_differs():
-    mine = farm.environment()
+    mine = farm.worker.environment()
     assert set(mine) >= {"code", "python", "numpy", "numba", "embreex", "cpu"}
-    assert farm.check_workers({"tcp://a": mine, "tcp://b": dict(mine)}) == []
+    assert farm.client.check_workers({"tcp://a": mine, "tcp://b": dict(mine)}) == []
     with pytest.raises(BakeError, match=r"tcp://b: code 0+ \(here "):
-        farm.check_workers({"tcp://a": mine, "tcp://b": {**mine, "code": "000"}})
+        farm.client.check_workers({"tcp://a": mine, "tcp://b": {**mine, "code": "000"}})
     with pytest.raises(BakeError, match=r"numba 0\.1 \(here"):
-        farm.check_workers({"tcp://a": {**mine, "numba": "0.1"}})
+        farm.client.check_workers({"tcp://a": {**mine, "numba": "0.1"}})
     with pytest.raises(BakeError, match=r"pip install \"hhd_lightmapper\[farm\]\""):
-        farm.check_workers({"tcp://a": ModuleNotFoundError("No module named 'hhd_lightmapper'")})
-    [warning] = farm.check_workers({"tcp://a": mine, "tcp://b": {**mine, "cpu": "other"}})
+        farm.client.check_workers({"tcp://a": ModuleNotFoundError("No module named 'hhd_lightmapper'")})
+    [warning] = farm.client.check_workers({"tcp://a": mine, "tcp://b": {**mine, "cpu": "other"}})
     assert "2 CPU kinds" in warning and "NUMBA_CPU_NAME" in warning and "HHD_EMBREE_CONFIG" in warning
 
 
 def test_a_worker_refuses_a_task_of_other_code():
     with pytest.raises(BakeError, match="other tracer code"):
-        farm.trace_group(b"", "", {}, "not this code", [(0, 0, 1)])
+        farm.worker.trace_group(b"", "", {}, "not this code", [(0, 0, 1)])
 
 
 def test_without_dask_the_message_says_how_to_install_it(monkeypatch):
@@ -419,9 +421,9 @@ def test_what_a_worker_returns_names_no_module_of_the_package():
     from hhd_lightmapper.core.encoding import hhd as hhd_encoding
 
     spec = hhd_encoding.FILE
-    sent = pickle.dumps(farm.plain({"file": spec, "channels": [spec.channels]}))
+    sent = pickle.dumps(farm.names.plain({"file": spec, "channels": [spec.channels]}))
     assert b"hhd_lightmapper" not in sent
-    back = farm.unplain(pickle.loads(sent))
+    back = farm.names.unplain(pickle.loads(sent))
     assert back["file"] == spec
     assert back["file"].channels[-1].pack is octahedral.encode
 
@@ -439,7 +441,7 @@ def test_a_finishing_task_keeps_copies_of_the_raw_files_and_gives_the_traced_sh_
     sh[2:9, 1:7] = rng.normal(size=(7, 6, 9, 3))
     data = encoding.TexelData(sh=sh, normal=np.zeros((12, 10, 3), np.float32), coverage=coverage)
     traced = data.sh.copy()
-    kept = farm._Kept()
+    kept = farm.finishing._Kept()
     with encoding.raw_files(data, data.fill()) as images_of:
         kept.raw("Lightmap", "", images_of)
     data.sh[...] = 7.0  # a post stage writing in place

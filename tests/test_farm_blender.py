@@ -142,8 +142,9 @@ def test_scheduler_refuses_a_time_budget_and_names_an_unreachable_scheduler(blen
 def test_the_installed_extension_drives_workers_that_know_only_hhd_lightmapper(extension, dask_cluster, tmp_path):
     """Inside Blender the package is `bl_ext.user_default.hhd_lightmapper`; the workers import
     `hhd_lightmapper`: the estimator and the task travel under the workers' names."""
+    names = importlib.import_module(extension + ".core.farm.names")
+    assert names.PACKAGE == extension and names.PACKAGE != names.WORKER_PACKAGE
     ext = importlib.import_module(extension + ".core.farm")
-    assert ext.PACKAGE == extension and ext.PACKAGE != ext.WORKER_PACKAGE
     bake = importlib.import_module(extension + ".core.bake")
     tracer = importlib.import_module(extension + ".core.tracer")
     scene_mod = importlib.import_module(extension + ".core.scene")

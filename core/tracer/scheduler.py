@@ -27,7 +27,7 @@ each pass), except where the noise target must see a whole pass first (`_runs`).
 
 Between units: progress, cancel (raises BakeCancelled within a unit), the time budget (no unit
 starts after it, the first pass always completes) and, after each pass, the noise target. Its
-rule is fixed so that `core/farm.py` (every pass of a group of chunks in one task) gives the same
+rule is fixed so that `core/farm/` (every pass of a group of chunks in one task) gives the same
 result: a texel's test depends only on its own statistics and a floor fixed once from the first
 MIN_ADAPTIVE_PASSES passes over the atlas.
 """
@@ -149,7 +149,7 @@ class _Run:
             if not self.run_units(pool, iter(flat), len(flat), lambda unit, r: stats.add(unit.texels, r), on_unit):
                 return "time_budget"
             if settings.noise_target and end >= MIN_ADAPTIVE_PASSES:
-                if floor is None:  # fixed from the first MIN_ADAPTIVE_PASSES passes (core/farm.py)
+                if floor is None:  # fixed from the first MIN_ADAPTIVE_PASSES passes (core/farm/)
                     floor = stats.floor()
                 active = [a[~stats.converged(a, settings.noise_target, floor)] for a in active]
                 if not any(len(a) for a in active):

@@ -1,70 +1,15 @@
-"""The bake on a Dask cluster (a render farm), bit-identical to the local bake. No bpy.
-
-`connect(address)` opens a `dask.distributed` client (imported here only: a bake without a
-scheduler never imports Dask) and checks that every worker runs the same tracer code and the
-same compiled packages as this process. `bake.run(..., farm=)` then traces every atlas as Dask
-tasks, one per group of `chunks_per_task` fixed chunks of `BakeSettings.chunk_texels` texels,
-each task running *every pass* of its chunks, and finishes each atlas in one more task
-(`Farm.submit`, `Farm.finish`, below).
-
-Bit-identical. A local bake adds, pass after pass, each chunk's estimate to per-texel running
-statistics (`Statistics.add`, Welford per texel), and a chunk's estimate depends only on
-(seed, pass, chunk index, its texels) (`WorkUnit`). A texel's statistics therefore depend only
-on its own estimates in pass order, which a task reproduces by running the passes of its chunks
-in order into statistics of its own; the client copies them into the atlas's statistics. The
-result does not depend on the number of workers, the group size, retries, duplicates or the
-order tasks finish in. The noise target's rule is the local scheduler's (`scheduler.py`): chunks
-stay fixed, and the floor is fixed once from the atlas after MIN_ADAPTIVE_PASSES passes; so with
-a noise target each group takes two tasks, the first MIN_ADAPTIVE_PASSES passes, then, with the
-floor the client computed from all of them, the rest. A time budget is refused (`Farm.check`):
-where it stops would depend on the farm's speed.
-
-Shipping. The estimator (bake points, scene, lights; `tracer.shipping.Shipped`) is pickled once
-per atlas, with this package's module names rewritten to the worker's `hhd_lightmapper` (inside
-Blender the extension is `bl_ext.<repo>.hhd_lightmapper`), scattered to the cluster under a key
-made from its content hash, fetched once per worker and unpickled once per worker process
-(`shipping._receive`), where its Embree scenes are rebuilt once per triangle content
-(`shipping.ray_scene`) and the compiled kernels load from numba's disk cache (`kernels.get`).
-
-Bake points. `Farm.bake_points` runs `bakepoints.build` of every atlas as one task each, against
-the BakeScene sent once to every worker; the BakePoints come back as plain data (`plain`,
-`unplain`) and equal the local ones. They are not checkpointed (a restart builds them again).
-
-Every atlas's tracing tasks start at once (`Farm.submit`, called by `bake.run` after the bake points);
-`bake.run` then collects them atlas by atlas (`Farm.finish`) and starts each atlas's finishing task
-(`finish_task`) once its tracing is done: on a worker, with the tracing results Dask moves there,
-it reduces the statistics group by group to what the files take, builds the (compact)
-TracedAtlas and runs `bake.finish_atlas` (seams, post stages, encoding), returning the encoded images and sidecars as plain data (`plain`); the client
-only writes them (`bake.Staged`), so the farm traces and finishes the next atlases meanwhile. The
-denoiser runs on a worker only with the client's own OIDN files (`denoiser_identity`,
-`local_denoiser`); a task without them returns the TracedAtlas and the client finishes that atlas.
-`Farm.runner` traces one atlas for `tracer.bake(..., runner=)` (tests, benches).
-
-Nothing lost. A worker killed mid-task costs a retry of its task (Dask reschedules it; the
-client resubmits a failed task RETRIES times; a failed finishing task with its inputs made anew
-from the checkpoints). Each finished task's statistics are written to
-`<out_dir>/.hhd_farm/<atlas>-<key>/` (key: a hash of the atlas's name, the estimator's bytes, the
-tracer settings, the grouping and the code), so the same command run again resumes from them;
-`Farm.finished()` deletes them once the bake's files are committed. `cancel()` (Ctrl-C on the
-command line) cancels the farm's tasks and raises BakeCancelled. docs/farm.md is the user's side.
-"""
+"""The farm's client: `connect` checks every worker, `Farm` submits, collects, checkpoints and
+finishes each atlas's tasks (the package's docstring has the design). No bpy."""
 
 from __future__ import annotations
 
-import copy
 import functools
 import hashlib
-import importlib
-import io
 import os
-import pickle
-import platform
 import re
 import shutil
 import socket
-import sys
 import time
-import types
 import uuid
 from collections.abc import Callable
 from dataclasses import asdict, replace
@@ -73,440 +18,40 @@ from typing import Any
 
 import numpy as np
 
-from .encoding import SH_FILE
-from .errors import BakeCancelled, BakeError, DependencyMissing
-from .tracer import scheduler, shipping
-from .tracer.scheduler import Outcome, WorkUnit
-from .tracer.settings import MIN_ADAPTIVE_PASSES, BakeSettings
-from .tracer.statistics import Reduced, Statistics
+from ..errors import BakeCancelled, BakeError, DependencyMissing
+from ..tracer import scheduler
+from ..tracer.scheduler import Outcome
+from ..tracer.settings import MIN_ADAPTIVE_PASSES, BakeSettings
+from ..tracer.statistics import Statistics
+from . import finishing as finishing_tasks
+from . import worker as worker_tasks
+from .finishing import STATISTICS, denoiser_identity
+from .names import PACKAGE, WORKER_PACKAGE, _Named, dumps, ship, unplain
+from .worker import MATCHED, code_fingerprint, environment, max_passes
 
-#: The package name workers import (`pip install ".[farm]"` installs it under this name).
-WORKER_PACKAGE = "hhd_lightmapper"
-#: This process's name of the package: WORKER_PACKAGE, or Blender's `bl_ext.<repo>.hhd_lightmapper`.
-PACKAGE = __name__[: -len(".core.farm")]
 #: The hidden folder of the output folder holding finished tasks' checkpoints.
 CHECKPOINTS = ".hhd_farm"
+
+
 #: Fixed chunks per task (`BakeSettings.chunk_texels` texels each): long enough to hide a task's
 #: overhead at usual sample counts (bench/results/farm.md has the per-task costs).
 CHUNKS_PER_TASK = 4
+
+
 #: Times the client submits a task again after it failed on the farm (beyond Dask's own
 #: rescheduling of a task whose worker died), before the bake fails.
 RETRIES = 2
+
+
 #: How often the client looks for finished tasks and a cancel.
 POLL_SECONDS = 0.05
-#: Packages whose versions must match between the client and every worker.
-MATCHED = ("numpy", "numba", "llvmlite", "embreex")
+
+
 INSTALL_HINT = (
     "install Dask into the Python that runs the bake: `pip install \"dask[distributed]\"` "
     "(with Blender: `blender -b --python-expr \"import subprocess, sys; subprocess.check_call([sys.executable, "
     "'-m', 'pip', 'install', 'dask[distributed]'])\"`; docs/farm.md)"
 )
-
-
-# ---- names on the workers ---------------------------------------------------------------------
-
-
-def _worker_module(module: str) -> str | None:
-    """The worker's name of one of this package's modules; None for other modules."""
-    if module == PACKAGE or module.startswith(PACKAGE + "."):
-        return WORKER_PACKAGE + module[len(PACKAGE) :]
-    return None
-
-
-class _Module:
-    """A module by name: pickled as `importlib.import_module(name)`."""
-
-    def __init__(self, name: str):
-        self.name = name
-
-    def __reduce__(self):
-        return importlib.import_module, (self.name,)
-
-
-class _Named:
-    """A module-level function `name` of this package's module `module`: callable here, pickled
-    as the worker package's function of that name (pickle and cloudpickle would otherwise name
-    this process's module, which a worker outside Blender cannot import)."""
-
-    def __init__(self, module: str, name: str):
-        self.module, self.__name__ = module, name
-        self.function = getattr(importlib.import_module(module), name)
-
-    def __call__(self, *args, **kwargs):
-        return self.function(*args, **kwargs)
-
-    def __reduce__(self):
-        return getattr, (_Module(_worker_module(self.module) or self.module), self.__name__)
-
-
-class _Pickler(pickle.Pickler):
-    """Pickles with this package's classes and functions named as the workers import them, and a
-    `Shipped` context as its plain state (no live Embree objects)."""
-
-    def reducer_override(self, obj):
-        if isinstance(obj, shipping.Shipped):
-            return _Named(shipping.__name__, "_receive"), ship(obj)
-        if PACKAGE != WORKER_PACKAGE and isinstance(obj, type | types.FunctionType):
-            module = _worker_module(getattr(obj, "__module__", None) or "")
-            if module is not None and "." not in obj.__qualname__:
-                return getattr, (_Module(module), obj.__qualname__)
-        return NotImplemented
-
-
-def ship(obj: shipping.Shipped) -> tuple[str, bytes]:
-    """(digest, payload) of a Shipped context, `shipping._receive(digest, payload)` rebuilding it
-    in a worker: its state without live attributes, pickled with worker names."""
-    state = {k: v for k, v in obj.__dict__.items() if k not in obj._live and k != "_shipped"}
-    payload = dumps((type(obj), state))
-    return hashlib.blake2b(payload, digest_size=16).hexdigest(), payload
-
-
-def dumps(obj) -> bytes:
-    buffer = io.BytesIO()
-    _Pickler(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
-    return buffer.getvalue()
-
-
-# ---- what a worker runs -----------------------------------------------------------------------
-
-
-_fingerprint: str | None = None
-
-
-def code_fingerprint() -> str:
-    """Hash of the core's Python sources (every module the tracer may run): client and workers
-    must trace with the same code."""
-    global _fingerprint
-    if _fingerprint is None:
-        h = hashlib.blake2b(digest_size=12)
-        root = Path(__file__).resolve().parent
-        for path in sorted(root.rglob("*.py")):
-            h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
-        _fingerprint = h.hexdigest()
-    return _fingerprint
-
-
-def environment() -> dict:
-    """What makes a process's traced numbers what they are: the core's code, Python and the
-    compiled packages' versions, and the CPU target numba and Embree compile for (docs/farm.md,
-    "CPU types")."""
-    from importlib import metadata
-
-    env = {"code": code_fingerprint(), "python": f"{sys.version_info[0]}.{sys.version_info[1]}"}
-    for name in MATCHED:
-        try:
-            env[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            env[name] = "missing"
-    try:
-        from llvmlite import binding
-
-        host = binding.get_host_cpu_name()
-    except Exception:  # noqa: BLE001 - informative only
-        host = "unknown"
-    env["cpu"] = os.environ.get("NUMBA_CPU_NAME") or host
-    env["embree_config"] = os.environ.get("HHD_EMBREE_CONFIG", "")
-    env["machine"] = platform.machine()
-    return env
-
-
-def _same_code(code: str) -> None:
-    """BakeError unless this worker runs the client's core code (`code`: its fingerprint)."""
-    if code != code_fingerprint():
-        raise BakeError(
-            f"this worker ({platform.node()}) runs other tracer code ({code_fingerprint()}) than the client "
-            f"({code}): install the same hhd_lightmapper version on every machine"
-        )
-
-
-def _where() -> str:
-    """This process, as a task's record names it: host:pid."""
-    return f"{platform.node()}:{os.getpid()}"
-
-
-def trace_group(
-    payload: bytes,
-    digest: str,
-    settings: dict,
-    code: str,
-    chunks: list,
-    passes: tuple[int, int] | None = None,
-    state: dict | None = None,
-    floor: float | None = None,
-) -> dict:
-    """One task: passes `passes` (first, end; default all) of the fixed chunks `chunks`
-    [(index, first texel, end)] of an atlas, chunk by chunk into statistics of their own (see the
-    module doc), returned as plain arrays for the texels first..end of the group (contiguous)
-    with the rays traced. With a noise target the client runs two: the first MIN_ADAPTIVE_PASSES
-    passes, then (given `state`, the first's result, and the atlas's `floor`) the rest, testing
-    each texel before every pass and after the last."""
-    _same_code(code)
-    t0 = time.perf_counter()
-    estimator = shipping._receive(digest, payload)
-    trace = BakeSettings(**settings)
-    first_pass, end_pass = passes if passes is not None else (0, max_passes(trace))
-    channels = estimator.scene.channels
-    first, end = chunks[0][1], chunks[-1][2]
-    n = end - first
-    out: dict = {
-        "total": np.zeros((n, 9, channels)),
-        "m2": np.zeros((n, 9, channels), np.float32),
-        "iz": np.zeros(n),
-        "iz_sq": np.zeros(n),
-        "passes": np.zeros(n, np.int64),
-    }
-    rays = texel_passes = 0
-    converged = floor is not None
-    for c, start, stop in chunks:
-        stats = Statistics(stop - start, estimator.points.normal[start:stop], channels)
-        if state is not None:
-            for key in out:
-                getattr(stats, key)[:] = state[key][start - first : stop - first]
-        texels = np.arange(start, stop)
-        active = np.arange(stop - start)
-        for p in range(first_pass, end_pass):
-            if floor is not None and p >= MIN_ADAPTIVE_PASSES:
-                active = active[~stats.converged(active, trace.noise_target, floor)]
-                if len(active) == 0:
-                    break
-            result = estimator.trace(WorkUnit(trace.seed, p, c, texels[active]))
-            rays += result.rays
-            stats.add(active, result.estimate)
-        if floor is not None and len(active):  # the test after the last pass (stopped_by only)
-            active = active[~stats.converged(active, trace.noise_target, floor)]
-        converged = converged and len(active) == 0
-        texel_passes += stats.texel_passes
-        for key in out:
-            out[key][start - first : stop - first] = getattr(stats, key)
-    out.update(
-        first=first,
-        end=end,
-        rays=rays,
-        texel_passes=texel_passes,
-        converged=converged,
-        seconds=time.perf_counter() - t0,
-        worker=_where(),
-    )
-    return out
-
-
-_scenes: dict = {}  # digest -> BakeScene, the last few (a worker's bake points of one bake)
-
-
-def points_task(scene_payload: bytes, scene_digest: str, atlas_payload: bytes) -> dict:
-    """One task: the bake points of one atlas ((surface, width, height) pickled), against the
-    Embree scene of the shipped BakeScene (built once per worker process and triangle content),
-    as plain data (`plain`: a client inside Blender has other class names)."""
-    from . import bakepoints
-
-    scene = _scenes.get(scene_digest)
-    if scene is None:
-        scene = pickle.loads(scene_payload)
-        _scenes.clear()
-        _scenes[scene_digest] = scene
-    surface, width, height = pickle.loads(atlas_payload)
-    occluders = shipping.ray_scene(scene.triangles) if len(scene.triangles) else None
-    # one thread: a worker process is one of many on its machine; the points do not depend on it
-    return plain(bakepoints.build(surface, width, height, occluders=occluders, threads=1))
-
-
-# ---- the finishing task: post stages and encoding of one atlas on a worker ---------------------
-
-#: The worker's OIDN library (a file, or a folder holding it), when it has no pip `bpy` to take it from.
-OIDN_ENV = "HHD_OIDN_LIBRARY"
-#: Finished tracing statistics a finishing task assembles (`trace_group`'s arrays).
-STATISTICS = ("total", "m2", "iz", "iz_sq", "passes")
-
-_identities: dict[str, str | None] = {}  # library path -> denoiser_identity
-
-
-def denoiser_identity(library: str) -> str | None:
-    """What makes a process's denoised SH what it is: a hash of the OIDN library `library` and
-    the core and CPU-device libraries beside it (same files, same version and build: same
-    bits), or None when nothing can denoise with it here (no library, or the RTLightmap weights
-    (`core.oidn.WEIGHTS`, hash-checked) missing)."""
-    if not library:
-        return None
-    if library not in _identities:
-        from . import oidn
-
-        path = Path(library)
-        try:
-            for mode in oidn.WEIGHTS:
-                oidn.load_weights(mode)
-            h = hashlib.blake2b(digest_size=12)
-            siblings = [
-                *path.parent.glob("*OpenImageDenoise_core*"),
-                *path.parent.glob("*OpenImageDenoise_device_cpu*"),
-            ]
-            for f in [path, *sorted(siblings)]:
-                h.update(f.name.encode() + b"\0" + f.read_bytes())
-            _identities[library] = h.hexdigest()
-        except (OSError, oidn.DenoiserError):
-            _identities[library] = None
-    return _identities[library]
-
-
-def local_denoiser() -> tuple[str, str | None]:
-    """This process's OIDN library and its `denoiser_identity` ("", None: none): the file or
-    folder of $HHD_OIDN_LIBRARY, else the library of a pip-installed `bpy` (found without
-    importing it), the one Blender's Python module ships."""
-    from . import oidn
-
-    setting = os.environ.get(OIDN_ENV, "")
-    if setting:
-        path = Path(setting)
-        found = path if path.is_file() else oidn.find_library([path, path / "lib"])
-    else:  # the pip `bpy`'s folder: its lib/ (Linux, macOS) or itself (Windows), `bridge/denoiser.py`
-        # Every sys.path entry, not `find_spec("bpy")`: once bpy was imported in the process that
-        # started this worker, Blender's scripts/modules (holding a pure-Python `bpy` package) can
-        # come first on the path a spawned worker inherits.
-        packages = [Path(entry) / "bpy" for entry in sys.path if entry]
-        found = oidn.find_library([d for package in packages for d in (package / "lib", package)])
-    library = "" if found is None else str(found)
-    return library, denoiser_identity(library)
-
-
-class _Kept:
-    """A finishing task's stand-in for `bake.Staged`: keeps the finished files' data, in the
-    order the atlas handed them, as plain data for the client to stage."""
-
-    def __init__(self):
-        self.calls: list[tuple[str, tuple]] = []
-
-    def raw(self, name: str, parent: str, images_of: dict) -> None:
-        # copies: the images are views of the SH the post stages then write into
-        kept = {key: (spec, {n: np.array(a) for n, a in images.items()}) for key, (spec, images) in images_of.items()}
-        self.calls.append(("raw", (name, parent, plain(kept))))
-
-    def traced_sh(self, name: str, parent: str) -> np.ndarray:
-        """The SH image `(H, W, 9, 3)` of the raw SH file kept for `name` (as `bake.Staged`'s)."""
-        for method, (kept, _, images_of) in reversed(self.calls):
-            if method == "raw" and kept == name:
-                images = images_of[SH_FILE.key][1]
-                sh = np.stack([images[n] for n in SH_FILE.exr_names], axis=-1)
-                return sh.reshape(sh.shape[:2] + (9, 3))
-        raise KeyError(f"no raw SH file kept for {name!r}")
-
-    def atlas(self, name: str, parent: str, encoded, sidecar: dict) -> None:
-        self.calls.append(("atlas", (name, parent, plain(encoded), copy.deepcopy(sidecar))))
-
-    def seams(self, name: str, atlas_seams) -> None:
-        self.calls.append(("seams", (name, plain(atlas_seams))))
-
-
-def finish_task(payload: bytes, digest: str, code: str, meta: bytes, *results: dict) -> dict:
-    """One task per atlas, run once its tracing tasks are done (`results`: the last stage's of
-    every group, which Dask brings to this worker): the atlas's statistics reduced group by group,
-    its compact TracedAtlas built (`tracer.traced_atlas`), then `bake.finish_atlas` (seams, post stages,
-    encoding) exactly as a local bake runs them. `meta` (pickled with worker names): atlas
-    (AtlasInput without its surface), settings (PipelineSettings), t_points, extra, rays,
-    stopped_by, seconds, denoiser (the client's `denoiser_identity`; None: its OIDN cannot run,
-    so the client finishes the atlas). Returns plain data: "out", the files to stage in order, and "summary";
-    or, when this worker cannot denoise as the client would (another or no OIDN library, or
-    OIDN failing here), "traced", the TracedAtlas without its points, for the client to finish."""
-    from . import bake, tracer
-
-    _same_code(code)
-    t0 = time.perf_counter()
-    estimator = shipping._receive(digest, payload)
-    m = pickle.loads(meta)
-    settings, points, sets = m["settings"], estimator.points, estimator.scene.sets
-    # reduced group by group to what the files take, as a local bake's (`tracer.bake(..., compact=True)`)
-    reduced = Reduced(points.normal, estimator.scene.channels, points.buried, bool(sets))
-    for result in results:
-        first, end = int(result["first"]), int(result["end"])
-        stats = reduced.statistics(first, end)
-        for key in STATISTICS:
-            getattr(stats, key)[:] = result[key]
-        reduced.take(first, stats)
-    outcome = Outcome(m["stopped_by"], m["rays"])
-    traced = tracer.traced_atlas(points, sets, reduced, settings.trace, outcome, m["seconds"])
-    library = settings.denoiser_library  # "" (the client has none): undenoised here as there, same warning
-    denoising = settings.denoise and bool(library)
-    if denoising:
-        library, identity = local_denoiser()
-        if m["denoiser"] is None or identity != m["denoiser"]:  # None: the client's OIDN cannot run
-            return _unfinished(traced, t0, "no OIDN library here like the client's")
-    threads = _worker_threads()
-    compute = replace(settings, denoiser_library=library, trace=replace(settings.trace, threads=threads))
-    kept = _Kept()
-    summary = bake.finish_atlas(  # released SH only where no fallback may need it
-        m["atlas"], traced, compute, m["t_points"], m["extra"], kept, recorded=settings.trace, release=not denoising
-    )
-    if denoising and not all(args[3]["post"]["denoise"].get("applied") for kind, args in kept.calls if kind == "atlas"):
-        return _unfinished(traced, t0, "OIDN failed here")
-    return {"out": kept.calls, "summary": plain(summary), "seconds": time.perf_counter() - t0, "worker": _where()}
-
-
-def _unfinished(traced, t0: float, why: str) -> dict:
-    """A finishing task's answer when the client must run the post stages: the TracedAtlas
-    without its points (the client has them)."""
-    return {
-        "traced": plain(replace(traced, points=None)),
-        "why": why,
-        "seconds": time.perf_counter() - t0,
-        "worker": _where(),
-    }
-
-
-def _worker_threads() -> int:
-    """Threads of this Dask worker (1 outside one): the post stages' count here (their result
-    does not depend on it)."""
-    try:
-        from distributed import get_worker
-
-        return max(int(getattr(get_worker(), "nthreads", 1)), 1)
-    except (ImportError, ValueError):
-        return 1
-
-
-def plain(obj):
-    """This package's dataclass instances (nested, also inside dicts, lists and tuples) as dicts
-    naming their class relative to the package, its classes and functions as dicts naming them
-    the same way, everything else as it is: what a worker returns
-    to a client that may name the package otherwise (`unplain` there)."""
-    cls = type(obj)
-    if cls is dict:
-        return {k: plain(v) for k, v in obj.items()}
-    if cls is list or cls is tuple:
-        return cls(plain(v) for v in obj)
-    module = getattr(cls, "__module__", "") or ""
-    if hasattr(obj, "__dataclass_fields__") and _worker_module(module) is not None:
-        return {"__class__": (module[len(PACKAGE) :], cls.__qualname__), **{k: plain(v) for k, v in vars(obj).items()}}
-    module = getattr(obj, "__module__", "") or ""
-    if isinstance(obj, type | types.FunctionType) and _worker_module(module) is not None:
-        return {"__object__": (module[len(PACKAGE) :], obj.__qualname__)}  # e.g. a Channel's `pack`
-    return obj
-
-
-def unplain(obj):
-    """The inverse of `plain`, with this process's classes."""
-    cls = type(obj)
-    if cls is dict and "__class__" in obj:
-        module, name = obj["__class__"]
-        cls = getattr(importlib.import_module(PACKAGE + module), name)
-        instance = cls.__new__(cls)
-        instance.__dict__.update({k: unplain(v) for k, v in obj.items() if k != "__class__"})
-        return instance
-    if cls is dict and "__object__" in obj:
-        module, name = obj["__object__"]
-        found = importlib.import_module(PACKAGE + module)
-        for part in name.split("."):
-            found = getattr(found, part)
-        return found
-    if cls is dict:
-        return {k: unplain(v) for k, v in obj.items()}
-    if cls is list or cls is tuple:
-        return cls(unplain(v) for v in obj)
-    return obj
-
-
-def max_passes(settings: BakeSettings) -> int:
-    return max(1, -(-settings.samples // settings.pass_samples))
-
-
-# ---- the client -------------------------------------------------------------------------------
 
 
 def _probe(address: str, timeout: float) -> None:
@@ -555,7 +100,7 @@ def connect(address: str, chunks_per_task: int = CHUNKS_PER_TASK, timeout: float
         except TimeoutError:
             raise BakeError(f"the Dask scheduler at {address} has no worker (start `dask worker {address}`)") from None
         farm = Farm(client, address, chunks_per_task)
-        farm.warnings = check_workers(client.run(_Named(__name__, "environment"), on_error="return"))
+        farm.warnings = check_workers(client.run(_Named(worker_tasks.__name__, "environment"), on_error="return"))
         return farm
     except BaseException:
         client.close()
@@ -677,7 +222,7 @@ class Farm:
         payload = dumps(scene)
         digest = hashlib.blake2b(payload, digest_size=16).hexdigest()
         [data] = self.client.scatter([payload], hash=True, broadcast=True)
-        task = _Named(__name__, "points_task")
+        task = _Named(worker_tasks.__name__, "points_task")
         futures = [
             self.client.submit(task, data, digest, dumps((a.surface, a.width, a.height)), pure=False) for a in atlases
         ]
@@ -755,7 +300,7 @@ class Farm:
             if "data" not in plan:
                 # content-keyed, copied to every worker: a dying worker does not take the only copy
                 [plan["data"]] = self.client.scatter([plan["payload"]], hash=True, broadcast=True)
-            task = _Named(__name__, "trace_group")
+            task = _Named(worker_tasks.__name__, "trace_group")
             for g in todo:
                 state = _load(plan["folder"] / f"task-{g}-0.npz") if stage == 1 else None
                 future = self.client.submit(
@@ -935,7 +480,7 @@ class Farm:
         """The workers whose OIDN is the client's (`denoiser_identity` `identity`), asked once
         per farm: the finishing tasks of a denoised bake go to them first."""
         if identity not in self._oidn:
-            found = self.client.run(_Named(__name__, "local_denoiser"), on_error="return")
+            found = self.client.run(_Named(finishing_tasks.__name__, "local_denoiser"), on_error="return")
             self._oidn[identity] = sorted(
                 w for w, r in found.items() if not isinstance(r, BaseException) and r[1] == identity
             )
@@ -944,7 +489,7 @@ class Farm:
     def _start(self, handle: Finishing) -> None:
         """Submit (again) the finishing task of `handle`."""
         handle.future = self.client.submit(
-            _Named(__name__, "finish_task"),
+            _Named(finishing_tasks.__name__, "finish_task"),
             *handle.args,
             key=f"hhd-finish-{handle.plan['key']}-{uuid.uuid4().hex[:8]}",
             pure=False,
