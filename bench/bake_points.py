@@ -16,7 +16,7 @@ the Embree queries (`RayScene.intersect` / `occluded`, every thread's own) and o
 
 `--compare` also runs the code path before issue 23 part 5 compiled it (the numpy rasteriser,
 per-texel choice, footprint triangles, point fill, texel points, settle spokes and probes of
-tests/raster_reference.py, patched in for that run) on the same scene in the same process,
+scenekit/raster_reference.py, patched in for that run) on the same scene in the same process,
 checks that every array of the two `BakePoints` is identical (reporting the largest difference
 otherwise) and reports old / new ratios. Results: bench/results/bake_points.json and .md (or
 --out).
@@ -28,7 +28,6 @@ import argparse
 import dataclasses
 import json
 import os
-import sys
 import threading
 import time
 from pathlib import Path
@@ -36,13 +35,12 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path[:0] = [str(ROOT / "bench"), str(ROOT / "tests")]  # memory (the scene), raster_reference (old path)
 
-import raster_reference  # noqa: E402
 from hhd_lightmapper.core import bake, bakepoints, covers, raster  # noqa: E402
 from hhd_lightmapper.core.rays import RayScene  # noqa: E402
 from hhd_lightmapper.core.scene import BakeScene  # noqa: E402
 from memory import sheet  # noqa: E402
+from scenekit import raster_reference  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results"
 PHASES = (
@@ -122,7 +120,7 @@ class Phases:
 
 
 def patch_old() -> list:
-    """Put the pre-compilation numpy path in place (tests/raster_reference.py); returns the undo list."""
+    """Put the pre-compilation numpy path in place (scenekit/raster_reference.py); returns the undo list."""
     ref = raster_reference
     undo = []
     for owner, attr, f in (
@@ -254,7 +252,7 @@ def markdown(report: dict) -> str:
         f"`bakepoints.build` with the sheet as occluders, threads {report['threads']} (0 = all "
         f"{report['cpus']} cores). Seconds are wall (CPU, every thread); the load is the 1-min "
         "average at the start → end of each run. Old: the numpy path before the compiled kernels "
-        "(tests/raster_reference.py), run in the same process after the new one.",
+        "(scenekit/raster_reference.py), run in the same process after the new one.",
         "",
     ]
     for entry in report["runs"]:

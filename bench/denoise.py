@@ -140,8 +140,6 @@ def main() -> int:
         args.out = args.out or Path(tempfile.mkdtemp(prefix="hhd-bench-denoise-"))
     RESULTS = args.out or RESULTS
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "bench"))  # time_to_error
-    sys.path.insert(0, str(ROOT))  # scenekit
     import bpy  # noqa: F401
 
     import hhd_lightmapper

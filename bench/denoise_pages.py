@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -53,8 +52,6 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 3, 4])
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "bench"))  # denoise (the bench), time_to_error
-    sys.path.insert(0, str(ROOT))  # scenekit
     import bpy  # noqa: F401
 
     import denoise as denoise_bench

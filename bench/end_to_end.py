@@ -267,12 +267,11 @@ def _meshes(blend: Path) -> list[str]:
 def _room(folder: Path) -> Path:
     code = (
         "import sys, os, tempfile; os.environ.setdefault('BLENDER_USER_RESOURCES', tempfile.mkdtemp()); "
-        "sys.path.insert(0, sys.argv[2]); import bpy; from scenekit import blender, scenes; "
+        "import bpy; from scenekit import blender, scenes; "
         "scenes.demo_room(); blender.externalise_images(sys.argv[1]); "
         "bpy.ops.wm.save_as_mainfile(filepath=os.path.join(sys.argv[1], 'room.blend'))"
     )
-    root = Path(__file__).resolve().parent.parent  # scenekit lives beside the package, as tools/demo.py finds it
-    subprocess.run([sys.executable, "-c", code, str(folder), str(root)], check=True, capture_output=True)
+    subprocess.run([sys.executable, "-c", code, str(folder)], check=True, capture_output=True)
     return folder / "room.blend"
 
 

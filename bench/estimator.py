@@ -82,8 +82,6 @@ def main() -> int:
     ap.add_argument("--variants", type=int, nargs="+", default=list(range(len(VARIANTS))), help="indices into VARIANTS")
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "bench"))
-    sys.path.insert(0, str(ROOT))
     import bpy  # noqa: F401
 
     import hhd_lightmapper

@@ -32,7 +32,6 @@ import json
 import math
 import os
 import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -40,8 +39,6 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))  # scenekit
 from hhd_lightmapper.core import bake, bakepoints, farm, tracer  # noqa: E402
 from threads import scene_and_surface  # noqa: E402
 

@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT.parent))
 
 from hhd_lightmapper.core import exr  # noqa: E402
 from hhd_lightmapper.core.encoding import web_packing as wp  # noqa: E402

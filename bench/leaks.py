@@ -117,7 +117,6 @@ def main() -> int:
         args.out = args.out or Path(tempfile.mkdtemp(prefix="hhd-bench-leaks-"))
     out = args.out or RESULTS
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path[:0] = [str(ROOT), str(ROOT / "bench")]  # scenekit; denoise (the scenes' loading)
     import bpy  # noqa: F401
 
     import hhd_lightmapper

@@ -76,8 +76,6 @@ def main() -> int:
     ap.add_argument("--direct", action="store_true", help="0 bounces: direct light only")
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "bench"))
-    sys.path.insert(0, str(ROOT))
     import bpy  # noqa: F401
 
     import hhd_lightmapper

@@ -50,7 +50,6 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
-sys.path.insert(0, str(ROOT))  # scenekit
 
 from hhd_lightmapper.core import bake, bakepoints, hhd, light_sets, sh, tracer  # noqa: E402
 from hhd_lightmapper.core.scene import BakeScene, PointLight  # noqa: E402

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import tempfile
 from pathlib import Path
 
@@ -48,8 +47,6 @@ def main() -> int:
     ap.add_argument("--resolution", type=int, default=512)
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "bench"))  # trace_profile, time_to_error, denoise
-    sys.path.insert(0, str(ROOT))  # scenekit
     import bpy  # noqa: F401
 
     import hhd_lightmapper

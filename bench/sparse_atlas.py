@@ -25,14 +25,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 import memory as _memory  # noqa: E402  (bench/memory.py: the stage timer and the wavy sheet)
 from hhd_lightmapper.core import (  # noqa: E402
     bake,

@@ -35,7 +35,6 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path(tempfile.mkdtemp(prefix="hhd-bench-views-")))
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT))  # scenekit
     import bpy
 
     import hhd_lightmapper

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -29,8 +28,6 @@ import numpy as np
 from hhd_lightmapper.core import bakepoints, encoding, exr, lightmap_files, parallel, rays, tracer, unwrap
 from hhd_lightmapper.core.encoding.stage import raw_images
 from hhd_lightmapper.core.scene import BakeScene, SunLight
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # scenekit
 from scenekit.meshes import sphere_field  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"

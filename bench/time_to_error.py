@@ -104,8 +104,6 @@ def main() -> int:
     )
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "bench"))  # denoise (the .blend scenes' receivers)
-    sys.path.insert(0, str(ROOT))  # scenekit
     import bpy  # noqa: F401
 
     import hhd_lightmapper

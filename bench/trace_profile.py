@@ -23,7 +23,6 @@ import argparse
 import collections
 import json
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -42,8 +41,6 @@ def main() -> int:
     ap.add_argument("--resolution", type=int, default=512)
     args = ap.parse_args()
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
-    sys.path.insert(0, str(ROOT / "bench"))  # time_to_error, denoise
-    sys.path.insert(0, str(ROOT))  # scenekit
     import bpy  # noqa: F401
 
     import hhd_lightmapper

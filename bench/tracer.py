@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -26,10 +25,8 @@ import numpy as np
 
 from hhd_lightmapper.core import bakepoints, embree, rays, tracer, unwrap
 from hhd_lightmapper.core.scene import BakeScene, SunLight
-from time_to_error import EmbreexRays
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # scenekit
 from scenekit.meshes import sphere_field  # noqa: E402
+from time_to_error import EmbreexRays
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

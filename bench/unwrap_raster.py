@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -31,8 +30,6 @@ from pathlib import Path
 import numpy as np
 
 from hhd_lightmapper.core import bakepoints, rays, unwrap
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # scenekit
 from scenekit.meshes import sphere_field, texel_overlaps  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -10,9 +10,9 @@ Per scene (in a work folder; the shared .blend is copied, never changed):
   bake    the CLI, headless: demo as tools/demo.py (--unwrap --resolution 512 --samples 32
           --bounces 2 --denoise); bedroom every mesh, --unwrap --resolution 512 --preset draft
   export  python -m hhd_lightmapper.cli FILE.blend export --glb OUT.glb (cameras included)
-  browser tests/web_harness.Browser (headless Chromium, the HHD plugin), the exported camera,
+  browser scenekit/web_harness.Browser (headless Chromium, the HHD plugin), the exported camera,
           W x H (the camera's aspect): lightmap-only (albedo x I) and shaded float renders, the
-          G-buffer pass (lightmap UV, n_v, n, albedo) -> tests/web_harness.reference (numpy
+          G-buffer pass (lightmap UV, n_v, n, albedo) -> scenekit/web_harness.reference (numpy
           decode, core.hhd.reconstruct) -> relative error over receiver pixels
   eevee   the baked .blend, Show Preview (HHD) on every mesh, EEVEE from the same camera at the
           same size (linear EXR) -> relative difference to the browser over receiver pixels
@@ -40,8 +40,6 @@ RESULTS = ROOT / "bench" / "results"
 #: the supersampled comparison: both renderers at SUPER x the size, box-averaged
 SUPER = 4
 BEDROOM = Path("/work/shared/scenes/bedroom/bedroom.blend")
-sys.path.insert(0, str(ROOT))  # scenekit
-sys.path.insert(0, str(ROOT / "tests"))  # web_harness
 
 
 def cli(*args) -> float:
@@ -254,7 +252,7 @@ def stats(err: np.ndarray) -> dict:
 def run_scene(name: str, work: Path, width: int, browser) -> dict:
     import bpy
 
-    import web_harness
+    from scenekit import web_harness
 
     folder = work / name
     folder.mkdir(parents=True, exist_ok=True)
@@ -351,7 +349,7 @@ def table(rows: list[dict], browser_info: dict) -> str:
         "",
         f"Browser: {browser_info.get('version')} ({browser_info.get('webgl')}), three.js + `web/src` HHD plugin, "
         "scene camera exported by the glTF exporter; relative error per receiver pixel = |got − want| / |want| "
-        "(RGB norms; tests/web_harness.py `relative_errors`). Issue 56 tolerance, browser vs numpy: median ≤ 1%, "
+        "(RGB norms; scenekit/web_harness.py `relative_errors`). Issue 56 tolerance, browser vs numpy: median ≤ 1%, "
         "p95 ≤ 4%. Browser vs EEVEE: reported only. EEVEE renders with film filter 0 (a pixel is its centre, "
         f"as in the browser); \"{SUPER}× supersampled\": both renderers at {SUPER}× the size, box-averaged to the "
         "size (each renderer's texture filtering, EEVEE's mip-maps of a minified lightmap against the browser's "
@@ -418,7 +416,7 @@ def main() -> int:
     work = (args.work or Path(tempfile.mkdtemp(prefix="hhd-bench-web-"))).resolve()
     work.mkdir(parents=True, exist_ok=True)
     RESULTS.mkdir(exist_ok=True)
-    import web_harness
+    from scenekit import web_harness
 
     why = web_harness.unavailable()
     if why:

@@ -605,7 +605,7 @@ def _spoke_targets(points: BakePoints, idx: np.ndarray, offsets: np.ndarray) -> 
     target = points.texel_points(idx, offsets)
     if points.others is None:
         return target
-    raster_kernels.get().spoke_targets(  # numpy's arithmetic compiled (tests/raster_reference.py)
+    raster_kernels.get().spoke_targets(  # numpy's arithmetic compiled (scenekit/raster_reference.py)
         target,
         np.asarray(idx, np.int64),
         points.texel,

@@ -5,7 +5,7 @@ arithmetic is written here as loops and compiled (`nogil`, so their worker threa
 parallel; `cache`, so only the first bake after an install compiles), one pass over memory
 instead of dozens of temporaries. Every kernel performs the numpy code's floating-point
 operations in the same order, so the bake points are bit-identical to that code's
-(tests/test_raster_compiled.py compares them with the numpy reference, tests/raster_reference.py):
+(tests/test_raster_compiled.py compares them with the numpy reference, scenekit/raster_reference.py):
 where numpy's `einsum` summed three products as (x₀ + x₂) + x₁ (its SIMD loop) the kernels do
 too, and where `matmul` went to BLAS, whose kernels fuse multiply-adds, they use `fma` (LLVM's
 fused multiply-add: exactly rounded on every CPU; on a CPU without FMA instructions numpy's
@@ -53,7 +53,7 @@ def clip(x, lo, hi):
 
 
 def overlap_with_texel(ax, ay, bx, by, cx, cy, x0, y0):
-    """The numpy `_overlap_with_texels` (tests/raster_reference.py) for one CCW triangle (a, b, c)
+    """The numpy `_overlap_with_texels` (scenekit/raster_reference.py) for one CCW triangle (a, b, c)
     and the texel at (x0, y0): (area, centroid x, centroid y), Green's theorem with the vertical
     extent clamped to the texel, Simpson's rule on each piece between the crossings of y = 0 and
     y = 1 (exact)."""
@@ -129,7 +129,7 @@ def barycentric(px, py, ax, ay, bx, by, cx, cy):
 
 # ---- kernels ---------------------------------------------------------------------------------
 def rasterise_chunk(p, m, off, lo, hi, counts, tri_ids, width):
-    """The numpy `_rasterise_chunk` (tests/raster_reference.py): every positive-area overlap of
+    """The numpy `_rasterise_chunk` (scenekit/raster_reference.py): every positive-area overlap of
     the CCW triangles p (T, 3, 2) (texel space; edge normals m (T, 3, 2) and offsets off (T, 3)
     of e(c) = m·c − off ≥ 0 inside) with the texels of their boxes lo..hi (T, 2) (counts (T,)
     texels each), in triangle order and row by row within a triangle. Returns (triangle
@@ -419,7 +419,7 @@ def other_triangles(texel, triangle, area, chosen, face_normals, use_normals, mi
     product summed as einsum did) is within `min_cos` of the texel's own. point (texels,) int32
     is scratch shared between calls (each sets and reads only its own texels' entries). One pass
     over every pair, keeping each texel's m best by insertion (the numpy code's lexsort of every
-    pair, tests/raster_reference.py, gives the same order); calls over disjoint ranges write
+    pair, scenekit/raster_reference.py, gives the same order); calls over disjoint ranges write
     disjoint rows, so they can run on parallel threads."""
     if hi <= lo:
         return
@@ -499,7 +499,7 @@ def spoke_rays(position, face_normal, texel_size, offset, start, target):
     normal × `offset`, scene units) to its k targets (target (n, k, 3), `bakepoints._spoke_targets`).
     Returns anchor (n, 3), origin (n·k, 3) (the anchor repeated), direction (n, k, 3) unit
     (zero-length spokes: 0), length (n, k) and reach (n, k) = max(length, texel size), with the
-    numpy code's operations in its order (tests/raster_reference.py `settle`: the norm summed
+    numpy code's operations in its order (scenekit/raster_reference.py `settle`: the norm summed
     x² + y² first, then + z²; divisions by max(length, 1e-300))."""
     n, k = target.shape[0], target.shape[1]
     anchor = np.empty((n, 3))

@@ -19,10 +19,9 @@ Which module for what:
                      the demo room bench/tradeoff.py's three, `build(name)`), classroom and
                      field (bench/time_to_error.py's, against Cycles).
 
-Import it as the top-level package `scenekit` with the repository root on sys.path:
-tests/conftest.py puts it there; bench scripts and tools/demo.py insert it themselves
-(`sys.path.insert(0, str(ROOT))`). It imports `hhd_lightmapper` (the development install,
-`pip install -e .`) for `blender_compat` and core; bpy only inside the builders, so importing the
+Import it as the top-level package `scenekit`: the development install (`pip install -e .`,
+pyproject.toml) installs it beside `hhd_lightmapper` (it is not part of the extension). It imports
+`hhd_lightmapper` for `blender_compat` and core; bpy only inside the builders, so importing the
 kit does not start Blender.
 
 The scenes' names, geometry and materials are what the tests' tolerances and the benches'

@@ -21,7 +21,6 @@ os.environ["BLENDER_USER_RESOURCES"] = str(USER_RESOURCES)
 assert "bpy" not in sys.modules, "bpy was imported before the user config could be isolated"
 
 sys.path.insert(0, str(ROOT / "tools"))  # build_extension, fetch_oidn_weights
-sys.path.insert(0, str(ROOT))  # scenekit, the shared test/bench scenes
 
 EXTENSION_MODULE = "bl_ext.user_default.hhd_lightmapper"
 

@@ -1,5 +1,5 @@
 """The compiled rasteriser, probe points, footprint triangles and settle spokes
-(core/raster_kernels.py) against the numpy code they replaced (tests/raster_reference.py): the
+(core/raster_kernels.py) against the numpy code they replaced (scenekit/raster_reference.py): the
 same pairs, areas, centroids, per-texel choices and bake points, bit for bit, on random and
 degenerate triangles, whatever the thread count."""
 
@@ -8,9 +8,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-import raster_reference as ref
 from hhd_lightmapper.core import bakepoints, raster, rays
 from scenekit import meshes
+from scenekit import raster_reference as ref
 
 
 def assert_same(a, b, fields):
@@ -122,7 +122,7 @@ def scene(rng):
 
 
 def use_reference(monkeypatch):
-    """The numpy path of tests/raster_reference.py in place of the compiled one."""
+    """The numpy path of scenekit/raster_reference.py in place of the compiled one."""
     for owner, name, f in (
         (raster, "rasterise", ref.rasterise),
         (raster, "choose_per_texel", ref.choose_per_texel),
@@ -273,7 +273,7 @@ def test_compiled_spoke_rays_are_numpys():
     got = raster_kernels.get().spoke_rays(
         points.position, points.face_normal, points.texel_size, points.offset, start, target
     )
-    anchor = points.origins(idx)  # tests/raster_reference.py `settle`'s numpy
+    anchor = points.origins(idx)  # scenekit/raster_reference.py `settle`'s numpy
     ray = target - anchor[:, None, :]
     length = np.linalg.norm(ray, axis=2)
     direction = ray / np.maximum(length, 1e-300)[..., None]

@@ -1,7 +1,7 @@
 """The three.js runtime (web/: the `HHD_lightmap` GLTFLoader plugin) in a real browser: Debian's
 Chromium, headless, WebGL2 on SwiftShader, driven through playwright-core by web/test/harness.mjs
 (one browser for the whole module). Renders read back from a float render target are compared
-with the numpy decode of the same file (tests/web_harness.py `reference`: core's packing decode,
+with the numpy decode of the same file (scenekit/web_harness.py `reference`: core's packing decode,
 `core.hhd.reconstruct`, `core.light_sets.blend`) at the lightmap UVs and normals of the browser's
 own G-buffer pass, so rasterisation does not enter the comparison.
 
@@ -15,9 +15,9 @@ import time
 import numpy as np
 import pytest
 
-import web_harness
 from hhd_lightmapper.core import hhd, light_sets, octahedral, sh
 from hhd_lightmapper.core.encoding import web_packing
+from scenekit import web_harness
 
 # figures of the comparisons, printed at the end of the module (pytest -s) and kept in
 # out/web/figures-<Blender version>.json for the reports

@@ -27,7 +27,6 @@ import tomllib
 import zipfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fetch_oidn_weights  # noqa: E402
 import fetch_wheels  # noqa: E402
 

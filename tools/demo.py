@@ -44,7 +44,6 @@ def main() -> int:
     out.mkdir(parents=True, exist_ok=True)
     # Never touch the user's real Blender configuration.
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-demo-blender-"))
-    sys.path.insert(0, str(ROOT))  # scenekit
 
     import bpy
 
@@ -148,7 +147,6 @@ def main() -> int:
 def fetch_weights() -> str:
     """OIDN's lightmap weights into oidn_weights/ (hash-checked; a no-op when present). Returns ""
     or, if they cannot be had, why (the bake then runs undenoised and says so)."""
-    sys.path.insert(0, str(ROOT / "tools"))
     import fetch_oidn_weights
 
     try:

@@ -480,7 +480,7 @@ def synthetic_glb(
         ]
     eye = (1.6, 1.7, 2.2)
     doc = {
-        "asset": {"version": "2.0", "generator": "tests/web_harness.py synthetic_glb"},
+        "asset": {"version": "2.0", "generator": "scenekit/web_harness.py synthetic_glb"},
         "extensionsUsed": ["HHD_lightmap"],
         "extensions": {"HHD_lightmap": ext},
         "scene": 0,
