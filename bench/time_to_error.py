@@ -55,9 +55,11 @@ from an earlier run when `--scenes` leaves it out).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import resource
+import shutil
 import sys
 import tempfile
 import time
@@ -100,6 +102,13 @@ def main() -> int:
     )
     ap.add_argument("--bounces", type=int, default=3, help="both engines' bounces (0: direct light only)")
     ap.add_argument(
+        "--operators",
+        action="store_true",
+        help="time both engines as the artist does, from the click to the files: our Bake operator "
+        "(denoise and seam stitching off) against Cycles' bake operator and the image saved as EXR; "
+        "stored as '<scene> (operators)'",
+    )
+    ap.add_argument(
         "--uniform-share", type=float, default=None, help="our hemisphere mixture's α (hemisphere.UNIFORM_SHARE)"
     )
     args = ap.parse_args()
@@ -119,6 +128,8 @@ def main() -> int:
         variant.append(f"α {args.uniform_share:g}")
     if args.uncrossed:
         variant.append("uncrossed")
+    if args.operators:
+        variant.append("operators")
     out = RESULTS / "time_to_error.json"
     results = json.loads(out.read_text()) if out.exists() else {}
     # an entry without "floor" is from before the two-half reference (kept as it was measured)
@@ -172,6 +183,8 @@ def measure(receivers, args) -> dict:
     scene.hhd.padding = args.padding
     select(receivers)
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
+    for obj in receivers:  # the atlas at --resolution even below the panel's 256 (UVs are in [0, 1]²)
+        obj.hhd.atlas_width = obj.hhd.atlas_height = args.resolution
     depsgraph = bpy.context.evaluated_depsgraph_get()
     surface = mesh_data.read_surface(receivers, LAYER, depsgraph)
     bake_scene = scene_data.read_bake_scene(depsgraph)
@@ -212,9 +225,15 @@ def measure(receivers, args) -> dict:
         flush=True,
     )
     out["ours"], out["cycles"] = [], []
+    ours = (
+        functools.partial(operator_bake, receivers)
+        if args.operators
+        else functools.partial(our_bake, surface, bake_scene)
+    )
+    theirs = functools.partial(cycles_bake, save=args.operators)
     for samples in args.ours:
-        iz, seconds, result = our_bake(surface, bake_scene, samples, points)
-        timings = repeated(seconds, lambda s=samples: our_bake(surface, bake_scene, s, points)[1])
+        iz, seconds, result = ours(samples, points)
+        timings = repeated(seconds, lambda s=samples: ours(s, points)[1])
         iz = iz @ LUMINANCE
         out["ours"].append(
             {
@@ -236,8 +255,8 @@ def measure(receivers, args) -> dict:
         )
     for samples in args.cycles:
         t = time.perf_counter()
-        iz = cycles_bake(receivers, points, samples)
-        timings = repeated(time.perf_counter() - t, lambda s=samples: timed(cycles_bake, receivers, points, s))
+        iz = theirs(receivers, points, samples)
+        timings = repeated(time.perf_counter() - t, lambda s=samples: timed(theirs, receivers, points, s))
         seconds = float(np.median(timings))
         out["cycles"].append(
             {
@@ -355,7 +374,43 @@ def our_bake(surface, bake_scene, samples, points_before, seed=0):
     return iz, seconds, result
 
 
-def cycles_bake(receivers, points, samples, seed=0) -> np.ndarray:
+class OperatorResult:
+    """What `operator_bake` knows of the bake it timed: the sidecar's tracer figures."""
+
+    def __init__(self, sidecar: dict, seconds: float):
+        self.rays, self.samples = sidecar["bake"]["rays"], sidecar["bake"]["mean_samples_per_texel"]
+        self.seconds = sidecar["timings_seconds"].get("trace", seconds)
+        self.setup_seconds = seconds - self.seconds
+
+
+def operator_bake(receivers, samples, points, seed=0):
+    """Our Bake operator from the click to the files (scene read, Embree scene, bake points,
+    trace, encoding, EXR writes, preview images; denoise and stitching off, as Cycles' raw bake),
+    with the bake's own sample count and BOUNCES: (I_z (P, 3) read back from the HHD file at the
+    bake points' texels, seconds, OperatorResult)."""
+    import bpy
+
+    from hhd_lightmapper.core import exr
+    from scenekit.blender import select
+
+    folder = Path(tempfile.mkdtemp(prefix="hhd-tte-"))
+    s = bpy.context.scene.hhd
+    s.preset = 'CUSTOM'
+    s.samples, s.bounces, s.seed, s.noise_target = samples, BOUNCES, seed, 0.0
+    s.denoise, s.stitch_seams, s.output_dir = False, False, str(folder)
+    select(receivers)
+    t = time.perf_counter()
+    assert bpy.ops.hhd.bake() == {'FINISHED'}
+    seconds = time.perf_counter() - t
+    channels, _ = exr.read(folder / "Lightmap_hhd.exr")
+    iz = np.stack([channels[f"Iz.{c}"] for c in "RGB"], axis=-1)[::-1]  # EXR rows top-down, texels bottom-up
+    iz = iz.reshape(-1, 3).astype(np.float64)
+    result = OperatorResult(json.loads((folder / "Lightmap.json").read_text()), seconds)
+    shutil.rmtree(folder)
+    return iz[points.texel], seconds, result
+
+
+def cycles_bake(receivers, points, samples, seed=0, save=False) -> np.ndarray:
     """Cycles' Diffuse bake (Direct + Indirect, Color off, sample clamps off) of the same texels, I_z (P, 3). The
     reference uses another seed: Cycles' samples for one seed are nested, so a low-sample bake
     would otherwise share its first samples with the reference and look better than it is."""
@@ -382,6 +437,12 @@ def cycles_bake(receivers, points, samples, seed=0) -> np.ndarray:
     select(receivers)
     bpy.ops.object.bake(type='DIFFUSE', pass_filter={'DIRECT', 'INDIRECT'}, margin=0, use_clear=True, uv_layer=LAYER)
     px = np.array(image.pixels[:], dtype=np.float64).reshape(w * h, 4)[:, :3]
+    if save:  # to a file, as the artist's bake ends; the next bake makes a new image
+        path = Path(tempfile.mkdtemp(prefix="hhd-tte-cycles-")) / "bake.exr"
+        image.filepath_raw, image.file_format = str(path), 'OPEN_EXR'
+        image.save()
+        bpy.data.images.remove(image)
+        shutil.rmtree(path.parent)
     return px[points.texel]
 
 
