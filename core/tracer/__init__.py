@@ -66,6 +66,7 @@ def bake(
     points: BakePoints,
     scene: BakeScene,
     settings: BakeSettings = BakeSettings(),
+    *,
     progress: Callable[[float, str], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     ray_scene: RayScene | None = None,
