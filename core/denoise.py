@@ -464,11 +464,12 @@ def _write(
 def _clamp_unwritten(sh: np.ndarray, noise: np.ndarray, written: np.ndarray) -> None:
     """`clamp_to_noise` of the texels of `sh` `(H, W, 9, 3)` no page wrote (`written` (H·W,)
     False; denoised = traced: traced + 0, which only turns -0 into +0), in place, ROWS_PER_STEP
-    rows at a time."""
+    rows at a time. Only texels of known noise are touched: the clamp leaves the others as
+    they are (most unwritten texels lie outside the charts, where the noise is unknown)."""
     written = written.reshape(sh.shape[:2])
     for y in range(0, sh.shape[0], ROWS_PER_STEP):
         rows = slice(y, y + ROWS_PER_STEP)
-        keep = ~written[rows]
+        keep = ~written[rows] & np.isfinite(noise[rows])
         if not keep.any():
             continue
         block = sh[rows][keep]

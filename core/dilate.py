@@ -11,8 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import deps
+
 #: Neighbour offsets (dy, dx), edge neighbours first so they win over diagonal ones.
 _NEIGHBOURS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))
+_DY = np.array([d[0] for d in _NEIGHBOURS], np.int64)
+_DX = np.array([d[1] for d in _NEIGHBOURS], np.int64)
 
 
 #: How far (texels) an invalid texel looks for a valid one of its own chart (`Fill`'s `black`).
@@ -28,7 +32,86 @@ def nearest_source(valid: np.ndarray, rings: int, through: np.ndarray | None = N
 
 
 def _nearest(valid: np.ndarray, rings: int, through: np.ndarray | None = None) -> np.ndarray:
-    """`nearest_source` as int32 below 2³¹ texels (int64 beyond)."""
+    """`nearest_source` as int32 below 2³¹ texels (int64 beyond): the compiled front-by-front
+    growth (`_grow`, work in proportion to the texels reached), or the numpy rule over whole
+    images (`_nearest_images`, rings × the image) where numba is missing; the same result."""
+    try:
+        kernel = _kernel()
+    except deps.DependencyMissing:
+        return _nearest_images(valid, rings, through)
+    h, w = valid.shape
+    dtype = np.int32 if h * w < 2**31 else np.int64
+    index = np.where(valid, np.arange(h * w, dtype=dtype).reshape(h, w), dtype(-1)).reshape(-1)
+    inside = np.ones(1, bool) if through is None else np.ascontiguousarray(through, bool).reshape(-1)
+    kernel(index, h, w, int(rings), inside, through is not None)
+    return index.reshape(h, w)
+
+
+def _grow(index, h, w, rings, through, use_through):  # pragma: no cover - compiled by `_kernel`
+    """`_nearest_images`' rule, front by front, in place on the flat `index` (H·W,) (own index at
+    the sources, -1 elsewhere): at ring r every texel without a source (and in `through`, if
+    `use_through`) next to one reached at ring r − 1 takes the source of its first neighbour in
+    _NEIGHBOURS order that had one before ring r. Work: the texels reached and their neighbours."""
+    n = h * w
+    dy, dx = _DY, _DX
+    front = np.empty(n, np.int64)
+    size = 0
+    for t in range(n):
+        if index[t] >= 0:
+            front[size] = t
+            size += 1
+    queued = np.empty(n, np.int64)
+    value = np.empty(n, index.dtype)
+    for _ in range(rings):
+        if size == 0 or size == n:
+            break
+        count = 0
+        for f in range(size):  # the texels without a source next to the front, once each
+            t = front[f]
+            y, x = t // w, t % w
+            for k in range(8):
+                yy, xx = y - dy[k], x - dx[k]  # the texel whose neighbour (dy, dx) t is
+                if yy < 0 or yy >= h or xx < 0 or xx >= w:
+                    continue
+                c = yy * w + xx
+                if index[c] != -1 or (use_through and not through[c]):
+                    continue
+                index[c] = -2  # queued this ring
+                queued[count] = c
+                count += 1
+        for q in range(count):  # their first neighbour with a source from before this ring
+            c = queued[q]
+            y, x = c // w, c % w
+            for k in range(8):
+                yy, xx = y + dy[k], x + dx[k]
+                if yy < 0 or yy >= h or xx < 0 or xx >= w:
+                    continue
+                v = index[yy * w + xx]
+                if v >= 0:
+                    value[q] = v
+                    break
+        for q in range(count):
+            index[queued[q]] = value[q]
+            front[q] = queued[q]
+        size = count
+    return index
+
+
+_compiled = None
+
+
+def _kernel():
+    """`_grow` compiled (numba, nogil, cached on disk); raises deps.DependencyMissing without numba."""
+    global _compiled
+    if _compiled is None:
+        numba = deps.require("numba")
+        _compiled = numba.njit(nogil=True, cache=True)(_grow)
+    return _compiled
+
+
+def _nearest_images(valid: np.ndarray, rings: int, through: np.ndarray | None = None) -> np.ndarray:
+    """The ring-by-ring rule over whole images (numpy): each ring, every texel without a
+    source takes that of its first neighbour in _NEIGHBOURS order that has one."""
     h, w = valid.shape
     dtype = np.int32 if h * w < 2**31 else np.int64
     index = np.where(valid, np.arange(h * w, dtype=dtype).reshape(h, w), dtype(-1))

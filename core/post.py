@@ -70,14 +70,15 @@ def stitch_stage(seams: Seams | None, threads: int) -> PostStage:
     """Least-squares seam stitching of the SH (`core.seams.stitch`, on `threads` workers) along
     `seams`, the atlas's seam sample pairs. `None` (no seams file: an older bake) passes the SH
     through unstitched, with a warning in the record. Its second half runs after encoding
-    (`stitch_encoded`)."""
+    (`stitch_encoded`). The stage takes `in_place=True` too (`apply`'s): the stitched texels are
+    written into the TexelData's own images (no copy of the atlas's SH)."""
 
-    def stitch(data: TexelData, check: Callable[[], None]) -> tuple[TexelData, dict]:
+    def stitch(data: TexelData, check: Callable[[], None], in_place: bool = False) -> tuple[TexelData, dict]:
         if seams is None:
             return data, {"enabled": True, "applied": False, "warning": NO_SEAMS}
         from . import seams as _seams
 
-        out, record = _seams.stitch(data, seams, check, threads)
+        out, record = _seams.stitch(data, seams, check, threads, in_place=in_place)
         return out, _finite({"enabled": True, "applied": True, **record})
 
     return stitch
@@ -90,18 +91,20 @@ def stitch_encoded(
     seams: Seams | None,
     records: dict,
     check: Callable[[], None] | None = None,
+    in_place: bool = False,
 ) -> EncodedAtlas:
     """The stitch stage's second half, on the encoding's layers after `encoding.encode_atlas`:
     the encoding is not linear in the SH, so it leaves a small step along seams the SH stitch
     closed; `core.seams.stitch_encoded` closes it in the encoded layers. Runs only where the SH
     stitch ran (`records`, `apply`'s, says so) and adds its record as `records["stitch"]["encoded"]`.
-    `coverage` `(H, W)`: the atlas's (`TexelData.coverage`)."""
+    `coverage` `(H, W)`: the atlas's (`TexelData.coverage`). `in_place`: the stitched texels are
+    written into `encoded`'s own images (a caller that keeps no unstitched copy)."""
     if not settings.stitch_seams or seams is None or not records.get("stitch", {}).get("applied"):
         return encoded
     from . import seams as _seams
 
     window, placed = _windowed(encoded)
-    out, record = _seams.stitch_encoded(placed, seams, coverage, check, settings.trace.threads, window)
+    out, record = _seams.stitch_encoded(placed, seams, coverage, check, settings.trace.threads, window, in_place)
     records["stitch"]["encoded"] = _finite(record)
     return out if window is None else _placed(out, encoded)
 
@@ -163,9 +166,10 @@ def apply(
     """`data` after every post stage of `settings`, in order, and the sidecar's `post` section:
     per stage its record ({"enabled": False} for the known stages that are off). `seams`: the
     atlas's seam sample pairs (`core.seams.Seams`; None: unknown, stitching is then skipped with
-    a warning). `in_place`: the denoiser writes into `data.sh` and keeps nothing of what it
-    overwrote (a bake, whose raw files are written: `data` is spent), calling `restore()` (which
-    must put the traced SH back into `data.sh`) if it fails half-way. `check` may be a
+    a warning). `in_place`: the denoiser and the stitch write into `data`'s images and keep
+    nothing of what they overwrote (a bake, whose raw files are written, or a re-encode, which
+    read them: `data` is spent), the denoiser calling `restore()` (which must put the traced SH
+    back into `data.sh`) if it fails half-way. `check` may be a
     `core.progress.Tick`: each stage gets its part of it (by `progress.POST_COSTS`), named after
     the stage ("denoise 'Lightmap'"), which a stage may report to (`Tick.at`) or just call."""
     records = {"denoise": {"enabled": False}, "stitch": {"enabled": False}}
@@ -177,6 +181,8 @@ def apply(
         part.at(0.0)
         if in_place and name == "denoise":  # `denoise_stage`'s, which takes them
             data, records[name] = stage(data, part, in_place=True, restore=restore)  # type: ignore[call-arg]
+        elif in_place and name == "stitch":  # `stitch_stage`'s
+            data, records[name] = stage(data, part, in_place=True)  # type: ignore[call-arg]
         else:
             data, records[name] = stage(data, part)
     return data, records

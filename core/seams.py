@@ -282,16 +282,83 @@ def bilinear_taps(xy: np.ndarray, width: int, height: int) -> tuple[np.ndarray, 
     return index, weight
 
 
-def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """GPU bilinear read of `image (H, W, ...)` at texel-unit points `xy (S, 2)` -> `(S, ...)`
-    float64 (texel centres at i + ½, clamp to edge; see `bilinear_taps`)."""
-    h, w = image.shape[:2]
+def bilinear(image, xy: np.ndarray) -> np.ndarray:
+    """GPU bilinear read of `image (H, W, ...)` (an array, or `FilledRows` of one) at texel-unit
+    points `xy (S, 2)` -> `(S, ...)` float64 (texel centres at i + ½, clamp to edge; see
+    `bilinear_taps`)."""
+    flat: Any
+    if isinstance(image, (FilledRows, _Stacked)):
+        (h, w), flat, tail = image.grid, image, image.shape[1:]
+    else:
+        h, w = image.shape[:2]
+        tail = image.shape[2:]
+        flat = np.asarray(image).reshape((h * w,) + tail)
     index, weight = bilinear_taps(xy, w, h)
-    flat = np.asarray(image).reshape((h * w,) + image.shape[2:])
-    out = np.zeros((len(index),) + image.shape[2:])
+    out = np.zeros((len(index),) + tail)
     for k in range(4):
-        out += weight[:, k].reshape((-1,) + (1,) * (image.ndim - 2)) * flat[index[:, k]]
+        out += weight[:, k].reshape((-1,) + (1,) * len(tail)) * flat[index[:, k]]
     return out
+
+
+class FilledRows:
+    """The rows of `fill.apply(image, keep_black)` read on demand, without the filled copy of
+    the image (memory: an atlas's SH image is its largest array; stitching reads a few of its
+    texels). `flat` `(H·W, ...)`: the image's texels (a view; not written), `fill` the
+    `dilate.Fill` of its atlas, `grid` (H, W). `rows[index]` (int array of any shape) gives
+    exactly what the filled copy's rows would hold (the same gather, the same mean of the
+    sources for texels out of the dilation's reach, the same zeros for black texels) in the
+    image's dtype, `(*index.shape, ...)`; `put(index, values)` overrides rows (later reads see
+    them)."""
+
+    def __init__(self, flat: np.ndarray, fill, grid: tuple[int, int], keep_black: bool = False):
+        self.flat, self.fill, self.grid, self.keep_black = flat, fill, tuple(grid), keep_black
+        self.shape, self.dtype = flat.shape, flat.dtype
+        self._mean: np.ndarray | None = None
+        self._put_index = np.zeros(0, np.int64)
+        self._put_values = np.zeros((0,) + flat.shape[1:], flat.dtype)
+
+    def _source_mean(self) -> np.ndarray:
+        """`Fill.apply`'s mean of the sources (float64 over them in order, as one `mean`), cast
+        as its assignment casts it; summed a block of sources at a time (no gather of them all)."""
+        if self._mean is None:
+            valid = self.fill.valid
+            if not len(valid):
+                self._mean = np.zeros(self.flat.shape[1:], self.dtype)
+            else:
+                total = self.flat[valid[: 1 << 16]].astype(np.float64).sum(axis=0)
+                for s in range(1 << 16, len(valid), 1 << 16):
+                    part = self.flat[valid[s : s + (1 << 16)]].astype(np.float64)
+                    total = np.concatenate([total[None], part]).sum(axis=0)
+                self._mean = np.asarray(total / len(valid)).astype(self.dtype)
+        return self._mean
+
+    def __getitem__(self, index) -> np.ndarray:
+        index = np.asarray(index)
+        flat_index = index.reshape(-1).astype(np.int64, copy=False)
+        empty, source = self.fill.empty, self.fill.source
+        pos = np.minimum(np.searchsorted(empty, flat_index), max(len(empty) - 1, 0))
+        is_empty = (empty[pos] == flat_index) if len(empty) else np.zeros(len(flat_index), bool)
+        src = flat_index.copy()
+        src[is_empty] = source[pos[is_empty]]
+        far = src < 0
+        out = self.flat[np.where(far, 0, src)]
+        if far.any():
+            out[far] = self._source_mean()
+        if self.keep_black and len(self.fill.black):
+            black = self.fill.black
+            at = np.minimum(np.searchsorted(black, flat_index), len(black) - 1)
+            out[black[at] == flat_index] = 0.0
+        if len(self._put_index):
+            at = np.minimum(np.searchsorted(self._put_index, flat_index), len(self._put_index) - 1)
+            hit = self._put_index[at] == flat_index
+            out[hit] = self._put_values[at[hit]]
+        return out.reshape(index.shape + self.flat.shape[1:])
+
+    def put(self, index: np.ndarray, values: np.ndarray) -> None:
+        """Rows `index` (unique flat indices) read `values` `(len(index), ...)` from now on."""
+        order = np.argsort(index, kind="stable")
+        self._put_index = np.asarray(index, np.int64)[order]
+        self._put_values = np.asarray(values, self.dtype).reshape((len(index),) + self.flat.shape[1:])[order]
 
 
 #: A way of reading a lightmap: points `xy (S, 2)` (texel units) -> a function of the unit vertex
@@ -301,8 +368,9 @@ def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
 Reader = Callable[[np.ndarray], Callable[[np.ndarray, np.ndarray], np.ndarray]]
 
 
-def sh_reader(sh_image: np.ndarray) -> Reader:
-    """Irradiance read from a radiance SH image `(H, W, 9, 3)` (already filled), as the L2
+def sh_reader(sh_image: np.ndarray | FilledRows) -> Reader:
+    """Irradiance read from a radiance SH image `(H, W, 9, 3)` (already filled, or `FilledRows`
+    of one: `(H·W, 9, 3)` rows filled as they are read), as the L2
     preview does: bilinear SH, bands × 1, 2/3, 1/4, evaluated at n."""
     from . import sh as _sh
 
@@ -320,13 +388,18 @@ def hhd_reader(images: Mapping[str, np.ndarray], model: str = "hhd") -> Reader:
     renormalised after (filtering the encoded pair across the map's fold turns it: docs/format.md,
     "Filtering the direction"), d·n_v floored at core.hhd.MIN_COS,
     I = I_z [w_a (1 + n·n_v)/2 + (1 − w_a) max(n·d, 0)/(d·n_v)] (AHD: w_a + …)."""
-    from . import octahedral
     from .hhd import MIN_COS
 
     wa_names = [k for k in ("Wa.R", "Wa.G", "Wa.B") if k in images] or ["Wa.V"]
-    oct_xy = np.stack([images["Direction.X"], images["Direction.Y"]], -1).astype(np.float64)
-    direction = octahedral.decode(oct_xy.reshape(-1, 2)).reshape(oct_xy.shape[:-1] + (3,))
-    layers = np.concatenate([np.stack([images[k] for k in ["Iz.R", "Iz.G", "Iz.B", *wa_names]], -1), direction], -1)
+    plain = _Stacked([images[k] for k in ["Iz.R", "Iz.G", "Iz.B", *wa_names]])
+    packed = _Stacked([images["Direction.X"], images["Direction.Y"]], np.float64)
+    # the layers at the texels a read takes (memory: no image of all the atlas's decoded layers)
+    layers = _Stacked(
+        [],
+        grid=plain.grid,
+        width=plain.shape[1] + 3,
+        rows=lambda i: np.concatenate([plain[i], _decoded(packed[i])], -1),
+    )
     hhd = model.lower() == "hhd"
 
     def read(xy):
@@ -344,6 +417,38 @@ def hhd_reader(images: Mapping[str, np.ndarray], model: str = "hhd") -> Reader:
         return at
 
     return read
+
+
+def _decoded(packed: np.ndarray) -> np.ndarray:
+    """`octahedral.decode` of packed directions `(..., 2)` -> `(..., 3)`."""
+    from . import octahedral
+
+    return octahedral.decode(packed.reshape(-1, 2)).reshape(packed.shape[:-1] + (3,))
+
+
+class _Stacked:
+    """The rows of `np.stack([image.reshape(-1) for image in images], -1)` (in `dtype`, default
+    the stack's) read on demand, `[index]` -> `(*index.shape, len(images))`, without stacking the
+    atlas's images (memory). Or, with `rows` (a function of a flat index array) and `width`, the
+    rows that gives. `grid`: the images' (H, W)."""
+
+    def __init__(self, images, dtype=None, grid=None, width: int = 0, rows=None):
+        self.images = [np.asarray(image) for image in images]  # (H, W), views of a layer's image: not copied
+        self.grid = tuple(grid) if grid is not None else self.images[0].shape[:2]
+        if rows is None:
+            self.dtype = np.result_type(*self.images) if dtype is None else np.dtype(dtype)
+            width = len(self.images)
+        self.rows = rows
+        self.shape = (self.grid[0] * self.grid[1], width)
+
+    def __getitem__(self, index) -> np.ndarray:
+        index = np.asarray(index)
+        if self.rows is not None:
+            flat = index.reshape(-1)
+            return self.rows(flat).reshape(index.shape + (self.shape[1],))
+        at = np.divmod(index, self.grid[1])  # (row, column): a strided image is gathered, not flattened
+        out = np.stack([image[at] for image in self.images], -1)
+        return out.astype(self.dtype, copy=False)
 
 
 def reader_for(source) -> Reader:
@@ -431,19 +536,16 @@ def _metric(read: Reader, seams: Seams, worst: int = 10, tilt: float = TILT) -> 
     if len(seams) == 0:
         empty = dict.fromkeys(keys, 0.0)
         return {**empty, "samples": 0, "edges": 0, "invalid": 0, "worst_edges": [], "tilted": dict(empty)}
-    probes = _probes(read, seams)
     n = seams.normal
-    seam_err, seam_w, inner, edge, valid = _errors(probes, seams, n, n)
+    t = _unit(seams.tangent - np.einsum("si,si->s", seams.tangent, n)[:, None] * n)
+    across = _unit(np.cross(n, t))
+    tilted = [_unit(np.cos(tilt) * n + sign * np.sin(tilt) * v) for v in (t, across) for sign in (1.0, -1.0)]
+    lum = _luminances(read, seams, [n, *tilted])
+    seam_err, seam_w, inner, edge, valid = _errors(lum[0], seams)
     out: dict = {"samples": len(seams), "edges": seams.edges, "invalid": int(np.count_nonzero(~valid))}
     out.update(_summary(seam_err, seam_w, inner, edge))
     out["worst_edges"] = _worst_edges(seams, seam_err, seam_w, valid, worst)
-    t = _unit(seams.tangent - np.einsum("si,si->s", seams.tangent, n)[:, None] * n)
-    across = _unit(np.cross(n, t))
-    parts = [
-        _errors(probes, seams, n, _unit(np.cos(tilt) * n + sign * np.sin(tilt) * v))
-        for v in (t, across)
-        for sign in (1.0, -1.0)
-    ]
+    parts = [_errors(at_normal, seams) for at_normal in lum[1:]]
     pooled = [np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])]
     inner_t = tuple(np.concatenate([p[2][k] for p in parts]) for k in range(2))
     edge_t = tuple(np.concatenate([p[3][k] for p in parts]) for k in range(2))
@@ -461,19 +563,28 @@ def _placed(read: Reader, window) -> Reader:
     return lambda xy: read(xy - corner)
 
 
-def _probes(read: Reader, seams: Seams) -> dict:
-    """The reads the metric takes, by place: 'a', 'b' (the seam) and (side, offset) inward."""
-    probes: dict[Any, Callable] = {"a": read(seams.a), "b": read(seams.b)}
+def _luminances(read: Reader, seams: Seams, normals: list[np.ndarray]) -> list[dict]:
+    """The luminance of the irradiance the metric reads, per shading normal of `normals` (each
+    `(S, 3)`; n_v is the seams' normal), by place: 'a', 'b' (the seam) and (side, offset)
+    inward: `[{place: (S,)}]`, one dict per normal. Each place is read once and evaluated at
+    every normal before the next is read (memory: one place's filtered texels at a time)."""
+    places: list[tuple[Any, np.ndarray]] = [("a", seams.a), ("b", seams.b)]
     for side, xy, inward in (("a", seams.a, seams.inward_a), ("b", seams.b, seams.inward_b)):
         for offset in sorted(set(INTERIOR + EDGE_STEP)):
-            probes[side, offset] = read(xy + offset * inward)
-    return probes
+            places.append(((side, offset), xy + offset * inward))
+    out: list[dict] = [{} for _ in normals]
+    for key, xy in places:
+        at = read(xy)
+        for lum, n in zip(out, normals):
+            lum[key] = at(seams.normal, n) @ LUMINANCE
+        del at
+    return out
 
 
-def _errors(probes: dict, seams: Seams, n_v: np.ndarray, n: np.ndarray):
-    """Relative luminance errors at normals n: across the seam (errors, weights), the interior
-    and edge steps ((errors, weights) over both sides), and the (S,) mask of finite seam reads."""
-    lum = {key: at(n_v, n) @ LUMINANCE for key, at in probes.items()}
+def _errors(lum: dict, seams: Seams):
+    """Relative luminance errors from the luminances `lum` at one normal (`_luminances`): across
+    the seam (errors, weights), the interior and edge steps ((errors, weights) over both sides),
+    and the (S,) mask of finite seam reads."""
     valid = np.isfinite(lum["a"]) & np.isfinite(lum["b"])
     seam_err, seam_w = _relative(lum["a"], lum["b"], seams.weight, valid)
     steps = []
@@ -533,10 +644,14 @@ def _weighted_quantile(x: np.ndarray, w: np.ndarray, q: float) -> float:
 # stitching
 
 
-def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple[TexelData, dict]:
+def stitch(
+    data: TexelData, seams: Seams, check=None, threads: int = 0, in_place: bool = False
+) -> tuple[TexelData, dict]:
     """Least-squares seam stitching of `data`'s SH (the post stage's body; `check()` raises to
     cancel, called between solver iterations; `threads`: workers of the solver, 0 = every core,
-    `parallel.resolve_threads`; the result does not depend on it).
+    `parallel.resolve_threads`; the result does not depend on it). `in_place`: the stitched
+    texels are written into `data.sh` and `data.normal` themselves (a caller whose `data` is
+    spent: no copy of the atlas's SH); they are written only after everything else is done.
 
     Unknowns: the texels the seam samples read, each starting from the value the SH file shows
     there (a gutter texel its dilated SH, a buried texel the SH it takes from its own chart).
@@ -569,31 +684,28 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
         record0: dict[str, Any] = {"enabled": True, **empty, "samples_dropped": 0, "samples_hidden": 0}
         return data, {**record0, "texels_bounded": 0, "seconds": time.perf_counter() - start}
     fill = data.fill()
-    prior = fill.apply(data.sh, keep_black=True).reshape(h * w, -1)
     coverage = data.coverage.reshape(-1)
+    # the SH and n_v as the SH file holds them (filled), read only where stitching reads (memory)
+    prior = FilledRows(data.sh.reshape(h * w, -1), fill, (h, w), keep_black=True)
+    filled_normal = FilledRows(data.normal.reshape(h * w, 3), fill, (h, w))
     hidden = np.zeros(h * w, bool)
     hidden[fill.black] = True
     shown = ~reads_hidden(seams, hidden)
-    outside = (coverage == 0.0)[:, None]
-    normal = np.where(outside, fill.apply(data.normal).reshape(h * w, 3), data.normal.reshape(h * w, 3))
+    del hidden
     setup, solving, rest = tick.split([0.15, 0.7, 0.15])
     setup.at(0.0, f"setting up {len(seams)} seam samples")
     system = _system(seams, coverage, prior, shown)
     delta, iterations = _solve(system, prior, solving, parallel.resolve_threads(threads))
     rest.at(0.0, "bounding the stitched texels")
     texels = system.texels
+    outside = coverage[texels] == 0.0
+    normal = np.where(outside[:, None], filled_normal[texels], data.normal.reshape(h * w, 3)[texels])
     new, bounded = _bounded(system, prior, delta, normal, data.sh.dtype)
-    gutter = texels[coverage[texels] == 0.0]
-    sh = data.sh.reshape(h * w, -1).copy()
+    del delta
+    sh = data.sh.reshape(h * w, -1)
     changed = int(np.count_nonzero((new != sh[texels]).any(axis=1)))
-    sh[texels] = new
     extra = np.zeros(h * w, bool) if data.extra_sources is None else data.extra_sources.reshape(-1).copy()
     extra[texels[coverage[texels] <= 0.0]] = True
-    normals = data.normal.reshape(h * w, 3).copy()
-    normals[gutter] = normal[gutter]
-    out = replace(
-        data, sh=sh.reshape(data.sh.shape), normal=normals.reshape(data.normal.shape), extra_sources=extra.reshape(h, w)
-    )
     record: dict[str, Any] = {
         "enabled": True,
         "seams": len(seams),
@@ -605,27 +717,34 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
         "samples_hidden": int(np.count_nonzero(~shown)),
         "texels_bounded": bounded,
     }
-    if len(seams):
-        # As the SH file will read (the stitched texels are sources; no other texel the
-        # metric reads changes, up to gutter texels of thin charts whose nearest source moved).
-        shape = (h, w) + data.sh.shape[2:]
-        visible = atlas_seams.select(shown)
-        read = _placed(sh_reader(prior.reshape(shape)), data.window)
-        rest.at(0.3, "measuring the seams")
-        record["before"] = _brief(_metric(read, visible, worst=0))
-        prior[texels] = new  # the stitched SH, in place: prior is not needed any more (memory)
-        rest.at(0.65, "measuring the seams")
-        record["after"] = _brief(_metric(read, visible, worst=0))
+    # As the SH file will read (the stitched texels are sources; no other texel the metric
+    # reads changes, up to gutter texels of thin charts whose nearest source moved).
+    visible = atlas_seams.select(shown)
+    image = FilledRows(data.sh.reshape(h * w, 9, -1), fill, (h, w), keep_black=True)
+    read = _placed(sh_reader(image), data.window)
+    rest.at(0.3, "measuring the seams")
+    record["before"] = _brief(_metric(read, visible, worst=0))
+    image.put(texels, new)  # the stitched SH, as the filled copy would read it
+    rest.at(0.65, "measuring the seams")
+    record["after"] = _brief(_metric(read, visible, worst=0))
+    # the images: written into `data`'s own (`in_place`: the caller's data is spent), else copies
+    sh = sh if in_place else sh.copy()
+    normals = data.normal.reshape(h * w, 3)
+    normals = normals if in_place else normals.copy()
+    gutter = outside.nonzero()[0]
+    normals[texels[gutter]] = normal[gutter]
+    sh[texels] = new
+    out = replace(
+        data, sh=sh.reshape(data.sh.shape), normal=normals.reshape(data.normal.shape), extra_sources=extra.reshape(h, w)
+    )
     record["seconds"] = time.perf_counter() - start
     return out, record
 
 
-def _bounded(
-    s: _System, prior: np.ndarray, delta: np.ndarray, normal: np.ndarray, dtype=np.float32
-) -> tuple[np.ndarray, int]:
+def _bounded(s: _System, prior, delta: np.ndarray, normal: np.ndarray, dtype=np.float32) -> tuple[np.ndarray, int]:
     """The stitched SH of the unknowns `(N, 9·C)` in `dtype` (the texels'), kept a plausible
-    radiance, and how many texels it held back. `prior (H·W, 9·C)` the starting SH, `delta
-    (N, 9·C)` the solve's change, `normal (H·W, 3)` each texel's n_v.
+    radiance, and how many texels it held back. `prior (H·W, 9·C)` the starting SH (an array or
+    `FilledRows`), `delta (N, 9·C)` the solve's change, `normal (N, 3)` each unknown's n_v.
 
     The least squares has no bound: a gutter texel a seam read takes with a small weight can be
     driven to whatever closes the seam, negative or far brighter than anything around it. So
@@ -646,7 +765,7 @@ def _bounded(
         return np.zeros((0, prior.shape[1]), dtype), 0
     x0 = prior[s.texels].astype(np.float64).reshape(n, 9, c)
     step = delta.reshape(n, 9, c)
-    nrm = _unit(normal[s.texels].astype(np.float64))
+    nrm = _unit(np.asarray(normal, np.float64))
 
     def quantities(x):  # (N, 2, C): L0 and I_z per colour channel
         return np.stack([x[:, 0], irradz(x, nrm)], 1)
@@ -694,7 +813,13 @@ def _brief(metric: dict) -> dict:
 
 
 def stitch_encoded(
-    atlas: EncodedAtlas, seams: Seams, coverage: np.ndarray, check=None, threads: int = 0, window=None
+    atlas: EncodedAtlas,
+    seams: Seams,
+    coverage: np.ndarray,
+    check=None,
+    threads: int = 0,
+    window=None,
+    in_place: bool = False,
 ) -> tuple[EncodedAtlas, dict]:
     """Least-squares seam stitching of an HHD/AHD atlas's encoded layers, as the preview filters
     them: I_z, w_a and the octahedral direction (packed: the GPU interpolates the packed values),
@@ -709,7 +834,9 @@ def stitch_encoded(
     Returns the atlas with the encoding file's images replaced, and a record: enabled, texels
     (changed), iterations, seconds, and the HHD-read `seam_metric` before and after.
     `window` (`stages.Window`): the images and `coverage` are that rectangle of the atlas
-    `seams` are of (`TexelData.window`)."""
+    `seams` are of (`TexelData.window`). `in_place`: the stitched texels are written into
+    `atlas`'s own images (a caller that does not keep the unstitched ones), after the "before"
+    measure; else into copies."""
     start = time.perf_counter()
     tick = ticker(check)
     atlas_seams, seams = seams, seams.within(window)
@@ -723,31 +850,32 @@ def stitch_encoded(
     directions = ["Direction.X", "Direction.Y"]
     h, w = images[names[0]].shape
     cover = np.asarray(coverage).reshape(-1)
-    out = {name: np.array(image, copy=True) for name, image in images.items()}
+    # the stitched layers: written into the atlas's own images (`in_place`) or copies
+    out = dict(images) if in_place else {name: np.array(image, copy=True) for name, image in images.items()}
     model = atlas.settings.get("model", "hhd")
     shown = ~reads_hidden(seams, hidden_texels(np.asarray(coverage)))
     visible = atlas_seams.select(shown)
     measure, *solves, after = tick.split([0.1, 0.4, 0.4, 0.1])
     measure.at(0.0, "measuring the seams")
     before = _metric(_placed(hhd_reader(images, model), window), visible, worst=0)
-    packed = np.stack([images[n].reshape(-1) for n in directions], -1).astype(np.float64)
-    gap = np.abs(bilinear(packed.reshape(h, w, 2), seams.a) - bilinear(packed.reshape(h, w, 2), seams.b)).max(axis=1)
+    packed = _Stacked([images[n] for n in directions], np.float64)
+    gap = np.abs(bilinear(packed, seams.a) - bilinear(packed, seams.b)).max(axis=1)
     iterations, changed = 0, np.zeros(h * w, bool)
     workers = parallel.resolve_threads(threads)
     layers: list[tuple[list[str], np.ndarray]] = [(list(names), shown), (list(directions), shown & (gap <= FOLD_GAP))]
     for part, (layer, use) in zip(solves, layers):
         part.at(0.0, "setting up")
-        prior = np.stack([images[n].reshape(-1) for n in layer], -1).astype(np.float64)
+        prior = _Stacked([images[n] for n in layer], np.float64)  # read where the system reads (memory)
         system = _system(seams, cover, prior, use)
         delta, k = _solve(system, prior, part, workers)
         iterations = max(iterations, k)
         new = prior[system.texels] + delta
+        at = np.divmod(system.texels, w)  # (row, column): the images may be strided views
         for i, n in enumerate(layer):
             low, high = (-1.0, 1.0) if n in directions else (0.0, 1.0 if n.startswith("Wa.") else np.inf)
-            flat = out[n].reshape(-1)
-            values = np.clip(new[:, i], low, high).astype(flat.dtype)
-            changed[system.texels] |= values != flat[system.texels]
-            flat[system.texels] = values
+            values = np.clip(new[:, i], low, high).astype(out[n].dtype)
+            changed[system.texels] |= values != out[n][at]
+            out[n][at] = values
     files = dict(atlas.files)
     files[key] = (spec, out)
     after.at(0.0, "measuring the seams")
@@ -784,15 +912,16 @@ class _System:
     dropped: int
 
 
-def _system(seams: Seams, coverage: np.ndarray, prior: np.ndarray, use: np.ndarray | None = None) -> _System:
-    """Set up the least squares of `stitch` over the flat images `coverage (HW,)`, `prior (HW, C)`,
+def _system(seams: Seams, coverage: np.ndarray, prior, use: np.ndarray | None = None) -> _System:
+    """Set up the least squares of `stitch` over the flat images `coverage (HW,)`, `prior (HW, C)`
+    (an array or rows read on demand: `FilledRows`, `_Stacked`),
     with the samples `use` `(S,)` bool (default all; the caller leaves hidden samples out) that
     read only finite texels. Every texel such a sample reads (with a weight > 0) is an unknown."""
     ia, wa = bilinear_taps(seams.a, seams.width, seams.height)
     ib, wb = bilinear_taps(seams.b, seams.width, seams.height)
     index = np.concatenate([ia, ib], axis=1)  # (S, 8)
     coeff = np.concatenate([wa, -wb], axis=1)
-    finite = np.isfinite(prior).all(axis=1)[index].all(axis=1)
+    finite = np.isfinite(prior[index]).all(axis=(1, 2))  # only the rows read (prior may be `FilledRows`)
     good = finite if use is None else finite & use
     index, coeff, span = index[good], coeff[good], seams.span[good]
     free = coeff != 0.0  # a zero weight reads nothing
@@ -844,7 +973,7 @@ def _apply_at(s: _System, r: np.ndarray) -> np.ndarray:
     return out
 
 
-def _solve(s: _System, prior: np.ndarray, check=None, threads: int = 1) -> tuple[np.ndarray, int]:
+def _solve(s: _System, prior, check=None, threads: int = 1) -> tuple[np.ndarray, int]:
     """The change `(N, C)` of the unknowns minimising Σ λ (A(x0 + δ) + c)² + Σ μ δ²: the normal
     equations (AᵀΛA + M) δ = −AᵀΛ(A x0 + c), solved by Jacobi-preconditioned CG from δ = 0,
     each channel on its own (the channels vectorised, split over `threads` workers). Returns δ

@@ -211,3 +211,20 @@ def _image(points, values, dtype):
     out = np.zeros((points.height * points.width,) + values.shape[1:], dtype)
     out[points.texel] = values
     return out.reshape((points.height, points.width) + values.shape[1:])
+
+
+def test_encoding_in_chunks_on_several_threads_gives_the_images_of_one_thread(monkeypatch):
+    """`encode_images` encodes ENCODE_CHUNK texels per task on a thread pool and writes them in
+    order: the images (bit for bit) and the statistics do not depend on the thread count."""
+    from hhd_lightmapper.core.encoding import stage
+
+    data = texel_data()
+    monkeypatch.setattr(stage, "ENCODE_CHUNK", 16)  # ~8 chunks of this small atlas
+    encoder = encoding.for_settings(encoding.EncoderSettings())
+    one = encoding.encode_atlas(data, encoder, raw=False, threads=1)
+    two = encoding.encode_atlas(data, encoder, raw=False, threads=2)
+    assert one.stats == two.stats
+    images_one, images_two = one.files[encoder.file.key][1], two.files[encoder.file.key][1]
+    assert images_one.keys() == images_two.keys()
+    for name in images_one:
+        np.testing.assert_array_equal(images_one[name], images_two[name])

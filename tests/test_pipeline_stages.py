@@ -76,7 +76,7 @@ def test_stitching_runs_after_denoising_on_the_seams_of_the_atlas_and_is_off_whe
     atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
     seen = []
 
-    def stitch(data, pairs, check=None, threads=0):
+    def stitch(data, pairs, check=None, threads=0, in_place=False):
         seen.append(pairs)
         return data, {"seams": len(pairs)}
 

@@ -485,3 +485,31 @@ def test_seams_into_buried_texels(monkeypatch):
     assert metric["hidden"] == len(found) == record["samples_hidden"] and metric["samples"] == 0
     assert record["texels"] == 0
     np.testing.assert_array_equal(out.sh, hidden.sh)
+
+
+@pytest.mark.parametrize("keep_black", [False, True])
+def test_filled_rows_read_what_the_filled_copy_holds(keep_black):
+    """`seams.FilledRows` (stitching's on-demand read of the filled SH, no copy of the atlas's)
+    gives, bit for bit, the rows of `Fill.apply`'s copy: sources, dilated texels, texels out of
+    the dilation's reach (the sources' mean), black texels; and `put` overrides rows."""
+    from hhd_lightmapper.core import dilate
+
+    rng = np.random.default_rng(7)
+    h, w = 40, 70
+    coverage = np.zeros((h, w), np.float32)
+    coverage[5:15, 5:20] = 1.0
+    coverage[25:35, 45:60] = rng.random((10, 15), dtype=np.float32) + 0.1
+    coverage[8:11, 8:12] = -1.0  # buried texels: a chart of its own keeps some black
+    coverage[30:32, 47:49] = -1.0
+    coverage[0:2, 65:68] = -1.0  # a chart all buried: black
+    image = rng.normal(size=(h, w, 5)).astype(np.float32)
+    fill = dilate.Fill(coverage > 0.0, 3, black=coverage < 0.0, chart=coverage != 0.0)
+    expected = fill.apply(image, keep_black=keep_black).reshape(h * w, 5)
+    rows = seams.FilledRows(image.reshape(h * w, 5), fill, (h, w), keep_black=keep_black)
+    index = rng.integers(0, h * w, size=(300, 4))
+    np.testing.assert_array_equal(rows[index].view(np.uint32), expected[index].view(np.uint32))
+    assert (fill.source < 0).any() and len(fill.black)  # some texels take the mean, some stay black
+    changed = np.array([3, 700, 2000])
+    rows.put(changed, np.full((3, 5), 9.0, np.float32))
+    expected[changed] = 9.0
+    np.testing.assert_array_equal(rows[np.arange(h * w)], expected)

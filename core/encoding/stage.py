@@ -14,7 +14,9 @@ time (memory: one channel's copy).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -232,16 +234,18 @@ def encode_atlas(
     fill: _dilate.Fill | None = None,
     spend: bool = False,
     tick=None,
+    threads: int = 0,
 ) -> EncodedAtlas:
     """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
     files' images of `data` (False: a bake that wrote them before its post stages, `raw_files`,
     or a re-encode, which keeps the files it read). `fill`: `data.fill()`, if the caller has it. `spend` (only without `raw`): the caller no longer needs `data.sh`, which
     is dropped once the texels are encoded, before the layers are filled (memory: the atlas's SH
     is the largest image). `tick` (`core.progress.Tick`): progress and cancel per chunk of texels
-    encoded and per layer filled."""
+    encoded and per layer filled. `threads`: workers encoding chunks of texels (0 = every core,
+    `parallel.resolve_threads`); the files do not depend on it."""
     h, w = data.atlas_shape
     fill = data.fill() if fill is None else fill
-    images, summary = encode_images(data, encoding, fill, spend=spend and not raw, tick=tick)
+    images, summary = encode_images(data, encoding, fill, spend=spend and not raw, tick=tick, threads=threads)
     files = {encoding.file.key: (encoding.file, images)}
     if raw:
         layers = data.layers()
@@ -294,12 +298,16 @@ def _nonzero_rows(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def encode_images(
-    data: TexelData, encoding: Encoding, fill: _dilate.Fill, spend: bool = False, tick=None
+    data: TexelData, encoding: Encoding, fill: _dilate.Fill, spend: bool = False, tick=None, threads: int = 0
 ) -> tuple[dict, dict]:
     """The encoding's channel images `(H, W)` (filled, packed) and its summary statistics.
     `spend`: drop `data.sh` once the texels are encoded (`encode_atlas`). With a window
     (`TexelData.window`) the images are `stages.PlacedImage`s of the whole atlas. `tick`
-    (`core.progress.Tick`): reported per ENCODE_CHUNK texels and per layer filled."""
+    (`core.progress.Tick`): reported per ENCODE_CHUNK texels and per layer filled. The chunks
+    are encoded on `threads` workers (0 = every core; numpy releases the GIL in the fit's array
+    operations), each chunk as it would be alone, and written in order: the same images and
+    statistics whatever the thread count."""
+    from ..parallel import resolve_threads
     from ..progress import ticker
 
     h, w = data.coverage.shape
@@ -307,17 +315,26 @@ def encode_images(
     sh, normal = data.sh.reshape(h * w, 9, -1), data.normal.reshape(h * w, 3)
     channels = encoding.file.channels
     values = {ch.name: np.zeros((h * w, ch.value_width), np.float32) for ch in channels}
-    stats = []
+    stats: list[dict] = []
     # the fill and packing of a layer: about a fifth of encoding its texels (per atlas texel, not baked)
     texels_part, layers_part = ticker(tick).split([len(baked), 0.2 * h * w * len(channels)])
     step = texels_part.counter(len(baked), lambda done, of: f"encoding texels {done} of {of}")
-    for s in range(0, len(baked), ENCODE_CHUNK):
+    starts = range(0, len(baked), ENCODE_CHUNK)
+
+    def encoded(s: int):
         rows = baked[s : s + ENCODE_CHUNK]
-        out = encoding.encode(sh[rows], normal[rows])
-        for name, v in out.values.items():
-            values[name][rows] = v
-        stats.append(out.stats)
-        step(s + len(rows))
+        return rows, encoding.encode(sh[rows], normal[rows])
+
+    workers = min(resolve_threads(threads), len(starts))
+    with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
+        # at most two chunks ahead of the one written per worker (memory: each holds float64 copies)
+        pending: deque = deque()
+        done = 0
+        for s in starts:
+            pending.append(pool.submit(encoded, s))
+            while len(pending) > 2 * workers or (s == starts[-1] and pending):
+                done += _take(pending.popleft().result(), values, stats)
+                step(done)
     if spend:
         del sh
         data.sh = np.zeros((0, 0) + data.sh.shape[2:], np.float32)
@@ -327,6 +344,16 @@ def encode_images(
         images.update(layer_images(ch, values.pop(ch.name).reshape(h, w, ch.value_width), fill, data.window))
         step(k + 1)
     return images, encoding.summary(stats, len(baked))
+
+
+def _take(result, values: dict, stats: list) -> int:
+    """One encoded chunk (`encode_images`' `encoded`) into the value images, in chunk order; its
+    texel count."""
+    rows, out = result
+    for name, v in out.values.items():
+        values[name][rows] = v
+    stats.append(out.stats)
+    return len(rows)
 
 
 def layer_images(
