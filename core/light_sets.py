@@ -139,7 +139,7 @@ def blend_atlas(files, weights: Mapping[str, object] | None) -> dict:
     filled alike, so the fill blends too), the sidecar records the weights under `blend`. The
     sets' files and the raw SH are untouched (Re-encode restores the plain sum). files:
     `lightmap_files.AtlasFiles` of the atlas. Returns the sidecar's `blend` record. Raises
-    BakeError for an atlas baked without light sets, an AHD bake, or bad weights."""
+    BakeError for an atlas baked without light sets, one encoded in another model than HHD, or bad weights."""
     from . import exr, lightmap_files
 
     sidecar = lightmap_files.read_sidecar(files.sidecar)
@@ -147,6 +147,12 @@ def blend_atlas(files, weights: Mapping[str, object] | None) -> dict:
     if not entries:
         raise BakeError(
             f"atlas '{files.name}' was baked without light sets: put lights in Blender Light Groups and bake again"
+        )
+    model = sidecar.get("encoder", {}).get("model", "hhd")
+    if model != "hhd":
+        raise BakeError(
+            f"atlas '{files.name}' is encoded as {model}: light sets blend as HHD (through linear SH); "
+            "re-encode the atlas as HHD (Re-encode, or `encode --model hhd`) and blend again"
         )
     names = [entry["name"] for entry in entries]
     w = weight_array(names, weights)

@@ -5,21 +5,31 @@ from pathlib import Path
 import bpy
 
 from ..bridge import bake_session
+from ..core.encoding.preview import sampled
 from ..core.errors import BakeError
-from ..core.lightmap_files import AtlasFiles
+from ..core.lightmap_files import AtlasFiles, read_sidecar
 from ..shaders import preview
 from .bake import receivers_poll
 
 
 def atlas_files_of(objects, settings) -> dict:
-    """{object name: AtlasFiles} for baked objects; raises BakeError naming one without a bake."""
+    """{object name: AtlasFiles} for baked objects; raises BakeError naming one without a bake, or
+    whose bake lacks the images the preview mode samples (an atlas encoded in a model the preview
+    does not show, say SG9, still previews as L1/L2 SH from its raw SH file)."""
     folder = Path(bake_session.output_folder(settings))
     out = {}
     for obj in objects:
         name = obj.hhd.atlas or bake_session.DEFAULT_ATLAS
         files = AtlasFiles(folder, name)
-        if not files.preview_image("iz").is_file():
+        if not files.sidecar.is_file():
             raise BakeError(f"'{obj.name}' has no bake in {folder} (atlas '{name}'): bake it first")
+        if not all(files.preview_image(ch.preview).is_file() for ch in sampled(settings.preview_mode)):
+            model = read_sidecar(files.sidecar).get("encoder", {}).get("model", "?")
+            raise BakeError(
+                f"atlas '{name}' is encoded as {model}: the EEVEE preview shows HHD and AHD, or L1/L2 SH from "
+                "the raw SH file; choose Preview L1 SH or L2 SH, or re-encode the atlas as HHD (Re-encode, "
+                "or `encode --model hhd`)"
+            )
         out[obj.name] = files
     return out
 

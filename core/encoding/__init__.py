@@ -18,7 +18,7 @@ from .hhd import FILE as HHD_FILE
 from .raw import FILES as RAW_FILES
 from .raw import SH_FILE, TEXELS_FILE
 from .registry import ENCODINGS, MODELS, documented_files, for_settings
-from .settings import AMBIENTS, DIRECTIONS, EncoderSettings
+from .settings import AMBIENTS, DIRECTIONS, SOLVES, EncoderSettings
 from .spec import DILATE, DILATE_BURIED_BLACK, FLOAT, HALF, HALF_OR_FLOAT, NO_FILL, Channel, Encoded, Encoding, FileSpec
 from .stage import DILATE_RINGS, ENCODE_CHUNK, EncodedAtlas, TexelData, encode_atlas, raw_files
 
@@ -31,6 +31,7 @@ __all__ = [
     "DILATE_BURIED_BLACK",
     "DILATE_RINGS",
     "DIRECTIONS",
+    "SOLVES",
     "ENCODE_CHUNK",
     "ENCODINGS",
     "FLOAT",

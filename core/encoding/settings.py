@@ -13,18 +13,27 @@ from ..hhd import GOLDEN_ITERATIONS
 #: The values `direction` and `ambient` take (`core.hhd.encode`).
 DIRECTIONS = ("searched", "optimal_linear")
 AMBIENTS = ("luminance", "rgb")
+#: The values `solve` takes: how an SG encoding fits its lobes (`encoding.sg`).
+SOLVES = ("adhoc", "ls", "nnls")
 
 
 @dataclass
 class EncoderSettings:
-    """model: an encoding of `registry.ENCODINGS` ("hhd", "ahd"); direction, ambient, phi_search,
-    golden_iterations: keyword arguments of `hhd.encode` (see there)."""
+    """model: an encoding of `registry.ENCODINGS` ("hhd", "ahd", "sh_l1", … "sg12"); direction,
+    ambient, phi_search, golden_iterations: keyword arguments of `hhd.encode` (see there);
+    solve: the SG encodings' fit, one of SOLVES (`encoding.sg`)."""
 
     model: str = "hhd"
     direction: str = "searched"
     ambient: str = "luminance"
     phi_search: bool = False
     golden_iterations: int = GOLDEN_ITERATIONS
+    solve: str = "nnls"
 
     def kwargs(self) -> dict:
-        return asdict(self)
+        """The fields as a dict; `solve` only for an SG model (the HHD fit takes no such
+        argument, and the sidecars of the other models stay as they were)."""
+        out = asdict(self)
+        if not self.model.startswith("sg"):
+            out.pop("solve")
+        return out
