@@ -30,7 +30,7 @@ import bpy  # noqa: E402
 
 from . import blender_compat  # noqa: E402
 from .core import encoding, presets  # noqa: E402
-from .core.errors import BakeError, DependencyMissing  # noqa: E402
+from .core.errors import BakeError, DependencyMissing, FullBakeNeeded  # noqa: E402
 from .core.light_sets import MAX_WEIGHT  # noqa: E402
 from .core.tracer import BakeCancelled  # noqa: E402
 
@@ -41,6 +41,7 @@ EXIT_USAGE = 2  # bad command line (argparse)
 EXIT_DEPENDENCY = 3  # a compiled package (embreex, xatlas, OpenEXR), or Dask for --scheduler, is missing
 EXIT_OUTPUT = 4  # the output files could not be written (previous files are intact)
 EXIT_CANCELLED = 5  # interrupted (Ctrl-C, SIGTERM): no file replaced
+EXIT_FULL_BAKE = 6  # bake --only/--changed cannot go into the last bake's files (none, re-unwrapped): bake all
 EXIT_INTERNAL = 70  # a bug: the traceback is printed
 
 #: The most worker threads --threads takes (Blender's own limit for Render > Performance > Threads).
@@ -86,6 +87,11 @@ EXIT_CODES = (
         "output: the output folder or the .blend (--save) cannot be written (previous files are intact)",
     ),
     (EXIT_CANCELLED, "cancelled: interrupted (Ctrl-C or SIGTERM); no output file was replaced"),
+    (
+        EXIT_FULL_BAKE,
+        "full bake needed: bake --only/--changed found no earlier bake, or the atlas layout or bake settings "
+        "changed since it; nothing was written",
+    ),
     (EXIT_INTERNAL, "internal error: a bug; the traceback is printed (please report it)"),
 )
 
@@ -271,6 +277,11 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
             help=f"the encoding written: {_choices('model', encoding.MODELS)} ({_default('model')})",
         )
         q.add_argument(
+            "--solve",
+            choices=list(encoding.SOLVES),
+            help=f"how an SG encoding fits its lobes: {_choices('solve', encoding.SOLVES)} ({_default('solve')})",
+        )
+        q.add_argument(
             "--direction",
             choices=list(encoding.DIRECTIONS),
             help=f"how the highlight direction is found: {_choices('direction', encoding.DIRECTIONS)} "
@@ -341,8 +352,8 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
     q.add_argument(
         "--make-single-user",
         action="store_true",
-        help="give linked duplicates (objects sharing one mesh) their own mesh first; without it the unwrap "
-        "refuses them, as one UV layer cannot give them separate texels (default: off)",
+        help="give linked duplicates (objects sharing one mesh) their own mesh first; without it they stay "
+        "linked and share the mesh's lightmap UVs, each with its own rectangle of the atlas (default: off)",
     )
     q.add_argument(
         "--save",
@@ -436,7 +447,34 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
         "finished tasks are kept in the output folder's .hhd_farm, so the same command resumes "
         "(default: the scene's Dask Scheduler setting; empty, as in a new scene: bake on this machine)",
     )
+    q.add_argument(
+        "--only",
+        nargs="+",
+        metavar="NAME",
+        help="re-trace only these receivers of the last bake in the output folder and write their texels into "
+        f"its files, every other texel kept as it is (README: Bake what changed); exit code {EXIT_FULL_BAKE} "
+        "when there is no earlier bake or the layout changed (default: off: bake every receiver)",
+    )
+    q.add_argument(
+        "--changed",
+        action="store_true",
+        help="as --only, for the receivers whose geometry, transform or material changed since the last bake "
+        "(the stale command lists them) (default: off)",
+    )
+    q.add_argument(
+        "--influenced",
+        action="store_true",
+        help="with --changed: also the receivers the changes (objects, lights, world) influence, by the rule in "
+        "README: Bake what changed (default: off)",
+    )
     threads(q)
+
+    q = command(
+        "stale",
+        "list what changed since the last bake in the output folder (objects, lights, world, atlas layouts) "
+        "and how many receivers bake --changed would re-trace; nothing is traced or written",
+    )
+    out(q, "folder of the bake")
 
     q = command("encode", "re-encode a finished bake from its SH EXR (no tracing)")
     receivers(q)
@@ -514,6 +552,17 @@ def _conflicts(args) -> str | None:
     """Options that contradict each other (argparse cannot see it), or None."""
     if getattr(args, "objects", None) and getattr(args, "collection", None):
         return "--objects and --collection both name the receivers: give one of them"
+    subset = getattr(args, "only", None) or getattr(args, "changed", False)
+    if getattr(args, "influenced", False) and not getattr(args, "changed", False):
+        return "--influenced widens --changed: give --changed --influenced"
+    if getattr(args, "only", None) and getattr(args, "changed", False):
+        return "--only and --changed both choose the receivers to re-trace: give one of them"
+    for other in ("objects", "collection", "unwrap", "scheduler"):
+        if subset and getattr(args, other, None):
+            return (
+                f"--{other} with --only/--changed: a partial bake re-traces receivers of the last bake, into its "
+                "layout, on this machine"
+            )
     density = getattr(args, "texel_density", None)
     if density and getattr(args, "resolution", None) is not None:
         return (
@@ -542,7 +591,7 @@ def _apply_options(settings, args) -> None:
         value = getattr(args, key, None)
         if value is not None:
             setattr(settings, key, value)
-    for key in ("model", "direction", "ambient", "inward_faces"):
+    for key in ("model", "direction", "ambient", "solve", "inward_faces"):
         value = getattr(args, key, None)
         if value is not None:
             setattr(settings, key, value.upper().replace("-", "_"))
@@ -581,6 +630,8 @@ def _bake(context, args) -> str:
     from .bridge import bake_session
     from .core.console import ConsoleProgress, interrupt_as_cancel
 
+    if args.only or args.changed:
+        return _bake_subset(context, args)
     if args.unwrap:
         print(_unwrap(context, args), flush=True)
     session = bake_session.BakeSession(context, args.objects, args.out, threads=args.threads)
@@ -606,6 +657,38 @@ def _bake(context, args) -> str:
     for w in session.result_warnings:  # e.g. no denoiser: the files are written undenoised
         print(f"warning: {w}")
     return summary
+
+
+def _bake_subset(context, args) -> str:
+    """`bake --only NAMES` / `--changed [--influenced]`: `bridge.incremental_session`."""
+    from .bridge import incremental_session
+    from .core.console import ConsoleProgress, interrupt_as_cancel
+
+    mode = "only" if args.only else "influenced" if args.influenced else "changed"
+    session = incremental_session.IncrementalSession(context, mode, args.only, args.out, threads=args.threads)
+    for w in session.warnings:
+        print(f"warning: {w}")
+    print(f"bake: {session.describe()}", flush=True)
+    progress = ConsoleProgress()
+    try:
+        with interrupt_as_cancel() as cancel:
+            session.run(progress=progress, cancel=cancel)
+    finally:
+        progress.close()
+    summary = session.finish()
+    for w in session.result_warnings:
+        print(f"warning: {w}")
+    return summary
+
+
+def _stale(context, args) -> str:
+    """`stale`: what changed since the last bake (`bridge.incremental_session.stale_report`)."""
+    from .bridge import incremental_session
+
+    stale, lines = incremental_session.stale_report(context, args.out)
+    for line in lines[:-1]:
+        print(f"stale: {line}")
+    return lines[-1]
 
 
 def _farm(address: str, trace):
@@ -789,7 +872,7 @@ def _check_before(context, args) -> None:
         if problem:
             raise _OutputProblem(problem)
     # unwrap, uv-report and export write no bake files (--json, --glb are checked as they are written)
-    if args.action not in ("unwrap", "uv-report", "export"):
+    if args.action not in ("unwrap", "uv-report", "export", "stale"):
         problem = _output_problem(bake_session.output_folder(context.scene.hhd, args.out))
         if problem:
             raise _OutputProblem(problem)
@@ -831,12 +914,15 @@ def _run(args: argparse.Namespace) -> int:
                 "blend": _blend,
                 "export": _export,
                 "uv-report": _uv_report,
+                "stale": _stale,
             }
             summary = commands[args.action](context, args)
             if getattr(args, "save", False):
                 _save(args)
     except DependencyMissing as exc:
         return _fail(EXIT_DEPENDENCY, exc)
+    except FullBakeNeeded as exc:
+        return _fail(EXIT_FULL_BAKE, exc)
     except (BakeCancelled, KeyboardInterrupt):
         return _fail(EXIT_CANCELLED, "interrupted: no output file was replaced")
     except BakeError as exc:

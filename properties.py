@@ -298,13 +298,40 @@ class HHDSettings(bpy.types.PropertyGroup):
     )
     seed: IntProperty(name="Seed", default=0, min=0, description="Random seed: the same seed gives the same bake")
     bake_summary: StringProperty(name="Last Bake", default="", options={'SKIP_SAVE'})
+    stale_report: StringProperty(
+        name="What Changed",
+        default="",
+        options={'SKIP_SAVE'},
+        description="What changed since the last bake in the output folder (What Changed), one line per kind",
+    )
     model: EnumProperty(
         name="Model",
         default='HHD',
         items=[
             ('HHD', "HHD", "Hemisphere light + highlight direction (IrradZ)"),
             ('AHD', "AHD", "Constant ambient + highlight direction (IrradZ)"),
+            ('SH_L1', "L1 SH", "Radiance SH, 4 coefficients per colour (Baking Lab; docs/format.md)"),
+            ('SH_L2', "L2 SH", "Radiance SH, 9 coefficients per colour (Baking Lab; docs/format.md)"),
+            ('HL2', "Half-Life 2", "Three colours along the Half-Life 2 basis in the tangent frame of n_v"),
+            ('HBASIS_L1', "L1 H-basis", "Hemispherical basis, 4 coefficients per colour (Habel & Wimmer)"),
+            ('HBASIS_L2', "L2 H-basis", "Hemispherical basis, 6 coefficients per colour (Habel & Wimmer)"),
+            ('SG5', "SG5", "5 spherical Gaussians with fixed lobes (Baking Lab), fitted by the Solve setting"),
+            ('SG6', "SG6", "6 spherical Gaussians with fixed lobes (Baking Lab), fitted by the Solve setting"),
+            ('SG9', "SG9", "9 spherical Gaussians with fixed lobes (Baking Lab), fitted by the Solve setting"),
+            ('SG12', "SG12", "12 spherical Gaussians with fixed lobes (Baking Lab), fitted by the Solve setting"),
         ],
+        description="The encoding written (the raw SH file is always written too); the EEVEE preview shows "
+        "HHD and AHD, and from the SH file L1/L2 SH",
+    )
+    solve: EnumProperty(
+        name="SG Solve",
+        default='NNLS',
+        items=[
+            ('ADHOC', "Ad-hoc", "Ad-hoc projection onto the lobes (Baking Lab's, normalised)"),
+            ('LS', "Least Squares", "Least-squares fit to the radiance the L2 SH holds"),
+            ('NNLS', "Non-negative LS", "Non-negative least squares: no negative lobe"),
+        ],
+        description="How an SG encoding fits its lobes (docs/format.md)",
     )
     direction: EnumProperty(
         name="Direction",
@@ -365,6 +392,14 @@ class HHDObjectSettings(bpy.types.PropertyGroup):
     )
     atlas_width: IntProperty(name="Atlas Width", default=0, min=0)
     atlas_height: IntProperty(name="Atlas Height", default=0, min=0)
+    lightmap_rect: FloatVectorProperty(
+        name="Lightmap Rectangle",
+        size=4,
+        default=(1.0, 1.0, 0.0, 0.0),
+        description="Where this object's lightmap lies in its atlas, set by Unwrap: atlas UV = lightmap UV × "
+        "(x, y) + (z, w). Identity for an object with its own mesh; a linked duplicate (an instance) shares its "
+        "mesh's lightmap UVs and gets its own rectangle",
+    )
 
 
 classes = (HHDLightSet, HHDSettings, HHDObjectSettings)

@@ -13,22 +13,25 @@ import os
 import bpy
 
 from ..core import bake as core_bake
+from ..core import encoding as core_encoding
 from ..core import parallel, tracer
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles
-from . import denoiser, mesh_data, scene_data
+from . import denoiser, fingerprints, mesh_data, scene_data
 
 DEFAULT_ATLAS = "Lightmap"
 
 
 def target_objects(context, names: list[str] | None = None) -> list:
     """Receivers: the named objects, else the scene's target (selected objects or a collection).
-    Raises BakeError naming an object that does not exist or is not a mesh."""
+    Raises BakeError naming an object that does not exist or is not a mesh, or a collection
+    instance among them (`mesh_data.refuse_collection_instances`)."""
     settings = context.scene.hhd
     if names:
         missing = [n for n in names if n not in bpy.data.objects]
         if missing:
             raise BakeError(f"no object named {', '.join(repr(n) for n in missing)} in this .blend")
+        mesh_data.refuse_collection_instances(bpy.data.objects[n] for n in names)
         wrong = [n for n in names if bpy.data.objects[n].type != 'MESH']
         if wrong:
             raise BakeError(f"{', '.join(repr(n) for n in wrong)} is not a mesh object: only meshes get lightmaps")
@@ -36,7 +39,9 @@ def target_objects(context, names: list[str] | None = None) -> list:
     if settings.target == 'COLLECTION':
         if settings.target_collection is None:
             raise BakeError("Receivers is set to Collection but no collection is chosen")
+        mesh_data.refuse_collection_instances(settings.target_collection.all_objects)
         return mesh_data.target_meshes(settings.target_collection.all_objects)
+    mesh_data.refuse_collection_instances(context.selected_objects)
     return mesh_data.target_meshes(context.selected_objects)
 
 
@@ -78,6 +83,17 @@ def atlas_groups(objects, settings) -> tuple[list[tuple[str, int, int, list]], l
                 "their texels in this bake's files are empty (bake them together)"
             )
     return [(name, size[0], size[1], members) for name, (size, members) in groups.items()], warnings
+
+
+def instance_records(objects) -> dict:
+    """{object name: {"mesh", "scale", "offset"}} of the objects among `objects` that are instances
+    (a lightmap rectangle other than the identity, `core.instances`): the sidecar's record."""
+    out = {}
+    for obj in objects:
+        rect = mesh_data.lightmap_rect(obj)
+        if rect != mesh_data.IDENTITY_RECT:
+            out[obj.name] = {"mesh": obj.data.name, "scale": list(rect[:2]), "offset": list(rect[2:])}
+    return out
 
 
 def _check_receivers(objects, uv_layer: str) -> None:
@@ -152,6 +168,7 @@ def encoder_settings(settings) -> core_bake.EncoderSettings:
         ambient=settings.ambient.lower(),
         phi_search=settings.phi_search,
         golden_iterations=settings.golden_iterations,
+        solve=settings.solve.lower(),
     )
 
 
@@ -217,8 +234,12 @@ class BakeSession:
         self.atlases = []
         for name, width, height, members in groups:
             surface = mesh_data.read_surface(members, settings.uv_layer, depsgraph, cache, notes)
-            self.atlases.append(core_bake.AtlasInput(name, width, height, surface, [o.name for o in members]))
+            self.atlases.append(
+                core_bake.AtlasInput(name, width, height, surface, [o.name for o in members], instance_records(members))
+            )
         self.warnings += list(dict.fromkeys(notes))
+        # what the lighting depends on, for Bake Changed and the stale report (core.incremental)
+        self.fingerprints = fingerprints.scene_fingerprints(context, groups, settings.uv_layer)
         self.pack = settings.pack_images
         self.blend = bpy.data.filepath
         self.scene_name = context.scene.name  # the bpy scene, for the light sets' weights after the bake
@@ -253,6 +274,8 @@ class BakeSession:
             "receivers": [o for a in self.atlases for o in a.objects],
             "occluder_triangles": int(len(self.scene.triangles)),
             "notes": self.warnings,
+            "fingerprints": self.fingerprints.to_json(),
+            "baked": dict.fromkeys((o for a in self.atlases for o in a.objects), self.fingerprints.to_json()["time"]),
         }
         self.results = core_bake.run(
             self.atlases,
@@ -302,9 +325,11 @@ class BakeSession:
 
 
 def load_atlas_images(files: AtlasFiles, pack: bool = False) -> list:
-    """Load (or reload) an atlas's HHD and SH EXRs as Non-Color images; external unless `pack`."""
+    """Load (or reload) an atlas's encoded EXRs (each encoding's file the folder holds: HHD, or the
+    model the bake wrote) and its SH EXR as Non-Color images; external unless `pack`."""
     images = []
-    for path in (files.hhd, files.sh):
+    encoded = [files.path(spec) for spec in core_encoding.documented_files() if spec.key not in ("sh", "texels")]
+    for path in [p for p in dict.fromkeys(encoded) if p.exists()] + [files.sh]:
         image = next(
             (
                 im

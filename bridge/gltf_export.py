@@ -35,6 +35,7 @@ from ..core import sh as core_sh
 from ..core.encoding import web_packing as wp
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles, read_sidecar
+from . import mesh_data
 
 NAME = "HHD_LIGHTMAP"
 EXT = "HHD_lightmap"
@@ -68,6 +69,7 @@ class _State:
         self.exported: list[str] = []
         self.blender_materials: dict[int, object] = {}
         self.root: dict | None = None
+        self.instance_note = False
 
     def warn(self, text: str) -> None:
         self.warnings.append(text)
@@ -148,6 +150,12 @@ class _Atlas:
         self.textures: dict = {}
 
     def load(self) -> None:
+        model = self.sidecar.get("encoder", {}).get("model", "hhd")
+        if model not in ("hhd", "ahd"):
+            raise BakeError(
+                f"atlas '{self.name}' is encoded as {model}: the glTF export carries HHD or AHD (docs/gltf.md); "
+                "re-encode the atlas as HHD (Re-encode, or `encode --model hhd`) and export again"
+            )
         self.layers = _read_layers(self.files, (self.height, self.width))
 
 
@@ -274,7 +282,8 @@ def _check_object(obj, atlas: _Atlas, layer: str) -> str | None:
     rect = atlas.objects[obj.name].get("uv_rect")
     if rect is None:
         return f"'{obj.name}' has no baked texels in atlas '{atlas.name}': bake it again"
-    lo, hi = bounds
+    scale_offset = np.array(mesh_data.lightmap_rect(obj))  # an instance's rectangle (core.instances)
+    lo, hi = (b * scale_offset[:2] + scale_offset[2:] for b in bounds)
     tx, ty = 1.5 / atlas.width, 1.5 / atlas.height
     outside = lo[0] < rect[0] - tx or lo[1] < rect[1] - ty or hi[0] > rect[2] + tx or hi[1] > rect[3] + ty
     shrunk = lo[0] > rect[0] + tx or lo[1] > rect[1] + ty or hi[0] < rect[2] - tx or hi[1] < rect[3] - ty
@@ -464,9 +473,18 @@ def _build(state: _State, scene_plan) -> None:
             continue
         if node.extensions is None:
             node.extensions = {}
-        node.extensions[EXT] = b.ext(EXT, {"atlas": atlas.index, "texCoord": k, "scaleOffset": [1.0, 1.0, 0.0, 0.0]})
+        rect = mesh_data.lightmap_rect(obj)
+        node.extensions[EXT] = b.ext(EXT, {"atlas": atlas.index, "texCoord": k, "scaleOffset": gltf_scale_offset(rect)})
+        instanced = rect != mesh_data.IDENTITY_RECT
+        if instanced and not state.instance_note:
+            state.instance_note = True
+            state.warn(
+                "instanced meshes (linked duplicates) get no fallback lightmap for viewers without HHD_lightmap: "
+                "their nodes share one mesh and its materials, and the fallback textures cannot follow each "
+                "node's scaleOffset"
+            )
         for p in prims:
-            p.material = _material_copy(b, copies, p.material, atlas, k, state)
+            p.material = _material_copy(b, copies, p.material, atlas, k, state, instanced)
         state.exported.append(name)
 
     weights = _light_set_weights(scene, set_names)
@@ -486,8 +504,18 @@ def _build(state: _State, scene_plan) -> None:
     state.root = root
 
 
-def _material_copy(b: _Builder, copies: dict, material, atlas: _Atlas, k: int, state: _State):
-    key = (id(material), atlas.index, k)
+def gltf_scale_offset(rect) -> list[float]:
+    """The node's `scaleOffset` in glTF UVs (v flipped: v_gltf = 1 − v) from the object's
+    lightmap rectangle (scale u, scale v, offset u, offset v) in Blender's: atlas = uv · scale +
+    offset in both, so the v offset becomes 1 − scale v − offset v. Identity stays [1, 1, 0, 0]."""
+    su, sv, ou, ov = (float(v) for v in rect)
+    return [su, sv, ou, 1.0 - sv - ov]
+
+
+def _material_copy(b: _Builder, copies: dict, material, atlas: _Atlas, k: int, state: _State, instanced=False):
+    """The material copy for receivers of `atlas` with the fallback textures (none for
+    `instanced` nodes: an instance's fallback would need its own UV transform)."""
+    key = (id(material), atlas.index, k, instanced)
     if key in copies:
         return copies[key]
     blender_material = state.blender_materials.get(id(material)) if material is not None else None
@@ -512,6 +540,10 @@ def _material_copy(b: _Builder, copies: dict, material, atlas: _Atlas, k: int, s
         new.name = f"{material.name or 'material'} [{atlas.name}]"
     own = list(material.emissive_factor) if material.emissive_factor else [0.0, 0.0, 0.0]
     scale = atlas.textures["scale"]
+    if instanced:
+        new.extensions[EXT] = b.ext(EXT, {"fallbackEmission": False, "emissiveFactor": own})
+        copies[key] = new
+        return new
     if material.emissive_texture is None:
         albedo = _mean_albedo(blender_material)
         strength = max(scale * max(albedo), 1e-6)

@@ -22,12 +22,58 @@ def target_meshes(objects) -> list:
     return sorted((o for o in objects if o.type == 'MESH'), key=lambda o: o.name)
 
 
+def refuse_collection_instances(objects) -> None:
+    """Raise BakeError naming the objects among `objects` that instance a collection (an Empty
+    with Instancing > Collection): they cannot receive lightmaps (their meshes are not objects
+    of this scene that could hold a rectangle, `core.instances`)."""
+    found = [
+        (o.name, o.instance_collection.name)
+        for o in objects
+        if o.type == 'EMPTY' and o.instance_type == 'COLLECTION' and o.instance_collection is not None
+    ]
+    if found:
+        names = ", ".join(f"'{name}' (collection '{collection}')" for name, collection in found)
+        raise BakeError(
+            f"{names} instance a collection: collection instances cannot receive lightmaps. Use linked "
+            "duplicates (Alt+D) of its objects, which share their meshes, or Object > Apply > Make Instances Real"
+        )
+
+
 def shared_meshes(objects) -> dict:
     """{mesh name: [object names]} for meshes used by more than one of `objects`."""
     users = {}
     for o in objects:
         users.setdefault(o.data.name, []).append(o.name)
     return {mesh: names for mesh, names in users.items() if len(names) > 1}
+
+
+def outside_users(objects) -> dict:
+    """{mesh name: [object names]} of the objects outside `objects` that use one of their meshes
+    and were unwrapped (they hold an atlas): unwrapping `objects` rewrites those objects'
+    lightmap UVs too (one layer per mesh)."""
+    mine = {o.data.name for o in objects}
+    inside = {o.name for o in objects}
+    out: dict = {}
+    for o in bpy_objects():
+        if o.type == 'MESH' and o.name not in inside and o.data.name in mine and o.hhd.atlas:
+            out.setdefault(o.data.name, []).append(o.name)
+    return out
+
+
+def bpy_objects():
+    import bpy
+
+    return bpy.data.objects
+
+
+#: identity rectangle (scale u, scale v, offset u, offset v) of an object with its own mesh
+IDENTITY_RECT = (1.0, 1.0, 0.0, 0.0)
+
+
+def lightmap_rect(obj) -> tuple[float, float, float, float]:
+    """The object's lightmap rectangle: atlas UV = layer UV × rect[:2] + rect[2:] (`core.instances`);
+    identity unless it is an instance of a shared mesh."""
+    return tuple(float(v) for v in obj.hhd.lightmap_rect)  # type: ignore[return-value]
 
 
 def make_single_user(objects) -> int:
@@ -41,9 +87,10 @@ def make_single_user(objects) -> int:
     return copies
 
 
-def read_unwrap_mesh(obj) -> tuple[UnwrapMesh, np.ndarray]:
+def read_unwrap_mesh(obj, instance_of: str | None = None) -> tuple[UnwrapMesh, np.ndarray]:
     """(UnwrapMesh in world space with each triangle's polygon, loop indices (T, 3) of each
-    triangle corner) for obj.data."""
+    triangle corner) for obj.data; `instance_of`: the shared mesh's name for a linked duplicate
+    unwrapped as an instance (`core.instances`)."""
     mesh = obj.data
     mesh.calc_loop_triangles()
     n_tri, n_vert = len(mesh.loop_triangles), len(mesh.vertices)
@@ -70,6 +117,7 @@ def read_unwrap_mesh(obj) -> tuple[UnwrapMesh, np.ndarray]:
         resolution=overrides.resolution or None,
         texel_density=overrides.texel_density or None,
         polygons=polygons,
+        instance_of=instance_of,
     ), loops
 
 
@@ -215,7 +263,8 @@ def no_faces_warning(name: str) -> str:
 
 def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None = None, notes: list | None = None):
     """SurfaceTriangles of the evaluated meshes of `objects` (modifiers applied, world space):
-    positions, corner normals (smooth/flat/custom as Blender shades them), lightmap UVs, object
+    positions, corner normals (smooth/flat/custom as Blender shades them), lightmap UVs (an
+    instance's through its rectangle, `lightmap_rect`: atlas UVs for every object), object
     index and albedo (constant or image texture) per triangle. `notes` collects fallbacks."""
     from ..core.bakepoints import SurfaceTriangles
 
@@ -238,6 +287,8 @@ def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None =
             n_world = world_corner_normals(mesh, evaluated.matrix_world)
             uv = np.zeros(len(mesh.loops) * 2)
             mesh.uv_layers[uv_layer].data.foreach_get("uv", uv)
+            rect = np.array(lightmap_rect(obj))  # an instance's rectangle in the atlas
+            uv = (uv.reshape(-1, 2) * rect[:2] + rect[2:]).ravel()
             albedo, tex_index, tex_uv = triangle_albedo(evaluated, mesh, loops, mat_index, cache, notes)
             polygon = triangle_polygons(mesh, len(loops))
             parts.append(

@@ -2,7 +2,8 @@
 
 Reads what the unwrap wrote, as the unwrap reads it (`mesh_data.read_unwrap_mesh`: the object's
 own mesh before modifiers, world space, mirrored objects' winding reversed) plus the lightmap UV
-layer per triangle corner, into a `core.texel_density.ViewMesh`. Writes a view's colours as a
+layer per triangle corner (an instance's through its rectangle: atlas UVs), into a
+`core.texel_density.ViewMesh`. Writes a view's colours as a
 FLOAT_VECTOR attribute on the face domain (`COLOUR`: not a colour attribute, so the mesh's active
 and render colour attributes stay as they are), which Hide removes again.
 """
@@ -20,7 +21,9 @@ COLOUR = "hhd_view"
 
 
 def read_view_mesh(obj, uv_layer: str) -> ViewMesh | None:
-    """`obj`'s faces and lightmap UVs, or None when its mesh has no layer `uv_layer` or no face."""
+    """`obj`'s faces and atlas UVs (an instance's layer UVs through its rectangle,
+    `mesh_data.lightmap_rect`, so each instance has its own texels), or None when its mesh has no
+    layer `uv_layer` or no face."""
     mesh = obj.data
     layer = mesh.uv_layers.get(uv_layer)
     if layer is None:
@@ -31,7 +34,8 @@ def read_view_mesh(obj, uv_layer: str) -> ViewMesh | None:
         return None
     uv = np.zeros(len(mesh.loops) * 2, dtype=np.float32)
     layer.data.foreach_get("uv", uv)
-    corners = uv.reshape(-1, 2)[loops]
+    rect = np.array(mesh_data.lightmap_rect(obj))  # an instance's rectangle (core.instances)
+    corners = uv.reshape(-1, 2)[loops] * rect[:2] + rect[2:]
     return ViewMesh.of(
         obj.name, unwrap_mesh.positions, unwrap_mesh.triangles, corners, unwrap_mesh.polygons, len(mesh.polygons)
     )

@@ -54,13 +54,16 @@ _STAGES = (0.08, 0.84, 0.08)
 @dataclass
 class AtlasInput:
     """One atlas to bake: its name (file stem), size in texels, the receiving triangles and the
-    names of the objects they belong to (`surface.object_index` indexes `objects`)."""
+    names of the objects they belong to (`surface.object_index` indexes `objects`); instances:
+    {object name: {"mesh", "scale", "offset"}} of the objects that share their mesh's lightmap
+    UVs (`core.instances`; the surface's UVs are already atlas UVs), recorded in the sidecar."""
 
     name: str
     width: int
     height: int
     surface: SurfaceTriangles
     objects: list[str]
+    instances: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -579,7 +582,7 @@ def finish_atlas(
                 "stopped_by": traced.stopped_by,
                 "rays": traced.rays,
             },
-            "objects": lightmap_files.object_rects(traced.points, atlas.objects),
+            "objects": lightmap_files.object_rects(traced.points, atlas.objects, atlas.instances),
             "timings_seconds": seconds,
         }
     )
@@ -682,10 +685,11 @@ def _finish_files(
         fill=_same_fill(fill, data),
         spend=True,
         tick=parts["encode"],
+        threads=settings.trace.threads,
     )
     parts["stitch encoded"].at(0.0)
     encoded = post.stitch_encoded(
-        encoded, data.coverage, settings, atlas_seams, sidecar["post"], parts["stitch encoded"]
+        encoded, data.coverage, settings, atlas_seams, sidecar["post"], parts["stitch encoded"], in_place=True
     )
     del data, fill
     parts["write"].at(0.0, "encoded files")
@@ -752,6 +756,16 @@ def reencode(
     return time.perf_counter() - t, [f"atlas '{files.name}', {w}" for w in dict.fromkeys(warnings)]
 
 
+class _RawFiles:
+    """The raw files a re-encode read, as `_restore_sh` asks for the traced SH (`Staged.traced_sh`)."""
+
+    def __init__(self, files: lightmap_files.AtlasFiles):
+        self.files = files
+
+    def traced_sh(self, name: str, parent: str) -> np.ndarray:
+        return lightmap_files.read_sh(self.files.sh)
+
+
 def _reencode_files(staging, files: lightmap_files.AtlasFiles, settings: PipelineSettings, threads: int) -> list[str]:
     """Read → post stages → encode → stage the encoded file and sidecar of one atlas (or light set)."""
     sidecar = lightmap_files.read_sidecar(files.sidecar)
@@ -760,9 +774,12 @@ def _reencode_files(staging, files: lightmap_files.AtlasFiles, settings: Pipelin
     sidecar["reencoded_from_sh"] = True
     sidecar["reencode_threads"] = threads
     atlas_seams = lightmap_files.read_seams(files, data.atlas_shape) if settings.stitch_seams else None
-    data, sidecar["post"] = post.apply(data, settings, seams=atlas_seams)
-    encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=False)
-    encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"])
+    # the post stages write into the images read (memory: no second copy of the atlas's SH)
+    restore = functools.partial(_restore_sh, data.sh, np.flatnonzero(data.baked), _RawFiles(files), "", "", data.window)
+    data, sidecar["post"] = post.apply(data, settings, seams=atlas_seams, in_place=True, restore=restore)
+    del restore
+    encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=False, threads=threads)
+    encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"], in_place=True)
     del data
     lightmap_files.write_atlas(staging, files, encoded, sidecar)
     return post.warnings(sidecar["post"])

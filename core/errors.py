@@ -20,3 +20,9 @@ class InwardFacesRefused(BakeError):
 
 class DependencyMissing(BakeError):
     """A compiled dependency (embreex, xatlas, OpenEXR) could not be imported."""
+
+
+class FullBakeNeeded(BakeError):
+    """A bake of some receivers into the existing files (Bake Selected / Bake Changed, CLI
+    `bake --only` / `--changed`) cannot be done: no earlier bake, the atlas layout or the bake
+    settings changed since it (`core.incremental`). Nothing was written; bake all."""

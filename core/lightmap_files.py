@@ -452,21 +452,32 @@ def _read_window(files: AtlasFiles, window: Window) -> TexelData:
     return TexelData(sh=sh, normal=normal, coverage=coverage, noise=noise, window=window)
 
 
+#: EXR rows of a raw SH file decompressed at a time by `read_sh` (memory: this many rows of its
+#: channels beside the SH image).
+SH_READ_ROWS = 256
+
+
 def read_sh(path: Path) -> np.ndarray:
-    """The SH image `(H, W, 9, 3)` float32 (rows bottom-up) of a raw SH file."""
-    sh_ch, _ = exr.read(path)
-    missing = [n for n in SH_CHANNELS if n not in sh_ch]
+    """The SH image `(H, W, 9, 3)` float32 (rows bottom-up) of a raw SH file, read SH_READ_ROWS
+    scanlines at a time into it (memory: the image once, not its channels and then the image)."""
+    (h, w), types = exr.shape_of(path)
+    missing = [n for n in SH_CHANNELS if n not in types]
     if missing:
         raise BakeError(f"{path} lacks SH channels {missing[:3]}…: it is not an SH file; bake again")
-    if len({sh_ch[n].shape for n in SH_CHANNELS}) != 1:
-        raise BakeError(f"{path} is damaged (its SH channels differ in size): bake again")
-    sh = np.stack([exr.from_exr_rows(sh_ch.pop(n)) for n in SH_CHANNELS], axis=-1).astype(np.float32, copy=False)
-    return sh.reshape(sh.shape[:2] + (9, 3))
+    sh = np.empty((h, w, len(SH_CHANNELS)), np.float32)
+    for a in range(0, h, SH_READ_ROWS):  # EXR rows a … b: texel rows h - b … h - a, reversed
+        b = min(a + SH_READ_ROWS, h)
+        band = exr.read_window(path, list(SH_CHANNELS), (a, b), (0, w))
+        for k, n in enumerate(SH_CHANNELS):
+            sh[h - b : h - a, :, k] = band.pop(n)[::-1]
+    return sh.reshape((h, w, 9, 3))
 
 
-def object_rects(points: BakePoints, names: list[str]) -> list[dict]:
+def object_rects(points: BakePoints, names: list[str], instances: dict | None = None) -> list[dict]:
     """Per object: its texel rectangle in the atlas (x0, y0 inclusive, x1, y1 exclusive, y from
-    the bottom), the same as a UV rectangle, and its number of baked texels."""
+    the bottom), the same as a UV rectangle, and its number of baked texels; an instance
+    (`instances[name]`: {"mesh", "scale", "offset"}, `core.instances`) also its "instance"."""
+    instances = instances or {}
     x = points.texel % points.width
     y = points.texel // points.width
     out = []
@@ -474,6 +485,8 @@ def object_rects(points: BakePoints, names: list[str]) -> list[dict]:
         mine = points.object_index == index
         if not mine.any():
             out.append({"name": name, "texels": 0, "rect": None, "uv_rect": None})
+            if name in instances:
+                out[-1]["instance"] = instances[name]
             continue
         x0, x1, y0, y1 = int(x[mine].min()), int(x[mine].max()) + 1, int(y[mine].min()), int(y[mine].max()) + 1
         out.append(
@@ -484,4 +497,6 @@ def object_rects(points: BakePoints, names: list[str]) -> list[dict]:
                 "uv_rect": [x0 / points.width, y0 / points.height, x1 / points.width, y1 / points.height],
             }
         )
+        if name in instances:
+            out[-1]["instance"] = instances[name]
     return out

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import atlas_limits, deps, xatlas_worker
+from . import atlas_limits, deps, instances, xatlas_worker
 from .errors import BakeCancelled, BakeError
 
 MIN_RESOLUTION, MAX_RESOLUTION = 256, 8192
@@ -79,7 +79,9 @@ class UnwrapMesh:
     """name: object name (for messages); positions (V, 3) world space, metres; triangles (T, 3)
     vertex indices; resolution / texel_density: per-object overrides (None = the settings');
     polygons: (T,) index ≥ 0 of the polygon each triangle belongs to (its triangles stay in one
-    chart, its corners on one vertex share one UV); None: every triangle is its own polygon."""
+    chart, its corners on one vertex share one UV); None: every triangle is its own polygon.
+    instance_of: the name of the mesh (datablock) the object uses; objects naming the same mesh
+    share one lightmap UV layer and become instances (`core.instances`); None: never shared."""
 
     name: str
     positions: np.ndarray
@@ -87,6 +89,7 @@ class UnwrapMesh:
     resolution: int | None = None
     texel_density: float | None = None
     polygons: np.ndarray | None = None
+    instance_of: str | None = None
 
 
 @dataclass
@@ -105,7 +108,10 @@ class UnwrapSettings:
 @dataclass
 class ObjectUV:
     """uv (T, 3, 2) float32 per triangle corner in [0, 1]² of atlas `atlas`; texels: texels its
-    charts cover (UV area × width × height); rect: (x0, y0, x1, y1) texel bounds in the atlas."""
+    charts cover (UV area × width × height); rect: (x0, y0, x1, y1) texel bounds in the atlas.
+    An instance (`core.instances`) also has layer_uv (T, 3, 2), the UVs its mesh's lightmap
+    layer holds (shared by every instance of the mesh), and instance = (scale u, scale v,
+    offset u, offset v): uv = layer_uv · scale + offset. For other objects layer_uv is uv."""
 
     name: str
     uv: np.ndarray
@@ -113,6 +119,13 @@ class ObjectUV:
     texels: float
     rect: tuple
     charts: int
+    layer_uv: np.ndarray | None = None
+    instance: tuple[float, float, float, float] | None = None
+
+    @property
+    def layer(self) -> np.ndarray:
+        """What the object's lightmap UV layer holds (T, 3, 2)."""
+        return self.uv if self.layer_uv is None else self.layer_uv
 
 
 @dataclass
@@ -131,6 +144,8 @@ class UnwrapResult:
     #: number among the atlases one group spilled into (0: the first or only one)
     shared: list[bool] = field(default_factory=list)
     part: list[int] = field(default_factory=list)
+    #: per atlas: whether it holds instances (`core.instances`)
+    instanced: list[bool] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -200,16 +215,30 @@ def unwrap(
     and BakeCancelled is raised; nothing of a cancelled unwrap enters the caches."""
     for m in meshes:
         validate(m)
-    groups = _group(meshes, settings)
+    inst_groups = instances.instance_groups([m.instance_of for m in meshes])
+    reps = _representatives(meshes, inst_groups)
+    held = {i for g in inst_groups for i in g}
+    groups = _group(meshes, settings, held)
     for _, resolution, density, _ in groups:
         _check_scale(resolution, density)
     atlas_limits.check_density(meshes, settings.texel_density, MAX_RESOLUTION)  # before xatlas meets it
     deps.require("xatlas")  # a missing wheel is a clear message here, not in the child
     stats: dict = {"packs": 0, "tries": []}
     t0 = time.perf_counter()
-    keys = [chart_key(m) for m in meshes]
+    charted = [i for i in range(len(meshes)) if i not in held] + reps  # an instanced mesh once
+    keys: list[bytes] = [b""] * len(meshes)
+    for i in charted:
+        keys[i] = chart_key(meshes[i])
     _check(cancel)
-    charts = chart_meshes(meshes, stats, _stage(progress, 0.0, 0.8), keys, cancel)
+    charts: list = [None] * len(meshes)
+    done = chart_meshes(
+        [meshes[i] for i in charted], stats, _stage(progress, 0.0, 0.8), [keys[i] for i in charted], cancel
+    )
+    for i, c in zip(charted, done):
+        charts[i] = c
+    for g, r in zip(inst_groups, reps):
+        for i in g:
+            charts[i] = charts[r]
     stats["chart_s"] = time.perf_counter() - t0
     result = UnwrapResult([None] * len(meshes), [], [], 0, stats=stats)  # type: ignore[list-item]  # filled below
     for gi, (indices, resolution, density, shared) in enumerate(groups):
@@ -239,6 +268,9 @@ def unwrap(
             _add_atlas(result, atlas, (w, h), shared, k)
             for j, i in enumerate(part):
                 result.objects[i] = _object_uv(meshes[i], atlas, j, len(result.atlas_sizes) - 1, w, h, turn)
+    for part_groups, resolution, density in _instance_atlases(inst_groups, reps, settings):
+        _check(cancel)
+        _add_instances(result, meshes, charts, part_groups, resolution, density, settings.padding, cancel)
     stats["pack_s"] = time.perf_counter() - t0 - stats["chart_s"]
     if progress:
         progress(1.0, "xatlas: done")
@@ -257,6 +289,7 @@ def _add_atlas(result: UnwrapResult, atlas: dict, size, shared: bool, part: int)
     result.utilisation.append(atlas["utilisation"])
     result.shared.append(shared)
     result.part.append(part)
+    result.instanced.append(False)
     result.charts += atlas["charts"]
     result.stats["packs"] += atlas["packs"]
     result.stats["tries"].append(atlas.get("tries", []))
@@ -352,15 +385,18 @@ def _stage(progress, start, span):
     return lambda f, msg: progress(start + span * f, msg)
 
 
-def _group(meshes, settings):
+def _group(meshes, settings, held=frozenset()):
     """[(mesh indices, resolution, density, shared)] per atlas to build (before any spill):
-    the shared atlas first, then one per object with its own (shared False)."""
+    the shared atlas first, then one per object with its own (shared False). Instances (`held`)
+    are in none: they get atlases of their own (`_instance_atlases`)."""
     shared = [
-        i for i, m in enumerate(meshes) if not settings.per_object and m.resolution is None and m.texel_density is None
+        i
+        for i, m in enumerate(meshes)
+        if not settings.per_object and m.resolution is None and m.texel_density is None and i not in held
     ]
     groups = [(shared, settings.resolution, settings.texel_density, True)] if shared else []
     for i, m in enumerate(meshes):
-        if i not in shared:
+        if i not in shared and i not in held:
             groups.append(
                 (
                     [i],
@@ -774,3 +810,96 @@ def _object_uv(mesh, atlas, k, atlas_index, w, h, turn=False):
     else:
         rect = (0, 0, 0, 0)
     return ObjectUV(mesh.name, uv, atlas_index, float(areas.sum()), rect, atlas["mesh_charts"][k])
+
+
+# --- instances: linked duplicates sharing one lightmap UV layer (core.instances) ---
+def _representatives(meshes, groups) -> list[int]:
+    """The mesh index charted for each instance group (its largest instance), after checking
+    that no instance asks for an atlas of its own (its layer is its mesh's, shared)."""
+    reps = []
+    for g in groups:
+        own = [meshes[i].name for i in g if meshes[i].resolution is not None or meshes[i].texel_density is not None]
+        if own:
+            raise BakeError(
+                f"{', '.join(repr(n) for n in own)} share the mesh '{meshes[g[0]].instance_of}' with other objects "
+                "and override the resolution or texel density: instances share their mesh's lightmap UVs, so "
+                "they cannot have an atlas of their own; clear the override or make the object single user"
+            )
+        areas = [float(triangle_areas(meshes[i].positions, meshes[i].triangles).sum()) for i in g]
+        reps.append(g[instances.representative(areas)])
+    return reps
+
+
+def _instance_atlases(groups, reps, settings):
+    """[(groups [(member indices, representative)], resolution, density)] per instance atlas:
+    one for all instanced meshes, or one per mesh when every object has its own atlas."""
+    pairs = list(zip(groups, reps))
+    if not pairs:
+        return []
+    if settings.per_object:
+        return [([p], settings.resolution, settings.texel_density) for p in pairs]
+    return [(pairs, settings.resolution, settings.texel_density)]
+
+
+def _add_instances(result, meshes, charts, groups, resolution, density, padding, cancel) -> None:
+    """Pack the instance groups [(member indices, representative)] into one new atlas of `result`
+    and fill in their ObjectUVs (`core.instances`)."""
+    _check_scale(resolution, density)
+    rep_charts = [charts[r] for _, r in groups]
+    names = [meshes[r].name for _, r in groups]
+    triangles = sum(len(meshes[r].triangles) for _, r in groups)
+    counts = [len(g) for g, _ in groups]
+
+    def pack_blocks(t):
+        job = {
+            "task": "each",
+            "charts": [(c.chart, c.corner, c.uv) for c in rep_charts],
+            "texels_per_metre": float(t),
+            "padding": int(padding),
+            "units": float(t) * xatlas_worker.PACK_UNITS_PER_TEXEL,
+        }
+        out = _run_worker(job, names, triangles, cancel)["blocks"]
+        return [
+            instances.Block(b["uv"][0], b["width"], b["height"], b["mesh_charts"][0], b["utilisation"]) for b in out
+        ]
+
+    first = None
+    if density is None:
+        boxes = [xatlas_worker.chart_boxes([(c.chart, c.corner, c.uv)])[1] for c in rep_charts]
+        first = instances.first_density(boxes, counts, resolution, padding)
+    w, h, t, blocks, corners, packs = instances.layout(
+        pack_blocks, counts, resolution, density, padding, MAX_RESOLUTION, first
+    )
+    atlas_index = len(result.atlas_sizes)
+    result.atlas_sizes.append((w, h))
+    covered = sum(n * b.utilisation * b.width * b.height for n, b in zip(counts, blocks))
+    result.utilisation.append(float(covered / (w * h)))
+    result.shared.append(False)
+    result.part.append(0)
+    result.instanced.append(True)
+    result.charts += sum(n * b.charts for n, b in zip(counts, blocks))
+    result.stats["packs"] += packs
+    result.stats["tries"].append([(float(t), True)])
+    k = 0
+    for (members, r), block in zip(groups, blocks):
+        for i in members:
+            reversed_ = instances.corner_map(
+                meshes[i].triangles, meshes[r].triangles, meshes[i].name, meshes[r].instance_of
+            )
+            layer = block.uv[:, ::-1] if reversed_ else block.uv
+            x, y = (int(v) for v in corners[k])
+            k += 1
+            rect = instances.rectangle(block, (x, y), w, h)
+            uv = instances.atlas_uv(layer, rect)
+            e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+            texels = float((0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])).sum() * w * h)
+            result.objects[i] = ObjectUV(
+                meshes[i].name,
+                uv,
+                atlas_index,
+                texels,
+                (x, y, x + block.width, y + block.height),
+                block.charts,
+                np.ascontiguousarray(layer, dtype=np.float32),
+                rect,
+            )

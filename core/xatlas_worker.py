@@ -29,7 +29,8 @@ Protocol: stdin = two pickles, the parent's sys.path (a plain list, read before 
 imported) and a job dict: {"task": "chart", "meshes": [(positions (V, 3) float64, triangles
 (T, 3) uint32, polygons (T,) int64 or None)]} → {"charts": [(chart, corner, uv, folded)]}, or
 {"task": "pack", "charts": [(chart, corner, uv)], "texels_per_metre", "resolution", "padding",
-"units"} → `pack`'s result; stdout = pickle of the result.
+"units"} → `pack`'s result, or {"task": "each", "charts", "texels_per_metre", "padding", "units"} →
+{"blocks": [`pack`'s result of each mesh's charts alone]}; stdout = pickle of the result.
 """
 
 import os
@@ -732,6 +733,9 @@ def main():
             job["fills"],
             False,
         )
+    elif job["task"] == "each":  # every mesh's charts alone, each into its own atlas (core.instances)
+        t, padding, units = job["texels_per_metre"], job["padding"], job["units"]
+        result = {"blocks": [pack([c], t, 0, padding, units) for c in job["charts"]]}
     else:
         result = pack(job["charts"], job["texels_per_metre"], job["resolution"], job["padding"], job["units"])
     sys.stdout.buffer.write(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))

@@ -4,6 +4,7 @@ import bpy
 
 from ..shaders import probe_preview
 from .bake import HHD_OT_bake
+from .bake_changed import HHD_OT_bake_changed, HHD_OT_check_stale
 from .check_dependencies import HHD_OT_check_dependencies
 from .check_normals import HHD_OT_check_normals
 from .encode import HHD_OT_encode, HHD_OT_open_output
@@ -18,6 +19,8 @@ classes = (
     HHD_OT_check_normals,
     HHD_OT_unwrap,
     HHD_OT_bake,
+    HHD_OT_check_stale,
+    HHD_OT_bake_changed,
     HHD_OT_encode,
     HHD_OT_open_output,
     HHD_OT_preview_show,

@@ -7,7 +7,7 @@ headless); from the UI `invoke` runs the core unwrap on a thread with a progress
 cancels it before anything was written, so a cancelled unwrap leaves every mesh untouched.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import bpy
 from bpy.props import BoolProperty
@@ -30,7 +30,8 @@ class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
     make_single_user: BoolProperty(
         name="Make Single User",
         default=False,
-        description="Give linked duplicates their own mesh first (they cannot share lightmap UVs)",
+        description="Give linked duplicates their own mesh first; without it they share their mesh's lightmap UVs, "
+        "each with its own rectangle in the atlas (instances)",
     )
 
     @classmethod
@@ -49,6 +50,7 @@ class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
         console = ConsoleProgress() if bpy.app.background else None
         wm.progress_begin(0, 100)
         try:
+            mesh_data.refuse_collection_instances(context.selected_objects)
             outcome = unwrap_objects(
                 objects, settings, self.make_single_user, console or (lambda f, _msg: wm.progress_update(int(100 * f)))
             )
@@ -80,6 +82,7 @@ class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
             return self.execute(context)
         objects = mesh_data.target_meshes(context.selected_objects)
         try:
+            mesh_data.refuse_collection_instances(context.selected_objects)
             self._job = read_objects(objects, context.scene.hhd, self.make_single_user)
         except BakeError as exc:
             self.report({'ERROR'}, str(exc))
@@ -100,7 +103,8 @@ class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
 class UnwrapJob:
     """What `read_objects` read: the objects, their core meshes (world space) and loop indices
     (T, 3) per triangle corner, the core settings, whether linked duplicates must be made single
-    user when writing, and each mesh's loop count (to notice a mesh edited meanwhile)."""
+    user when writing, each mesh's loop count (to notice a mesh edited meanwhile), and warnings
+    found while reading."""
 
     objects: list
     meshes: list
@@ -108,20 +112,22 @@ class UnwrapJob:
     settings: core_unwrap.UnwrapSettings
     make_single_user: bool
     loop_counts: list
+    warnings: list = field(default_factory=list)
 
 
 def read_objects(objects, settings, make_single_user=False) -> UnwrapJob:
     """Read `objects` for an unwrap with the scene settings (main thread; changes nothing).
-    Raises BakeError for linked duplicates unless make_single_user."""
+    Linked duplicates (objects sharing a mesh) become instances (`core.instances`: one layout
+    of the mesh, a rectangle of the atlas per object), or with make_single_user are given their
+    own meshes when the result is written."""
     shared = mesh_data.shared_meshes(objects)
-    if shared and not make_single_user:
-        mesh, names = next(iter(shared.items()))
-        raise BakeError(
-            f"{', '.join(repr(n) for n in names)} share the mesh '{mesh}': one lightmap UV "
-            "layer cannot give them separate texels. Make them single user (Object > Relations > "
-            "Make Single User > Object & Data), or unwrap with 'Make Single User'"
-        )
-    read = [mesh_data.read_unwrap_mesh(o) for o in objects]
+    instanced = {} if make_single_user else shared
+    warnings = [
+        f"{', '.join(repr(n) for n in names)} share the mesh '{mesh}' with objects unwrapped now but "
+        "are not unwrapped now: their lightmap UVs change too, so unwrap and bake them together"
+        for mesh, names in mesh_data.outside_users(objects).items()
+    ]
+    read = [mesh_data.read_unwrap_mesh(o, o.data.name if o.data.name in instanced else None) for o in objects]
     padding = settings.padding or core_unwrap.padding_for_mips(settings.mip_levels)
     core_settings = core_unwrap.UnwrapSettings(
         resolution=settings.resolution,
@@ -134,8 +140,9 @@ def read_objects(objects, settings, make_single_user=False) -> UnwrapJob:
         [m for m, _ in read],
         [loops for _, loops in read],
         core_settings,
-        bool(shared),
+        bool(shared) and make_single_user,
         [len(o.data.loops) for o in objects],
+        warnings,
     )
 
 
@@ -158,13 +165,19 @@ def write_objects(job: UnwrapJob, settings, result):
     if job.make_single_user:
         mesh_data.make_single_user(job.objects)
     objects = job.objects
-    warnings = list(result.warnings)
+    warnings = job.warnings + list(result.warnings)
     others = {o.hhd.atlas for o in bpy.data.objects if o.type == 'MESH' and o not in objects and o.hhd.atlas}
-    names = atlas_names([o.name for o in objects], [o.atlas for o in result.objects], others, result.part)
+    names = atlas_names(
+        [o.name for o in objects], [o.atlas for o in result.objects], others, result.part, result.instanced
+    )
+    written = set()
     for obj, loops, ouv in zip(objects, job.loops, result.objects):
-        mesh_data.write_uv_layer(obj, settings.uv_layer, loops, ouv.uv)
+        if obj.data.name not in written:  # an instanced mesh's layer once: the same for each instance
+            mesh_data.write_uv_layer(obj, settings.uv_layer, loops, ouv.layer)
+            written.add(obj.data.name)
         obj.hhd.atlas = names[ouv.atlas]
         obj.hhd.atlas_width, obj.hhd.atlas_height = result.atlas_sizes[ouv.atlas]
+        obj.hhd.lightmap_rect = ouv.instance or mesh_data.IDENTITY_RECT
     sizes = ", ".join(f"{w}×{h}" for w, h in result.atlas_sizes)
     used = ", ".join(f"{100 * u:.0f}%" for u in result.utilisation)
     per_object = ", ".join(f"{o.name}: {o.texels:.0f}" for o in result.objects)
@@ -191,9 +204,14 @@ def _check_unchanged(job: UnwrapJob) -> None:
 
 
 def atlas_names(
-    objects: list[str], atlas_of: list[int], taken: set[str] = frozenset(), part: list[int] | None = None
+    objects: list[str],
+    atlas_of: list[int],
+    taken: set[str] = frozenset(),
+    part: list[int] | None = None,
+    instanced: list[bool] | None = None,
 ) -> dict[int, str]:
-    """File-name stems per atlas index: "Lightmap" for an atlas shared by several objects (or the
+    """File-name stems per atlas index: "Lightmap_instances" for an atlas of instances (linked
+    duplicates, `core.instances`), "Lightmap" for an atlas shared by several objects (or the
     only atlas), "Lightmap_1", "Lightmap_2", … for the further atlases a full shared atlas spilled
     into (`part[atlas]` > 0, see `core.unwrap.UnwrapResult.part`), "Lightmap_<object>" for an
     object's own atlas (characters unsafe in file names replaced by '_'). A name already given,
@@ -205,7 +223,9 @@ def atlas_names(
     out, used = {}, set(taken)
     for atlas in sorted(members):
         names = members[atlas]
-        if part is not None and part[atlas] > 0:
+        if instanced is not None and instanced[atlas]:
+            name = "Lightmap_instances"
+        elif part is not None and part[atlas] > 0:
             name = f"Lightmap_{part[atlas]}"
         elif len(names) > 1 or len(members) == 1 or (part is not None and _spill_head(atlas, part)):
             name = "Lightmap"

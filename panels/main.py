@@ -86,10 +86,13 @@ class HHD_PT_main(bpy.types.Panel):
             box.label(text=line, icon='ERROR')
         col = box.column(heading="Encoder")
         col.prop(settings, "model")
-        col.prop(settings, "direction")
-        col.prop(settings, "ambient")
-        col.prop(settings, "phi_search")
-        col.prop(settings, "golden_iterations")
+        if settings.model in {'HHD', 'AHD'}:  # the highlight direction's fit
+            col.prop(settings, "direction")
+            col.prop(settings, "ambient")
+            col.prop(settings, "phi_search")
+            col.prop(settings, "golden_iterations")
+        elif settings.model.startswith('SG'):
+            col.prop(settings, "solve")
         wm = context.window_manager
         if wm.hhd_status:
             box.progress(factor=wm.hhd_progress, type='BAR', text=wm.hhd_status)
@@ -99,6 +102,13 @@ class HHD_PT_main(bpy.types.Panel):
         row.operator("hhd.encode", icon='FILE_REFRESH')
         if settings.bake_summary:
             box.label(text=settings.bake_summary)
+        row = box.row(align=True)  # bake what changed (README: Bake what changed)
+        row.operator("hhd.check_stale", icon='VIEWZOOM')
+        row.operator("hhd.bake_changed", text="Bake Selected").mode = 'SELECTED'
+        row.operator("hhd.bake_changed", text="Bake Changed").mode = 'CHANGED'
+        row.operator("hhd.bake_changed", text="+ Influenced").mode = 'INFLUENCED'
+        for line in settings.stale_report.splitlines():
+            box.label(text=line, icon='TIME')
         col = box.column()
         col.prop(settings, "view_mode")
         if settings.view_mode == 'LIGHTING':

@@ -12,7 +12,9 @@ before holds as the pair (`encoding.preview.upgrade_direction`). The mix
 factor is the object attribute `hhd_preview`, set to 1 on the baked objects only: a material shared
 with objects that were not baked keeps its own look on them. A material shared by objects of
 several atlases samples every atlas's images and picks the object's own by a second object
-attribute, `hhd_preview_atlas`.
+attribute, `hhd_preview_atlas`. The lightmap UV goes through the object's lightmap rectangle
+(a third, `hhd.lightmap_rect`, read by RNA path): the instances of a mesh (linked duplicates,
+`core.instances`) share its UV layer and its materials, each showing its own part of the atlas.
 
 Light sets (core.light_sets): in HHD mode, when an atlas's sidecar lists "light_sets", the group
 is the live blend of them (`node_groups.build_blend`) instead of the HHD group: every set's preview
@@ -46,6 +48,9 @@ RECORD = "hhd_preview"
 #: Object attribute: the index of the object's atlas among those of the preview, for materials
 #: shared by objects of several atlases (a full atlas spills into Lightmap_1, …).
 ATLAS = "hhd_preview_atlas"
+#: Object attribute (an RNA path): the object's lightmap rectangle (scale u, scale v, offset u,
+#: offset v) in its atlas, `properties.HHDObjectSettings.lightmap_rect`.
+RECT = "hhd.lightmap_rect"
 
 
 def _new(tree, kind, name, location, parent):
@@ -163,6 +168,29 @@ def _link_light_sets(tree, gi, light_sets, uv, x, y, frame) -> float:
     return y
 
 
+def _instance_uv(tree, uv, x, y, frame):
+    """The atlas UV of the lightmap layer's `uv` socket: uv × rect.xy + rect.zw, rect the object's
+    lightmap rectangle read per object (Attribute node of type Object, RNA path RECT: an instance's
+    place in the atlas over its shared mesh, `core.instances`; the identity for other objects, an
+    exact no-op)."""
+    rect = _new(tree, "ShaderNodeAttribute", "Rectangle", (x, y), frame)
+    rect.attribute_type, rect.attribute_name = 'OBJECT', RECT
+    split = _new(tree, "ShaderNodeSeparateXYZ", "Rectangle XYZ", (x + 160, y), frame)
+    tree.links.new(rect.outputs["Vector"], split.inputs[0])
+    offset = _new(tree, "ShaderNodeCombineXYZ", "Rectangle Offset", (x + 320, y), frame)
+    tree.links.new(split.outputs["Z"], offset.inputs["X"])
+    tree.links.new(rect.outputs["Alpha"], offset.inputs["Y"])
+    scale = _new(tree, "ShaderNodeCombineXYZ", "Rectangle Scale", (x + 320, y - 140), frame)
+    tree.links.new(split.outputs["X"], scale.inputs["X"])
+    tree.links.new(split.outputs["Y"], scale.inputs["Y"])
+    mapped = _new(tree, "ShaderNodeVectorMath", "Atlas UV", (x + 480, y), frame)
+    mapped.operation = 'MULTIPLY_ADD'
+    tree.links.new(uv, mapped.inputs[0])
+    tree.links.new(scale.outputs["Vector"], mapped.inputs[1])
+    tree.links.new(offset.outputs["Vector"], mapped.inputs[2])
+    return mapped.outputs["Vector"]
+
+
 def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool, light_sets=()) -> str | None:
     """Insert the preview into one material; returns a note when a fallback was used. `files`:
     the AtlasFiles of the objects' atlas, or [(index, AtlasFiles)] when objects of several
@@ -188,6 +216,7 @@ def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool, li
     x0, y0 = output.location.x + 320, output.location.y - 40
     uv = _new(tree, "ShaderNodeUVMap", "UV", (x0, y0), frame)
     uv.uv_map = uv_layer
+    atlas_uv = _instance_uv(tree, uv.outputs["UV"], x0, y0 - 180, frame)
     group = _new(tree, "ShaderNodeGroup", "Group", (x0 + 600, y0), frame)
     group.node_tree = node_groups.ensure_blend(len(light_sets)) if light_sets else node_groups.ensure(kind)
     geometry = _new(tree, "ShaderNodeNewGeometry", "Geometry", (x0 + 300, y0 - 500), frame)
@@ -210,9 +239,9 @@ def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool, li
         gi["Self Bounce"].default_value = 1.0 if self_bounce else 0.0
     y = y0
     if light_sets:
-        y = _link_light_sets(tree, gi, light_sets, uv.outputs["UV"], x0 + 250, y, frame)
+        y = _link_light_sets(tree, gi, light_sets, atlas_uv, x0 + 250, y, frame)
     for layer in () if light_sets else sampled(kind):  # each layer's preview image into the input of its name
-        tree.links.new(_atlas_image(tree, layer.preview, atlases, uv.outputs["UV"], x0 + 250, y, frame), gi[layer.name])
+        tree.links.new(_atlas_image(tree, layer.preview, atlases, atlas_uv, x0 + 250, y, frame), gi[layer.name])
         y -= 280
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 850, y0), frame)
     tree.links.new(group.outputs["Radiance"], emission.inputs["Color"])

@@ -6,8 +6,9 @@ of the objects that have the layer, a frame of nodes named like the lighting pre
 record, so Hide Preview (`preview.hide`) removes them and restores every node tree exactly; one
 preview or view is shown at a time (Show hides whatever was shown first). The nodes: the lightmap
 UV map, the object's atlas size from an OBJECT attribute (`SIZE` = (width, height, 0), from the
-unwrap's record, `bridge.bake_session.atlas_groups`), the "HHD Texel Checker" group
-(shaders/node_groups.py: cells exactly one texel), an Emission of
+unwrap's record, `bridge.bake_session.atlas_groups`), the layer's UV through the object's lightmap
+rectangle (`preview._instance_uv`: an instance's own part of the atlas, `core.instances`), the
+"HHD Texel Checker" group (shaders/node_groups.py: cells exactly one texel), an Emission of
 
 - Texel Density: the heat colour of each face's texels per metre against the atlas's target
   (`core.texel_density`: blue half, green on target, red double) × a faint texel checker;
@@ -161,6 +162,26 @@ def _source(atlas: ViewAtlas) -> str:
     return "its Texel Density setting" if atlas.setting else "the density the unwrap reached"
 
 
+def shared_mesh_notes(objects, densities, target: float) -> list[str]:
+    """Instances share their mesh and so its face colours: one line per mesh whose viewed users'
+    per-face density ratios differ by more than 2% (e.g. scaled instances), naming whose colours
+    the heat map shows (the last written, `objects`' order) and that the report lines give each
+    one's. objects [(object, ViewMesh)], densities: their `texel_density.Density`s."""
+    users: dict[str, list] = {}
+    for (obj, _), d in zip(objects, densities):
+        users.setdefault(obj.data.name, []).append((obj.name, d.density / target))
+    notes = []
+    for mesh, ratios in users.items():
+        first = ratios[0][1]
+        if any(np.max(np.abs(r - first) / np.maximum(first, 1e-12), initial=0.0) > 0.02 for _, r in ratios[1:]):
+            names = ", ".join(f"'{n}'" for n, _ in ratios)
+            notes.append(
+                f"{names} share the mesh '{mesh}' but not one texel density (scaled instances): its face "
+                f"colours show '{ratios[-1][0]}''s; the density line gives each one's"
+            )
+    return notes
+
+
 def _view_atlas(atlas: ViewAtlas, mode: str, lines: list[str]) -> Path | None:
     """Compute `mode` for one atlas: write the face colours of its objects, add report lines,
     and return the Problems view's mask file."""
@@ -175,6 +196,7 @@ def _view_atlas(atlas: ViewAtlas, mode: str, lines: list[str]) -> Path | None:
             for (o, _), d in zip(atlas.objects, densities)
         )
         lines.append(f"Texel density, {size}: target {target:.3g} texels/m ({source}); {per_object}")
+        lines.extend(shared_mesh_notes(atlas.objects, densities, target))
         return None
     if mode == 'CHECKER':
         lines.append(f"Texel checker, {size}: a cell is one texel, {100.0 / target:.3g} cm at {target:.3g} texels/m")
@@ -321,11 +343,12 @@ def show_on_material(mat, mode: str, uv_layer: str, masks=None) -> None:
     x0, y0 = output.location.x + 320, output.location.y - 40
     uv = _new(tree, "ShaderNodeUVMap", "UV", (x0, y0), frame)
     uv.uv_map = uv_layer
+    atlas_uv = preview._instance_uv(tree, uv.outputs["UV"], x0, y0 - 400, frame)  # instances: their rectangle
     size = _new(tree, "ShaderNodeAttribute", "Atlas Size", (x0, y0 - 200), frame)
     size.attribute_type, size.attribute_name = 'OBJECT', SIZE
     checker = _new(tree, "ShaderNodeGroup", "Checker", (x0 + 250, y0), frame)
     checker.node_tree = node_groups.ensure_checker()
-    tree.links.new(uv.outputs["UV"], checker.inputs["UV"])
+    tree.links.new(atlas_uv, checker.inputs["UV"])
     tree.links.new(size.outputs["Vector"], checker.inputs["Atlas Size"])
     light, dark = CHECKER_LEVELS[mode]
     checker.inputs["Light"].default_value = (light, light, light, 1.0)
@@ -340,7 +363,7 @@ def show_on_material(mat, mode: str, uv_layer: str, masks=None) -> None:
         tree.links.new(face.outputs["Vector"], multiply.inputs[1])
         colour = multiply.outputs["Vector"]
     if mode == 'PROBLEMS' and masks:
-        shared = preview._atlas_image(tree, MASK_KEY, masks, uv.outputs["UV"], x0 + 250, y0 - 500, frame)
+        shared = preview._atlas_image(tree, MASK_KEY, masks, atlas_uv, x0 + 250, y0 - 500, frame)
         for node in tree.nodes:
             if node.type == 'TEX_IMAGE' and node.name.startswith(f"{preview.PREFIX} {MASK_KEY}"):
                 node.interpolation = 'Closest'  # exactly the texels

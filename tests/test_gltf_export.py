@@ -353,3 +353,94 @@ def test_staleness_check_ignores_faces_without_uv_area_and_catches_moved_uvs(ext
     finally:
         bpy.data.objects.remove(obj)
         bpy.data.meshes.remove(mesh)
+
+
+def test_linked_duplicates_share_one_gltf_mesh_each_node_its_own_rectangle(extension, restore_hhd_settings, tmp_path):
+    """Two meshes × three linked duplicates (some under a roof), unwrapped as instances and baked
+    small, export as one glTF mesh per Blender mesh whose nodes each carry their own scaleOffset:
+    Blender's rectangle with v flipped (docs/gltf.md). The file validates, and the decoded
+    irradiance PNG read at each node's TEXCOORD through its scaleOffset (glTF convention: v down,
+    row 0 at the top) equals the baked I_z read at the same points through Blender's rectangle
+    (v up, the EXR's rows bottom first) within the packing's error; another node's scaleOffset,
+    or the rectangle without the v flip, reads other texels (measured: own ≤ 2%, the node in the
+    other light ≥ 89%, no flip ≥ 39% median error)."""
+    import bpy
+
+    from hhd_lightmapper.core.textures import sample_bilinear
+
+    scene = kit.clear_scene()
+    grey = kit.material("grey", (0.6, 0.6, 0.6))
+    kit.plane("Floor", (0, 0, 0), 10, grey)
+    kit.plane("Roof", (-3.0, 0, 1.6), 5, grey)  # shades the instances at x < 0
+    bpy.ops.mesh.primitive_cube_add(size=0.6)
+    cube = bpy.context.active_object
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1, radius=0.35)
+    ico = bpy.context.active_object
+    receivers = []
+    for row, src in enumerate((cube, ico)):
+        src.data.materials.append(kit.material(f"m{row}", (0.8, 0.5 + 0.3 * row, 0.3)))
+        for k, x in enumerate((-3.0, 2.0, 3.5)):
+            obj = src if k == 0 else bpy.data.objects.new(f"{src.data.name}_{k}", src.data)
+            if k:
+                scene.collection.objects.link(obj)
+            obj.location, obj.rotation_euler = (x, -1.0 + 2.0 * row, 0.4), (0.0, 0.0, 0.5 * k)
+            receivers.append(obj)
+    kit.sun(60.0, 30.0, 3.0, 2.0)
+    kit.world((0.1, 0.12, 0.15))
+    s = scene.hhd
+    s.preset = 'CUSTOM'
+    s.resolution, s.samples, s.bounces, s.seed = 256, 4, 1, 0
+    s.denoise, s.stitch_seams, s.pack_images = False, False, False
+    s.output_dir = str(tmp_path / "lightmaps")
+    meshes = len(bpy.data.meshes)
+    kit.unwrap(receivers)
+    kit.select(receivers)
+    assert bpy.ops.hhd.bake() == {'FINISHED'}
+    assert len(bpy.data.meshes) == meshes
+    out = tmp_path / "scene.glb"
+    assert bpy.ops.export_scene.gltf(filepath=str(out), export_format='GLB') == {"FINISHED"}
+    doc, binary = read_glb(out)
+    issues = validate(out)
+    assert issues["numErrors"] == 0, [m for m in issues["messages"] if m["severity"] == 0]
+
+    nodes = nodes_by_name(doc)
+    root = doc["extensions"]["HHD_lightmap"]
+    (atlas,) = [a for a in root["atlases"] if a["name"] == receivers[0].hhd.atlas]
+    ch, _ = exr.read(tmp_path / "lightmaps" / f"{atlas['name']}_hhd.exr")
+    iz = np.stack([exr.from_exr_rows(ch[f"Iz.{c}"]) for c in "RGB"], -1).astype(np.float64)  # row 0 at v = 0
+    packed = atlas["irradiance"]
+    png = wp.decode(texture_png(doc, binary, packed["index"]), packed["packing"], packed["range"])  # row 0 on top
+    assert png.shape[:2] == iz.shape[:2] == (atlas["height"], atlas["width"])
+
+    def read_png(uv_gltf):  # bilinear, glTF's convention: (u, v) = (0, 0) at the image's top-left
+        return sample_bilinear(png[::-1], np.column_stack([uv_gltf[:, 0], 1.0 - uv_gltf[:, 1]]), clamp=True)
+
+    for src in (cube, ico):
+        users = [o for o in receivers if o.data == src.data]
+        (mesh_index,) = {nodes[o.name]["mesh"] for o in users}  # one glTF mesh for the three nodes
+        assert sum(1 for n in doc["nodes"] if n.get("mesh") == mesh_index) == 3
+        exts = {o.name: nodes[o.name]["extensions"]["HHD_lightmap"] for o in users}
+        for o in users:
+            su, sv, ou, ov = o.hhd.lightmap_rect
+            assert exts[o.name]["scaleOffset"] == pytest.approx([su, sv, ou, 1.0 - sv - ov], abs=1e-7)
+        assert len({tuple(e["scaleOffset"]) for e in exts.values()}) == 3
+        k = exts[users[0].name]["texCoord"]
+        uv = np.concatenate(
+            [accessor(doc, binary, p["attributes"][f"TEXCOORD_{k}"]) for p in doc["meshes"][mesh_index]["primitives"]]
+        ).astype(np.float64)
+        for o in users:
+            rect = np.array(o.hhd.lightmap_rect, np.float64)
+            blender_uv = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]) * rect[:2] + rect[2:]
+            ref = sample_bilinear(iz, blender_uv, clamp=True)
+            lum = ref @ LUM
+
+            def error(scale_offset, ref=ref, lum=lum, uv=uv):
+                got = read_png(uv * np.asarray(scale_offset[:2]) + np.asarray(scale_offset[2:]))
+                return np.abs(got - ref).max(axis=1) / np.maximum(lum, 0.05 * lum.mean())
+
+            own = error(exts[o.name]["scaleOffset"])
+            assert np.percentile(own, 95) <= PACKING_P95 and own.max() <= PACKING_MAX, (o.name, own.max())
+            # the instance in the other light (one per mesh is under the roof) and the v flip left out
+            other = max(np.median(error(e["scaleOffset"])) for n, e in exts.items() if n != o.name)
+            unflipped = np.median(error(list(rect)))
+            assert other > 0.5 and unflipped > 0.2, (o.name, other, unflipped)

@@ -360,3 +360,62 @@ def test_checker_cells_are_one_texel_in_an_orthographic_render(extension, restor
     # the parity: texel (i, j) with i + j even is light (the pixel at the plane's centre)
     centre = offset + span / 2 + np.array([0.5 / per_texel, 0.5 / per_texel])
     assert light[pixels // 2, pixels // 2] == (int(np.floor(centre[0]) + np.floor(centre[1])) % 2 == 0)
+
+
+@pytest.mark.bpy
+def test_instances_are_viewed_through_their_own_rectangles(extension, restore_hhd_settings):
+    """Three linked duplicates of one cube (one scaled 2×), unwrapped as instances: `uv-report`'s
+    figures (`texel_views.report`, the views' computation) give each instance the unwrap's texels
+    over its own world area (the scaled one half the density) and no shared texel, though all
+    three share one UV layer; moving one instance's rectangle onto another's (a real overlap)
+    flags their common texels. The checker (and the Problems mask) read the layer's UVs through
+    each object's rectangle, and the density view names the mesh whose instances differ in density."""
+    import bpy
+
+    from hhd_lightmapper.shaders import texel_views
+    from scenekit import blender as kit
+
+    scene = kit.clear_scene()
+    cube = kit.box("Cube", (0.0, 0.0, 0.5), (1, 1, 1), kit.material("Red", (0.8, 0.2, 0.1)))
+    objs = [cube]
+    for k in (1, 2):
+        obj = bpy.data.objects.new(f"Cube_{k}", cube.data)
+        scene.collection.objects.link(obj)
+        obj.location, obj.scale = (3.0 * k, 0.0, 0.5), cube.scale * (1 + (k == 2))
+        objs.append(obj)
+    meshes = len(bpy.data.meshes)
+    kit.unwrap(objs)
+    assert len(bpy.data.meshes) == meshes
+    texels = unwrap_texels(scene.hhd.unwrap_summary)
+    rects = [tuple(o.hhd.lightmap_rect) for o in objs]
+    assert len(set(rects)) == 3 and len({r[:2] for r in rects}) == 1
+    doc, _ = texel_views.report(objs, scene.hhd)
+    (atlas,) = doc["atlases"]
+    assert atlas["shared_texels"] == 0
+    entries = {e["name"]: e for e in atlas["objects"]}
+    for obj in objs:
+        area = sum(p.area for p in obj.data.polygons) * obj.scale[0] ** 2  # m², uniform scale
+        e = entries[obj.name]
+        assert e["texels"] == pytest.approx(texels[obj.name], rel=0.01, abs=1.0)
+        assert e["area_m2"] == pytest.approx(area, rel=1e-4)
+        assert e["texels_per_metre"] == pytest.approx(np.sqrt(texels[obj.name] / area), rel=0.01)
+        assert e["shared_texels"] == 0
+    assert entries["Cube_2"]["texels_per_metre"] == pytest.approx(0.5 * entries["Cube"]["texels_per_metre"], rel=0.01)
+    lines, _ = texel_views.show(objs, 'DENSITY', scene.hhd)
+    assert any("share the mesh" in line and "'Cube_2'" in line for line in lines), lines
+    assert tuple(objs[1]["hhd_view_size"]) == (atlas["width"], atlas["height"], 0.0)
+    # the checker reads the layer's UV through the object's rectangle (an Object attribute)
+    nodes = cube.material_slots[0].material.node_tree.nodes
+    (checker,) = [n for n in nodes if n.type == 'GROUP']
+    mapped = checker.inputs["UV"].links[0].from_node
+    assert mapped.type == 'VECT_MATH' and mapped.operation == 'MULTIPLY_ADD'
+    rect = mapped.inputs[1].links[0].from_node.inputs[0].links[0].from_node.inputs[0].links[0].from_node
+    assert (rect.attribute_type, rect.attribute_name) == ('OBJECT', "hhd.lightmap_rect")
+    assert bpy.ops.hhd.preview_hide() == {'FINISHED'}
+
+    objs[1].hhd.lightmap_rect = rects[0]  # a real overlap: Cube_1's texels on Cube's
+    doc, _ = texel_views.report(objs, scene.hhd)
+    (atlas,) = doc["atlases"]
+    entries = {e["name"]: e for e in atlas["objects"]}
+    assert entries["Cube"]["shared_texels"] == entries["Cube_1"]["shared_texels"] > 0.5 * texels["Cube"]
+    assert entries["Cube_2"]["shared_texels"] == 0

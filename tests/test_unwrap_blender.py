@@ -126,7 +126,7 @@ def test_subdivision_modifier_carries_the_lightmap_uvs_into_the_evaluated_mesh(s
     assert len(inside - base) <= 0.02 * len(inside)  # subdivided UVs stay inside the base charts
 
 
-def test_linked_duplicates_are_refused_with_the_fix_then_fixed_on_request(scene):
+def test_linked_duplicates_share_the_layer_as_instances_or_are_made_single_user_on_request(scene):
     import bpy
 
     a = add(bpy.ops.mesh.primitive_cube_add)
@@ -134,11 +134,15 @@ def test_linked_duplicates_are_refused_with_the_fix_then_fixed_on_request(scene)
     b.location = (3, 0, 0)
     bpy.context.scene.collection.objects.link(b)
     select([a, b])
-    with pytest.raises(RuntimeError, match="share the mesh.*single user"):
-        bpy.ops.hhd.unwrap()
-    assert LAYER not in a.data.uv_layers  # nothing changed
+    meshes = len(bpy.data.meshes)
+    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
+    assert a.data == b.data and len(bpy.data.meshes) == meshes and LAYER in a.data.uv_layers
+    assert a.hhd.atlas == b.hhd.atlas == "Lightmap_instances"
+    ra, rb = np.array(a.hhd.lightmap_rect), np.array(b.hhd.lightmap_rect)
+    assert (ra[:2] == rb[:2]).all() and (ra[2:] != rb[2:]).any()  # one block size, two places
     assert bpy.ops.hhd.unwrap(make_single_user=True) == {'FINISHED'}
     assert a.data != b.data and LAYER in a.data.uv_layers and LAYER in b.data.uv_layers
+    assert tuple(a.hhd.lightmap_rect) == tuple(b.hhd.lightmap_rect) == (1.0, 1.0, 0.0, 0.0)
 
 
 def test_per_object_override_gets_its_own_atlas_and_poll_explains(scene):

@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 #: sidecar keys whose values differ between two runs of one bake
-RUN_DETAILS = {"timings_seconds", "seconds", "baked_at", "date", "created", "blend_file", "output_dir", "host"}
+RUN_DETAILS = {"timings_seconds", "seconds", "time", "baked", "date", "created", "blend_file", "output_dir", "host"}
 
 #: case → (scene builder name, CLI options after `bake`)
 BASE = ["--unwrap", "--seed", "3", "--bounces", "1", "--no-denoise"]
