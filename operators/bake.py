@@ -32,7 +32,42 @@ def receivers_poll(cls, context) -> bool:
     return True
 
 
-class HHD_OT_bake(modal_work.ModalWork, bpy.types.Operator):
+class SessionWork(modal_work.ModalWork):
+    """A bake-like operator: `_start` makes `self.session` (with `run(progress=, cancel=)`),
+    `_done` reports its outcome. Synchronous from scripts and in background mode, modal from the
+    UI (`modal_work.ModalWork`)."""
+
+    def _announce(self) -> None:
+        """The line printed before a headless run's progress lines (none by default)."""
+
+    def execute(self, context):
+        if not self._start(context):
+            return {'CANCELLED'}
+        progress = ConsoleProgress() if bpy.app.background else None
+        if progress:
+            self._announce()
+        error = None
+        try:
+            self.session.run(progress=progress)
+        except Exception as exc:  # reported (or re-raised) by _done, after the progress line
+            error = exc
+        finally:
+            if progress:
+                progress.close()
+        return self._done(context, error)
+
+    def invoke(self, context, event):
+        if bpy.app.background:
+            return self.execute(context)
+        if not self._start(context):
+            return {'CANCELLED'}
+        return self._start_work(context, lambda progress, cancel: self.session.run(progress=progress, cancel=cancel))
+
+    def _work_done(self, context, result, error):
+        return self._done(context, error)
+
+
+class HHD_OT_bake(SessionWork, bpy.types.Operator):
     """Path-trace the lightmaps of the receivers, encode them to HHD and write the EXR files"""
 
     bl_idname = "hhd.bake"
@@ -75,28 +110,5 @@ class HHD_OT_bake(modal_work.ModalWork, bpy.types.Operator):
         self.report({'INFO'}, summary)
         return {'FINISHED'}
 
-    def execute(self, context):
-        if not self._start(context):
-            return {'CANCELLED'}
-        progress = ConsoleProgress() if bpy.app.background else None
-        if progress:
-            print(f"HHD bake: {self.session.describe()}", flush=True)
-        error = None
-        try:
-            self.session.run(progress=progress)
-        except Exception as exc:  # reported (or re-raised) by _done, after the progress line
-            error = exc
-        finally:
-            if progress:
-                progress.close()
-        return self._done(context, error)
-
-    def invoke(self, context, event):
-        if bpy.app.background:
-            return self.execute(context)
-        if not self._start(context):
-            return {'CANCELLED'}
-        return self._start_work(context, lambda progress, cancel: self.session.run(progress=progress, cancel=cancel))
-
-    def _work_done(self, context, result, error):
-        return self._done(context, error)
+    def _announce(self) -> None:
+        print(f"HHD bake: {self.session.describe()}", flush=True)

@@ -6,10 +6,10 @@ Esc cancels, nothing replaced), synchronous from scripts, as Bake is."""
 import bpy
 
 from ..bridge import incremental_session
-from ..core.console import ConsoleProgress
 from ..core.errors import BakeError
 from ..core.tracer import BakeCancelled
 from . import modal_work
+from .bake import SessionWork
 
 _MODES = (
     ('SELECTED', "Bake Selected", "Re-trace the selected receivers of the last bake into its files"),
@@ -43,7 +43,7 @@ class HHD_OT_check_stale(bpy.types.Operator):
         return {'FINISHED'}
 
 
-class HHD_OT_bake_changed(modal_work.ModalWork, bpy.types.Operator):
+class HHD_OT_bake_changed(SessionWork, bpy.types.Operator):
     """Re-trace some receivers of the last bake and write their texels into its files; every other texel stays as it is"""
 
     bl_idname = "hhd.bake_changed"
@@ -86,27 +86,3 @@ class HHD_OT_bake_changed(modal_work.ModalWork, bpy.types.Operator):
             self.report({'WARNING'}, warning)
         self.report({'INFO'}, summary)
         return {'FINISHED'}
-
-    def execute(self, context):
-        if not self._start(context):
-            return {'CANCELLED'}
-        progress = ConsoleProgress() if bpy.app.background else None
-        error = None
-        try:
-            self.session.run(progress=progress)
-        except Exception as exc:  # reported (or re-raised) by _done
-            error = exc
-        finally:
-            if progress:
-                progress.close()
-        return self._done(context, error)
-
-    def invoke(self, context, event):
-        if bpy.app.background:
-            return self.execute(context)
-        if not self._start(context):
-            return {'CANCELLED'}
-        return self._start_work(context, lambda progress, cancel: self.session.run(progress=progress, cancel=cancel))
-
-    def _work_done(self, context, result, error):
-        return self._done(context, error)

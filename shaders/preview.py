@@ -51,6 +51,8 @@ ATLAS = "hhd_preview_atlas"
 #: Object attribute (an RNA path): the object's lightmap rectangle (scale u, scale v, offset u,
 #: offset v) in its atlas, `properties.HHDObjectSettings.lightmap_rect`.
 RECT = "hhd.lightmap_rect"
+#: The rectangle of an object with its own mesh: the whole atlas.
+IDENTITY_RECT = (1.0, 1.0, 0.0, 0.0)
 
 
 def _new(tree, kind, name, location, parent):
@@ -191,7 +193,9 @@ def _instance_uv(tree, uv, x, y, frame):
     return mapped.outputs["Vector"]
 
 
-def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool, light_sets=()) -> str | None:
+def show_on_material(
+    mat, files, kind: str, uv_layer: str, self_bounce: bool, light_sets=(), instanced: bool = False
+) -> str | None:
     """Insert the preview into one material; returns a note when a fallback was used. `files`:
     the AtlasFiles of the objects' atlas, or [(index, AtlasFiles)] when objects of several
     atlases share the material (index: the value of their ATLAS attribute). light_sets (HHD mode):
@@ -216,7 +220,9 @@ def show_on_material(mat, files, kind: str, uv_layer: str, self_bounce: bool, li
     x0, y0 = output.location.x + 320, output.location.y - 40
     uv = _new(tree, "ShaderNodeUVMap", "UV", (x0, y0), frame)
     uv.uv_map = uv_layer
-    atlas_uv = _instance_uv(tree, uv.outputs["UV"], x0, y0 - 180, frame)
+    # through the objects' rectangles only where an instance uses the material: elsewhere the UV
+    # reaches the images as it did (the lookup's filtering is then exactly the bake-era preview's)
+    atlas_uv = _instance_uv(tree, uv.outputs["UV"], x0, y0 - 180, frame) if instanced else uv.outputs["UV"]
     group = _new(tree, "ShaderNodeGroup", "Group", (x0 + 600, y0), frame)
     group.node_tree = node_groups.ensure_blend(len(light_sets)) if light_sets else node_groups.ensure(kind)
     geometry = _new(tree, "ShaderNodeNewGeometry", "Geometry", (x0 + 300, y0 - 500), frame)
@@ -283,6 +289,7 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
     notes, set_names = [], []
     index = {name: i for i, name in enumerate(sorted({f.name for f in atlas_files.values()}))}
     materials: dict[str, tuple] = {}  # material name → (material, {atlas name: files})
+    instanced: set[str] = set()  # materials an instance (an object with its own rectangle) uses
     for files in {f.name: f for f in atlas_files.values()}.values():
         upgrade_direction(files)  # a bake made before the preview held d as a vector
     for obj in objects:
@@ -291,15 +298,16 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
         for slot in obj.material_slots:
             if slot.material is not None:
                 materials.setdefault(slot.material.name, (slot.material, {}))[1][files.name] = files
+                if tuple(obj.hhd.lightmap_rect) != IDENTITY_RECT:
+                    instanced.add(slot.material.name)
         if not obj.material_slots or all(s.material is None for s in obj.material_slots):
             notes.append(f"'{obj.name}' has no material: nothing to preview on it")
     for mat, by_atlas in materials.values():
         atlases = [(index[name], by_atlas[name]) for name in sorted(by_atlas)]
         light_sets, sets_note = _material_light_sets(atlases) if kind == 'HHD' else ([], None)
         set_names += [name for name, _ in light_sets]
-        note = show_on_material(
-            mat, atlases if len(atlases) > 1 else atlases[0][1], kind, uv_layer, self_bounce, light_sets
-        )
+        files = atlases if len(atlases) > 1 else atlases[0][1]
+        note = show_on_material(mat, files, kind, uv_layer, self_bounce, light_sets, mat.name in instanced)
         notes += [n for n in (sets_note, note) if n]
     sync_light_sets(scene, set_names)
     return notes

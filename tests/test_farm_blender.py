@@ -97,9 +97,12 @@ def exr_bytes(folder: Path) -> dict:
 
 
 def without_run_details(doc: dict) -> dict:
-    """A sidecar without what differs between two runs of one bake: timings (as test_threads)."""
+    """A sidecar without what differs between two runs of one bake: timings (as test_threads) and
+    the times the fingerprints and receivers record."""
     doc = json.loads(json.dumps(doc))
     doc.pop("timings_seconds")
+    doc.pop("baked", None)  # when each receiver was baked (core.incremental)
+    doc.get("fingerprints", {}).pop("time", None)
     records = list(doc["post"].values())
     while records:
         record = records.pop()

@@ -51,9 +51,10 @@ def sphere_in_corner(resolution: int, scale: float, corner: tuple[float, float])
 
 
 def untimed(doc):
-    """A sidecar without its times (every "seconds" and "timings_seconds")."""
+    """A sidecar without its times (every "seconds" and "timings_seconds", the fingerprints' "time"
+    and the receivers' "baked" times)."""
     if isinstance(doc, dict):
-        return {k: untimed(v) for k, v in doc.items() if k not in ("seconds", "timings_seconds")}
+        return {k: untimed(v) for k, v in doc.items() if k not in ("seconds", "timings_seconds", "time", "baked")}
     return [untimed(v) for v in doc] if isinstance(doc, list) else doc
 
 
