@@ -33,7 +33,8 @@ LAST = 0.999
 # matter). From the timings of the issue's 3.9M-texel Production kitchen (trace 508 s at 64
 # samples and 8 bounces, denoise 96 s, stitch 68 s, raw files ~76 s, encode + write ~100 s) and
 # a 1024² bake here (floor and ball, 634k texels, 16 samples: trace 4 s, raw files 4 s,
-# denoise 13 s, encode 2 s).
+# denoise 13 s, encode 2 s); stitch and encode from the 4096² bedroom's stages after the compiled
+# dilation and the chunk-parallel encoder (bench/results/end_to_end.md).
 #: The bake points of one atlas texel (raster, probes): per baked texel.
 COST_POINTS = 3.0
 #: Tracing one sample of one texel, per bounce after the first hit added: × (1 + bounces / 2).
@@ -47,9 +48,9 @@ COST_WRITE = 0.12
 #: The denoiser (per baked texel).
 COST_DENOISE = 25.0
 #: Seam stitching of the SH and of the encoded layers (per baked texel).
-COST_STITCH = 12.0
+COST_STITCH = 6.0
 #: Encoding (HHD's fit) and filling the layers (per baked texel).
-COST_ENCODE = 5.0
+COST_ENCODE = 2.7
 #: The post stages' costs by name (`core.post.stages_for`; the stitch stage's SH half: the
 #: other, `post.stitch_encoded`, runs after encoding).
 POST_COSTS = {"denoise": COST_DENOISE, "stitch": 0.6 * COST_STITCH}
