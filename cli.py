@@ -250,13 +250,15 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
             "--objects",
             nargs="+",
             metavar="NAME",
-            help="receiver objects, by name (mesh objects only; not with --collection) (default: the scene's "
+            help="receiver objects, by name (mesh objects, or Empties that instance a collection: its objects, "
+            "each named '<Empty>/<object>'; not with --collection) (default: the scene's "
             "Receivers setting: the selection saved in the .blend, or its receiver collection)",
         )
         q.add_argument(
             "--collection",
             metavar="NAME",
-            help="receivers: the mesh objects of this collection, child collections included; not with "
+            help="receivers: the mesh objects (and collection instances) of this collection, child collections "
+            "included; not with "
             "--objects (default: the scene's Receivers setting)",
         )
 
@@ -425,7 +427,8 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
     q.add_argument(
         "--unwrap",
         action="store_true",
-        help="unwrap the receivers first, as the unwrap command does (linked duplicates are refused) "
+        help="unwrap the receivers first, as the unwrap command does (linked duplicates and collection instances "
+        "become instances) "
         "(default: off: bake the lightmap UVs the objects have)",
     )
     resolution(

@@ -398,7 +398,23 @@ class HHDObjectSettings(bpy.types.PropertyGroup):
         default=(1.0, 1.0, 0.0, 0.0),
         description="Where this object's lightmap lies in its atlas, set by Unwrap: atlas UV = lightmap UV × "
         "(x, y) + (z, w). Identity for an object with its own mesh; a linked duplicate (an instance) shares its "
-        "mesh's lightmap UVs and gets its own rectangle",
+        "mesh's lightmap UVs and gets its own rectangle. On an Empty that shows a collection: where its copy of "
+        "the collection's block lies in the atlas",
+    )
+    collection_rect: FloatVectorProperty(
+        name="Collection Rectangle",
+        size=4,
+        default=(1.0, 1.0, 0.0, 0.0),
+        description="For an object of a collection that Empties show (collection instances), set by Unwrap: where "
+        "its lightmap lies in the collection's block (block UV = lightmap UV × (x, y) + (z, w)); each Empty's "
+        "Lightmap Rectangle places the block in the atlas",
+    )
+    collection_instance: FloatProperty(
+        name="Collection Instance",
+        default=0.0,
+        min=0.0,
+        max=1.0,
+        description="1 on an Empty whose collection was unwrapped as collection instances (read by the preview)",
     )
 
 

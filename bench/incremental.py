@@ -115,7 +115,15 @@ def main() -> None:
     parser.add_argument(
         "--samples", type=int, default=64, help="64: 4 passes of 16, the fewest with a known noise (Noise.V)"
     )
+    parser.add_argument(
+        "--merge",
+        action="store_true",
+        help="time the merge stage only (post stages + encode, whole atlas against its region): `merge_bench`",
+    )
     args = parser.parse_args()
+    if args.merge:
+        merge_bench(args)
+        return
     import bpy
 
     import hhd_lightmapper
@@ -199,6 +207,107 @@ def main() -> None:
     (RESULTS / "incremental.json").write_text(json.dumps(doc, indent=1) + "\n")
     (RESULTS / "incremental.md").write_text(markdown(doc))
     print(markdown(doc))
+
+
+def merge_bench(args) -> None:
+    """`--merge`: the merge stage of `bake --only MOVED` (`incremental._merge_files`: the post
+    stages and the encoder, then the files staged) timed over the whole atlas and over the region
+    of its touched texels (`incremental.merge_region`, forced whatever its share), each from the same first bake (denoised and
+    stitched, `--samples` with the preset's other knobs; kept in --scratch and reused when its
+    resolution matches). Writes bench/results/incremental_merge.json and .md (rows per resolution
+    kept from earlier runs)."""
+    import bpy
+
+    import hhd_lightmapper
+    from hhd_lightmapper.core import incremental
+
+    hhd_lightmapper.register()
+    scratch = args.scratch or Path(tempfile.gettempdir()) / f"hhd_incremental_merge_{args.resolution}"
+    scratch.mkdir(parents=True, exist_ok=True)
+    blend, base = scratch / "bedroom.blend", scratch / "base"
+    common = ["--preset", args.preset, "--samples", args.samples, "--denoise", "--stitch"]
+    if not (base / "Lightmap.json").is_file() or not blend.is_file():
+        shutil.copyfile(BEDROOM, blend)
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        meshes = sorted(o.name for o in bpy.data.objects if o.type == 'MESH')
+        run_cli("unwrap", "--resolution", args.resolution, "--objects", *meshes)
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+        shutil.rmtree(base, ignore_errors=True)
+        run_cli("bake", *common, "--objects", *meshes, "--out", base)
+    else:
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+    timings: list[dict] = []
+    merge = incremental._merge_files
+
+    def timed(staging, files, data, sidecar, settings, atlas_seams, mask, update, cancel):
+        t = time.perf_counter()
+        out = merge(staging, files, data, sidecar, settings, atlas_seams, mask, update, cancel)
+        timings.append({"file": files.name, "seconds": time.perf_counter() - t})
+        return out
+
+    rows = []
+    share_max = incremental.WINDOW_SHARE_MAX
+    for way, limit in (("whole", 0.0), ("region", 1.0), ("whole", 0.0), ("region", 1.0)):
+        folder = scratch / way
+        shutil.rmtree(folder, ignore_errors=True)
+        shutil.copytree(base, folder)
+        incremental.WINDOW_SHARE_MAX = limit
+        incremental._merge_files = timed
+        timings.clear()
+        try:
+            seconds = run_cli("bake", *common, "--only", MOVED, "--out", folder)
+        finally:
+            incremental._merge_files, incremental.WINDOW_SHARE_MAX = merge, share_max
+        docs = [json.loads(p.read_text()) for p in sorted(folder.glob("*.json"))]
+        doc = next(d for d in docs if "incremental" in d)  # the moved object's atlas (bedroom: no light sets)
+        rows.append(
+            {
+                "resolution": args.resolution,
+                "way": way,
+                "bake_seconds": seconds,
+                "merge_seconds": sum(t["seconds"] for t in timings),
+                "files": len(timings),
+                "texels_traced": doc["incremental"]["texels_traced"],
+                "texels_written": doc["incremental"]["texels_written"],
+                "window_share": doc["incremental"].get("merge", {}).get("share", 1.0),
+                "region_texels": doc["incremental"].get("merge", {}).get("texels", 0),
+                "why": doc["incremental"].get("merge", {}).get("why", ""),
+            }
+        )
+        print(json.dumps(rows[-1]), flush=True)
+    kept = RESULTS / "incremental_merge.json"
+    old = json.loads(kept.read_text())["rows"] if kept.is_file() else []
+    doc = {
+        "preset": args.preset,
+        "samples": args.samples,
+        "rows": [r for r in old if r["resolution"] != args.resolution] + rows,
+    }
+    kept.write_text(json.dumps(doc, indent=1) + "\n")
+    (RESULTS / "incremental_merge.md").write_text(merge_markdown(doc))
+    print(merge_markdown(doc))
+
+
+def merge_markdown(doc: dict) -> str:
+    lines = [
+        "# Bake what changed: the merge's post stages and encode on the touched region (issue 57)",
+        "",
+        f"`python bench/incremental.py --merge --resolution N`: the shared bedroom, every mesh a receiver, "
+        f"{doc['preset'].title()} with {doc['samples']} samples, denoised and stitched; from the same first bake, "
+        f"`bake --only {MOVED}` with the merge stage (`core/incremental.py` `_merge_files`: raw files, denoise, "
+        "stitch, encode, staging the touched texels of each file) over the whole atlas and over the region of "
+        "the touched texels and their charts (`merge_region`, forced whatever its share), each twice, in the same run. "
+        "Merge s: that stage's seconds summed over the atlas's files; region share: the region's chart texels over the "
+        "atlas's (the whole atlas runs above `WINDOW_SHARE_MAX`).",
+        "",
+        "| atlas | merge over | bake s | merge s | texels traced | texels written | region texels | region share |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in doc["rows"]:
+        lines.append(
+            f"| {r['resolution']}² | {r['way']} | {r['bake_seconds']:.1f} | {r['merge_seconds']:.2f} | "
+            f"{r['texels_traced']} | {r['texels_written']} | {r['region_texels']} | {100 * r['window_share']:.1f}% |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def markdown(doc: dict) -> str:

@@ -17,32 +17,34 @@ from ..core import encoding as core_encoding
 from ..core import parallel, tracer
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles
-from . import denoiser, fingerprints, mesh_data, scene_data
+from . import collection_instances, denoiser, fingerprints, mesh_data, scene_data
 
 DEFAULT_ATLAS = "Lightmap"
 
 
 def target_objects(context, names: list[str] | None = None) -> list:
-    """Receivers: the named objects, else the scene's target (selected objects or a collection).
-    Raises BakeError naming an object that does not exist or is not a mesh, or a collection
-    instance among them (`mesh_data.refuse_collection_instances`)."""
+    """Receivers: the named objects, else the scene's target (selected objects or a collection);
+    an Empty that shows a collection stands for its Members (`collection_instances`), and a
+    Member can be named as "<instancer>/<object>". Raises BakeError naming an object that does
+    not exist or is neither a mesh nor a collection instance."""
     settings = context.scene.hhd
     if names:
-        missing = [n for n in names if n not in bpy.data.objects]
+        found = {n: collection_instances.find(n) for n in names}
+        missing = [n for n, o in found.items() if o is None]
         if missing:
             raise BakeError(f"no object named {', '.join(repr(n) for n in missing)} in this .blend")
-        mesh_data.refuse_collection_instances(bpy.data.objects[n] for n in names)
-        wrong = [n for n in names if bpy.data.objects[n].type != 'MESH']
+        wrong = [n for n, o in found.items() if o.type != 'MESH' and not collection_instances.shows_collection(o)]
         if wrong:
-            raise BakeError(f"{', '.join(repr(n) for n in wrong)} is not a mesh object: only meshes get lightmaps")
-        return mesh_data.target_meshes(bpy.data.objects[n] for n in names)
+            raise BakeError(
+                f"{', '.join(repr(n) for n in wrong)} is not a mesh object or a collection instance: only meshes "
+                "get lightmaps"
+            )
+        return list(dict.fromkeys(collection_instances.receivers(found.values())))
     if settings.target == 'COLLECTION':
         if settings.target_collection is None:
             raise BakeError("Receivers is set to Collection but no collection is chosen")
-        mesh_data.refuse_collection_instances(settings.target_collection.all_objects)
-        return mesh_data.target_meshes(settings.target_collection.all_objects)
-    mesh_data.refuse_collection_instances(context.selected_objects)
-    return mesh_data.target_meshes(context.selected_objects)
+        return collection_instances.receivers(settings.target_collection.all_objects)
+    return collection_instances.receivers(context.selected_objects)
 
 
 def output_folder(settings, override: str | None = None) -> str:

@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import blender_compat
 from ..core import incremental
+from . import collection_instances
 
 #: RNA property types hashed by value (pointers and collections are walked where they matter).
 _PLAIN = {"BOOLEAN", "INT", "FLOAT", "ENUM", "STRING"}
@@ -188,8 +189,13 @@ def _bounds(mesh, matrix: np.ndarray) -> list | None:
 
 
 def instance_key(instance) -> str:
-    """The name an object instance is fingerprinted under."""
+    """The name an object instance is fingerprinted under: its object's; a collection instance's
+    object is "<instancer>/<object>", a receiver's name (`collection_instances.Member`), other
+    instances add their persistent id."""
     if instance.is_instance and instance.parent is not None:
+        parent, original = instance.parent.original, instance.object.original
+        if collection_instances.shows_collection(parent) and original.name in parent.instance_collection.all_objects:
+            return f"{parent.name}{collection_instances.SEPARATOR}{original.name}"
         return f"{instance.parent.name}/{instance.object.name}/{tuple(instance.persistent_id)}"
     return instance.object.name
 
@@ -199,7 +205,7 @@ def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_la
     and the layout of each atlas of `atlases` ([(name, width, height, receiver objects)], as
     `bake_session.atlas_groups` gives them) from the receivers' `uv_layer`."""
     depsgraph = context.evaluated_depsgraph_get()
-    receivers = {o.name for _, _, _, members in atlases for o in members}
+    receivers = {o.name: o for _, _, _, members in atlases for o in members}
     found = incremental.Fingerprints()
     materials: dict = {}
     uv: dict[str, str] = {}
@@ -224,8 +230,8 @@ def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_la
                     "bounds": _bounds(mesh, matrix),
                     "emits": any(_emits(slot.material) for slot in obj.material_slots),
                 }
-                if key in receivers and not instance.is_instance:
-                    rect = tuple(getattr(obj.original.hhd, "lightmap_rect", ()))  # an instance's place (part 2)
+                if key in receivers:
+                    rect = tuple(receivers[key].hhd.lightmap_rect)  # an instance's place (part 2)
                     entry["uv"] = incremental.digest(_uv_digest(mesh, uv_layer), rect)
                     uv[key] = entry["uv"]
                 found.objects[key] = entry

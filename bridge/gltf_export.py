@@ -35,7 +35,7 @@ from ..core import sh as core_sh
 from ..core.encoding import web_packing as wp
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles, read_sidecar
-from . import mesh_data
+from . import collection_instances, mesh_data
 
 NAME = "HHD_LIGHTMAP"
 EXT = "HHD_lightmap"
@@ -64,6 +64,7 @@ class _State:
         self.settings = export_settings
         self.yup = export_settings.get("gltf_yup", True)
         self.nodes: list = []  # (gltf node, blender object name)
+        self.instancers: list = []  # (gltf node, name) of the Empties that show a collection
         self.warnings: list[str] = []
         self.errors: list[str] = []
         self.exported: list[str] = []
@@ -99,6 +100,8 @@ class glTF2ExportUserExtension:  # noqa: N801 (the name the exporter looks up)
         try:
             if blender_object is not None and getattr(blender_object, "type", "") == "MESH":
                 _state(export_settings).nodes.append((gltf2_node, blender_object.name))
+            elif blender_object is not None and collection_instances.shows_collection(blender_object):
+                _state(export_settings).instancers.append((gltf2_node, blender_object.name))
         except Exception as exc:  # noqa: BLE001 (the exporter would swallow it)
             _state(export_settings).errors.append(f"gather_node_hook: {exc!r}")
 
@@ -376,10 +379,14 @@ def _build(state: _State, scene_plan) -> None:
     atlases: dict[str, _Atlas] = {}
     broken: dict[str, str] = {}
     receivers: dict[str, _Atlas] = {}
+    state.nodes = _instance_names(state)
     names_seen = {name for _, name in state.nodes}
     for name in sorted(names_seen):
-        obj = bpy.data.objects.get(name)
+        obj = collection_instances.find(name)
         if obj is None or obj.type != 'MESH':
+            continue
+        if not obj.hhd.atlas and tuple(getattr(obj.hhd, "collection_rect", ())) not in ((), mesh_data.IDENTITY_RECT):
+            state.warn(f"'{name}' exported without its lightmap: it was baked as part of collection instances only")
             continue
         atlas_name = obj.hhd.atlas or bake_session.DEFAULT_ATLAS
         has_layer = obj.data.uv_layers.get(layer_name) is not None
@@ -461,7 +468,7 @@ def _build(state: _State, scene_plan) -> None:
         atlas = receivers.get(name)
         if atlas is None or node.mesh is None:
             continue
-        obj = bpy.data.objects[name]
+        obj = collection_instances.find(name)
         k = obj.data.uv_layers.find(layer_name)
         key = f"TEXCOORD_{k}"
         prims = getattr(node.mesh, "primitives", None) or []
@@ -502,6 +509,24 @@ def _build(state: _State, scene_plan) -> None:
             scene_plan.extensions = {}
         scene_plan.extensions[EXT] = b.ext(EXT, root)
     state.root = root
+
+
+def _instance_names(state: _State) -> list:
+    """state.nodes with the nodes under a collection instance's node (the exporter writes the
+    collection's objects as its children) named as their receivers, "<Empty>/<object>"
+    (`collection_instances.Member`)."""
+    names = {id(node): name for node, name in state.nodes}
+    renamed: dict[int, str] = {}
+    for node, instancer in state.instancers:
+        stack = list(node.children or [])
+        while stack:
+            child = stack.pop()
+            if isinstance(child, int):  # already an index: not one of this export's node objects
+                continue
+            if id(child) in names:
+                renamed[id(child)] = f"{instancer}{collection_instances.SEPARATOR}{names[id(child)]}"
+            stack += list(child.children or [])
+    return [(node, renamed.get(id(node), name)) for node, name in state.nodes]
 
 
 def gltf_scale_offset(rect) -> list[float]:

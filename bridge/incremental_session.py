@@ -12,12 +12,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import bpy
-
 from ..core import bake as core_bake
 from ..core import incremental, lightmap_files, parallel
 from ..core.errors import FullBakeNeeded
-from . import bake_session, fingerprints, mesh_data, scene_data
+from . import bake_session, collection_instances, fingerprints, mesh_data, scene_data
 
 MODES = ("only", "changed", "influenced")
 
@@ -50,10 +48,11 @@ def _last_bake(context, out_dir: str):
     if not atlases:
         raise FullBakeNeeded(f"no earlier bake in {out_dir}: bake all first")
     names = list(dict.fromkeys(o["name"] for doc in atlases.values() for o in doc["objects"]))
-    gone = [n for n in names if n not in bpy.data.objects or bpy.data.objects[n].type != 'MESH']
+    found = {n: collection_instances.find(n) for n in names}
+    gone = [n for n, o in found.items() if o is None or o.type != 'MESH']
     if gone:
         raise FullBakeNeeded(f"{', '.join(repr(n) for n in gone)}: baked last time but no longer a mesh here: bake all")
-    receivers = [bpy.data.objects[n] for n in names]
+    receivers = list(found.values())
     groups, _ = bake_session.atlas_groups(receivers, settings)
     old, _ = incremental.folder_state(out_dir, list(atlases))
     now = fingerprints.scene_fingerprints(context, groups, settings.uv_layer)
@@ -112,7 +111,8 @@ class IncrementalSession:
             raise FullBakeNeeded("the last bake has no fingerprints (made before they were recorded): bake all")
         all_names = [o.name for o in receivers]
         if mode == "only":
-            missing = [n for n in names or [] if n not in all_names]
+            names = [m.name for m in collection_instances.receivers_named(names or [])]
+            missing = [n for n in names if n not in all_names]
             if missing or not names:
                 raise FullBakeNeeded(
                     f"{', '.join(repr(n) for n in missing) or 'no object named'}: not a receiver of the last bake in "

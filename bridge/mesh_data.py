@@ -12,6 +12,7 @@ import numpy as np
 from ..core.errors import BakeError
 from ..core.unwrap import UnwrapMesh
 from . import materials
+from .collection_instances import Member
 from .materials import TextureCache
 
 MAX_UV_LAYERS = 8  # Blender's limit per mesh
@@ -20,23 +21,6 @@ MAX_UV_LAYERS = 8  # Blender's limit per mesh
 def target_meshes(objects) -> list:
     """The mesh objects among `objects`, in name order (deterministic atlas layout)."""
     return sorted((o for o in objects if o.type == 'MESH'), key=lambda o: o.name)
-
-
-def refuse_collection_instances(objects) -> None:
-    """Raise BakeError naming the objects among `objects` that instance a collection (an Empty
-    with Instancing > Collection): they cannot receive lightmaps (their meshes are not objects
-    of this scene that could hold a rectangle, `core.instances`)."""
-    found = [
-        (o.name, o.instance_collection.name)
-        for o in objects
-        if o.type == 'EMPTY' and o.instance_type == 'COLLECTION' and o.instance_collection is not None
-    ]
-    if found:
-        names = ", ".join(f"'{name}' (collection '{collection}')" for name, collection in found)
-        raise BakeError(
-            f"{names} instance a collection: collection instances cannot receive lightmaps. Use linked "
-            "duplicates (Alt+D) of its objects, which share their meshes, or Object > Apply > Make Instances Real"
-        )
 
 
 def shared_meshes(objects) -> dict:
@@ -77,9 +61,13 @@ def lightmap_rect(obj) -> tuple[float, float, float, float]:
 
 
 def make_single_user(objects) -> int:
-    """Give every object but the first user of a shared mesh its own copy; returns the count."""
-    seen, copies = set(), 0
+    """Give every object but the first user of a shared mesh its own copy; returns the count. A
+    collection instance's Members keep their mesh (it is the collection's): every object among
+    `objects` that uses it gets a copy."""
+    seen, copies = {o.data.name for o in objects if isinstance(o, Member)}, 0
     for o in objects:
+        if isinstance(o, Member):
+            continue
         if o.data.name in seen:
             o.data = o.data.copy()
             copies += 1
@@ -90,7 +78,8 @@ def make_single_user(objects) -> int:
 def read_unwrap_mesh(obj, instance_of: str | None = None) -> tuple[UnwrapMesh, np.ndarray]:
     """(UnwrapMesh in world space with each triangle's polygon, loop indices (T, 3) of each
     triangle corner) for obj.data; `instance_of`: the shared mesh's name for a linked duplicate
-    unwrapped as an instance (`core.instances`)."""
+    unwrapped as an instance (`core.instances`). A collection instance's Member
+    (`collection_instances`) is always an instance, placed with its collection (its bundle)."""
     mesh = obj.data
     mesh.calc_loop_triangles()
     n_tri, n_vert = len(mesh.loop_triangles), len(mesh.vertices)
@@ -117,7 +106,8 @@ def read_unwrap_mesh(obj, instance_of: str | None = None) -> tuple[UnwrapMesh, n
         resolution=overrides.resolution or None,
         texel_density=overrides.texel_density or None,
         polygons=polygons,
-        instance_of=instance_of,
+        instance_of=obj.data.name if isinstance(obj, Member) else instance_of,
+        bundle=obj.bundle() if isinstance(obj, Member) else None,
     ), loops
 
 

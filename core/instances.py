@@ -1,4 +1,5 @@
-"""Lightmap UVs for instances: objects sharing one mesh (linked duplicates). No bpy.
+"""Lightmap UVs for instances: objects sharing one mesh (linked duplicates, collection
+instances). No bpy.
 
 All instances of a mesh share the mesh's one lightmap UV layer, so they share one chart layout.
 The mesh is charted once (on its instance with the largest surface, in metres: every other
@@ -12,9 +13,19 @@ texels with `padding` texels between blocks, so
 for an atlas of W × H texels and the block's lower-left texel (x, y): a texel of the block is a
 texel of the atlas, the padding xatlas keeps inside the block is kept exactly, and every instance
 of a mesh has the same scale. (scale, offset) is the instance's *rectangle* (docs/format.md,
-"Instances"). The instances of the meshes go into an atlas of their own (one per mesh when
-every object has its own atlas): at a fixed resolution R its density is searched so that the
-blocks fill R² (`fit_density`), at a fixed texel density its size is what the blocks need.
+"Instances").
+
+Collection instances (an Empty showing a collection) place the collection's members together:
+each member's block is packed once into the collection's *bundle* (`bundle`, a shelf pack), and
+each instancer gets a copy of the bundle, so a member's rectangle is the composition of its
+*inner* rectangle in the bundle (the same for every instancer) and the instancer's *outer*
+rectangle in the atlas: atlas_uv = (layer_uv · inner.scale + inner.offset) · outer.scale +
+outer.offset, on whole texels, equal to its rectangle. A preview reads the outer one from the
+instancer and the inner one from the member.
+
+The instances of the meshes go into an atlas of their own (one per mesh, or per collection,
+when every object has its own atlas): at a fixed resolution R its density is searched so that
+the blocks fill R² (`layout`), at a fixed texel density its size is what the blocks need.
 """
 
 from __future__ import annotations
@@ -56,14 +67,38 @@ class InstanceLayout:
     packs: int
 
 
-def instance_groups(keys: list[str | None]) -> list[list[int]]:
+@dataclass
+class Bundle:
+    """A collection's member blocks packed together: the block every instance of the collection
+    (an Empty instancing it) gets a copy of. width × height texels; parts: per member, in the
+    members' order, (index of its mesh's Block, lower-left texel (x, y) in the bundle)."""
+
+    width: int
+    height: int
+    charts: int
+    utilisation: float
+    parts: list[tuple[int, tuple[int, int]]]
+
+
+def bundle(blocks: list[Block], members: list[int], gap: int) -> Bundle:
+    """Shelf-pack the blocks `members` (indices into `blocks`, one per member object, a mesh's
+    block once per member using it) `gap` texels apart into one Bundle, about square."""
+    sizes = np.array([(blocks[g].width, blocks[g].height) for g in members], dtype=np.int64)
+    corners, w, h = shelf_pack(sizes, square_width(sizes, gap), gap)
+    covered = sum(blocks[g].utilisation * blocks[g].width * blocks[g].height for g in members)
+    parts = [(g, (int(c[0]), int(c[1]))) for g, c in zip(members, corners)]
+    return Bundle(w, h, sum(blocks[g].charts for g in members), float(covered / (w * h)), parts)
+
+
+def instance_groups(keys: list[str | None], always: set[str] | frozenset[str] = frozenset()) -> list[list[int]]:
     """Indices of the meshes sharing a key (the mesh a linked duplicate uses), for keys held by
-    two or more meshes, in the order of their first member; None never groups."""
+    two or more meshes or named in `always` (a mesh a collection instance shows: instanced even
+    once), in the order of their first member; None never groups."""
     members: dict[str, list[int]] = {}
     for i, key in enumerate(keys):
         if key is not None:
             members.setdefault(key, []).append(i)
-    return [m for m in members.values() if len(m) > 1]
+    return [m for k, m in members.items() if len(m) > 1 or k in always]
 
 
 def representative(areas: list[float]) -> int:
@@ -125,14 +160,14 @@ def first_density(boxes: list[np.ndarray], counts: list[int], resolution: int, p
 
 
 def layout(
-    pack_blocks: Callable[[float], list[Block]],
+    pack_blocks: Callable[[float], list[Block | Bundle]],
     counts: list[int],
     resolution: int | None,
     density: float | None,
     padding: int,
     max_resolution: int,
     first: float | None = None,
-) -> tuple[int, int, float, list[Block], np.ndarray, int]:
+) -> tuple[int, int, float, list[Block | Bundle], np.ndarray, int]:
     """Pack the blocks, `counts[g]` copies of mesh group g's: at `density` texels per metre into
     an atlas as large as they need (≤ max_resolution), else at the largest density found within
     FIT_ROUNDS rounds that fits resolution² (starting at `first`). pack_blocks(t) packs every
@@ -180,9 +215,9 @@ def layout(
     return (*best, packs)
 
 
-def rectangle(block: Block, corner, width: int, height: int) -> tuple[float, float, float, float]:
+def rectangle(block: Block | Bundle, corner, width: int, height: int) -> tuple[float, float, float, float]:
     """(scale u, scale v, offset u, offset v) of a block copy at lower-left texel `corner` in a
-    width × height atlas: atlas_uv = layer_uv · scale + offset."""
+    width × height atlas (or bundle): atlas_uv = layer_uv · scale + offset."""
     return (block.width / width, block.height / height, corner[0] / width, corner[1] / height)
 
 

@@ -81,7 +81,11 @@ class UnwrapMesh:
     polygons: (T,) index ≥ 0 of the polygon each triangle belongs to (its triangles stay in one
     chart, its corners on one vertex share one UV); None: every triangle is its own polygon.
     instance_of: the name of the mesh (datablock) the object uses; objects naming the same mesh
-    share one lightmap UV layer and become instances (`core.instances`); None: never shared."""
+    share one lightmap UV layer and become instances (`core.instances`); None: never shared.
+    bundle: (collection, instancer, member) for a mesh a collection instance shows: the object
+    `member` of `collection` as the Empty `instancer` places it (positions in world space through
+    the instancer); it is an instance of `instance_of` even when no other object shares it, and
+    the collection's members are placed together per instancer (`core.instances.Bundle`)."""
 
     name: str
     positions: np.ndarray
@@ -90,6 +94,7 @@ class UnwrapMesh:
     texel_density: float | None = None
     polygons: np.ndarray | None = None
     instance_of: str | None = None
+    bundle: tuple[str, str, str] | None = None
 
 
 @dataclass
@@ -111,7 +116,9 @@ class ObjectUV:
     charts cover (UV area × width × height); rect: (x0, y0, x1, y1) texel bounds in the atlas.
     An instance (`core.instances`) also has layer_uv (T, 3, 2), the UVs its mesh's lightmap
     layer holds (shared by every instance of the mesh), and instance = (scale u, scale v,
-    offset u, offset v): uv = layer_uv · scale + offset. For other objects layer_uv is uv."""
+    offset u, offset v): uv = layer_uv · scale + offset. For other objects layer_uv is uv. A mesh
+    of a collection instance also has inner (its rectangle in the collection's bundle) and outer
+    (the instancer's copy of the bundle in the atlas): instance = outer ∘ inner."""
 
     name: str
     uv: np.ndarray
@@ -121,6 +128,8 @@ class ObjectUV:
     charts: int
     layer_uv: np.ndarray | None = None
     instance: tuple[float, float, float, float] | None = None
+    inner: tuple[float, float, float, float] | None = None
+    outer: tuple[float, float, float, float] | None = None
 
     @property
     def layer(self) -> np.ndarray:
@@ -215,7 +224,9 @@ def unwrap(
     and BakeCancelled is raised; nothing of a cancelled unwrap enters the caches."""
     for m in meshes:
         validate(m)
-    inst_groups = instances.instance_groups([m.instance_of for m in meshes])
+    inst_groups = instances.instance_groups(
+        [m.instance_of for m in meshes], {m.instance_of for m in meshes if m.bundle and m.instance_of}
+    )
     reps = _representatives(meshes, inst_groups)
     held = {i for g in inst_groups for i in g}
     groups = _group(meshes, settings, held)
@@ -268,7 +279,7 @@ def unwrap(
             _add_atlas(result, atlas, (w, h), shared, k)
             for j, i in enumerate(part):
                 result.objects[i] = _object_uv(meshes[i], atlas, j, len(result.atlas_sizes) - 1, w, h, turn)
-    for part_groups, resolution, density in _instance_atlases(inst_groups, reps, settings):
+    for part_groups, resolution, density in _instance_atlases(inst_groups, reps, settings, meshes):
         _check(cancel)
         _add_instances(result, meshes, charts, part_groups, resolution, density, settings.padding, cancel)
     stats["pack_s"] = time.perf_counter() - t0 - stats["chart_s"]
@@ -830,25 +841,86 @@ def _representatives(meshes, groups) -> list[int]:
     return reps
 
 
-def _instance_atlases(groups, reps, settings):
+def _instance_atlases(groups, reps, settings, meshes):
     """[(groups [(member indices, representative)], resolution, density)] per instance atlas:
-    one for all instanced meshes, or one per mesh when every object has its own atlas."""
+    one for all instanced meshes, or, when every object has its own atlas, one per mesh and
+    collection (the meshes of one collection's instances share theirs)."""
     pairs = list(zip(groups, reps))
     if not pairs:
         return []
-    if settings.per_object:
-        return [([p], settings.resolution, settings.texel_density) for p in pairs]
-    return [(pairs, settings.resolution, settings.texel_density)]
+    if not settings.per_object:
+        return [(pairs, settings.resolution, settings.texel_density)]
+    root = list(range(len(pairs)))
+
+    def find(a):
+        while root[a] != a:
+            a = root[a]
+        return a
+
+    first: dict[str, int] = {}
+    for k, (members, _) in enumerate(pairs):
+        for i in members:
+            if meshes[i].bundle is not None:
+                root[find(k)] = find(first.setdefault(meshes[i].bundle[0], k))
+    parts: dict[int, list] = {}
+    for k, pair in enumerate(pairs):
+        parts.setdefault(find(k), []).append(pair)
+    return [(part, settings.resolution, settings.texel_density) for part in parts.values()]
+
+
+@dataclass
+class _Units:
+    """What an instance atlas places: per mesh group its plain instances (linked duplicates,
+    mesh indices), then per collection its instancers (sorted) and each instancer's members
+    (mesh indices, by member name), and per collection the group index of each member."""
+
+    plain: list[list[int]]
+    collections: list[dict[str, list[int]]]
+    member_groups: list[list[int]]
+
+    @property
+    def counts(self) -> list[int]:
+        """Copies per unit: each mesh group's block, then each collection's bundle."""
+        return [len(p) for p in self.plain] + [len(c) for c in self.collections]
+
+
+def _units(meshes, groups) -> _Units:
+    """Sort the instance groups' meshes into plain instances and collection instances; raises
+    BakeError when two instancers of one collection show different members."""
+    group_of = {i: gi for gi, (members, _) in enumerate(groups) for i in members}
+    plain: list[list[int]] = [[] for _ in groups]
+    by_collection: dict[str, dict[str, list[int]]] = {}
+    for gi, (members, _) in enumerate(groups):
+        for i in members:
+            b = meshes[i].bundle
+            if b is None:
+                plain[gi].append(i)
+            else:
+                by_collection.setdefault(b[0], {}).setdefault(b[1], []).append(i)
+    collections, member_groups = [], []
+    for name, by_instancer in by_collection.items():
+        ordered = {e: sorted(idx, key=lambda i: meshes[i].bundle[2]) for e, idx in sorted(by_instancer.items())}
+        shown = {tuple(meshes[i].bundle[2] for i in idx) for idx in ordered.values()}
+        if len(shown) > 1:
+            raise BakeError(
+                f"the instances of collection '{name}' show different objects ({', '.join(sorted(ordered))}): "
+                "unwrap them together again"
+            )
+        collections.append(ordered)
+        member_groups.append([group_of[i] for i in next(iter(ordered.values()))])
+    return _Units(plain, collections, member_groups)
 
 
 def _add_instances(result, meshes, charts, groups, resolution, density, padding, cancel) -> None:
     """Pack the instance groups [(member indices, representative)] into one new atlas of `result`
-    and fill in their ObjectUVs (`core.instances`)."""
+    and fill in their ObjectUVs (`core.instances`): a block per linked duplicate, a bundle per
+    collection instance."""
     _check_scale(resolution, density)
     rep_charts = [charts[r] for _, r in groups]
     names = [meshes[r].name for _, r in groups]
     triangles = sum(len(meshes[r].triangles) for _, r in groups)
-    counts = [len(g) for g, _ in groups]
+    units = _units(meshes, groups)
+    counts = units.counts
 
     def pack_blocks(t):
         job = {
@@ -859,47 +931,65 @@ def _add_instances(result, meshes, charts, groups, resolution, density, padding,
             "units": float(t) * xatlas_worker.PACK_UNITS_PER_TEXEL,
         }
         out = _run_worker(job, names, triangles, cancel)["blocks"]
-        return [
+        blocks = [
             instances.Block(b["uv"][0], b["width"], b["height"], b["mesh_charts"][0], b["utilisation"]) for b in out
         ]
+        return blocks + [instances.bundle(blocks, m, padding) for m in units.member_groups]
 
     first = None
     if density is None:
         boxes = [xatlas_worker.chart_boxes([(c.chart, c.corner, c.uv)])[1] for c in rep_charts]
+        boxes += [np.concatenate([boxes[g] for g in m]) for m in units.member_groups]
         first = instances.first_density(boxes, counts, resolution, padding)
-    w, h, t, blocks, corners, packs = instances.layout(
+    w, h, t, placed, corners, packs = instances.layout(
         pack_blocks, counts, resolution, density, padding, MAX_RESOLUTION, first
     )
     atlas_index = len(result.atlas_sizes)
     result.atlas_sizes.append((w, h))
-    covered = sum(n * b.utilisation * b.width * b.height for n, b in zip(counts, blocks))
+    covered = sum(n * b.utilisation * b.width * b.height for n, b in zip(counts, placed))
     result.utilisation.append(float(covered / (w * h)))
     result.shared.append(False)
     result.part.append(0)
     result.instanced.append(True)
-    result.charts += sum(n * b.charts for n, b in zip(counts, blocks))
+    result.charts += sum(n * b.charts for n, b in zip(counts, placed))
     result.stats["packs"] += packs
     result.stats["tries"].append([(float(t), True)])
-    k = 0
-    for (members, r), block in zip(groups, blocks):
+    blocks = placed[: len(groups)]
+    copies = iter(corners)
+    for gi, members in enumerate(units.plain):
         for i in members:
-            reversed_ = instances.corner_map(
-                meshes[i].triangles, meshes[r].triangles, meshes[i].name, meshes[r].instance_of
-            )
-            layer = block.uv[:, ::-1] if reversed_ else block.uv
-            x, y = (int(v) for v in corners[k])
-            k += 1
-            rect = instances.rectangle(block, (x, y), w, h)
-            uv = instances.atlas_uv(layer, rect)
-            e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-            texels = float((0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])).sum() * w * h)
-            result.objects[i] = ObjectUV(
-                meshes[i].name,
-                uv,
-                atlas_index,
-                texels,
-                (x, y, x + block.width, y + block.height),
-                block.charts,
-                np.ascontiguousarray(layer, dtype=np.float32),
-                rect,
-            )
+            result.objects[i] = _instance_uv(meshes, i, groups[gi][1], blocks[gi], next(copies), atlas_index, (w, h))
+    for ci, by_instancer in enumerate(units.collections):
+        bundle = placed[len(groups) + ci]
+        assert isinstance(bundle, instances.Bundle)
+        for members in by_instancer.values():
+            x0, y0 = (int(v) for v in next(copies))
+            outer = instances.rectangle(bundle, (x0, y0), w, h)
+            for i, (g, (x, y)) in zip(members, bundle.parts):
+                ouv = _instance_uv(meshes, i, groups[g][1], blocks[g], (x0 + x, y0 + y), atlas_index, (w, h))
+                ouv.inner = instances.rectangle(blocks[g], (x, y), bundle.width, bundle.height)
+                ouv.outer = outer
+                result.objects[i] = ouv
+
+
+def _instance_uv(meshes, i, r, block, corner, atlas_index, size) -> ObjectUV:
+    """The ObjectUV of instance `i` (representative `r`) for its block's copy at lower-left texel
+    `corner` of atlas `atlas_index` of `size` (width, height)."""
+    w, h = size
+    reversed_ = instances.corner_map(meshes[i].triangles, meshes[r].triangles, meshes[i].name, meshes[r].instance_of)
+    layer = block.uv[:, ::-1] if reversed_ else block.uv
+    x, y = (int(v) for v in corner)
+    rect = instances.rectangle(block, (x, y), w, h)
+    uv = instances.atlas_uv(layer, rect)
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    texels = float((0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])).sum() * w * h)
+    return ObjectUV(
+        meshes[i].name,
+        uv,
+        atlas_index,
+        texels,
+        (x, y, x + block.width, y + block.height),
+        block.charts,
+        np.ascontiguousarray(layer, dtype=np.float32),
+        rect,
+    )

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import bpy
 from bpy.props import BoolProperty
 
-from ..bridge import mesh_data
+from ..bridge import collection_instances, mesh_data
 from ..core import unwrap as core_unwrap
 from ..core.console import ConsoleProgress
 from ..core.errors import BakeCancelled, BakeError
@@ -38,19 +38,18 @@ class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
     def poll(cls, context):
         if modal_work.busy(cls):  # one bake or unwrap at a time
             return False
-        if not mesh_data.target_meshes(context.selected_objects):
-            cls.poll_message_set("Select one or more mesh objects")
+        if not any(o.type == 'MESH' or collection_instances.shows_collection(o) for o in context.selected_objects):
+            cls.poll_message_set("Select one or more mesh objects or collection instances")
             return False
         return True
 
     def execute(self, context):
         settings = context.scene.hhd
-        objects = mesh_data.target_meshes(context.selected_objects)
         wm = context.window_manager
         console = ConsoleProgress() if bpy.app.background else None
         wm.progress_begin(0, 100)
         try:
-            mesh_data.refuse_collection_instances(context.selected_objects)
+            objects = collection_instances.receivers(context.selected_objects)
             outcome = unwrap_objects(
                 objects, settings, self.make_single_user, console or (lambda f, _msg: wm.progress_update(int(100 * f)))
             )
@@ -80,9 +79,8 @@ class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
     def invoke(self, context, event):
         if bpy.app.background:
             return self.execute(context)
-        objects = mesh_data.target_meshes(context.selected_objects)
         try:
-            mesh_data.refuse_collection_instances(context.selected_objects)
+            objects = collection_instances.receivers(context.selected_objects)
             self._job = read_objects(objects, context.scene.hhd, self.make_single_user)
         except BakeError as exc:
             self.report({'ERROR'}, str(exc))
@@ -166,7 +164,12 @@ def write_objects(job: UnwrapJob, settings, result):
         mesh_data.make_single_user(job.objects)
     objects = job.objects
     warnings = job.warnings + list(result.warnings)
-    others = {o.hhd.atlas for o in bpy.data.objects if o.type == 'MESH' and o not in objects and o.hhd.atlas}
+    instancers = {o.instancer.name for o in objects if isinstance(o, collection_instances.Member)}
+    others = {
+        o.hhd.atlas
+        for o in bpy.data.objects
+        if o.hhd.atlas and ((o.type == 'MESH' and o not in objects) or (o.type == 'EMPTY' and o.name not in instancers))
+    }
     names = atlas_names(
         [o.name for o in objects], [o.atlas for o in result.objects], others, result.part, result.instanced
     )
@@ -175,6 +178,9 @@ def write_objects(job: UnwrapJob, settings, result):
         if obj.data.name not in written:  # an instanced mesh's layer once: the same for each instance
             mesh_data.write_uv_layer(obj, settings.uv_layer, loops, ouv.layer)
             written.add(obj.data.name)
+        if isinstance(obj, collection_instances.Member):
+            obj.store(names[ouv.atlas], result.atlas_sizes[ouv.atlas], ouv.inner, ouv.outer)
+            continue
         obj.hhd.atlas = names[ouv.atlas]
         obj.hhd.atlas_width, obj.hhd.atlas_height = result.atlas_sizes[ouv.atlas]
         obj.hhd.lightmap_rect = ouv.instance or mesh_data.IDENTITY_RECT

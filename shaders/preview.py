@@ -15,6 +15,9 @@ several atlases samples every atlas's images and picks the object's own by a sec
 attribute, `hhd_preview_atlas`. The lightmap UV goes through the object's lightmap rectangle
 (a third, `hhd.lightmap_rect`, read by RNA path): the instances of a mesh (linked duplicates,
 `core.instances`) share its UV layer and its materials, each showing its own part of the atlas.
+The three are read by Attribute nodes of type Instancer, which read them on the Empty that shows
+a collection (collection instances, `bridge.collection_instances`) and on the object itself
+otherwise.
 
 Light sets (core.light_sets): in HHD mode, when an atlas's sidecar lists "light_sets", the group
 is the live blend of them (`node_groups.build_blend`) instead of the HHD group: every set's preview
@@ -51,6 +54,12 @@ ATLAS = "hhd_preview_atlas"
 #: Object attribute (an RNA path): the object's lightmap rectangle (scale u, scale v, offset u,
 #: offset v) in its atlas, `properties.HHDObjectSettings.lightmap_rect`.
 RECT = "hhd.lightmap_rect"
+#: Object attribute (RNA path): an object's place in its collection's block, for the collection
+#: instances that show it (`properties.HHDObjectSettings.collection_rect`).
+INNER = "hhd.collection_rect"
+#: Instancer attribute (RNA path): 1 on an Empty whose collection's objects were unwrapped as
+#: collection instances (`properties.HHDObjectSettings.collection_instance`).
+FLAG = "hhd.collection_instance"
 #: The rectangle of an object with its own mesh: the whole atlas.
 IDENTITY_RECT = (1.0, 1.0, 0.0, 0.0)
 
@@ -110,7 +119,7 @@ def _atlas_image(tree, key, atlases, uv, x, y, frame):
     if not rest:
         return colour
     attribute = _new(tree, "ShaderNodeAttribute", f"Atlas {key}", (x - 200, y - 120), frame)
-    attribute.attribute_type, attribute.attribute_name = 'OBJECT', ATLAS
+    attribute.attribute_type, attribute.attribute_name = 'INSTANCER', ATLAS
     for k, (index, files) in enumerate(rest, 1):
         image = _image(tree, files.preview_image(key), f"{key} {files.name}", uv, x + 250 * k, y, frame)
         equal = _new(tree, "ShaderNodeMath", f"Is {key} {files.name}", (x + 250 * k, y + 120), frame)
@@ -172,25 +181,57 @@ def _link_light_sets(tree, gi, light_sets, uv, x, y, frame) -> float:
 
 def _instance_uv(tree, uv, x, y, frame):
     """The atlas UV of the lightmap layer's `uv` socket: uv × rect.xy + rect.zw, rect the object's
-    lightmap rectangle read per object (Attribute node of type Object, RNA path RECT: an instance's
-    place in the atlas over its shared mesh, `core.instances`; the identity for other objects, an
-    exact no-op)."""
-    rect = _new(tree, "ShaderNodeAttribute", "Rectangle", (x, y), frame)
-    rect.attribute_type, rect.attribute_name = 'OBJECT', RECT
-    split = _new(tree, "ShaderNodeSeparateXYZ", "Rectangle XYZ", (x + 160, y), frame)
+    lightmap rectangle (RECT, an Attribute node of type Instancer: an instance's place in the atlas
+    over its shared mesh, `core.instances`; the identity for other objects, an exact no-op). For
+    an object shown by a collection instance, the Instancer lookup reads the Empty's rectangle
+    (where its copy of the collection's block lies), and uv first goes through the object's own
+    place in that block (INNER, switched on by the Empty's FLAG: off for an object drawn itself)."""
+    flag = _new(tree, "ShaderNodeAttribute", "Collection Instance", (x - 160, y + 200), frame)
+    flag.attribute_type, flag.attribute_name = 'INSTANCER', FLAG
+    inner = _rectangle(tree, 'OBJECT', INNER, "Collection Rectangle", x, y + 200, frame)
+    one = _new(tree, "ShaderNodeCombineXYZ", "Collection Identity", (x + 320, y + 340), frame)
+    one.inputs["X"].default_value = one.inputs["Y"].default_value = 1.0
+    minus = _new(tree, "ShaderNodeVectorMath", "Collection Scale Step", (x + 480, y + 340), frame)
+    minus.operation = 'SUBTRACT'
+    tree.links.new(inner[0], minus.inputs[0])
+    tree.links.new(one.outputs["Vector"], minus.inputs[1])
+    scale = _new(tree, "ShaderNodeVectorMath", "Collection Scale", (x + 640, y + 340), frame)
+    scale.operation = 'MULTIPLY_ADD'  # 1 + flag · (inner scale − 1)
+    tree.links.new(minus.outputs["Vector"], scale.inputs[0])
+    tree.links.new(flag.outputs["Fac"], scale.inputs[1])
+    tree.links.new(one.outputs["Vector"], scale.inputs[2])
+    offset = _new(tree, "ShaderNodeVectorMath", "Collection Offset", (x + 640, y + 200), frame)
+    offset.operation = 'SCALE'  # flag · inner offset
+    tree.links.new(inner[1], offset.inputs[0])
+    tree.links.new(flag.outputs["Fac"], offset.inputs["Scale"])
+    in_block = _new(tree, "ShaderNodeVectorMath", "Block UV", (x + 800, y + 200), frame)
+    in_block.operation = 'MULTIPLY_ADD'
+    tree.links.new(uv, in_block.inputs[0])
+    tree.links.new(scale.outputs["Vector"], in_block.inputs[1])
+    tree.links.new(offset.outputs["Vector"], in_block.inputs[2])
+    outer = _rectangle(tree, 'INSTANCER', RECT, "Rectangle", x, y, frame)
+    mapped = _new(tree, "ShaderNodeVectorMath", "Atlas UV", (x + 960, y), frame)
+    mapped.operation = 'MULTIPLY_ADD'
+    tree.links.new(in_block.outputs["Vector"], mapped.inputs[0])
+    tree.links.new(outer[0], mapped.inputs[1])
+    tree.links.new(outer[1], mapped.inputs[2])
+    return mapped.outputs["Vector"]
+
+
+def _rectangle(tree, kind: str, path: str, name: str, x, y, frame):
+    """(scale (x, y, 0), offset (z, w, 0)) sockets of the rectangle an Attribute node of type
+    `kind` reads at RNA path `path`."""
+    rect = _new(tree, "ShaderNodeAttribute", name, (x, y), frame)
+    rect.attribute_type, rect.attribute_name = kind, path
+    split = _new(tree, "ShaderNodeSeparateXYZ", f"{name} XYZ", (x + 160, y), frame)
     tree.links.new(rect.outputs["Vector"], split.inputs[0])
-    offset = _new(tree, "ShaderNodeCombineXYZ", "Rectangle Offset", (x + 320, y), frame)
+    offset = _new(tree, "ShaderNodeCombineXYZ", f"{name} Offset", (x + 320, y), frame)
     tree.links.new(split.outputs["Z"], offset.inputs["X"])
     tree.links.new(rect.outputs["Alpha"], offset.inputs["Y"])
-    scale = _new(tree, "ShaderNodeCombineXYZ", "Rectangle Scale", (x + 320, y - 140), frame)
+    scale = _new(tree, "ShaderNodeCombineXYZ", f"{name} Scale", (x + 320, y - 140), frame)
     tree.links.new(split.outputs["X"], scale.inputs["X"])
     tree.links.new(split.outputs["Y"], scale.inputs["Y"])
-    mapped = _new(tree, "ShaderNodeVectorMath", "Atlas UV", (x + 480, y), frame)
-    mapped.operation = 'MULTIPLY_ADD'
-    tree.links.new(uv, mapped.inputs[0])
-    tree.links.new(scale.outputs["Vector"], mapped.inputs[1])
-    tree.links.new(offset.outputs["Vector"], mapped.inputs[2])
-    return mapped.outputs["Vector"]
+    return scale.outputs["Vector"], offset.outputs["Vector"]
 
 
 def show_on_material(
@@ -252,7 +293,7 @@ def show_on_material(
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 850, y0), frame)
     tree.links.new(group.outputs["Radiance"], emission.inputs["Color"])
     attribute = _new(tree, "ShaderNodeAttribute", "Switch", (x0 + 850, y0 + 200), frame)
-    attribute.attribute_type, attribute.attribute_name = 'OBJECT', RECORD
+    attribute.attribute_type, attribute.attribute_name = 'INSTANCER', RECORD
     mix = _new(tree, "ShaderNodeMixShader", "Mix", (x0 + 1050, y0), frame)
     tree.links.new(attribute.outputs["Fac"], mix.inputs["Fac"])
     if link is not None:

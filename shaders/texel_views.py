@@ -5,9 +5,10 @@ of the objects that have the layer, a frame of nodes named like the lighting pre
 ("HHD Preview View …", shaders/preview.py), recording the material's Surface link in the same
 record, so Hide Preview (`preview.hide`) removes them and restores every node tree exactly; one
 preview or view is shown at a time (Show hides whatever was shown first). The nodes: the lightmap
-UV map, the object's atlas size from an OBJECT attribute (`SIZE` = (width, height, 0), from the
-unwrap's record, `bridge.bake_session.atlas_groups`), the layer's UV through the object's lightmap
-rectangle (`preview._instance_uv`: an instance's own part of the atlas, `core.instances`), the
+UV map, the object's atlas size from an object attribute (`SIZE` = (width, height, 0), from the
+unwrap's record, `bridge.bake_session.atlas_groups`; read through the Instancer, so on the Empty
+for a collection instance), the layer's UV through the object's lightmap rectangle
+(`preview._instance_uv`: an instance's own part of the atlas, `core.instances`), the
 "HHD Texel Checker" group (shaders/node_groups.py: cells exactly one texel), an Emission of
 
 - Texel Density: the heat colour of each face's texels per metre against the atlas's target
@@ -17,7 +18,7 @@ rectangle (`preview._instance_uv`: an instance's own part of the atlas, `core.in
   objects with too few texels), and magenta on exactly the texels two charts share: a mask image
   per atlas sampled with Closest filtering (1 × 1 and empty when there are none);
 
-and the preview's Mix Shader switched by the object attribute `hhd_preview` (1 on the viewed
+and the preview's Mix Shader switched by the object (or Instancer) attribute `hhd_preview` (1 on the viewed
 objects: other users of a shared material keep their look). Per-face colours are a face
 attribute of the mesh (`bridge.view_data.COLOUR`); the masks are EXR files in Blender's session
 temporary folder, loaded as images marked `IMAGE_KEY`. Hide removes the attribute, the object
@@ -345,7 +346,7 @@ def show_on_material(mat, mode: str, uv_layer: str, masks=None) -> None:
     uv.uv_map = uv_layer
     atlas_uv = preview._instance_uv(tree, uv.outputs["UV"], x0, y0 - 400, frame)  # instances: their rectangle
     size = _new(tree, "ShaderNodeAttribute", "Atlas Size", (x0, y0 - 200), frame)
-    size.attribute_type, size.attribute_name = 'OBJECT', SIZE
+    size.attribute_type, size.attribute_name = 'INSTANCER', SIZE  # an Empty's, for collection instances
     checker = _new(tree, "ShaderNodeGroup", "Checker", (x0 + 250, y0), frame)
     checker.node_tree = node_groups.ensure_checker()
     tree.links.new(atlas_uv, checker.inputs["UV"])
@@ -379,7 +380,7 @@ def show_on_material(mat, mode: str, uv_layer: str, masks=None) -> None:
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 1000, y0), frame)
     tree.links.new(colour, emission.inputs["Color"])
     switch = _new(tree, "ShaderNodeAttribute", "Switch", (x0 + 1000, y0 + 200), frame)
-    switch.attribute_type, switch.attribute_name = 'OBJECT', preview.RECORD
+    switch.attribute_type, switch.attribute_name = 'INSTANCER', preview.RECORD
     mix_shader = _new(tree, "ShaderNodeMixShader", "Mix", (x0 + 1200, y0), frame)
     tree.links.new(switch.outputs["Fac"], mix_shader.inputs["Fac"])
     if link is not None:

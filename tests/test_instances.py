@@ -4,7 +4,7 @@ some in the sun: the mesh count stays, each instance has its own rectangle, the 
 it, and each instance's mean I_z equals that of the same scene made single user with the same
 atlas UVs, baked with the same seed and samples (an independent path: ordinary objects, whose
 layers hold atlas UVs). The EEVEE preview shows each instance its own texels (`preview_matches_bake`).
-Hide restores the materials. Collection instances are refused by name."""
+Hide restores the materials. A collection instance bakes from the command line."""
 
 from pathlib import Path
 
@@ -156,7 +156,7 @@ def top_face_pixels(obj, cam, size: int):
     inverse = np.array(obj.matrix_world.inverted())
     points = np.column_stack([world, np.full(len(world), (obj.matrix_world @ top.center).z), np.ones(len(world))])
     p = (points @ inverse.T)[:, :2]
-    local_step = step / min(abs(v) for v in obj.scale)
+    local_step = step / min(abs(v) for v in obj.matrix_world.to_scale())
     half = np.abs(local[:, :2]).max() - 1.5 * local_step
     along = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
     off_diagonal = np.abs((p - ends[0]) @ np.array([-along[1], along[0]])) > 2.5 * local_step
@@ -232,10 +232,10 @@ def preview_matches_bake(scene, instances, files):
     bpy.data.objects["Roof"].hide_render = False  # it shades the next bake again
 
 
-def test_collection_instances_are_refused_by_name(extension, restore_hhd_settings, cli_run, tmp_path):
-    """An Empty instancing a collection cannot receive lightmaps yet: Unwrap and Bake (operator)
-    report an error naming it and its collection, the command line exits 1 (EXIT_INPUT) with
-    the same message, and nothing is unwrapped or written."""
+def test_collection_instances_bake_from_the_command_line(extension, restore_hhd_settings, cli_run, tmp_path):
+    """An Empty instancing a collection, named on the command line, stands for the collection's
+    objects: `bake --unwrap --save --objects Floor Chairs` exits 0 and the sidecar lists "Chairs/Cube"
+    with its rectangle; `bake --only Chairs` re-traces it into the same files (exit 0)."""
     import bpy
 
     scene = kit.clear_scene()
@@ -245,26 +245,23 @@ def test_collection_instances_are_refused_by_name(extension, restore_hhd_setting
     for c in list(cube.users_collection):
         c.objects.unlink(cube)
     props.objects.link(cube)
-    floor = kit.plane("Floor", (0, 0, 0), 4, kit.material("grey", (0.5, 0.5, 0.5)))
+    kit.plane("Floor", (0, 0, 0), 4, kit.material("grey", (0.5, 0.5, 0.5)))
     empty = bpy.data.objects.new("Chairs", None)
     empty.instance_type, empty.instance_collection = 'COLLECTION', props
+    empty.location = (0.5, 0.0, 0.25)
     scene.collection.objects.link(empty)
-    scene.hhd.output_dir = str(tmp_path / "out")
-    kit.select([floor, empty])
-    with pytest.raises(
-        RuntimeError, match=r"'Chairs' \(collection 'Props'\) instance a collection.*Make Instances Real"
-    ):
-        bpy.ops.hhd.unwrap()
-    assert LAYER not in floor.data.uv_layers
-    kit.unwrap([floor])
-    kit.select([floor, empty])
-    with pytest.raises(RuntimeError, match=r"'Chairs' \(collection 'Props'\) instance a collection"):
-        bpy.ops.hhd.bake()
-    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+    kit.sun(50.0, 30.0, 3.0, 1.0)
+    s = scene.hhd
+    s.preset = 'CUSTOM'
+    s.resolution, s.samples, s.bounces, s.denoise = 64, 4, 1, False
+    mesh = cube.data.name
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    from hhd_lightmapper import cli
-
-    run = cli_run(blend, "bake", "--objects", "Floor", "Chairs", "--out", str(tmp_path / "cli"))
-    assert run.returncode == cli.EXIT_INPUT, run
-    assert "'Chairs' (collection 'Props') instance a collection" in run.stderr + run.stdout
+    out = tmp_path / "cli"
+    run = cli_run(blend, "bake", "--unwrap", "--save", "--objects", "Floor", "Chairs", "--out", str(out))
+    assert run.returncode == 0, run.stderr + run.stdout
+    doc = lightmap_files.read_sidecar(lightmap_files.AtlasFiles(out, "Lightmap_instances").sidecar)
+    (record,) = doc["objects"]
+    assert record["name"] == "Chairs/Cube" and record["instance"]["mesh"] == mesh
+    run = cli_run(blend, "bake", "--only", "Chairs", "--out", str(out))
+    assert run.returncode == 0, run.stderr + run.stdout

@@ -404,13 +404,14 @@ def test_instances_are_viewed_through_their_own_rectangles(extension, restore_hh
     lines, _ = texel_views.show(objs, 'DENSITY', scene.hhd)
     assert any("share the mesh" in line and "'Cube_2'" in line for line in lines), lines
     assert tuple(objs[1]["hhd_view_size"]) == (atlas["width"], atlas["height"], 0.0)
-    # the checker reads the layer's UV through the object's rectangle (an Object attribute)
+    # the checker reads the layer's UV through the object's rectangle (an Instancer attribute: the object's own
+    # for a linked duplicate, the Empty's for a collection instance)
     nodes = cube.material_slots[0].material.node_tree.nodes
     (checker,) = [n for n in nodes if n.type == 'GROUP']
     mapped = checker.inputs["UV"].links[0].from_node
     assert mapped.type == 'VECT_MATH' and mapped.operation == 'MULTIPLY_ADD'
     rect = mapped.inputs[1].links[0].from_node.inputs[0].links[0].from_node.inputs[0].links[0].from_node
-    assert (rect.attribute_type, rect.attribute_name) == ('OBJECT', "hhd.lightmap_rect")
+    assert (rect.attribute_type, rect.attribute_name) == ('INSTANCER', "hhd.lightmap_rect")
     assert bpy.ops.hhd.preview_hide() == {'FINISHED'}
 
     objs[1].hhd.lightmap_rect = rects[0]  # a real overlap: Cube_1's texels on Cube's
