@@ -235,7 +235,8 @@ def preview_matches_bake(scene, instances, files):
 def test_collection_instances_bake_from_the_command_line(extension, restore_hhd_settings, cli_run, tmp_path):
     """An Empty instancing a collection, named on the command line, stands for the collection's
     objects: `bake --unwrap --save --objects Floor Chairs` exits 0 and the sidecar lists "Chairs/Cube"
-    with its rectangle; `bake --only Chairs` re-traces it into the same files (exit 0)."""
+    with its rectangle; `bake --only Chairs` re-traces it into the same files (exit 0), and after
+    the Empty moved, `bake --changed` re-traces it alone."""
     import bpy
 
     scene = kit.clear_scene()
@@ -265,3 +266,9 @@ def test_collection_instances_bake_from_the_command_line(extension, restore_hhd_
     assert record["name"] == "Chairs/Cube" and record["instance"]["mesh"] == mesh
     run = cli_run(blend, "bake", "--only", "Chairs", "--out", str(out))
     assert run.returncode == 0, run.stderr + run.stdout
+    bpy.data.objects["Chairs"].location.x += 0.3  # moving the Empty changes its instance, not the floor
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    run = cli_run(blend, "bake", "--changed", "--out", str(out))
+    assert run.returncode == 0, run.stderr + run.stdout
+    (line,) = [line for line in run.stdout.splitlines() if "Re-traced" in line]
+    assert "Re-traced Chairs/Cube:" in line and "Floor" not in line, line
