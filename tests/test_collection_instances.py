@@ -72,6 +72,11 @@ def test_collection_instances_bake_like_real_objects(scene):
     kit.select([*empties, duplicate])
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
     kit.select([*empties, duplicate])
+    for mode in ('DENSITY', 'CHECKER', 'PROBLEMS'):  # the views before a bake take the Empties too
+        assert bpy.ops.hhd.view_show(mode=mode) == {'FINISHED'}
+        assert empties[0]["hhd_view_size"][0] == empties[0].hhd.atlas_width
+    assert bpy.ops.hhd.preview_hide() == {'FINISHED'}
+    assert not any(k in e for e in empties for k in ("hhd_view_size", "hhd_preview"))
     assert bpy.ops.hhd.bake() == {'FINISHED'}
     assert (len(bpy.data.meshes), len(bpy.data.objects)) == (meshes, objects)  # nothing copied or made real
     members = collection_instances.receivers(empties)
