@@ -5,8 +5,10 @@
 Three meshes (a cube, a cylinder, an ico sphere) × `copies` linked duplicates in rows on a floor,
 half of each row under a roof, each copy turned and scaled a little, a sun and a sky colour. Run A
 unwraps them as instances (one UV layer per mesh, a rectangle per object, `core.instances`) and
-bakes; run B is the same scene with every object made single user and unwrapped fresh (ordinary
-objects in the shared atlas), baked with the same settings and seed. Per object: the
+bakes; run C places the same copies as collection instances (each mesh alone in a collection, an
+Empty per copy: `bridge.collection_instances`); run B is the same scene with every object made
+single user and unwrapped fresh (ordinary objects in the shared atlas), baked with the same
+settings and seed. Per object: the
 area-weighted mean I_z luminance over its surface in each run (`object_stats`), their relative
 difference, and that difference over its standard error (the two runs' combined). Also the mesh
 datablocks, the saved .blend's size, unwrap and bake times. Writes bench/results/instances.md.
@@ -29,8 +31,10 @@ RESULTS = ROOT / "bench" / "results"
 LUM = np.array([0.2126, 0.7152, 0.0722])
 
 
-def build(bpy, kit, copies: int):
-    """The scene (module docstring); returns the receivers."""
+def build(bpy, kit, copies: int, collections: bool = False):
+    """The scene (module docstring); returns (the receivers, the objects to select). With
+    `collections`, each mesh sits alone in a collection (excluded from the view layer) and each copy
+    is an Empty showing it, with the copy's transform: the same surfaces as collection instances."""
     kit.clear_scene()
     grey = kit.material("grey", (0.6, 0.6, 0.6))
     span = 1.2 * copies
@@ -46,18 +50,34 @@ def build(bpy, kit, copies: int):
     receivers = []
     for row, (src, colour) in enumerate(((cube, (0.8, 0.3, 0.2)), (cylinder, (0.3, 0.8, 0.3)), (ico, (0.7, 0.7, 0.8)))):
         src.data.materials.append(kit.material(f"m{row}", colour))
+        if collections:
+            shown = bpy.data.collections.new(f"{src.data.name}Set")
+            scene.collection.children.link(shown)
+            for c in list(src.users_collection):
+                c.objects.unlink(src)
+            shown.objects.link(src)
+            scene.view_layers[0].layer_collection.children[shown.name].exclude = True
         for k in range(copies):
-            obj = src if k == 0 else bpy.data.objects.new(f"{src.data.name}.{k}", src.data)
-            if k:
+            if collections:
+                obj = bpy.data.objects.new(f"{src.data.name}_{k:02d}", None)
+                obj.instance_type, obj.instance_collection = 'COLLECTION', shown
                 scene.collection.objects.link(obj)
-            obj.name = f"{src.data.name}_{k:02d}"
+            else:
+                obj = src if k == 0 else bpy.data.objects.new(f"{src.data.name}.{k}", src.data)
+                if k:
+                    scene.collection.objects.link(obj)
+                obj.name = f"{src.data.name}_{k:02d}"
             obj.location = (-span / 2 + 1.2 * k + 0.6, -2.0 + 2.0 * row, 0.4)
             obj.rotation_euler = (0.0, 0.0, 0.3 * k)
             obj.scale = (1.0 + 0.02 * (k % 5),) * 3
             receivers.append(obj)
     kit.sun(55.0, 30.0, 3.0, 2.0)
     kit.world((0.1, 0.12, 0.15))
-    return receivers
+    if collections:
+        from hhd_lightmapper.bridge import collection_instances
+
+        return collection_instances.receivers(receivers), receivers
+    return receivers, receivers
 
 
 #: Barycentric sample points inside each triangle (the centroids of its 16 sub-triangles at 4
@@ -115,11 +135,12 @@ def object_stats(objects, folder: Path, uv_layer: str, lightmap_files, exr) -> d
     return out
 
 
-def run(bpy, kit, args, out: Path, single: bool) -> dict:
-    """Build, (make single user), unwrap, bake, save; the run's figures."""
+def run(bpy, kit, args, out: Path, single: bool, collections: bool = False) -> dict:
+    """Build, (make single user), unwrap, bake, save; the run's figures (per object keyed by the
+    copy's name: a collection instance's Empty is named as the linked duplicate it replaces)."""
     from hhd_lightmapper.core import exr, lightmap_files
 
-    receivers = build(bpy, kit, args.copies)
+    receivers, selected = build(bpy, kit, args.copies, collections)
     if single:
         for obj in receivers:
             if obj.data.users > 1:
@@ -128,25 +149,27 @@ def run(bpy, kit, args, out: Path, single: bool) -> dict:
     s = scene.hhd
     s.preset = 'CUSTOM'
     s.resolution, s.samples, s.bounces, s.seed, s.denoise = args.resolution, args.samples, 2, 0, False
-    s.output_dir = str(out / ("single" if single else "instances"))
+    name = "single" if single else "collections" if collections else "instances"
+    s.output_dir = str(out / name)
     t0 = time.perf_counter()
-    kit.unwrap(receivers)
+    kit.unwrap(selected)
     unwrap_s = time.perf_counter() - t0
     atlases = {o.hhd.atlas for o in receivers}
     assert len(atlases) == 1, atlases
-    kit.select(receivers)
+    kit.select(selected)
     t0 = time.perf_counter()
     assert bpy.ops.hhd.bake() == {'FINISHED'}
     bake_s = time.perf_counter() - t0
-    blend = out / ("single.blend" if single else "instances.blend")
+    blend = out / f"{name}.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), compress=False)
+    stats = object_stats(receivers, Path(s.output_dir), s.uv_layer, lightmap_files, exr)
     return {
         "meshes": len(bpy.data.meshes),
         "blend_bytes": blend.stat().st_size,
         "unwrap_s": unwrap_s,
         "bake_s": bake_s,
         "atlas": atlases.pop(),
-        "objects": object_stats(receivers, Path(s.output_dir), s.uv_layer, lightmap_files, exr),
+        "objects": {key.split("/")[0]: value for key, value in stats.items()},
         "summary": s.unwrap_summary,
     }
 
@@ -170,42 +193,59 @@ def main() -> int:
     warm = argparse.Namespace(copies=1, resolution=256, samples=4)  # compile the kernels first: not timed
     run(bpy, kit, warm, out / "warm-up", single=False)
     a = run(bpy, kit, args, out, single=False)
+    c = run(bpy, kit, args, out, single=False, collections=True)
     b = run(bpy, kit, args, out, single=True)
-    rows, rel, z = [], [], []
-    for name in sorted(a["objects"]):
-        (ma, sa), (mb, sb) = a["objects"][name], b["objects"][name]
-        d = (ma - mb) / mb
-        se = math.hypot(sa, sb)
-        rel.append(d)
-        z.append(d / se if se > 0 else float("nan"))
-        rows.append(f"| {name} | {ma:.4g} | {mb:.4g} | {100 * d:+.2f}% | {100 * se:.2f}% | {z[-1]:+.2f} |")
-    rel_a, z_a = np.abs(rel), np.abs(z)
+    rows, summaries = [], []
+    for label, x in (("A", a), ("C", c)):
+        rel, z = [], []
+        for name in sorted(b["objects"]):
+            (mx, sx), (mb, sb) = x["objects"][name], b["objects"][name]
+            se = math.hypot(sx, sb)
+            rel.append((mx - mb) / mb)
+            z.append(rel[-1] / se if se > 0 else float("nan"))
+        rel_x, z_x = np.abs(rel), np.abs(z)
+        summaries.append(
+            f"{label} against B, per object area-weighted mean I_z luminance over its surface: |{label} − B| / B median "
+            f"{100 * np.median(rel_x):.2f}%, max {100 * rel_x.max():.2f}%; over the standard error (σ) "
+            f"median {np.nanmedian(z_x):.2f}, max {np.nanmax(z_x):.2f}; "
+            f"{int((rel_x <= 0.005).sum())} of {len(rel_x)} within 0.5%, {int((z_x <= 3).sum())} within 3σ."
+        )
+    for name in sorted(b["objects"]):
+        (ma, sa), (mc, _), (mb, sb) = a["objects"][name], c["objects"][name], b["objects"][name]
+        rows.append(
+            f"| {name} | {ma:.4g} | {mc:.4g} | {mb:.4g} | {100 * (ma - mb) / mb:+.2f}% | {100 * (mc - mb) / mb:+.2f}% "
+            f"| {100 * math.hypot(sa, sb):.2f}% |"
+        )
     lines = [
         "# Instances against single-user copies (bench/instances.py)",
         "",
-        f"3 meshes × {args.copies} linked duplicates (half under a roof), atlas {args.resolution}², "
-        f"{args.samples} samples, 2 bounces, seed 0, no denoise (times after a warm-up bake). A: instances (one UV layer per mesh, a "
-        "rectangle per object); B: the same objects made single user and unwrapped fresh.",
+        f"3 meshes × {args.copies} copies (half under a roof), atlas {args.resolution}², "
+        f"{args.samples} samples, 2 bounces, seed 0, no denoise (times after a warm-up bake). A: linked duplicates as "
+        "instances (one UV layer per mesh, a rectangle per object); C: the same copies as collection instances "
+        "(each mesh alone in a collection, an Empty per copy with its transform); B: the linked duplicates made "
+        "single user and unwrapped fresh.",
         "",
-        "| | instances (A) | single user (B) |",
-        "| --- | --- | --- |",
-        f"| mesh datablocks | {a['meshes']} | {b['meshes']} |",
-        f"| .blend size (uncompressed) | {a['blend_bytes'] / 1024:.0f} KiB | {b['blend_bytes'] / 1024:.0f} KiB |",
-        f"| unwrap | {a['unwrap_s']:.2f} s | {b['unwrap_s']:.2f} s |",
-        f"| bake | {a['bake_s']:.2f} s | {b['bake_s']:.2f} s |",
-        f"| atlas | {a['atlas']} | {b['atlas']} |",
+        "| | linked duplicates (A) | collection instances (C) | single user (B) |",
+        "| --- | --- | --- | --- |",
+        f"| mesh datablocks | {a['meshes']} | {c['meshes']} | {b['meshes']} |",
+        f"| .blend size (uncompressed) | {a['blend_bytes'] / 1024:.0f} KiB | {c['blend_bytes'] / 1024:.0f} KiB "
+        f"| {b['blend_bytes'] / 1024:.0f} KiB |",
+        f"| unwrap | {a['unwrap_s']:.2f} s | {c['unwrap_s']:.2f} s | {b['unwrap_s']:.2f} s |",
+        f"| bake | {a['bake_s']:.2f} s | {c['bake_s']:.2f} s | {b['bake_s']:.2f} s |",
+        f"| atlas | {a['atlas']} | {c['atlas']} | {b['atlas']} |",
+        "",
+        f"Load average (1 min) at the end: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores: the times compare "
+        "only on an otherwise idle machine.",
         "",
         f"Unwrap A: {a['summary']}",
         "",
+        f"Unwrap C: {c['summary']}",
+        "",
         f"Unwrap B: {b['summary']}",
         "",
-        "Per object area-weighted mean I_z luminance over its surface: |A − B| / B median "
-        f"{100 * np.median(rel_a):.2f}%, max {100 * rel_a.max():.2f}%; over the standard error (σ) "
-        f"median {np.nanmedian(z_a):.2f}, max {np.nanmax(z_a):.2f}; "
-        f"{int((rel_a <= 0.005).sum())} of {len(rel_a)} within 0.5%, {int((z_a <= 3).sum())} within 3σ.",
-        "",
-        "| object | mean I_z A | mean I_z B | (A − B) / B | σ (relative) | (A − B) / σ |",
-        "| --- | --- | --- | --- | --- | --- |",
+        *[line for summary in summaries for line in (summary, "")],
+        "| object | mean I_z A | mean I_z C | mean I_z B | (A − B) / B | (C − B) / B | σ of a difference (relative) |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
         *rows,
         "",
     ]

@@ -9,7 +9,7 @@ has finished (images loaded).
 
 import bpy
 
-from ..bridge import bake_session
+from ..bridge import bake_session, collection_instances
 from ..core.console import ConsoleProgress
 from ..core.errors import BakeError, InwardFacesRefused
 from ..core.tracer import BakeCancelled
@@ -26,8 +26,8 @@ def receivers_poll(cls, context) -> bool:
             cls.poll_message_set("Choose the receivers' collection")
             return False
         return True
-    if not any(o.type == 'MESH' for o in context.selected_objects):
-        cls.poll_message_set("Select the mesh objects that receive lightmaps")
+    if not any(o.type == 'MESH' or collection_instances.shows_collection(o) for o in context.selected_objects):
+        cls.poll_message_set("Select the mesh objects (or collection instances) that receive lightmaps")
         return False
     return True
 

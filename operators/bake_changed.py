@@ -5,7 +5,7 @@ Esc cancels, nothing replaced), synchronous from scripts, as Bake is."""
 
 import bpy
 
-from ..bridge import incremental_session
+from ..bridge import collection_instances, incremental_session
 from ..core.errors import BakeError
 from ..core.tracer import BakeCancelled
 from . import modal_work
@@ -60,7 +60,8 @@ class HHD_OT_bake_changed(SessionWork, bpy.types.Operator):
 
     def _start(self, context):
         mode = {'SELECTED': "only", 'CHANGED': "changed", 'INFLUENCED': "influenced"}[self.mode]
-        names = [o.name for o in context.selected_objects if o.type == 'MESH'] if mode == "only" else None
+        selected = [o for o in context.selected_objects if o.type == 'MESH' or collection_instances.shows_collection(o)]
+        names = [o.name for o in selected] if mode == "only" else None
         try:
             self.session = incremental_session.IncrementalSession(context, mode, names)
         except BakeError as exc:

@@ -69,6 +69,8 @@ def test_collection_instances_bake_like_real_objects(scene):
 
     scene, empties, duplicate, tmp = scene
     meshes, objects = len(bpy.data.meshes), len(bpy.data.objects)
+    kit.select(empties)  # Empties alone are receivers for every operator
+    assert all(op.poll() for op in (bpy.ops.hhd.unwrap, bpy.ops.hhd.bake, bpy.ops.hhd.view_show))
     kit.select([*empties, duplicate])
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
     kit.select([*empties, duplicate])
