@@ -23,6 +23,23 @@ def target_meshes(objects) -> list:
     return sorted((o for o in objects if o.type == 'MESH'), key=lambda o: o.name)
 
 
+def refuse_linked(objects) -> None:
+    """Raise BakeError naming the receivers whose object, mesh or instancing Empty is linked from
+    another .blend (a library: read only here), which cannot hold lightmap UVs or a rectangle."""
+    linked = []
+    for o in objects:
+        parts = (o.instancer, o.object, o.data) if isinstance(o, Member) else (o, o.data)
+        library = next((p.library for p in parts if p.library is not None), None)
+        if library is not None:
+            linked.append(f"'{o.name}' (from {library.filepath})")
+    if linked:
+        raise BakeError(
+            f"{', '.join(linked)} {'is' if len(linked) == 1 else 'are'} linked from a library: linked data is read "
+            "only here and cannot hold lightmap UVs; make it local (Object > Relations > Make Local) or unwrap it "
+            "in its own .blend"
+        )
+
+
 def shared_meshes(objects) -> dict:
     """{mesh name: [object names]} for meshes used by more than one of `objects`."""
     users = {}

@@ -118,6 +118,7 @@ def read_objects(objects, settings, make_single_user=False) -> UnwrapJob:
     Linked duplicates (objects sharing a mesh) become instances (`core.instances`: one layout
     of the mesh, a rectangle of the atlas per object), or with make_single_user are given their
     own meshes when the result is written."""
+    mesh_data.refuse_linked(objects)
     shared = mesh_data.shared_meshes(objects)
     instanced = {} if make_single_user else shared
     warnings = [

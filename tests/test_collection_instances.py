@@ -234,3 +234,36 @@ def test_nested_collection_instances_are_refused_by_name(extension, restore_hhd_
     with pytest.raises(RuntimeError, match=r"collection 'Outer' \(shown by 'Shelf'\) holds 'Nested'.*nested"):
         bpy.ops.hhd.unwrap()
     assert LAYER not in cube.data.uv_layers
+
+
+def test_a_linked_collection_is_refused_by_name(extension, restore_hhd_settings, tmp_path):
+    """A collection linked from another .blend (File > Link, an Empty showing it): its objects
+    and meshes are read only here, so Unwrap names them and their library and changes nothing."""
+    import bpy
+
+    kit.clear_scene()
+    props = bpy.data.collections.new("Props")
+    bpy.context.scene.collection.children.link(props)
+    bpy.ops.mesh.primitive_cube_add(size=0.5)
+    cube = bpy.context.active_object
+    for c in list(cube.users_collection):
+        c.objects.unlink(cube)
+    props.objects.link(cube)
+    library = tmp_path / "props.blend"
+    bpy.data.libraries.write(str(library), {props}, fake_user=True)
+    scene = kit.clear_scene()
+    for c in list(bpy.data.collections):
+        bpy.data.collections.remove(c)
+    for datablocks in (bpy.data.objects, bpy.data.meshes):
+        for block in [b for b in datablocks if b.name.startswith("Cube")]:
+            datablocks.remove(block)
+    with bpy.data.libraries.load(str(library), link=True) as (_, data_to):
+        data_to.collections = ["Props"]
+    (linked,) = [c for c in bpy.data.collections if c.library is not None]
+    empty = bpy.data.objects.new("Shelf", None)
+    empty.instance_type, empty.instance_collection = 'COLLECTION', linked
+    scene.collection.objects.link(empty)
+    kit.select([empty])
+    with pytest.raises(RuntimeError, match=r"'Shelf/Cube' \(from .*props.blend\) is linked from a library"):
+        bpy.ops.hhd.unwrap()
+    assert LAYER not in linked.objects["Cube"].data.uv_layers
