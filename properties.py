@@ -251,8 +251,28 @@ class HHDSettings(bpy.types.PropertyGroup):
             ('L1', "L1 SH", "Irradiance from the first 4 SH coefficients"),
             ('L2', "L2 SH", "Irradiance from all 9 SH coefficients"),
             ('SCALAR', "Scalar", "I_z only: no response to normal maps"),
+            (
+                'ENCODED',
+                "Encoded",
+                "The model each atlas was encoded in (HHD, AHD, SH, HL2, H-basis, SG), from its own files, "
+                "reconstructed as its runtime would",
+            ),
         ],
         description="Which reconstruction the EEVEE preview shows (A/B the encodings on the same object)",
+    )
+    preview_filter: EnumProperty(
+        name="Filter",
+        default='BILINEAR',
+        items=[
+            ('BILINEAR', "Bilinear", "EEVEE's bilinear filtering of the lightmap (what most runtimes do)"),
+            (
+                'BICUBIC',
+                "Bicubic",
+                "Catmull-Rom over 4 × 4 texels (docs/format.md, \"Bicubic sampling\"): sharper, smoother shadow "
+                "edges at low resolution; needs 2 texels of gutter (Mip Levels ≥ 1)",
+            ),
+        ],
+        description="How the EEVEE preview samples the lightmap images (applies at Show Preview)",
     )
     scheduler: StringProperty(
         name="Dask Scheduler",
@@ -321,7 +341,7 @@ class HHDSettings(bpy.types.PropertyGroup):
             ('SG12', "SG12", "12 spherical Gaussians with fixed lobes (Baking Lab), fitted by the Solve setting"),
         ],
         description="The encoding written (the raw SH file is always written too); the EEVEE preview shows "
-        "HHD and AHD, and from the SH file L1/L2 SH",
+        "it in Preview mode Encoded",
     )
     solve: EnumProperty(
         name="SG Solve",

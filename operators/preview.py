@@ -5,30 +5,37 @@ from pathlib import Path
 import bpy
 
 from ..bridge import bake_session
-from ..core.encoding.preview import sampled
+from ..core.encoding.preview import kind_of, sampled
 from ..core.errors import BakeError
-from ..core.lightmap_files import AtlasFiles, read_sidecar
+from ..core.lightmap_files import AtlasFiles
 from ..shaders import preview
 from .bake import receivers_poll
 
 
 def atlas_files_of(objects, settings) -> dict:
-    """{object name: AtlasFiles} for baked objects; raises BakeError naming one without a bake, or
-    whose bake lacks the images the preview mode samples (an atlas encoded in a model the preview
-    does not show, say SG9, still previews as L1/L2 SH from its raw SH file)."""
+    """{object name: AtlasFiles} for baked objects; raises BakeError naming one without a bake,
+    one whose model the preview mode cannot show (`core.encoding.preview.kind_of`: HHD, AHD and
+    Scalar need an HHD file, L1/L2 read the raw SH file of any atlas, Encoded shows the atlas's
+    own model), or whose bake lacks the images that mode samples."""
     folder = Path(bake_session.output_folder(settings))
+    mode = settings.preview_mode
     out = {}
     for obj in objects:
         name = obj.hhd.atlas or bake_session.DEFAULT_ATLAS
         files = AtlasFiles(folder, name)
         if not files.sidecar.is_file():
             raise BakeError(f"'{obj.name}' has no bake in {folder} (atlas '{name}'): bake it first")
-        if not all(files.preview_image(ch.preview).is_file() for ch in sampled(settings.preview_mode)):
-            model = read_sidecar(files.sidecar).get("encoder", {}).get("model", "?")
+        model = preview.model_of(files)
+        kind = kind_of(mode, model)
+        if kind is None:  # an HHD mode on another model (its HHD preview images, if any, are stale)
             raise BakeError(
-                f"atlas '{name}' is encoded as {model}: the EEVEE preview shows HHD and AHD, or L1/L2 SH from "
-                "the raw SH file; choose Preview L1 SH or L2 SH, or re-encode the atlas as HHD (Re-encode, "
-                "or `encode --model hhd`)"
+                f"atlas '{name}' is encoded as {model}: choose Preview Encoded (or L1/L2 SH from the raw SH file), "
+                "or re-encode the atlas as HHD (Re-encode, or `encode --model hhd`)"
+            )
+        if not all(files.preview_image(ch.preview).is_file() for ch in sampled(kind)):
+            raise BakeError(
+                f"atlas '{name}' ({model}) lacks the preview images of its {kind} layers in {files.preview}: "
+                "re-encode it (Re-encode, or `encode`) to write them"
             )
         out[obj.name] = files
     return out

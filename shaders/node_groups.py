@@ -13,6 +13,13 @@ the units of docs/conventions.md#irradiance-units):
   "L1 SH Lightmap" / "L2 SH Lightmap": inputs SH0 … SH3 (or SH8) radiance SH colours, Normal,
       Albedo; irradiance = Σ_k cosine_kernel_k · SH_k · Y_k(n) with core.sh's basis.
   "Scalar Lightmap": Iz only (no directional response), Albedo.
+  "HL2 Lightmap", "L1 H-basis Lightmap", "L2 H-basis Lightmap", "SG5 Lightmap" … "SG12 Lightmap"
+      (the Encoded mode of an atlas encoded in that model): inputs the encoding's layers
+      (HL2_0 …, H0 …, SG0 …: colours), Normal, Vertex Normal, Albedo. Each builds the tangent
+      frame of core.encoding.basis.frames (Duff et al. 2017) from Vertex Normal, n_t = n in it,
+      and evaluates the model's `irradiance(c, n_v, n)`: HL2 Σ max(n_t·b_i, 0) H_i; H-basis
+      Σ h_i H_i(n_t); SG Σ Hill's fitted cosine convolution of lobe k at n_t·μ_k × a_k / π.
+      The sh_l1 / sh_l2 encodings' files use the L1 / L2 SH groups (their layers share names).
   "HHD Light Set Blend ×K": the live blend of K light sets (core.light_sets.blend per pixel):
       per set k inputs "Iz k", "Wa k", "Direction k", "Weight k" (RGB), then the HHD group's
       Normal, Vertex Normal, Albedo, Self Bounce; its reconstruction is the HHD group's.
@@ -26,9 +33,11 @@ made with an older extension gets the current maths.
 from __future__ import annotations
 
 import bpy
+import numpy as np
 
 from ..core import hhd, sh
 from ..core.colour import LUMINANCE
+from ..core.encoding import hbasis, hl2, sg
 from ..core.encoding.preview import sampled
 
 GROUP_VERSION = 3  # 3: Direction inputs are unit vectors (2: octahedral pairs)
@@ -38,6 +47,15 @@ GROUPS = {
     "L1": "L1 SH Lightmap",
     "L2": "L2 SH Lightmap",
     "SCALAR": "Scalar Lightmap",
+    "HL2": "HL2 Lightmap",
+    "HBASIS_L1": "L1 H-basis Lightmap",
+    "HBASIS_L2": "L2 H-basis Lightmap",
+    "SG5": "SG5 Lightmap",
+    "SG6": "SG6 Lightmap",
+    "SG9": "SG9 Lightmap",
+    "SG12": "SG12 Lightmap",
+    "SH_L1": "L1 SH Lightmap",  # the L1 group: the sh_l1 file's layers are named SH0 … SH3 too
+    "SH_L2": "L2 SH Lightmap",
 }
 #: The live light-set blend group of K sets (`build_blend`), one per K.
 BLEND_GROUP = "HHD Light Set Blend ×{}"
@@ -375,15 +393,128 @@ def build_scalar():
     return tree
 
 
+def _frame(b: Builder, nv):
+    """(t, b) of core.sh.tangent_frames(n_v) (Duff et al. 2017), the frame of the tangent-space
+    encodings (core.encoding.basis.frames): s = [n_z ≥ 0]·2 − 1, a = −1/(s + n_z),
+    t = (1 + s·n_x²·a, s·n_x·n_y·a, −s·n_x), b = (n_x·n_y·a, s + n_y²·a, −n_y)."""
+    x, y, z = b.xyz(nv)
+    sign = b.math("SUBTRACT", b.math("MULTIPLY", b.math("GREATER_THAN", z, -1e-30), 2.0), 1.0)
+    a = b.math("DIVIDE", -1.0, b.math("ADD", sign, z))
+    xya = b.math("MULTIPLY", b.math("MULTIPLY", x, y), a)
+    tx = b.math("ADD", 1.0, b.math("MULTIPLY", b.math("MULTIPLY", sign, b.math("MULTIPLY", x, x)), a))
+    ty = b.math("MULTIPLY", sign, xya)
+    tz = b.math("MULTIPLY", b.math("MULTIPLY", sign, x), -1.0)
+    by = b.math("ADD", sign, b.math("MULTIPLY", b.math("MULTIPLY", y, y), a))
+    return b.combine(tx, ty, tz), b.combine(xya, by, b.math("MULTIPLY", y, -1.0))
+
+
+def _tangent_normal(b: Builder, n, nv):
+    """(x, y, z) float sockets of the unit shading normal n in the tangent frame of n_v."""
+    t, bt = _frame(b, nv)
+    return b.vec("DOT_PRODUCT", n, t), b.vec("DOT_PRODUCT", n, bt), b.vec("DOT_PRODUCT", n, nv)
+
+
+def _weighted_sum(b: Builder, i, layers, weights):
+    """Σ_k weights[k] · layer k's colour input (weights: float sockets or constants)."""
+    return _sum(b, [b.vec("SCALE", i[layer.name], scale=w) for layer, w in zip(layers, weights)])
+
+
+def _dot_const(b: Builder, nt, direction):
+    """n_t · d for a constant tangent-space direction d (3 floats) as a float socket."""
+    terms = [b.math("MULTIPLY", c, float(d)) for c, d in zip(nt, direction)]
+    return b.math("ADD", b.math("ADD", terms[0], terms[1]), terms[2])
+
+
+def _hl2_weights(b: Builder, nt, count):
+    """max(n_t · b_i, 0) for HL2's directions b_i (core.encoding.hl2.DIRECTIONS)."""
+    return [b.math("MAXIMUM", _dot_const(b, nt, d), 0.0) for d in hl2.DIRECTIONS]
+
+
+def _hbasis_weights(b: Builder, nt, count):
+    """H_0 … H_{count−1} at n_t (core.encoding.hbasis.evaluate)."""
+    x, y, z = nt
+    k1, k2 = float(hbasis._K1), float(hbasis._K2)
+    mul = lambda a, c: b.math("MULTIPLY", a, float(c))
+    return [
+        float(1.0 / np.sqrt(2.0 * np.pi)),
+        mul(y, -k1),
+        mul(b.math("SUBTRACT", mul(z, 2.0), 1.0), k1),
+        mul(x, -k1),
+        mul(b.math("MULTIPLY", x, y), k2),
+        mul(b.math("SUBTRACT", b.math("MULTIPLY", x, x), b.math("MULTIPLY", y, y)), 0.5 * k2),
+    ][:count]
+
+
+def _sg_weights(b: Builder, nt, count):
+    """Hill's fitted irradiance of each unit lobe at n, / π (core.encoding.sg._hill_irradiance
+    with cos = n_t · μ_k): y = (c0·cos + c1·x)²/x where |c0·cos| ≤ c1·x, else clamp(cos, 0, 1);
+    (scale·y + bias)·2/λ. scale, bias, x depend on the layout's λ only: constants."""
+    axes, lam = sg.layout(count)
+    c0 = 0.36
+    c1 = 1.0 / (4.0 * c0)
+    eml = float(np.exp(-lam))
+    em2l = eml * eml
+    scale = 1.0 + 2.0 * em2l - 1.0 / lam
+    bias = (eml - em2l) / lam - em2l
+    x = float(np.sqrt(1.0 - scale))
+    out = []
+    for axis in axes:
+        cos = _dot_const(b, nt, axis)
+        x0 = b.math("MULTIPLY", cos, c0)
+        inside = b.math("SUBTRACT", 1.0, b.math("GREATER_THAN", b.math("ABSOLUTE", x0), c1 * x))  # |x0| ≤ x1
+        shifted = b.math("ADD", x0, c1 * x)
+        near = b.math("DIVIDE", b.math("MULTIPLY", shifted, shifted), x)
+        far = b.math("MINIMUM", b.math("MAXIMUM", cos, 0.0), 1.0)
+        y = b.math("ADD", b.math("MULTIPLY", near, inside), b.math("MULTIPLY", far, b.math("SUBTRACT", 1.0, inside)))
+        out.append(b.math("MULTIPLY", b.math("ADD", b.math("MULTIPLY", y, scale), bias), 2.0 / lam))
+    return out
+
+
+#: Coefficient kinds → (their weights at n_t, count).
+_TANGENT = {
+    "HL2": (_hl2_weights, 3),
+    "HBASIS_L1": (_hbasis_weights, 4),
+    "HBASIS_L2": (_hbasis_weights, 6),
+    "SG5": (_sg_weights, 5),
+    "SG6": (_sg_weights, 6),
+    "SG9": (_sg_weights, 9),
+    "SG12": (_sg_weights, 12),
+}
+
+
+def build_tangent(kind: str):
+    """The group of a tangent-frame coefficient encoding (kind 'HL2', 'HBASIS_L1', 'HBASIS_L2',
+    'SG5' … 'SG12'): I(n) = Σ_k w_k(n_t) c_k, its basis' `irradiance(c, n_v, n)` (module
+    docstring); inputs its layers, Normal, Vertex Normal, Albedo."""
+    weights, count = _TANGENT[kind]
+    layers = sampled(kind)
+    tree = _new_tree(GROUPS[kind])
+    _interface(
+        tree,
+        [(layer.name, 'NodeSocketColor', (0, 0, 0, 1)) for layer in layers] + _reconstruction_inputs()[:3],
+        ["Irradiance", "Radiance"],
+    )
+    b = Builder(tree)
+    i = b.node("NodeGroupInput").outputs
+    n = b.vec("NORMALIZE", i["Normal"])
+    nv = b.vec("NORMALIZE", i["Vertex Normal"])
+    total = _weighted_sum(b, i, layers, weights(b, _tangent_normal(b, n, nv), count))
+    _finish(b, total, i["Albedo"])
+    return tree
+
+
 def ensure(kind: str):
-    """The node group of `kind` ('HHD', 'AHD', 'L1', 'L2', 'SCALAR'), built or rebuilt if stale."""
+    """The node group of `kind` (a key of `core.encoding.preview.MODES`: 'HHD', 'AHD', 'L1',
+    'L2', 'SCALAR', 'HL2', 'HBASIS_L1', …, 'SG12', 'SH_L1', 'SH_L2'), built or rebuilt if stale."""
     tree = bpy.data.node_groups.get(GROUPS[kind])
     if tree is not None and tree.get("hhd_version") == GROUP_VERSION:
         return tree
     if kind in ("HHD", "AHD"):
         return build_hhd(kind)
-    if kind in ("L1", "L2"):
-        return build_sh(int(kind[1]))
+    if kind in ("L1", "L2", "SH_L1", "SH_L2"):
+        return build_sh(int(kind[-1]))
+    if kind in _TANGENT:
+        return build_tangent(kind)
     return build_scalar()
 
 

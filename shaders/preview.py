@@ -19,6 +19,11 @@ The three are read by Attribute nodes of type Instancer, which read them on the 
 a collection (collection instances, `bridge.collection_instances`) and on the object itself
 otherwise.
 
+The Encoded mode (`core.encoding.preview.ENCODED`) shows each material in the model its atlases'
+sidecar names (one model per material, else Show refuses before changing anything): HL2, H-basis,
+SG and the SH encodings through their own layers' preview images and node groups, HHD/AHD as
+those modes do.
+
 Light sets (core.light_sets): in HHD mode, when an atlas's sidecar lists "light_sets", the group
 is the live blend of them (`node_groups.build_blend`) instead of the HHD group: every set's preview
 images (`<atlas>.<set>_preview/`) feed its inputs, and each set's RGB weight comes from a View Layer
@@ -40,10 +45,11 @@ import json
 import bpy
 
 from .. import blender_compat
-from ..core.encoding.preview import sampled, upgrade_direction
+from ..core.encoding.preview import ENCODED, kind_of, sampled, upgrade_direction
 from ..core.errors import BakeError
 from ..core.lightmap_files import read_sidecar
 from ..properties import sync_light_sets, weight_path
+from . import bicubic as bicubic_nodes
 from . import node_groups
 
 PREFIX = "HHD Preview"
@@ -95,11 +101,15 @@ def _feed(tree, source_input, target_input):
         target_input.default_value = value if len(target_input.default_value) == len(value) else (*value[:3], 1.0)
 
 
-def _image(tree, path, name, uv, x, y, frame):
-    node = _new(tree, "ShaderNodeTexImage", name, (x, y), frame)
+def _image(tree, path, name, uv, x, y, frame, bicubic: bool = False):
+    """Colour socket of the preview image at `path` sampled at `uv`: one Image Texture node
+    (EEVEE's 'Linear' filter), or with `bicubic` the Catmull-Rom lookup of shaders/bicubic.py."""
     image = bpy.data.images.load(str(path), check_existing=True)
     image.reload()
     image.colorspace_settings.is_data = True
+    if bicubic:
+        return bicubic_nodes.lookup(tree, lambda t, kind, n, at: _new(t, kind, n, at, frame), image, name, uv, x, y)
+    node = _new(tree, "ShaderNodeTexImage", name, (x, y), frame)
     node.image, node.interpolation, node.extension = image, 'Linear', 'EXTEND'
     tree.links.new(uv, node.inputs["Vector"])
     return node.outputs["Color"]
@@ -109,19 +119,19 @@ def _socket(sockets, identifier):
     return next(s for s in sockets if s.identifier == identifier)
 
 
-def _atlas_image(tree, key, atlases, uv, x, y, frame):
+def _atlas_image(tree, key, atlases, uv, x, y, frame, bicubic: bool = False):
     """Colour output of preview image `key` for the atlases [(index, AtlasFiles)] whose objects
     use this material: the one atlas's image, or each further atlas's image mixed in where the
     object's ATLAS attribute equals that atlas's index."""
     (_, first), rest = atlases[0], atlases[1:]
     name = key if not rest and not first.parent else f"{key} {first.name}"  # a set's: "iz Lightmap.Lamp"
-    colour = _image(tree, first.preview_image(key), name, uv, x, y, frame)
+    colour = _image(tree, first.preview_image(key), name, uv, x, y, frame, bicubic)
     if not rest:
         return colour
     attribute = _new(tree, "ShaderNodeAttribute", f"Atlas {key}", (x - 200, y - 120), frame)
     attribute.attribute_type, attribute.attribute_name = 'INSTANCER', ATLAS
     for k, (index, files) in enumerate(rest, 1):
-        image = _image(tree, files.preview_image(key), f"{key} {files.name}", uv, x + 250 * k, y, frame)
+        image = _image(tree, files.preview_image(key), f"{key} {files.name}", uv, x + 250 * k, y, frame, bicubic)
         equal = _new(tree, "ShaderNodeMath", f"Is {key} {files.name}", (x + 250 * k, y + 120), frame)
         equal.operation = 'COMPARE'
         equal.inputs[1].default_value, equal.inputs[2].default_value = float(index), 0.5
@@ -163,13 +173,13 @@ def _material_light_sets(atlases) -> tuple[list, str | None]:
     return [(name, [(index, sets[k][1]) for index, sets in per_atlas]) for k, name in enumerate(names.pop())], None
 
 
-def _link_light_sets(tree, gi, light_sets, uv, x, y, frame) -> float:
+def _link_light_sets(tree, gi, light_sets, uv, x, y, frame, bicubic: bool = False) -> float:
     """Each set's preview images into the blend group's 'Iz k', 'Wa k', 'Direction k' and a View
     Layer Attribute of the set's weight (`properties.weight_path`) into 'Weight k'; returns the
     next free y."""
     for k, (name, atlases) in enumerate(light_sets, 1):
         for layer in sampled("HHD"):
-            colour = _atlas_image(tree, layer.preview, atlases, uv, x, y, frame)
+            colour = _atlas_image(tree, layer.preview, atlases, uv, x, y, frame, bicubic)
             tree.links.new(colour, gi[node_groups.set_input(layer.name, k)])
             y -= 280
         weight = _new(tree, "ShaderNodeAttribute", f"Weight {name}", (x, y), frame)
@@ -235,9 +245,17 @@ def _rectangle(tree, kind: str, path: str, name: str, x, y, frame):
 
 
 def show_on_material(
-    mat, files, kind: str, uv_layer: str, self_bounce: bool, light_sets=(), instanced: bool = False
+    mat,
+    files,
+    kind: str,
+    uv_layer: str,
+    self_bounce: bool,
+    light_sets=(),
+    instanced: bool = False,
+    bicubic: bool = False,
 ) -> str | None:
-    """Insert the preview into one material; returns a note when a fallback was used. `files`:
+    """Insert the preview into one material; returns a note when a fallback was used. `bicubic`:
+    the images through the Catmull-Rom lookup (shaders/bicubic.py), not EEVEE's bilinear. `files`:
     the AtlasFiles of the objects' atlas, or [(index, AtlasFiles)] when objects of several
     atlases share the material (index: the value of their ATLAS attribute). light_sets (HHD mode):
     [(set name, [(index, the set's AtlasFiles)])] to show the live blend of, () for none."""
@@ -283,12 +301,14 @@ def show_on_material(
         note = f"material '{mat.name}' has no Principled BSDF: the preview uses its viewport colour as albedo"
     if "Vertex Normal" in gi:
         tree.links.new(geometry.outputs["Normal"], gi["Vertex Normal"])
+    if "Self Bounce" in gi:
         gi["Self Bounce"].default_value = 1.0 if self_bounce else 0.0
     y = y0
     if light_sets:
-        y = _link_light_sets(tree, gi, light_sets, atlas_uv, x0 + 250, y, frame)
+        y = _link_light_sets(tree, gi, light_sets, atlas_uv, x0 + 250, y, frame, bicubic)
     for layer in () if light_sets else sampled(kind):  # each layer's preview image into the input of its name
-        tree.links.new(_atlas_image(tree, layer.preview, atlases, atlas_uv, x0 + 250, y, frame), gi[layer.name])
+        colour = _atlas_image(tree, layer.preview, atlases, atlas_uv, x0 + 250, y, frame, bicubic)
+        tree.links.new(colour, gi[layer.name])
         y -= 280
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 850, y0), frame)
     tree.links.new(group.outputs["Radiance"], emission.inputs["Color"])
@@ -301,6 +321,30 @@ def show_on_material(
     tree.links.new(emission.outputs["Emission"], mix.inputs[2])
     tree.links.new(mix.outputs["Shader"], output.inputs["Surface"])
     return note
+
+
+def model_of(files) -> str:
+    """The encoder model an atlas's sidecar names ("hhd" for a sidecar without one)."""
+    return read_sidecar(files.sidecar).get("encoder", {}).get("model", "hhd")
+
+
+def _kind(mat, mode: str, atlases) -> str:
+    """The kind (`core.encoding.preview.MODES`) material `mat` shows in preview mode `mode` for
+    its atlases (AtlasFiles): `mode` itself, or in the Encoded mode their model's kind. Raises
+    BakeError when the Encoded mode meets atlases of different models in one material (a node
+    tree has one reconstruction) or a model it cannot show."""
+    if mode != ENCODED:
+        return mode
+    models = sorted({model_of(files) for files in atlases})
+    if len(models) > 1:
+        raise BakeError(
+            f"material '{mat.name}' is shared by atlases encoded as {' and '.join(models)}: the Encoded preview "
+            "shows one model per material; re-encode them alike or choose another Preview mode"
+        )
+    kind = kind_of(mode, models[0])
+    if kind is None:
+        raise BakeError(f"the EEVEE preview cannot show an atlas encoded as {models[0]}")
+    return kind
 
 
 def hide_on_material(mat) -> bool:
@@ -323,9 +367,11 @@ def hide_on_material(mat) -> bool:
 
 def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool = False, scene=None) -> list[str]:
     """Preview on `objects` (each with `atlas_files[obj.name]`); returns notes for the report.
-    A material shared by objects of several atlases samples each object's own atlas. In HHD
+    A material shared by objects of several atlases samples each object's own atlas. `kind`: a
+    preview mode (`core.encoding.preview`; 'ENCODED': each material shows its atlases' model). In HHD
     mode, atlases baked with light sets show their live blend, weighted by `scene.hhd.light_sets`
-    (`scene`: the context's by default), to which missing sets are added."""
+    (`scene`: the context's by default), to which missing sets are added. The images are filtered
+    as `scene.hhd.preview_filter` says (Bicubic: shaders/bicubic.py)."""
     scene = scene if scene is not None else bpy.context.scene
     notes, set_names = [], []
     index = {name: i for i, name in enumerate(sorted({f.name for f in atlas_files.values()}))}
@@ -335,7 +381,6 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
         upgrade_direction(files)  # a bake made before the preview held d as a vector
     for obj in objects:
         files = atlas_files[obj.name]
-        obj[RECORD], obj[ATLAS] = 1.0, float(index[files.name])
         for slot in obj.material_slots:
             if slot.material is not None:
                 materials.setdefault(slot.material.name, (slot.material, {}))[1][files.name] = files
@@ -343,12 +388,18 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
                     instanced.add(slot.material.name)
         if not obj.material_slots or all(s.material is None for s in obj.material_slots):
             notes.append(f"'{obj.name}' has no material: nothing to preview on it")
+    # each material's reconstruction, before anything changes (the Encoded mode may refuse)
+    kinds = {name: _kind(mat, kind, list(by_atlas.values())) for name, (mat, by_atlas) in materials.items()}
+    for obj in objects:
+        obj[RECORD], obj[ATLAS] = 1.0, float(index[atlas_files[obj.name].name])
     for mat, by_atlas in materials.values():
         atlases = [(index[name], by_atlas[name]) for name in sorted(by_atlas)]
-        light_sets, sets_note = _material_light_sets(atlases) if kind == 'HHD' else ([], None)
+        shown = kinds[mat.name]
+        light_sets, sets_note = _material_light_sets(atlases) if shown == 'HHD' else ([], None)
         set_names += [name for name, _ in light_sets]
         files = atlases if len(atlases) > 1 else atlases[0][1]
-        note = show_on_material(mat, files, kind, uv_layer, self_bounce, light_sets, mat.name in instanced)
+        bicubic = scene.hhd.preview_filter == 'BICUBIC'
+        note = show_on_material(mat, files, shown, uv_layer, self_bounce, light_sets, mat.name in instanced, bicubic)
         notes += [n for n in (sets_note, note) if n]
     sync_light_sets(scene, set_names)
     return notes

@@ -65,10 +65,16 @@ def fibonacci_hemisphere(count: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
 
 
-def layers(prefix: str, count: int, meaning: str) -> tuple[Channel, ...]:
-    """`count` RGB layers `<prefix>0` … (half, or float32 beyond half's range), filled like I_z."""
+def layers(prefix: str, count: int, meaning: str, preview: str) -> tuple[Channel, ...]:
+    """`count` RGB layers `<prefix>0` … (half, or float32 beyond half's range), filled like I_z,
+    each shown by the preview image `<preview>_<k>` (the encoding's file key: the Encoded
+    preview mode, `encoding.preview`; unique across encodings, so a re-encode into another
+    model never overwrites one another model's sidecar could name)."""
     return tuple(
-        Channel(f"{prefix}{k}", tuple("RGB"), HALF_OR_FLOAT, meaning, fill=DILATE_BURIED_BLACK) for k in range(count)
+        Channel(
+            f"{prefix}{k}", tuple("RGB"), HALF_OR_FLOAT, meaning, fill=DILATE_BURIED_BLACK, preview=f"{preview}_{k}"
+        )
+        for k in range(count)
     )
 
 

@@ -94,7 +94,7 @@ MEANING = "H-basis coefficient i of the irradiance over n_v's tangent-frame hemi
 
 
 def file_of(count: int, key: str) -> FileSpec:
-    return FileSpec(key, f"_{key}.exr", layers("H", count, MEANING))
+    return FileSpec(key, f"_{key}.exr", layers("H", count, MEANING, key))
 
 
 def encoding_of(basis: HBasis, file: FileSpec, settings) -> CoefficientEncoding:

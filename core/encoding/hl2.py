@@ -54,7 +54,7 @@ BASIS = HL2Basis()
 FILE = FileSpec(
     "hl2",
     "_hl2.exr",
-    layers("HL2_", 3, "H_i: irradiance (1/π)∫ L (ω·b_i) dω along HL2 direction b_i of n_v's tangent frame, RGB"),
+    layers("HL2_", 3, "H_i: irradiance (1/π)∫ L (ω·b_i) dω along HL2 direction b_i of n_v's tangent frame, RGB", "hl2"),
 )
 
 

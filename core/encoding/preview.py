@@ -3,26 +3,57 @@
 Each layer is shown through its preview image (`Channel.preview`, an RGB EXR the writer stages
 beside the files) and feeds the node-group input of the same name (`Channel.name`):
 shaders/node_groups.py names its inputs from here, shaders/preview.py links image to input.
+
+The modes a user picks (`properties.HHDSettings.preview_mode`): 'HHD', 'AHD', 'SCALAR' (the
+HHD file's layers: an atlas encoded as hhd or ahd), 'L1', 'L2' (the raw SH file's: any atlas) and
+'ENCODED': whatever model the atlas's sidecar names, through that model's own layers and
+reconstruction (`kind_of`): the kinds 'HL2', 'HBASIS_L1', 'HBASIS_L2', 'SG5' … 'SG12', 'SH_L1',
+'SH_L2' (the sh_l1/sh_l2 encodings' own files: stitched, denoised, half floats, unlike the raw SH
+file's), or 'HHD'/'AHD' for an HHD file.
 """
 
 from __future__ import annotations
 
+from . import hbasis_l1, hbasis_l2, hl2, sg5, sg6, sg9, sg12, sh_l1, sh_l2
 from .hhd import DIRECTION, IZ, WA
 from .raw import SH_LAYERS
 from .spec import Channel
 
+#: The mode that shows the model the atlas was encoded in (`kind_of`).
+ENCODED = "ENCODED"
+#: The HHD file's models, which the modes 'HHD', 'AHD', 'SCALAR' show.
+HHD_MODELS = ("hhd", "ahd")
+#: The coefficient encodings' kinds (their model, upper case) and the layers they sample.
+CODED: dict[str, tuple[Channel, ...]] = {
+    m.FILE.key.upper(): m.FILE.channels for m in (hl2, hbasis_l1, hbasis_l2, sg5, sg6, sg9, sg12, sh_l1, sh_l2)
+}
 MODES: dict[str, tuple[Channel, ...]] = {
     "HHD": (IZ, WA, DIRECTION),
     "AHD": (IZ, WA, DIRECTION),
     "L1": SH_LAYERS[:4],
     "L2": SH_LAYERS,
     "SCALAR": (IZ,),
+    **CODED,
 }
 
 
 def sampled(mode: str) -> tuple[Channel, ...]:
-    """The layers preview mode `mode` ('HHD', 'AHD', 'L1', 'L2', 'SCALAR') samples, in input order."""
+    """The layers preview kind `mode` ('HHD', 'AHD', 'L1', 'L2', 'SCALAR', or a kind of `CODED`
+    such as 'SG9') samples, in input order."""
     return MODES[mode]
+
+
+def kind_of(mode: str, model: str) -> str | None:
+    """The kind (a key of MODES) preview mode `mode` shows for an atlas encoded as `model` (its
+    sidecar's encoder model, "hhd" … "sg12"), or None when that mode cannot show it: 'HHD',
+    'AHD', 'SCALAR' need the HHD file (hhd, ahd); 'L1', 'L2' read the raw SH file (any model);
+    'ENCODED' is the model's own kind ('HHD' for hhd, 'AHD' for ahd)."""
+    if mode == ENCODED:
+        kind = model.upper()
+        return kind if kind in MODES and kind not in ("L1", "L2", "SCALAR") else None
+    if mode in ("L1", "L2"):
+        return mode
+    return mode if model in HHD_MODELS else None
 
 
 def upgrade_direction(files) -> bool:

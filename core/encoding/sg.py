@@ -245,7 +245,7 @@ MEANING = "amplitude of SG lobe k (fixed axis in n_v's tangent frame, fixed shar
 
 
 def file_of(count: int) -> FileSpec:
-    return FileSpec(f"sg{count}", f"_sg{count}.exr", layers("SG", count, MEANING))
+    return FileSpec(f"sg{count}", f"_sg{count}.exr", layers("SG", count, MEANING, f"sg{count}"))
 
 
 def encoding_of(count: int, file: FileSpec, settings) -> CoefficientEncoding:

@@ -12,7 +12,7 @@ from .sh_l2 import MEANING, SHBasis
 from .spec import FileSpec
 
 BASIS = SHBasis(2)
-FILE = FileSpec("sh_l1", "_sh_l1.exr", layers("SH", 4, MEANING))
+FILE = FileSpec("sh_l1", "_sh_l1.exr", layers("SH", 4, MEANING, "sh_l1"))
 
 
 def basis(settings=None) -> SHBasis:

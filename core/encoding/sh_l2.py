@@ -52,7 +52,7 @@ class SHBasis:
 
 
 BASIS = SHBasis(3)
-FILE = FileSpec("sh_l2", "_sh_l2.exr", layers("SH", 9, MEANING))
+FILE = FileSpec("sh_l2", "_sh_l2.exr", layers("SH", 9, MEANING, "sh_l2"))
 
 
 def basis(settings=None) -> SHBasis:
