@@ -487,6 +487,44 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
     stitch(q, "re-encode")
     threads(q)
 
+    q = command(
+        "compare",
+        "compare every encoding of a finished bake against Cycles from the scene camera (no tracing; the bake's "
+        "files are not changed): bytes per texel, diffuse and specular error, a table and a contact sheet",
+    )
+    receivers(q)
+    out(q, "folder of the bake")
+    q.add_argument(
+        "--report",
+        metavar="DIR",
+        help="folder for compare.md, compare.json, contact_sheet.png (default: <out>/compare)",
+    )
+    q.add_argument(
+        "--samples", type=int, default=256, metavar="N", help="Cycles samples of each reference render (default: 256)"
+    )
+    q.add_argument(
+        "--roughness",
+        type=float,
+        nargs="*",
+        default=[0.25, 0.5, 0.75],
+        metavar="R",
+        help="GGX roughness values of the specular comparison, α = R² (default: 0.25 0.5 0.75; none: diffuse only)",
+    )
+    q.add_argument(
+        "--models",
+        nargs="+",
+        choices=list(encoding.MODELS),
+        metavar="MODEL",
+        help="the encodings compared (default: all of them)",
+    )
+    q.add_argument(
+        "--percentage",
+        type=int,
+        default=50,
+        metavar="P",
+        help="render size, percent of the scene's resolution (default: 50)",
+    )
+
     q = command("blend", "write the blended state of the light sets into each atlas's lightmap (no tracing)")
     receivers(q)
     out(q, "folder of the bake")
@@ -776,6 +814,26 @@ def _encode(context, args) -> str:
     return summary
 
 
+def _compare(context, args) -> str:
+    from .bridge import compare
+
+    if args.samples < 1 or not 1 <= args.percentage <= 100 or any(not 0.0 < r <= 1.0 for r in args.roughness):
+        raise BakeError("compare: --samples ≥ 1, --percentage in 1–100 and --roughness in (0, 1]")
+    summary, warnings = compare.run(
+        context,
+        args.objects,
+        args.out,
+        args.report,
+        samples=args.samples,
+        roughness=tuple(args.roughness),
+        models=tuple(args.models or compare.core_compare.MODELS),
+        percentage=args.percentage,
+    )
+    for w in warnings:
+        print(f"warning: {w}")
+    return summary
+
+
 def _blend(context, args) -> str:
     from .bridge import bake_session, light_sets
 
@@ -875,7 +933,7 @@ def _check_before(context, args) -> None:
         if problem:
             raise _OutputProblem(problem)
     # unwrap, uv-report and export write no bake files (--json, --glb are checked as they are written)
-    if args.action not in ("unwrap", "uv-report", "export", "stale"):
+    if args.action not in ("unwrap", "uv-report", "export", "stale", "compare"):
         problem = _output_problem(bake_session.output_folder(context.scene.hhd, args.out))
         if problem:
             raise _OutputProblem(problem)
@@ -914,6 +972,7 @@ def _run(args: argparse.Namespace) -> int:
                 "unwrap": _unwrap,
                 "bake": _bake,
                 "encode": _encode,
+                "compare": _compare,
                 "blend": _blend,
                 "export": _export,
                 "uv-report": _uv_report,

@@ -7,6 +7,7 @@ from .bake import HHD_OT_bake
 from .bake_changed import HHD_OT_bake_changed, HHD_OT_check_stale
 from .check_dependencies import HHD_OT_check_dependencies
 from .check_normals import HHD_OT_check_normals
+from .compare import HHD_OT_compare
 from .encode import HHD_OT_encode, HHD_OT_open_output
 from .light_sets import HHD_OT_blend_light_sets, HHD_OT_refresh_light_sets
 from .preview import HHD_OT_preview_hide, HHD_OT_preview_show
@@ -22,6 +23,7 @@ classes = (
     HHD_OT_check_stale,
     HHD_OT_bake_changed,
     HHD_OT_encode,
+    HHD_OT_compare,
     HHD_OT_open_output,
     HHD_OT_preview_show,
     HHD_OT_preview_hide,

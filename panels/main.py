@@ -100,6 +100,7 @@ class HHD_PT_main(bpy.types.Panel):
         row = box.row(align=True)
         row.operator("hhd.bake", icon='RENDER_STILL')
         row.operator("hhd.encode", icon='FILE_REFRESH')
+        row.operator("hhd.compare", icon='IMAGE_REFERENCE', text="Compare")
         if settings.bake_summary:
             box.label(text=settings.bake_summary)
         row = box.row(align=True)  # bake what changed (README: Bake what changed)

@@ -1,0 +1,320 @@
+"""Compare every encoding of a finished bake against Cycles from the scene camera (the bpy half of
+`core.compare`; `bpy.ops.hhd.compare()`, the CLI's `compare`).
+
+The reference renders: Cycles on the CPU from the scene camera, sample clamps off, no denoising,
+the bake's bounce count, the pixel filter off (a ray through each pixel's centre, as the
+comparison reads its pixels). Every material is changed for the render only, for camera rays
+only (a Light Path node's Is Camera Ray picks): they see a white Lambertian surface (the diffuse
+reference: radiance = I, docs/conventions.md) or a white GGX Glossy BSDF of each roughness (the
+specular reference, F0 = 1), all other rays the material as it is, so the scene is lit as the
+bake saw it; normal maps are off on both sides. Every material is restored afterwards, also
+after an error. Receivers without a material are left out (named in the report).
+
+Writes into `folder`: compare.md (the table), compare.json and contact_sheet.png (rows: the
+reference, then each encoding; columns: diffuse, then specular per roughness; each column one
+exposure, the reference's mean at mid-grey; black: pixels not compared or a term the encoding
+does not model).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from .. import blender_compat
+from ..core import compare as core_compare
+from ..core import exr, lightmap_files
+from ..core.encoding.web_packing import png_encode
+from ..core.errors import BakeError
+from . import bake_session, mesh_data, scene_data
+
+ROUGHNESS = (0.25, 0.5, 0.75)
+NODE_PREFIX = "HHD Compare"
+
+
+def camera_of(scene, percentage: int = 100) -> core_compare.Camera:
+    """The scene camera as a `core.compare.Camera` at `percentage` of the render size. Raises
+    BakeError without a camera, or for lens shift / a panoramic camera (not modelled)."""
+    cam = scene.camera
+    if cam is None or cam.type != 'CAMERA':
+        raise BakeError("the scene has no camera: the comparison renders from the scene camera")
+    data = cam.data
+    if data.type not in ('PERSP', 'ORTHO') or data.shift_x or data.shift_y:
+        raise BakeError(
+            f"camera '{cam.name}': only perspective or orthographic cameras without lens shift are compared"
+        )
+    width = max(8, scene.render.resolution_x * percentage // 100)
+    height = max(8, scene.render.resolution_y * percentage // 100)
+    aspect = width * scene.render.pixel_aspect_x / (height * scene.render.pixel_aspect_y)
+    fit = data.sensor_fit if data.sensor_fit != 'AUTO' else ('HORIZONTAL' if aspect >= 1.0 else 'VERTICAL')
+    half = 0.5 * data.ortho_scale if data.type == 'ORTHO' else math.tan(0.5 * data.angle)
+    hx, hy = (half, half / aspect) if fit == 'HORIZONTAL' else (half * aspect, half)
+    m = np.array(cam.matrix_world, np.float64)
+    rotation = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
+    return core_compare.Camera(m[:3, 3].copy(), rotation, width, height, data.type, (hx, hy))
+
+
+def reference_renders(scene, camera, samples: int, roughness, bounces: int, folder: Path) -> dict:
+    """{'diffuse': (H, W, 3), roughness: (H, W, 3)} Cycles renders (module doc), rows top first."""
+    saved = _render_state(scene)
+    added = []
+    try:
+        for mat in bpy.data.materials:
+            added += _camera_surface(mat)
+        _cycles(scene, camera, samples, bounces)
+        out = {"diffuse": _render(scene, folder / "reference_diffuse.exr", 0.0, False)}
+        for r in roughness:
+            out[r] = _render(scene, folder / f"reference_specular_{r:g}.exr", r, True)
+        return out
+    finally:
+        for tree, nodes, link in added:
+            for node in nodes:
+                tree.nodes.remove(node)
+            if link is not None:
+                tree.links.new(*link)
+        _restore_render_state(scene, saved)
+
+
+def _camera_surface(mat) -> list:
+    """Insert the camera-ray switch into `mat` (module doc); returns what to undo."""
+    tree = blender_compat.node_tree_of(mat) if mat.library is None else None
+    if tree is None:
+        return []
+    outputs = [n for n in tree.nodes if n.type == 'OUTPUT_MATERIAL' and n.is_active_output]
+    if not outputs:
+        return []
+    output = outputs[0]
+    socket = output.inputs["Surface"]
+    link = (socket.links[0].from_socket, socket) if socket.is_linked else None
+    path = tree.nodes.new("ShaderNodeLightPath")
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    glossy = tree.nodes.new("ShaderNodeBsdfGlossy")
+    pick = tree.nodes.new("ShaderNodeMixShader")  # diffuse (0) or glossy (1): driven by the pass
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    nodes = [path, diffuse, glossy, pick, mix]
+    for node in nodes:
+        node.name = node.label = f"{NODE_PREFIX} {node.bl_idname}"
+    diffuse.inputs["Color"].default_value = glossy.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    diffuse.inputs["Roughness"].default_value = 0.0
+    if hasattr(glossy, "distribution"):
+        glossy.distribution = 'GGX'
+    tree.links.new(diffuse.outputs[0], pick.inputs[1])
+    tree.links.new(glossy.outputs[0], pick.inputs[2])
+    if link is not None:
+        tree.links.new(link[0], mix.inputs[1])
+    tree.links.new(pick.outputs[0], mix.inputs[2])
+    tree.links.new(path.outputs["Is Camera Ray"], mix.inputs["Fac"])
+    tree.links.new(mix.outputs[0], socket)
+    return [(tree, nodes, link)]
+
+
+def _set_pass(roughness: float, glossy: bool) -> None:
+    for mat in bpy.data.materials:
+        tree = blender_compat.node_tree_of(mat)
+        for node in tree.nodes if tree is not None else ():
+            if node.name == f"{NODE_PREFIX} ShaderNodeMixShader" and node.inputs[1].is_linked:
+                node.inputs["Fac"].default_value = 1.0 if glossy else 0.0
+            if node.name == f"{NODE_PREFIX} ShaderNodeBsdfGlossy":
+                node.inputs["Roughness"].default_value = roughness
+
+
+def _render(scene, path: Path, roughness: float, glossy: bool) -> np.ndarray:
+    _set_pass(roughness, glossy)
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    channels, _ = exr.read(path)
+    return np.stack([channels[c] for c in "RGB"], -1).astype(np.float64)  # EXR rows: top first
+
+
+_STATE = (
+    ("render", ("engine", "filepath", "resolution_x", "resolution_y", "resolution_percentage", "filter_size")),
+    ("cycles", ("device", "samples", "use_denoising", "max_bounces", "diffuse_bounces", "glossy_bounces")),
+    ("cycles", ("transmission_bounces", "sample_clamp_direct", "sample_clamp_indirect", "use_adaptive_sampling")),
+    ("image_settings", ("file_format", "color_mode", "color_depth")),
+    ("view_settings", ("view_transform", "look", "exposure", "gamma")),
+)
+
+
+def _owner(scene, name):
+    return {
+        "render": scene.render,
+        "cycles": scene.cycles,
+        "image_settings": scene.render.image_settings,
+        "view_settings": scene.view_settings,
+    }[name]
+
+
+def _render_state(scene) -> list:
+    return [(owner, key, getattr(_owner(scene, owner), key)) for owner, keys in _STATE for key in keys]
+
+
+def _restore_render_state(scene, saved) -> None:
+    for owner, key, value in saved:
+        setattr(_owner(scene, owner), key, value)
+
+
+def _cycles(scene, camera, samples: int, bounces: int) -> None:
+    r = scene.render
+    r.engine = 'CYCLES'
+    r.resolution_x, r.resolution_y, r.resolution_percentage = camera.width, camera.height, 100
+    r.filter_size = 0.0
+    c = scene.cycles
+    c.device, c.samples, c.use_denoising, c.use_adaptive_sampling = 'CPU', samples, False, False
+    c.max_bounces = c.diffuse_bounces = c.glossy_bounces = bounces + 1
+    c.transmission_bounces = 0
+    c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
+    s = r.image_settings
+    s.file_format, s.color_mode, s.color_depth = 'OPEN_EXR', 'RGB', '32'
+    v = scene.view_settings
+    v.view_transform, v.look, v.exposure, v.gamma = 'Standard', 'None', 0.0, 1.0
+
+
+def run(
+    context,
+    objects: list[str] | None = None,
+    out_dir: str | None = None,
+    folder: str | None = None,
+    samples: int = 256,
+    roughness=ROUGHNESS,
+    models=core_compare.MODELS,
+    percentage: int = 50,
+) -> tuple[str, list[str]]:
+    """Compare every encoding of the receivers' atlases (the last bake in `out_dir`, default the
+    output folder) against Cycles from the scene camera; writes the report into `folder`
+    (default `<out_dir>/compare`). Returns (summary line, warnings)."""
+    scene = context.scene
+    settings = scene.hhd
+    bake_dir = Path(bake_session.output_folder(settings, out_dir))
+    report_dir = Path(folder) if folder else bake_dir / "compare"
+    receivers = bake_session.target_objects(context, objects)
+    groups, warnings = bake_session.atlas_groups(receivers, settings)
+    camera = camera_of(scene, percentage)
+    depsgraph = context.evaluated_depsgraph_get()
+    bake_scene = scene_data.read_bake_scene(depsgraph)
+    bare = sorted(o.name for o in receivers if not any(s.material for s in o.material_slots))
+    if bare:
+        warnings.append(f"{', '.join(repr(n) for n in bare)} have no material: left out of the comparison")
+    with tempfile.TemporaryDirectory(prefix="hhd-compare-") as tmp:
+        references = reference_renders(scene, camera, samples, tuple(roughness), settings.bounces, Path(tmp))
+    rows, images = [], {}
+    for name, _w, _h, members in groups:
+        kept = [o for o in members if o.name not in bare]
+        if not kept:
+            continue
+        files = lightmap_files.AtlasFiles(bake_dir, name)
+        if not files.sidecar.is_file():
+            raise BakeError(f"atlas '{name}' has no bake in {bake_dir}: bake it first")
+        surface = mesh_data.read_surface(kept, settings.uv_layer, depsgraph)
+        g = core_compare.gbuffer(camera, bake_scene, surface)
+        if not len(g.index):
+            warnings.append(f"atlas '{name}': none of its receivers is seen by the camera")
+            continue
+        sidecar = lightmap_files.read_sidecar(files.sidecar)
+        pipeline = _pipeline(settings, sidecar)
+        data = lightmap_files.read_texel_data(files)
+        seams = lightmap_files.read_seams(files, data.atlas_shape) if pipeline.stitch_seams else None
+        for rec in core_compare.reconstruct_all(data, pipeline, seams, g, tuple(roughness), tuple(models)):
+            rows.append(_row(name, rec, g, references, roughness))
+            images.setdefault(rec.model, []).append((g, rec))
+        images.setdefault("reference", []).append((g, None))
+    if not rows:
+        raise BakeError("no receiver of the baked atlases is seen by the scene camera: nothing to compare")
+    report_dir.mkdir(parents=True, exist_ok=True)
+    _write(report_dir, rows, images, references, roughness, camera, samples)
+    best = min((r for r in rows if not math.isnan(r["diffuse"])), key=lambda r: r["diffuse"])
+    return (
+        f"Compared {len(set(r['model'] for r in rows))} encodings against Cycles ({camera.width}×{camera.height}, "
+        f"{samples} samples) in {report_dir}: lowest diffuse error {best['model']} {100 * best['diffuse']:.1f}%",
+        warnings,
+    )
+
+
+def _pipeline(settings, sidecar: dict):
+    """The bake's post stages as its sidecar records them, with the scene's encoder settings."""
+    post_ = sidecar.get("post", {})
+    pipeline = bake_session.pipeline_settings(settings)
+    from dataclasses import replace
+
+    denoise = bool(post_.get("denoise", {}).get("enabled", False))
+    return replace(
+        pipeline,
+        denoise=denoise,
+        denoiser_library=pipeline.denoiser_library if denoise else "",
+        stitch_seams=bool(post_.get("stitch", {}).get("enabled", False)),
+    )
+
+
+def _row(atlas: str, rec, g, references: dict, roughness) -> dict:
+    pixels = lambda image: image.reshape(-1, 3)[g.index]
+    row = {
+        "atlas": atlas,
+        "model": rec.model,
+        "bytes_per_texel": rec.bytes_per_texel,
+        "pixels": int(len(g.index)),
+        "diffuse": core_compare.relative_rmse(rec.diffuse, pixels(references["diffuse"])),
+    }
+    for r in roughness:
+        s = rec.specular.get(r)
+        row[f"specular_{r:g}"] = core_compare.relative_rmse(s, pixels(references[r])) if s is not None else None
+    return row
+
+
+def _write(folder: Path, rows, images, references, roughness, camera, samples) -> None:
+    heads = ["atlas", "encoding", "bytes/texel", "diffuse error"] + [f"specular error α=r², r={r:g}" for r in roughness]
+    lines = [
+        "# Encodings against Cycles (HHD Lightmapper compare)",
+        "",
+        f"Scene camera, {camera.width}×{camera.height} pixels, Cycles {samples} samples (clamps off). Error: relative "
+        "RMSE of the luminance over the compared pixels (receivers seen from the front, away from object edges), "
+        "over the reference's mean. Specular: F0 = 1; — where the encoding does not model it.",
+        "",
+        "| " + " | ".join(heads) + " |",
+        "|" + " --- |" * len(heads),
+    ]
+    for r in rows:
+        spec = [r[f"specular_{x:g}"] for x in roughness]
+        cells = [r["atlas"], r["model"], str(r["bytes_per_texel"]), f"{100 * r['diffuse']:.2f}%"]
+        cells += ["—" if s is None else f"{100 * s:.2f}%" for s in spec]
+        lines.append("| " + " | ".join(cells) + " |")
+    order = ["reference"] + [m for m in images if m != "reference"]
+    lines += ["", "contact_sheet.png rows, top to bottom: " + ", ".join(order) + "; columns: diffuse, "
+              + ", ".join(f"specular r={r:g}" for r in roughness) + "."]  # fmt: skip
+    (folder / "compare.md").write_text("\n".join(lines) + "\n")
+    (folder / "compare.json").write_text(json.dumps({"rows": rows}, indent=1, allow_nan=False, default=_none) + "\n")
+    (folder / "contact_sheet.png").write_bytes(png_encode(_sheet(order, images, references, roughness)))
+
+
+def _none(value):
+    return None
+
+
+def _sheet(order, images, references, roughness) -> np.ndarray:
+    """The contact sheet (module doc) as an 8-bit sRGB image."""
+    keys = ["diffuse", *roughness]
+    scale = {k: 0.18 / max(float(np.mean(references[k] @ [0.2126, 0.7152, 0.0722])), 1e-12) for k in keys}
+    rows = []
+    for model in order:
+        cells = []
+        for k in keys:
+            if model == "reference":
+                cell = references[k].copy()
+                mask = np.zeros(cell.shape[:2], bool)
+                for g, _ in images["reference"]:
+                    mask.reshape(-1)[g.index] = True
+                cell[~mask] = 0.0
+            else:
+                cell = np.zeros_like(references["diffuse"])
+                for g, rec in images[model]:
+                    values = rec.diffuse if k == "diffuse" else rec.specular.get(k)
+                    if values is not None:
+                        cell.reshape(-1, 3)[g.index] = values
+            cells.append(cell * scale[k])
+        rows.append(np.concatenate(cells, axis=1))
+    linear = np.clip(np.concatenate(rows, axis=0), 0.0, 1.0)
+    srgb = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+    return np.round(srgb * 255).astype(np.uint8)
