@@ -260,6 +260,21 @@ class HHDSettings(bpy.types.PropertyGroup):
         ],
         description="Which reconstruction the EEVEE preview shows (A/B the encodings on the same object)",
     )
+    preview_term: EnumProperty(
+        name="Term",
+        default='DIFFUSE',
+        items=[
+            ('DIFFUSE', "Diffuse", "Albedo × irradiance (the lightmap's diffuse reconstruction)"),
+            (
+                'SPECULAR',
+                "Specular",
+                "GGX specular from the lightmap (HHD, AHD, L1/L2 SH; docs/format.md, \"Specular\"): "
+                "Principled Roughness (α = R²) and F0 (IOR, Specular IOR Level, Metallic)",
+            ),
+            ('BOTH', "Both", "Albedo × (1 − Metallic) × irradiance + specular"),
+        ],
+        description="What the EEVEE preview shows; encodings without a specular model show diffuse (applies at Show Preview)",
+    )
     preview_filter: EnumProperty(
         name="Filter",
         default='BILINEAR',

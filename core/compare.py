@@ -14,8 +14,8 @@ file of that model would hold, rounded to half where the channel spec stores hal
 them bilinearly at its lightmap UV (the HHD direction as a unit vector, renormalised, as the
 preview does) and reconstructs, in the units of docs/conventions.md:
   diffuse   I(n): the irradiance an albedo multiplies (`Basis.irradiance`, `hhd.reconstruct`);
-  specular  S(n, v; α) with F0 = 1 (`Basis.specular`, GGX α = roughness²), for the encodings
-            that model it.
+  specular  S(n, v; α) with F0 = 1 (`Basis.specular`, `encoding.hhd_specular.specular`, GGX α =
+            roughness²), for the encodings that model it.
 The reference: a render whose camera rays see a white Lambertian surface (diffuse: I exactly)
 or a white GGX surface of the roughness (specular), every other ray the scene's own materials
 (`bridge.compare` builds it in Cycles, clamps off). Errors are relative RMSE of the luminance
@@ -30,6 +30,7 @@ import numpy as np
 
 from . import encoding, post
 from .colour import LUMINANCE
+from .encoding.hhd_specular import specular as hhd_specular
 from .encoding.registry import basis_of
 from .encoding.spec import FLOAT
 from .hhd.lobes import HHDParams, reconstruct
@@ -100,7 +101,7 @@ def gbuffer(camera: Camera, scene, surface) -> GBuffer:
     t_all, prim_all, _, u_all, v_all = RayScene(scene.triangles).intersect(origins, dirs, barycentrics=True)
     t, prim, _, u, v = RayScene(surface.positions).intersect(origins, dirs, barycentrics=True)
     hit = (prim >= 0) & (prim_all >= 0) & (t <= t_all * (1.0 + VISIBLE_SLACK) + 1e-6)
-    w = np.stack([1.0 - u, u, v], axis=1)
+    w = np.stack([1.0 - u - v, u, v], axis=1)
     p = np.where(hit, prim, 0)
     n_v = np.einsum("pk,pki->pi", w, surface.normals[p])
     n_v /= np.maximum(np.linalg.norm(n_v, axis=1, keepdims=True), 1e-30)
@@ -192,7 +193,8 @@ def _reconstruction(model, settings, layers: dict, g: GBuffer, roughness) -> Rec
             invalid=np.zeros(len(g.index), bool),
             clamped_irradz=np.zeros(len(g.index), bool),
         )
-        return Reconstruction(model, size, reconstruct(p, g.n_v, g.n_v, model))
+        specular = {r: hhd_specular(p, g.n_v, g.n_v, g.view, r * r, model=model) for r in roughness}
+        return Reconstruction(model, size, reconstruct(p, g.n_v, g.n_v, model), specular)
     basis = basis_of(settings)
     c = np.stack([layers[name] for name in layers], axis=1)  # (P, K, 3) in the file's layer order
     diffuse = basis.irradiance(c, g.n_v, g.n_v)

@@ -114,6 +114,7 @@ class HHD_PT_main(bpy.types.Panel):
         col.prop(settings, "view_mode")
         if settings.view_mode == 'LIGHTING':
             col.prop(settings, "preview_mode")
+            col.prop(settings, "preview_term")
             col.prop(settings, "preview_filter")
             col.prop(settings, "preview_self_bounce")
         row = box.row(align=True)

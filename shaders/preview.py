@@ -50,7 +50,7 @@ from ..core.errors import BakeError
 from ..core.lightmap_files import read_sidecar
 from ..properties import sync_light_sets, weight_path
 from . import bicubic as bicubic_nodes
-from . import node_groups
+from . import node_groups, specular_nodes
 
 PREFIX = "HHD Preview"
 RECORD = "hhd_preview"
@@ -253,12 +253,15 @@ def show_on_material(
     light_sets=(),
     instanced: bool = False,
     bicubic: bool = False,
+    term: str = 'DIFFUSE',
 ) -> str | None:
     """Insert the preview into one material; returns a note when a fallback was used. `bicubic`:
     the images through the Catmull-Rom lookup (shaders/bicubic.py), not EEVEE's bilinear. `files`:
     the AtlasFiles of the objects' atlas, or [(index, AtlasFiles)] when objects of several
     atlases share the material (index: the value of their ATLAS attribute). light_sets (HHD mode):
-    [(set name, [(index, the set's AtlasFiles)])] to show the live blend of, () for none."""
+    [(set name, [(index, the set's AtlasFiles)])] to show the live blend of, () for none. `term`
+    (`scene.hhd.preview_term`): 'DIFFUSE' (albedo × irradiance), 'SPECULAR' or 'BOTH' through the
+    kind's specular group (shaders/specular_nodes.py; diffuse with a note where there is none)."""
     atlases = files if isinstance(files, list) else [(0, files)]
     tree = mat.node_tree if mat.node_tree is not None else blender_compat.ensure_node_tree(mat)
     if RECORD in mat:
@@ -306,12 +309,21 @@ def show_on_material(
     y = y0
     if light_sets:
         y = _link_light_sets(tree, gi, light_sets, atlas_uv, x0 + 250, y, frame, bicubic)
+    colours = {}
     for layer in () if light_sets else sampled(kind):  # each layer's preview image into the input of its name
-        colour = _atlas_image(tree, layer.preview, atlases, atlas_uv, x0 + 250, y, frame, bicubic)
+        colour = colours[layer.name] = _atlas_image(tree, layer.preview, atlases, atlas_uv, x0 + 250, y, frame, bicubic)
         tree.links.new(colour, gi[layer.name])
         y -= 280
+    radiance = group.outputs["Radiance"]
+    if term != 'DIFFUSE':
+        if specular_nodes.KINDS.get(kind) is None or light_sets:
+            what = "a light-set blend" if light_sets else f"the {kind} preview"
+            note = note or f"material '{mat.name}': {what} has no specular model, it shows diffuse"
+        else:
+            spec = _specular(tree, kind, colours, group, geometry, principled, (x0 + 600, y0 - 400), frame)
+            radiance = spec.outputs["Specular" if term == 'SPECULAR' else "Both"]
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 850, y0), frame)
-    tree.links.new(group.outputs["Radiance"], emission.inputs["Color"])
+    tree.links.new(radiance, emission.inputs["Color"])
     attribute = _new(tree, "ShaderNodeAttribute", "Switch", (x0 + 850, y0 + 200), frame)
     attribute.attribute_type, attribute.attribute_name = 'INSTANCER', RECORD
     mix = _new(tree, "ShaderNodeMixShader", "Mix", (x0 + 1050, y0), frame)
@@ -321,6 +333,33 @@ def show_on_material(
     tree.links.new(emission.outputs["Emission"], mix.inputs[2])
     tree.links.new(mix.outputs["Shader"], output.inputs["Surface"])
     return note
+
+
+def _specular(tree, kind, colours, group, geometry, principled, at, frame):
+    """The specular group of `kind` fed like the diffuse `group` (its images, normals, albedo),
+    Geometry's Incoming as v, the Principled BSDF's Metallic, Roughness, IOR and Specular IOR
+    Level (its defaults without one), and the group's Irradiance (for Both)."""
+    node = _new(tree, "ShaderNodeGroup", "Specular", at, frame)
+    node.node_tree = specular_nodes.ensure(kind)
+    si, gi = node.inputs, group.inputs
+    for name, colour in colours.items():
+        tree.links.new(colour, si[name])
+    for name in ("Normal", "Vertex Normal", "Albedo"):
+        if name in gi and gi[name].is_linked:
+            tree.links.new(gi[name].links[0].from_socket, si[name])
+        elif name in gi:
+            si[name].default_value = gi[name].default_value
+        else:
+            tree.links.new(geometry.outputs["Normal"], si[name])
+    tree.links.new(geometry.outputs["Incoming"], si["Incoming"])
+    for name in ("Metallic", "Roughness", "IOR", "Specular IOR Level"):
+        source = principled.inputs.get(name) if principled is not None else None
+        if source is not None and source.is_linked:
+            tree.links.new(source.links[0].from_socket, si[name])
+        elif source is not None:
+            si[name].default_value = source.default_value
+    tree.links.new(group.outputs["Irradiance"], si["Irradiance"])
+    return node
 
 
 def model_of(files) -> str:
@@ -371,7 +410,8 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
     preview mode (`core.encoding.preview`; 'ENCODED': each material shows its atlases' model). In HHD
     mode, atlases baked with light sets show their live blend, weighted by `scene.hhd.light_sets`
     (`scene`: the context's by default), to which missing sets are added. The images are filtered
-    as `scene.hhd.preview_filter` says (Bicubic: shaders/bicubic.py)."""
+    as `scene.hhd.preview_filter` says (Bicubic: shaders/bicubic.py); `scene.hhd.preview_term`
+    picks the diffuse, specular or both terms (`show_on_material`)."""
     scene = scene if scene is not None else bpy.context.scene
     notes, set_names = [], []
     index = {name: i for i, name in enumerate(sorted({f.name for f in atlas_files.values()}))}
@@ -399,7 +439,9 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
         set_names += [name for name, _ in light_sets]
         files = atlases if len(atlases) > 1 else atlases[0][1]
         bicubic = scene.hhd.preview_filter == 'BICUBIC'
-        note = show_on_material(mat, files, shown, uv_layer, self_bounce, light_sets, mat.name in instanced, bicubic)
+        note = show_on_material(
+            mat, files, shown, uv_layer, self_bounce, light_sets, mat.name in instanced, bicubic, scene.hhd.preview_term
+        )
         notes += [n for n in (sets_note, note) if n]
     sync_light_sets(scene, set_names)
     return notes
