@@ -234,7 +234,7 @@ class BakePoints:
             FOOTPRINT if footprint is None else footprint,
             JITTER_TRIES,
             int(rng.integers(1 << 63)),
-            idx.astype(np.int64, copy=False) if first is not None else np.zeros(0, np.int64),
+            self.texel[idx].astype(np.int64) if first is not None else np.zeros(0, np.int64),  # keyed by atlas texel
             0 if first is None else first,
             seed,
         )

@@ -10,8 +10,9 @@ lightmap UVs). Per object its world bounds (metres) and per light its position a
 the influence rule reads. `compare` gives what changed (`Stale`).
 
 A subset bake (`bake_subset`): bake points of the chosen receivers only (same atlas, same
-layout), traced with the bake's settings and seed (its own chunks: the texels' noise is an
-independent draw of a full bake's, not the same numbers), then the atlas's previous SH and texels
+layout), traced with the bake's settings and seed (a texel's own sequences are keyed by its place
+in the atlas, `tracer.hemisphere`: it draws what a full bake draws for it, up to the deeper
+bounces, which come per work unit), then the atlas's previous SH and texels
 files are read whole, the new texels written into them, and the post stages (denoise, stitch)
 and the encoder run as a re-encode does (`bake.reencode`), on the region of the touched texels
 and of the charts they lie in or fill from (`merge_region`: tiles grown by WINDOW_HALO; every

@@ -106,10 +106,13 @@ class TexelEstimator(shipping.Shipped):
         paths = Paths(self.scene)
         k = self.pass_samples
         idx = unit.texels
+        # the texels' own sequences are keyed by their place in the atlas, not by their bake point:
+        # a bake of some receivers (core.incremental) draws what a full bake draws for those texels
+        ids = np.ascontiguousarray(self.points.texel[idx], np.int64)
         normals = self.points.normal[idx]
         if STRATIFIED_DIRECTIONS:  # (n·k, 3), (n·k,)
             dirs, pdf = hemisphere_kernels.get().texel_hemisphere_rays(
-                normals, k, idx, unit.pass_index * k, unit.seed, UNIFORM_SHARE
+                normals, k, ids, unit.pass_index * k, unit.seed, UNIFORM_SHARE
             )
         else:
             dirs, pdf = hemisphere_kernels.get().hemisphere_rays(normals, k, seed(rng))
@@ -124,7 +127,7 @@ class TexelEstimator(shipping.Shipped):
         normal = np.repeat(self.points.normal[idx], k, axis=0)  # the light samples' too (`_direct_sh`)
         texels = None
         if STRATIFIED_FIRST_BOUNCE:
-            texels = TexelSamples(np.ascontiguousarray(idx, np.int64), k, unit.pass_index * k, unit.seed)
+            texels = TexelSamples(ids, k, unit.pass_index * k, unit.seed)
         radiance = paths.radiance(rng, origins, dirs, pdf, uncovered, normal, texels)  # (n·k, C)
         project = (
             hemisphere_kernels.get().project_halves
@@ -132,7 +135,7 @@ class TexelEstimator(shipping.Shipped):
             else hemisphere_kernels.get().project_hemisphere
         )
         estimate = project(dirs, radiance, pdf, normals, k)
-        stream = lights.light.TexelStream(idx, k, unit.pass_index * k, unit.seed) if STRATIFIED_LIGHTS else None
+        stream = lights.light.TexelStream(ids, k, unit.pass_index * k, unit.seed) if STRATIFIED_LIGHTS else None
         estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered, stream)
         return UnitResult(estimate, paths.traced)
 
