@@ -59,18 +59,22 @@ def camera_of(scene, percentage: int = 100) -> core_compare.Camera:
     return core_compare.Camera(m[:3, 3].copy(), rotation, width, height, data.type, (hx, hy))
 
 
-def reference_renders(scene, camera, samples: int, roughness, bounces: int, folder: Path) -> dict:
-    """{'diffuse': (H, W, 3), roughness: (H, W, 3)} Cycles renders (module doc), rows top first."""
+def reference_renders(scene, camera, samples: int, roughness, bounces: int, folder: Path) -> tuple[dict, dict]:
+    """({'diffuse': (H, W, 3), roughness: (H, W, 3)} Cycles references (module doc), rows top first,
+    {same keys: half the difference of the two renders each reference averages}). Each reference
+    is the mean of two renders of `samples`//2 samples with other seeds: half their difference
+    has the mean's noise, which the errors then leave out (`_noise_removed`)."""
     saved = _render_state(scene)
     added = []
     try:
         for mat in bpy.data.materials:
             added += _camera_surface(mat)
-        _cycles(scene, camera, samples, bounces)
-        out = {"diffuse": _render(scene, folder / "reference_diffuse.exr", 0.0, False)}
-        for r in roughness:
-            out[r] = _render(scene, folder / f"reference_specular_{r:g}.exr", r, True)
-        return out
+        _cycles(scene, camera, max(1, samples // 2), bounces)
+        out, halves = {}, {}
+        for key, r, glossy in [("diffuse", 0.0, False)] + [(r, r, True) for r in roughness]:
+            a, b = (_render(scene, folder / f"reference_{key}_{seed}.exr", r, glossy, seed) for seed in (1, 2))
+            out[key], halves[key] = 0.5 * (a + b), 0.5 * (a - b)
+        return out, halves
     finally:
         for tree, nodes, link in added:
             for node in nodes:
@@ -123,8 +127,9 @@ def _set_pass(roughness: float, glossy: bool) -> None:
                 node.inputs["Roughness"].default_value = roughness
 
 
-def _render(scene, path: Path, roughness: float, glossy: bool) -> np.ndarray:
+def _render(scene, path: Path, roughness: float, glossy: bool, seed: int) -> np.ndarray:
     _set_pass(roughness, glossy)
+    scene.cycles.seed = seed
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
     channels, _ = exr.read(path)
@@ -135,6 +140,7 @@ _STATE = (
     ("render", ("engine", "filepath", "resolution_x", "resolution_y", "resolution_percentage", "filter_size")),
     ("cycles", ("device", "samples", "use_denoising", "max_bounces", "diffuse_bounces", "glossy_bounces")),
     ("cycles", ("transmission_bounces", "sample_clamp_direct", "sample_clamp_indirect", "use_adaptive_sampling")),
+    ("cycles", ("seed",)),
     ("image_settings", ("file_format", "color_mode", "color_depth")),
     ("view_settings", ("view_transform", "look", "exposure", "gamma")),
 )
@@ -200,7 +206,7 @@ def run(
     if bare:
         warnings.append(f"{', '.join(repr(n) for n in bare)} have no material: left out of the comparison")
     with tempfile.TemporaryDirectory(prefix="hhd-compare-") as tmp:
-        references = reference_renders(scene, camera, samples, tuple(roughness), settings.bounces, Path(tmp))
+        references, halves = reference_renders(scene, camera, samples, tuple(roughness), settings.bounces, Path(tmp))
     rows, images = [], {}
     for name, _w, _h, members in groups:
         kept = [o for o in members if o.name not in bare]
@@ -219,7 +225,7 @@ def run(
         data = lightmap_files.read_texel_data(files)
         seams = lightmap_files.read_seams(files, data.atlas_shape) if pipeline.stitch_seams else None
         for rec in core_compare.reconstruct_all(data, pipeline, seams, g, tuple(roughness), tuple(models)):
-            rows.append(_row(name, rec, g, references, roughness))
+            rows.append(_row(name, rec, g, references, halves, roughness))
             images.setdefault(rec.model, []).append((g, rec))
         images.setdefault("reference", []).append((g, None))
     if not rows:
@@ -249,18 +255,22 @@ def _pipeline(settings, sidecar: dict):
     )
 
 
-def _row(atlas: str, rec, g, references: dict, roughness) -> dict:
+def _row(atlas: str, rec, g, references: dict, halves: dict, roughness) -> dict:
+    """One table row: per term the error with the reference's own noise left out in quadrature
+    (`core_compare.noise_removed`), and that noise ("<term>_reference_noise")."""
     pixels = lambda image: image.reshape(-1, 3)[g.index]
-    row = {
-        "atlas": atlas,
-        "model": rec.model,
-        "bytes_per_texel": rec.bytes_per_texel,
-        "pixels": int(len(g.index)),
-        "diffuse": core_compare.relative_rmse(rec.diffuse, pixels(references["diffuse"])),
-    }
-    for r in roughness:
-        s = rec.specular.get(r)
-        row[f"specular_{r:g}"] = core_compare.relative_rmse(s, pixels(references[r])) if s is not None else None
+    row = {"atlas": atlas, "model": rec.model, "bytes_per_texel": rec.bytes_per_texel, "pixels": int(len(g.index))}
+    for key, name, values in [("diffuse", "diffuse", rec.diffuse)] + [
+        (r, f"specular_{r:g}", rec.specular.get(r)) for r in roughness
+    ]:
+        reference = pixels(references[key])
+        floor = core_compare.relative_rmse(reference + pixels(halves[key]), reference)
+        row[f"{name}_reference_noise"] = floor
+        if values is None:
+            row[name] = None
+            continue
+        row[f"{name}_raw"] = core_compare.relative_rmse(values, reference)
+        row[name] = core_compare.noise_removed(row[f"{name}_raw"], floor)
     return row
 
 
@@ -269,9 +279,11 @@ def _write(folder: Path, rows, images, references, roughness, camera, samples) -
     lines = [
         "# Encodings against Cycles (HHD Lightmapper compare)",
         "",
-        f"Scene camera, {camera.width}×{camera.height} pixels, Cycles {samples} samples (clamps off). Error: relative "
-        "RMSE of the luminance over the compared pixels (receivers seen from the front, away from object edges), "
-        "over the reference's mean. Specular: F0 = 1; — where the encoding does not model it.",
+        f"Scene camera, {camera.width}×{camera.height} pixels, Cycles {samples} samples (clamps off; two renders "
+        "of half as many with other seeds, averaged). Error: relative RMSE of the luminance over the compared "
+        "pixels (receivers seen from the front, away from object edges), over the reference's mean, with the "
+        "reference's own noise (half the two renders' difference; the last row) left out in quadrature. "
+        "Specular: F0 = 1; — where the encoding does not model it.",
         "",
         "| " + " | ".join(heads) + " |",
         "|" + " --- |" * len(heads),
@@ -281,6 +293,10 @@ def _write(folder: Path, rows, images, references, roughness, camera, samples) -
         cells = [r["atlas"], r["model"], str(r["bytes_per_texel"]), f"{100 * r['diffuse']:.2f}%"]
         cells += ["—" if s is None else f"{100 * s:.2f}%" for s in spec]
         lines.append("| " + " | ".join(cells) + " |")
+    for atlas in dict.fromkeys(r["atlas"] for r in rows):
+        r = next(x for x in rows if x["atlas"] == atlas)
+        noise = [r["diffuse_reference_noise"]] + [r[f"specular_{x:g}_reference_noise"] for x in roughness]
+        lines.append("| " + " | ".join([atlas, "reference noise", "", *(f"{100 * n:.2f}%" for n in noise)]) + " |")
     order = ["reference"] + [m for m in images if m != "reference"]
     lines += ["", "contact_sheet.png rows, top to bottom: " + ", ".join(order) + "; columns: diffuse, "
               + ", ".join(f"specular r={r:g}" for r in roughness) + "."]  # fmt: skip

@@ -211,3 +211,9 @@ def relative_rmse(values: np.ndarray, reference: np.ndarray) -> float:
     a, b = np.asarray(values) @ LUMINANCE, np.asarray(reference) @ LUMINANCE
     mean = float(b.mean()) if len(b) else 0.0
     return float(np.sqrt(np.mean((a - b) ** 2)) / mean) if mean > 0 else float("nan")
+
+
+def noise_removed(error: float, floor: float) -> float:
+    """An error with a reference's own noise `floor` left out in quadrature: √max(e² − f², 0)
+    (both relative RMSE; the reference's noise and the encoding's error are independent)."""
+    return float(np.sqrt(max(error * error - floor * floor, 0.0)))
