@@ -84,6 +84,13 @@ def stitch_stage(seams: Seams | None, threads: int) -> PostStage:
     return stitch
 
 
+#: The encodings whose layers `stitch_encoded` closes the seams of (HHD/AHD: I_z, w_a and the
+#: direction are not linear in the SH). The coefficient encodings are projections of the stitched
+#: SH (linear: SH, HL2, H-basis; the SG fits nearly so), so their layers are left as encoded.
+ENCODED_STITCH_MODELS = ("hhd", "ahd")
+ENCODED_STITCH_SKIPPED = "the encoding's layers come from the stitched SH (no second stitch for this model)"
+
+
 def stitch_encoded(
     encoded: EncodedAtlas,
     coverage: np.ndarray,
@@ -100,6 +107,9 @@ def stitch_encoded(
     `coverage` `(H, W)`: the atlas's (`TexelData.coverage`). `in_place`: the stitched texels are
     written into `encoded`'s own images (a caller that keeps no unstitched copy)."""
     if not settings.stitch_seams or seams is None or not records.get("stitch", {}).get("applied"):
+        return encoded
+    if encoded.settings.get("model", "hhd") not in ENCODED_STITCH_MODELS:
+        records["stitch"]["encoded"] = {"enabled": False, "why": ENCODED_STITCH_SKIPPED}
         return encoded
     from . import seams as _seams
 

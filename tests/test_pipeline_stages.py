@@ -160,6 +160,25 @@ def test_a_stitched_bake_keeps_the_traced_files_and_reencodes_to_the_same_bytes(
     assert warnings == [f"atlas 'Lightmap', stitch: {post.NO_SEAMS}"] and on.files.hhd.read_bytes() == unstitched
 
 
+@pytest.mark.parametrize("model", ["sh_l2", "sg9", "hbasis_l2"])
+def test_a_stitched_bake_in_a_coefficient_encoding_encodes_the_stitched_sh(tmp_path, model):
+    """A bake (and a re-encode) in one of Baking Lab's encodings with stitching on: the SH stitch
+    runs, the encoded layers are the stitched SH's projection (no second, HHD-only stitch: it
+    used to fail on layers it did not know), and the sidecar says so."""
+    surface, scene = sphere()
+    atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["sphere"])
+    trace = BakeSettings(samples=4, pass_samples=4, bounces=1, seed=1)
+    settings = bake.PipelineSettings(trace=trace, encoder=bake.EncoderSettings(model=model))
+    (done,) = bake.run([atlas], scene, settings, tmp_path / "on")
+    record = lightmap_files.read_sidecar(done.files.sidecar)["post"]["stitch"]
+    assert record["applied"] and record["seams"] > 0
+    assert record["encoded"] == {"enabled": False, "why": post.ENCODED_STITCH_SKIPPED}
+    path = done.files.path(encoding.for_settings(settings.encoder).file)
+    first = path.read_bytes()
+    bake.reencode(done.files, settings.encoder, threads=1)
+    assert path.read_bytes() == first
+
+
 class FailingDenoiser:
     """Blender's OIDN, raising DenoiserError at its `fail_at`-th directional call (the pass that
     writes a banded page into the SH), noting whether the SH had been written by then."""
