@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import math
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import bpy
@@ -31,7 +32,7 @@ from ..core import compare as core_compare
 from ..core import exr, lightmap_files
 from ..core.encoding.web_packing import png_encode
 from ..core.errors import BakeError
-from . import bake_session, mesh_data, scene_data
+from . import bake_session, denoiser, mesh_data, scene_data
 
 ROUGHNESS = (0.25, 0.5, 0.75)
 NODE_PREFIX = "HHD Compare"
@@ -205,9 +206,7 @@ def run(
     bare = sorted(o.name for o in receivers if not any(s.material for s in o.material_slots))
     if bare:
         warnings.append(f"{', '.join(repr(n) for n in bare)} have no material: left out of the comparison")
-    with tempfile.TemporaryDirectory(prefix="hhd-compare-") as tmp:
-        references, halves = reference_renders(scene, camera, samples, tuple(roughness), settings.bounces, Path(tmp))
-    rows, images = [], {}
+    seen = []  # (atlas name, its files, the compared pixels): checked before any render
     for name, _w, _h, members in groups:
         kept = [o for o in members if o.name not in bare]
         if not kept:
@@ -215,21 +214,24 @@ def run(
         files = lightmap_files.AtlasFiles(bake_dir, name)
         if not files.sidecar.is_file():
             raise BakeError(f"atlas '{name}' has no bake in {bake_dir}: bake it first")
-        surface = mesh_data.read_surface(kept, settings.uv_layer, depsgraph)
-        g = core_compare.gbuffer(camera, bake_scene, surface)
-        if not len(g.index):
+        g = core_compare.gbuffer(camera, bake_scene, mesh_data.read_surface(kept, settings.uv_layer, depsgraph))
+        if len(g.index):
+            seen.append((name, files, g))
+        else:
             warnings.append(f"atlas '{name}': none of its receivers is seen by the camera")
-            continue
-        sidecar = lightmap_files.read_sidecar(files.sidecar)
-        pipeline = _pipeline(settings, sidecar)
+    if not seen:
+        raise BakeError("no receiver of the baked atlases is seen by the scene camera: nothing to compare")
+    with tempfile.TemporaryDirectory(prefix="hhd-compare-") as tmp:
+        references, halves = reference_renders(scene, camera, samples, tuple(roughness), settings.bounces, Path(tmp))
+    rows, images = [], {}
+    for name, files, g in seen:
+        pipeline = _pipeline(settings, lightmap_files.read_sidecar(files.sidecar))
         data = lightmap_files.read_texel_data(files)
         seams = lightmap_files.read_seams(files, data.atlas_shape) if pipeline.stitch_seams else None
         for rec in core_compare.reconstruct_all(data, pipeline, seams, g, tuple(roughness), tuple(models)):
             rows.append(_row(name, rec, g, references, halves, roughness))
             images.setdefault(rec.model, []).append((g, rec))
         images.setdefault("reference", []).append((g, None))
-    if not rows:
-        raise BakeError("no receiver of the baked atlases is seen by the scene camera: nothing to compare")
     report_dir.mkdir(parents=True, exist_ok=True)
     _write(report_dir, rows, images, references, roughness, camera, samples)
     best = min((r for r in rows if not math.isnan(r["diffuse"])), key=lambda r: r["diffuse"])
@@ -241,16 +243,14 @@ def run(
 
 
 def _pipeline(settings, sidecar: dict):
-    """The bake's post stages as its sidecar records them, with the scene's encoder settings."""
+    """The bake's post stages as its sidecar records them (denoise through Blender's OIDN,
+    `denoiser.oidn_library`), with the scene's encoder settings."""
     post_ = sidecar.get("post", {})
-    pipeline = bake_session.pipeline_settings(settings)
-    from dataclasses import replace
-
     denoise = bool(post_.get("denoise", {}).get("enabled", False))
     return replace(
-        pipeline,
+        bake_session.pipeline_settings(settings),
         denoise=denoise,
-        denoiser_library=pipeline.denoiser_library if denoise else "",
+        denoiser_library=denoiser.oidn_library() if denoise else "",
         stitch_seams=bool(post_.get("stitch", {}).get("enabled", False)),
     )
 
