@@ -30,12 +30,14 @@ import numpy as np
 from .. import blender_compat
 from ..core import compare as core_compare
 from ..core import exr, lightmap_files
+from ..core.colour import LUMINANCE
 from ..core.encoding.web_packing import png_encode
 from ..core.errors import BakeError
 from . import bake_session, denoiser, mesh_data, scene_data
 
 ROUGHNESS = (0.25, 0.5, 0.75)
 NODE_PREFIX = "HHD Compare"
+GLOSSY, PICK = "Glossy", "Diffuse or Glossy"
 
 
 def camera_of(scene, percentage: int = 100) -> core_compare.Camera:
@@ -102,8 +104,8 @@ def _camera_surface(mat) -> list:
     pick = tree.nodes.new("ShaderNodeMixShader")  # diffuse (0) or glossy (1): driven by the pass
     mix = tree.nodes.new("ShaderNodeMixShader")
     nodes = [path, diffuse, glossy, pick, mix]
-    for node in nodes:
-        node.name = node.label = f"{NODE_PREFIX} {node.bl_idname}"
+    for node, role in zip(nodes, ("Light Path", "Diffuse", GLOSSY, PICK, "Camera Rays")):
+        node.name = node.label = f"{NODE_PREFIX} {role}"  # by role: Blender renames some node types
     diffuse.inputs["Color"].default_value = glossy.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
     diffuse.inputs["Roughness"].default_value = 0.0
     if hasattr(glossy, "distribution"):
@@ -122,9 +124,9 @@ def _set_pass(roughness: float, glossy: bool) -> None:
     for mat in bpy.data.materials:
         tree = blender_compat.node_tree_of(mat)
         for node in tree.nodes if tree is not None else ():
-            if node.name == f"{NODE_PREFIX} ShaderNodeMixShader" and node.inputs[1].is_linked:
+            if node.name == f"{NODE_PREFIX} {PICK}":
                 node.inputs["Fac"].default_value = 1.0 if glossy else 0.0
-            if node.name == f"{NODE_PREFIX} ShaderNodeBsdfGlossy":
+            if node.name == f"{NODE_PREFIX} {GLOSSY}":
                 node.inputs["Roughness"].default_value = roughness
 
 
@@ -234,10 +236,11 @@ def run(
         images.setdefault("reference", []).append((g, None))
     report_dir.mkdir(parents=True, exist_ok=True)
     _write(report_dir, rows, images, references, roughness, camera, samples)
-    best = min((r for r in rows if not math.isnan(r["diffuse"])), key=lambda r: r["diffuse"])
+    measured = [r for r in rows if math.isfinite(r["diffuse"])]
+    best = f": lowest diffuse error {min(measured, key=lambda r: r['diffuse'])['model']}" if measured else ""
     return (
         f"Compared {len(set(r['model'] for r in rows))} encodings against Cycles ({camera.width}×{camera.height}, "
-        f"{samples} samples) in {report_dir}: lowest diffuse error {best['model']} {100 * best['diffuse']:.1f}%",
+        f"{samples} samples) in {report_dir}{best}",
         warnings,
     )
 
@@ -266,6 +269,7 @@ def _row(atlas: str, rec, g, references: dict, halves: dict, roughness) -> dict:
         reference = pixels(references[key])
         floor = core_compare.relative_rmse(reference + pixels(halves[key]), reference)
         row[f"{name}_reference_noise"] = floor
+        row[f"{name}_reference_mean"] = float(np.mean(reference @ LUMINANCE))
         if values is None:
             row[name] = None
             continue
@@ -290,23 +294,28 @@ def _write(folder: Path, rows, images, references, roughness, camera, samples) -
     ]
     for r in rows:
         spec = [r[f"specular_{x:g}"] for x in roughness]
-        cells = [r["atlas"], r["model"], str(r["bytes_per_texel"]), f"{100 * r['diffuse']:.2f}%"]
-        cells += ["—" if s is None else f"{100 * s:.2f}%" for s in spec]
+        cells = [r["atlas"], r["model"], str(r["bytes_per_texel"]), _percent(r["diffuse"])]
+        cells += [_percent(s) for s in spec]
         lines.append("| " + " | ".join(cells) + " |")
     for atlas in dict.fromkeys(r["atlas"] for r in rows):
         r = next(x for x in rows if x["atlas"] == atlas)
         noise = [r["diffuse_reference_noise"]] + [r[f"specular_{x:g}_reference_noise"] for x in roughness]
-        lines.append("| " + " | ".join([atlas, "reference noise", "", *(f"{100 * n:.2f}%" for n in noise)]) + " |")
+        lines.append("| " + " | ".join([atlas, "reference noise", "", *(_percent(n) for n in noise)]) + " |")
     order = ["reference"] + [m for m in images if m != "reference"]
     lines += ["", "contact_sheet.png rows, top to bottom: " + ", ".join(order) + "; columns: diffuse, "
               + ", ".join(f"specular r={r:g}" for r in roughness) + "."]  # fmt: skip
     (folder / "compare.md").write_text("\n".join(lines) + "\n")
-    (folder / "compare.json").write_text(json.dumps({"rows": rows}, indent=1, allow_nan=False, default=_none) + "\n")
+    finite = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()} for r in rows]
+    (folder / "compare.json").write_text(json.dumps({"rows": finite}, indent=1, allow_nan=False) + "\n")
     (folder / "contact_sheet.png").write_bytes(png_encode(_sheet(order, images, references, roughness)))
 
 
-def _none(value):
-    return None
+def _percent(value) -> str:
+    """A table cell: '12.34%', '—' for a term the encoding does not model, 'n/a' where the
+    reference is black there (no relative error)."""
+    if value is None:
+        return "—"
+    return f"{100 * value:.2f}%" if math.isfinite(value) else "n/a"
 
 
 def _sheet(order, images, references, roughness) -> np.ndarray:
