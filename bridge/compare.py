@@ -2,7 +2,7 @@
 `core.compare`; `bpy.ops.hhd.compare()`, the CLI's `compare`).
 
 The reference renders: Cycles on the CPU from the scene camera, sample clamps off, no denoising,
-the bake's bounce count, the pixel filter off (a ray through each pixel's centre, as the
+the bake's bounce count (Cycles counts from the camera's hit, which plays the baked point), the pixel filter off (a ray through each pixel's centre, as the
 comparison reads its pixels). Every material is changed for the render only, for camera rays
 only (a Light Path node's Is Camera Ray picks): they see a white Lambertian surface (the diffuse
 reference: radiance = I, docs/conventions.md) or a white GGX Glossy BSDF of each roughness (the
@@ -174,7 +174,7 @@ def _cycles(scene, camera, samples: int, bounces: int) -> None:
     r.filter_size = 0.0
     c = scene.cycles
     c.device, c.samples, c.use_denoising, c.use_adaptive_sampling = 'CPU', samples, False, False
-    c.max_bounces = c.diffuse_bounces = c.glossy_bounces = bounces + 1
+    c.max_bounces = c.diffuse_bounces = c.glossy_bounces = bounces  # the camera's hit is the baked point
     c.transmission_bounces = 0
     c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
     s = r.image_settings
@@ -237,7 +237,8 @@ def run(
     report_dir.mkdir(parents=True, exist_ok=True)
     _write(report_dir, rows, images, references, roughness, camera, samples)
     measured = [r for r in rows if math.isfinite(r["diffuse"])]
-    best = f": lowest diffuse error {min(measured, key=lambda r: r['diffuse'])['model']}" if measured else ""
+    top = min(measured, key=lambda r: r["diffuse"]) if measured else None
+    best = f": lowest diffuse error {top['model']} {100 * top['diffuse']:.1f}%" if top else ""
     return (
         f"Compared {len(set(r['model'] for r in rows))} encodings against Cycles ({camera.width}×{camera.height}, "
         f"{samples} samples) in {report_dir}{best}",
