@@ -500,7 +500,11 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
         help="folder for compare.md, compare.json, contact_sheet.png (default: <out>/compare)",
     )
     q.add_argument(
-        "--samples", type=int, default=256, metavar="N", help="Cycles samples of each reference render (default: 256)"
+        "--cycles-samples",
+        type=int,
+        default=256,
+        metavar="N",
+        help="Cycles samples of each reference (two renders of N/2 with other seeds) (default: 256)",
     )
     q.add_argument(
         "--roughness",
@@ -817,14 +821,14 @@ def _encode(context, args) -> str:
 def _compare(context, args) -> str:
     from .bridge import compare
 
-    if args.samples < 1 or not 1 <= args.percentage <= 100 or any(not 0.0 < r <= 1.0 for r in args.roughness):
-        raise BakeError("compare: --samples ≥ 1, --percentage in 1–100 and --roughness in (0, 1]")
+    if args.cycles_samples < 2 or not 1 <= args.percentage <= 100 or any(not 0.0 < r <= 1.0 for r in args.roughness):
+        raise BakeError("compare: --cycles-samples ≥ 2, --percentage in 1–100 and --roughness in (0, 1]")
     summary, warnings = compare.run(
         context,
         args.objects,
         args.out,
         args.report,
-        samples=args.samples,
+        samples=args.cycles_samples,
         roughness=tuple(args.roughness),
         models=tuple(args.models or compare.core_compare.MODELS),
         percentage=args.percentage,

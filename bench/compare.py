@@ -7,8 +7,8 @@ product's own comparison (`bridge.compare`, `bpy.ops.hhd.compare`) run as an art
 Per scene: unwrap and bake the receivers (the demo room: every mesh; the external scenes: the
 receivers bench/denoise.py picks), then compare every encoding from the scene camera (the
 external scenes have none: one in a corner of the room, `corner_camera`) at three roughness
-values. Writes bench/results/compare/<scene>/ (compare.md, compare.json,
-contact_sheet.png) and bench/results/compare.md, the tables side by side.
+values. Writes bench/results/compare.md (the tables), compare_<scene>.json and
+compare_<scene>_contact_sheet.png.
 """
 
 from __future__ import annotations
@@ -94,9 +94,7 @@ def main() -> int:
         kit.select(receivers)
         assert bpy.ops.hhd.bake() == {'FINISHED'}
         bake_s = time.perf_counter() - t
-        report = RESULTS / "compare" / name
-        if report.exists():
-            shutil.rmtree(report)
+        report = args.out / name / "compare"
         t = time.perf_counter()
         line, warnings = compare.run(
             bpy.context, folder=str(report), samples=args.cycles_samples, percentage=args.percentage
@@ -108,12 +106,15 @@ def main() -> int:
             "",
             f"{len(receivers)} receivers, atlas {args.resolution}², {args.samples} samples, {args.bounces} bounces, "
             f"{'no denoise' if args.no_denoise else 'denoised'}; bake {bake_s:.0f} s, comparison {compare_s:.0f} s (Cycles {args.cycles_samples} samples, "
-            f"{args.percentage}% of the render size). Contact sheet: compare/{name}/contact_sheet.png.",
+            f"{args.percentage}% of the render size). Contact sheet: compare_{name}_contact_sheet.png.",
             "",
             *(report / "compare.md").read_text().splitlines()[4:],
             "",
         ]
-        (report / "settings.json").write_text(json.dumps({k: str(v) for k, v in vars(args).items()}, indent=1))
+        shutil.copyfile(report / "contact_sheet.png", RESULTS / f"compare_{name}_contact_sheet.png")
+        doc = json.loads((report / "compare.json").read_text())
+        doc["settings"] = {k: str(v) for k, v in vars(args).items()}
+        (RESULTS / f"compare_{name}.json").write_text(json.dumps(doc, indent=1) + "\n")
     (RESULTS / "compare.md").write_text("\n".join(summary) + "\n")
     print((RESULTS / "compare.md").read_text())
     return 0

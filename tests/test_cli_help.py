@@ -59,7 +59,7 @@ def exit_codes() -> dict[str, int]:
 def assert_top_level_help(text: str, prog: str) -> None:
     parser = cli._parser(prog)
     names = list(commands(parser))
-    assert set(names) == {"unwrap", "bake", "encode", "blend", "uv-report", "export", "stale"}
+    assert set(names) == {"unwrap", "bake", "encode", "compare", "blend", "uv-report", "export", "stale"}
     head = usage(text)
     assert head.startswith(f"usage: {prog} ")
     assert "{" + ",".join(names) + "}" in head, head  # the usage line lists every command

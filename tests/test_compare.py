@@ -106,7 +106,7 @@ def test_a_sunlit_shadow_is_read_where_cycles_renders_it(extension, restore_hhd_
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     run = cli_run(blend, "bake")
     assert run.returncode == 0, run.stderr + run.stdout
-    args = ("--models", "hhd", "sh_l2", "--roughness", "--samples", "64", "--percentage", "50")
+    args = ("--models", "hhd", "sh_l2", "--roughness", "--cycles-samples", "64", "--percentage", "50")
     run = cli_run(blend, "compare", "--report", str(tmp_path / "cli"), *args)
     assert run.returncode == 0, run.stderr + run.stdout
     rows = json.loads((tmp_path / "cli" / "compare.json").read_text())["rows"]
