@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import bpy
 
-from .node_groups import Builder
+from .node_groups import Builder, _new_tree
 
 VERSION = 1
 TAPS_GROUP = "HHD Catmull-Rom Taps"
@@ -26,16 +26,6 @@ SUM_GROUP = "HHD Catmull-Rom Sum"
 TAPS = 16
 #: The preview layers clamped after the blend: (low, high) (I_z ≥ 0, w_a in [0, 1]).
 CLAMPED = {"iz": (0.0, None), "wa": (0.0, 1.0)}
-
-
-def _new_tree(name: str):
-    tree = bpy.data.node_groups.get(name)
-    if tree is None:
-        tree = bpy.data.node_groups.new(name, 'ShaderNodeTree')
-    tree.nodes.clear()
-    tree.interface.clear()
-    tree["hhd_version"] = VERSION
-    return tree
 
 
 def _weights(b: Builder, t) -> list:
@@ -53,7 +43,7 @@ def _weights(b: Builder, t) -> list:
 
 
 def build_taps():
-    tree = _new_tree(TAPS_GROUP)
+    tree = _new_tree(TAPS_GROUP, VERSION)
     tree.interface.new_socket("UV", in_out='INPUT', socket_type='NodeSocketVector')
     size = tree.interface.new_socket("Size", in_out='INPUT', socket_type='NodeSocketVector')
     size.default_value = (256.0, 256.0, 1.0)
@@ -76,7 +66,7 @@ def build_taps():
 
 
 def build_sum():
-    tree = _new_tree(SUM_GROUP)
+    tree = _new_tree(SUM_GROUP, VERSION)
     for k in range(TAPS):
         tree.interface.new_socket(f"Color {k}", in_out='INPUT', socket_type='NodeSocketColor')
         tree.interface.new_socket(f"Weight {k}", in_out='INPUT', socket_type='NodeSocketFloat')

@@ -123,13 +123,14 @@ def _interface(tree, inputs, outputs):
         tree.interface.new_socket(name, in_out='OUTPUT', socket_type='NodeSocketColor')
 
 
-def _new_tree(name: str):
+def _new_tree(name: str, version: int = GROUP_VERSION):
+    """The shader node group `name`, emptied (created if missing), marked with `version`."""
     tree = bpy.data.node_groups.get(name)
     if tree is None:
         tree = bpy.data.node_groups.new(name, 'ShaderNodeTree')
     tree.nodes.clear()
     tree.interface.clear()
-    tree["hhd_version"] = GROUP_VERSION
+    tree["hhd_version"] = version
     return tree
 
 
