@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hhd_lightmapper.core import hhd, light_sets, octahedral, sh
+from hhd_lightmapper.core import hhd, light_sets, octahedral, sh, textures
 from hhd_lightmapper.core.encoding import web_packing
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -195,23 +195,37 @@ def sample_direction(direction: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return np.where(length > 1e-6, s / np.maximum(length, 1e-30), direction[y0, x0])
 
 
-def sample_params(layers: dict, uv: np.ndarray) -> hhd.HHDParams:
-    """HHD parameters (N,) at glTF UVs, each texture bilinear over decoded texels (docs/gltf.md):
+#: the lightmap filters of the plugin (web/src/HHDLightmapPlugin.js FILTERS)
+FILTERS = ("bilinear", "bicubic")
+
+
+def sample_params(layers: dict, uv: np.ndarray, filter: str = "bilinear") -> hhd.HHDParams:
+    """HHD parameters (N,) at glTF UVs, each texture filtered over decoded texels (docs/gltf.md):
     I_z decoded then blended, d decoded to unit vectors then blended and normalised, w_a (linear
-    in its bytes) blended."""
-    iz = web_packing.sample_bilinear(layers["iz"], uv)
+    in its bytes) blended. `filter` "bilinear", or "bicubic": I_z and w_a by
+    core.textures.sample_bicubic (Catmull-Rom, clamp to edge), I_z clamped at 0 and w_a to [0, 1]
+    (docs/format.md "Bicubic sampling"); d stays bilinear."""
+    if filter not in FILTERS:
+        raise ValueError(f"unknown filter {filter!r}: one of {FILTERS}")
     d = sample_direction(layers["dir"], uv)
-    wa_all = web_packing.sample_bilinear(layers["wa"], uv)
+    if filter == "bicubic":
+        iz = textures.sample_bicubic(layers["iz"], uv, clamp=True, nonnegative=True)
+        wa_all = np.clip(textures.sample_bicubic(layers["wa"], uv, clamp=True), 0.0, 1.0)
+    else:
+        iz = web_packing.sample_bilinear(layers["iz"], uv)
+        wa_all = web_packing.sample_bilinear(layers["wa"], uv)
     wa = wa_all[:, [CHANNEL[c] for c in layers["wa_channels"]]]
     wa = wa[:, 0] if wa.shape[1] == 1 else wa
     return hhd.HHDParams(irradz=iz, ambient_weight=wa, direction=d, model="hhd")
 
 
-def reference(glb: Glb, gbuffer: dict, weights: dict | None = None, blend: bool = False) -> np.ndarray:
+def reference(
+    glb: Glb, gbuffer: dict, weights: dict | None = None, blend: bool = False, filter: str = "bilinear"
+) -> np.ndarray:
     """The numpy decode of the file at the G-buffer's pixels: albedo × I (H, W, 3), I from
     core.hhd.reconstruct at the browser's shading normal n and vertex normal n_v, I_z / w_a / d
-    bilinear at its lightmap UV (and with `blend`, core.light_sets.blend of the sets' layers at
-    RGB `weights` {set: rgb})."""
+    sampled at its lightmap UV as `filter` says (`sample_params`; and with `blend`,
+    core.light_sets.blend of the sets' layers at RGB `weights` {set: rgb})."""
     uvb, nvb, nb, albedo = gbuffer["uv"], gbuffer["nv"], gbuffer["n"], gbuffer["albedo"]
     h, w = uvb.shape[:2]
     out = np.zeros((h, w, 3))
@@ -225,14 +239,14 @@ def reference(glb: Glb, gbuffer: dict, weights: dict | None = None, blend: bool 
         n = unit(nb[sel][:, :3].astype(np.float64))
         if blend and atlas["lightSets"]:
             names = [s["name"] for s in glb.ext["lightSets"]]
-            params = [sample_params(glb.layers(s), uv) for s in atlas["lightSets"]]
+            params = [sample_params(glb.layers(s), uv, filter) for s in atlas["lightSets"]]
             wts = light_sets.weight_array(
                 names, {**{s["name"]: s["weight"] for s in glb.ext["lightSets"]}, **(weights or {})}
             )
             wts = wts[[s["set"] for s in atlas["lightSets"]]]
             p = light_sets.blend(params, nv, wts)
         else:
-            p = sample_params(glb.layers(atlas), uv)
+            p = sample_params(glb.layers(atlas), uv, filter)
         p.model = atlas.get("model", "hhd")
         out[sel] = albedo[sel][:, :3] * hhd.reconstruct(p, nv, n)
     return out
@@ -318,13 +332,22 @@ def _lookat_quaternion(eye, target, up=(0.0, 1.0, 0.0)):
 
 
 def synthetic_glb(
-    path: Path, seed: int = 0, size: int = 64, with_sets: bool = True, probes: bool = True, fold: bool = False
+    path: Path,
+    seed: int = 0,
+    size: int = 64,
+    with_sets: bool = True,
+    probes: bool = True,
+    fold: bool = False,
+    edge: bool = False,
 ) -> Path:
     """A bumpy 2 m grid (normal-mapped, on TEXCOORD_0) receiving a size² HHD atlas on TEXCOORD_1,
     RGBM I_z, octahedral d + luminance w_a in one PNG, and (with_sets) two light sets; (probes) a
     box without a lightmap inside a 4×3×4 probe volume of random L2 SH; a camera. With `fold` the
     directions straddle the octahedral map's fold: glTF z < 0 (the folded half) and x changing
-    sign every few texels, so neighbouring texels' encodings lie on opposite edges of the map."""
+    sign every few texels, so neighbouring texels' encodings lie on opposite edges of the map.
+    With `edge` a sharp shadow: inside a disc (not aligned with the texel grid) I_z drops to 2 % and
+    w_a steps from 0 to 1, where Catmull-Rom overshoots (I_z < 0, w_a outside [0, 1] before the
+    clamps) and differs most from bilinear."""
     rng = np.random.default_rng(seed)
     n = 24
     gx, gz = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
@@ -353,6 +376,11 @@ def synthetic_glb(
             x = 0.35 * np.sign(np.sin(np.pi * (np.arange(size)[None, :] + 8.0 * t[..., 0]) / 3.0))
             d = unit(np.stack([x * (0.6 + 0.4 * t[..., 1]), np.ones((size, size)), -0.3 - 0.3 * t[..., 1]], -1))
         wa = 0.15 + 0.7 * t[..., 2]
+        if edge:
+            yy, xx = np.mgrid[0:size, 0:size] + 0.5
+            shadow = np.hypot(xx - 0.53 * size, yy - 0.47 * size) < 0.29 * size
+            iz = np.where(shadow[..., None], 0.02 * iz, iz)
+            wa = np.where(shadow, 1.0, 0.0)
         return iz, d, wa
 
     layers = [layer_images(1.0)]

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import hhd, light_sets, octahedral, sh
+from hhd_lightmapper.core import hhd, light_sets, octahedral, sh, textures
 from hhd_lightmapper.core.encoding import web_packing
 from scenekit import web_harness
 
@@ -46,11 +46,12 @@ def browser(tmp_path_factory):
     print("\nweb runtime figures:", json.dumps(FIGURES, indent=1))
 
 
-def compare(browser, glb_path, width, height, blend=False, weights=None) -> dict:
-    """Lightmap-only render vs the numpy decode at the browser's G-buffer: relative errors."""
+def compare(browser, glb_path, width, height, blend=False, weights=None, filter="bilinear") -> dict:
+    """Lightmap-only render vs the numpy decode at the browser's G-buffer (its lightmap sampled
+    as `filter` says: web_harness.sample_params): relative errors."""
     gbuf = web_harness.gbuffer(browser, width, height, blend=blend, weights=weights)
     got = browser.render("lightmap", width, height, blend=blend, weights=weights)
-    want = web_harness.reference(web_harness.Glb(glb_path), gbuf, weights=weights, blend=blend)
+    want = web_harness.reference(web_harness.Glb(glb_path), gbuf, weights=weights, blend=blend, filter=filter)
     mask = gbuf["uv"][..., 3] > 0
     err = web_harness.relative_errors(got, want, mask)
     assert err.size > 0.2 * width * height, f"only {err.size} receiver pixels"
@@ -150,6 +151,70 @@ def test_probe_volume_lights_meshes_without_a_lightmap_as_the_numpy_trilinear_sh
         "max": float(err.max()),
     }
     assert figures["median"] <= 1e-4 and figures["p95"] <= 1e-3, figures
+
+
+def test_bicubic_option_renders_as_numpy_catmull_rom_with_the_documented_clamps(browser, synthetic, tmp_path):
+    """`filter: 'bicubic'` (docs/format.md "Bicubic sampling"): I_z and w_a Catmull-Rom over 4 × 4
+    decoded texels, I_z clamped at 0 and w_a to [0, 1], d bilinear. On a 24² atlas with a sharp
+    disc-shaped shadow (I_z down to 2 %, w_a 0 → 1: the kernel overshoots both) the lightmap-only
+    render equals the numpy reference (core.textures.sample_bicubic of the decoded textures at the
+    G-buffer UVs) and the I_z / w_a the shader used (DEBUG.HHD) equal the clamped reference, where
+    the unclamped one leaves [0, ∞) and [0, 1]; near the edge bicubic differs from bilinear by far
+    more than the tolerance (the test fails if the option is ignored), and without the option the
+    same file renders bilinear. Then the light-set blend of the synthetic file with bicubic sets."""
+    glb = web_harness.synthetic_glb(tmp_path / "edge.glb", seed=3, size=24, with_sets=False, probes=False, edge=True)
+    w, h = 128, 128
+    summary = browser.load(glb, filter="bicubic")
+    assert summary["filter"] == "bicubic" and summary["warnings"] == [], summary
+    FIGURES["bicubic_edge"] = figures = compare(browser, glb, w, h, filter="bicubic")
+    assert figures["median"] <= 1e-4 and figures["p95"] <= 1e-3, figures
+    # the clamps: the parameters the shader reconstructed from vs the reference's
+    gbuf = web_harness.gbuffer(browser, w, h)
+    mask = gbuf["uv"][..., 3] > 0
+    uv = gbuf["uv"][mask][:, :2].astype(np.float64)
+    doc = web_harness.Glb(glb)
+    layers = doc.layers(doc.ext["atlases"][0])
+    want = web_harness.sample_params(layers, uv, "bicubic")
+    used = browser.render("hhd", w, h)[mask].astype(np.float64)
+    iz_raw = textures.sample_bicubic(layers["iz"], uv, clamp=True)
+    wa_raw = textures.sample_bicubic(layers["wa"], uv, clamp=True)[:, web_harness.CHANNEL["b"]]
+    assert iz_raw.min() < -0.01 * iz_raw.max() and wa_raw.min() < -0.01 and wa_raw.max() > 1.01
+    iz_err = float(np.abs(used[:, :3] - want.irradz).max() / want.irradz.max())
+    wa_err = float(np.abs(used[:, 3] - want.ambient_weight).max())
+    # the bilinear reference of the same pixels, and the bicubic render against it
+    bilinear = web_harness.reference(doc, gbuf, filter="bilinear")
+    got = browser.render("lightmap", w, h)
+    vs_bilinear = web_harness.relative_errors(got, bilinear, mask)
+    FIGURES["bicubic_edge"].update(
+        {
+            "iz_max_err_of_max": iz_err,
+            "wa_max_err": wa_err,
+            "iz_undershoot_of_max": float(-iz_raw.min() / iz_raw.max()),
+            "wa_range_unclamped": [float(wa_raw.min()), float(wa_raw.max())],
+            "vs_bilinear_p95": float(np.percentile(vs_bilinear, 95)),
+            "vs_bilinear_over_5pct": float((vs_bilinear > 0.05).mean()),
+        }
+    )
+    assert iz_err <= 1e-5 and wa_err <= 1e-5, figures
+    assert used[:, :3].min() >= 0.0 and 0.0 <= used[:, 3].min() and used[:, 3].max() <= 1.0
+    assert np.percentile(vs_bilinear, 95) > 0.05 and (vs_bilinear > 0.05).mean() > 0.02, figures
+    # without the option (and no hint in the file): bilinear, as before
+    summary = browser.load(glb)
+    assert summary["filter"] == "bilinear", summary
+    FIGURES["bicubic_edge_default"] = default = compare(browser, glb, w, h)
+    assert default["median"] <= 1e-4 and default["p95"] <= 1e-3, default
+    # light sets: each set's I_z and w_a bicubic, then the blend
+    summary = browser.load(synthetic, filter="bicubic")
+    assert summary["filter"] == "bicubic" and summary["lightSets"] == ["Lamps", "Sky"], summary
+    weights = {"Lamps": [1.0, 0.5, 0.25], "Sky": [0.3, 0.3, 2.0]}
+    FIGURES["bicubic_blend"] = figures = compare(
+        browser, synthetic, 128, 128, blend=True, weights=weights, filter="bicubic"
+    )
+    assert figures["median"] <= 1e-4 and figures["p95"] <= 1e-3, figures
+    assert [e for e in browser.errors() if "favicon" not in e] == []
+    with pytest.raises(RuntimeError, match="unknown filter 'lanczos'"):
+        browser.load(glb, filter="lanczos")
+    browser.errors()
 
 
 def _random_sets(rng, n, k):
@@ -287,3 +352,29 @@ def test_stock_gltfloader_loads_the_export_and_shows_the_fallback(browser, expor
     lit = float((lum[mask] > 1e-3).mean())
     FIGURES["stock_fallback_lit_fraction"] = lit
     assert lit >= 0.95, lit
+
+
+def test_exporter_requests_the_preview_filter_and_the_plugin_honours_it(browser, exported, tmp_path):
+    """The export's root `filter` is the EEVEE preview's Filter ("bilinear" in the fixture's export);
+    with Filter: Bicubic the file asks for "bicubic", the plugin without options renders the real
+    bake bicubic (as the numpy Catmull-Rom decode, the exported test's bounds), and the option
+    `filter: 'bilinear'` overrides the hint."""
+    import bpy
+
+    assert web_harness.Glb(exported).ext["filter"] == "bilinear"
+    scene = bpy.context.scene
+    scene.hhd.preview_filter = 'BICUBIC'
+    try:
+        out = tmp_path / "bicubic.glb"
+        assert bpy.ops.export_scene.gltf(filepath=str(out), export_format='GLB', export_cameras=True) == {"FINISHED"}
+    finally:
+        scene.hhd.preview_filter = 'BILINEAR'
+    assert web_harness.Glb(out).ext["filter"] == "bicubic"
+    summary = browser.load(out)
+    assert summary["filter"] == "bicubic" and summary["warnings"] == [], summary
+    FIGURES["exported_bicubic"] = figures = compare(browser, out, 192, 144, filter="bicubic")
+    assert figures["median"] <= 0.01 and figures["p95"] <= 0.04, figures
+    assert browser.load(out, filter="bilinear")["filter"] == "bilinear"
+    FIGURES["exported_bicubic_overridden"] = figures = compare(browser, out, 192, 144)
+    assert figures["median"] <= 0.01 and figures["p95"] <= 0.04, figures
+    assert [e for e in browser.errors() if "favicon" not in e] == []

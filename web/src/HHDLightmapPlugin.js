@@ -5,6 +5,7 @@
 //
 //   const loader = new GLTFLoader().register((parser) => new HHDLightmapPlugin(parser));
 //   const gltf = await loader.loadAsync('level.glb');   // gltf.userData.hhdLightmap: the controls
+//   new HHDLightmapPlugin(parser, { filter: 'bicubic' })  // Catmull-Rom I_z and w_a (default: the file's hint)
 //
 // Receivers keep their MeshStandardMaterial / MeshPhysicalMaterial (their lights, normal maps,
 // specular and environment still work); `onBeforeCompile` replaces three.js's lightmap term with
@@ -101,6 +102,54 @@ vec4 hhdBilinearRaw(sampler2D tex, vec2 uv) {                    // unorm8 data 
 vec3 hhdWorld(vec3 viewDir) { return normalize((vec4(viewDir, 0.0) * viewMatrix).xyz); }
 `;
 
+// The `filter: 'bicubic'` option (docs/format.md "Bicubic sampling"): Catmull-Rom over the 4 × 4
+// texels around uv, each texel decoded first (the packings are not linear, so docs/format.md's
+// 9-tap form, which lets the hardware blend pairs of texels, would blend encoded bytes here): 16
+// texelFetch, the same weights as the 9 taps (they merge the middle two texels of each axis
+// exactly). Indices clamped to the edge as core.textures.sample_bicubic(clamp=True); the caller
+// clamps the result (I_z ≥ 0 inside HHD_BICUBIC, w_a to [0, 1] in readLayerGLSL).
+const BICUBIC_GLSL = /* glsl */ `
+vec4 hhdCatmullRom(float t) {   // weights of the texels at offsets -1, 0, 1, 2 from t in [0, 1)
+  return vec4(t * (-0.5 + t * (1.0 - 0.5 * t)), 1.0 + t * t * (-2.5 + 1.5 * t),
+              t * (0.5 + t * (2.0 - 1.5 * t)), t * t * (-0.5 + 0.5 * t));
+}
+#define HHD_BICUBIC(NAME, TEX, DECODE)                                                           \\
+vec3 NAME(vec2 uv, float range) {                                                                \\
+  ivec2 size = textureSize(TEX, 0);                                                              \\
+  vec2 p = uv * vec2(size) - 0.5;                                                                \\
+  vec2 fl = floor(p);                                                                            \\
+  vec4 wx = hhdCatmullRom(p.x - fl.x), wy = hhdCatmullRom(p.y - fl.y);                           \\
+  ivec2 i0 = ivec2(fl) - 1;                                                                      \\
+  vec3 s = vec3(0.0);                                                                            \\
+  for (int j = 0; j < 4; ++j) {                                                                  \\
+    int y = clamp(i0.y + j, 0, size.y - 1);                                                      \\
+    vec3 row = vec3(0.0);                                                                        \\
+    for (int i = 0; i < 4; ++i)                                                                  \\
+      row += wx[i] * DECODE(texelFetch(TEX, ivec2(clamp(i0.x + i, 0, size.x - 1), y), 0), range); \\
+    s += wy[j] * row;                                                                            \\
+  }                                                                                              \\
+  return max(s, 0.0);                                                                            \\
+}
+vec4 hhdBicubicRaw(sampler2D tex, vec2 uv) {                     // unorm8 data that is linear (w_a)
+  ivec2 size = textureSize(tex, 0);
+  vec2 p = uv * vec2(size) - 0.5;
+  vec2 fl = floor(p);
+  vec4 wx = hhdCatmullRom(p.x - fl.x), wy = hhdCatmullRom(p.y - fl.y);
+  ivec2 i0 = ivec2(fl) - 1;
+  vec4 s = vec4(0.0);
+  for (int j = 0; j < 4; ++j) {
+    int y = clamp(i0.y + j, 0, size.y - 1);
+    vec4 row = vec4(0.0);
+    for (int i = 0; i < 4; ++i) row += wx[i] * texelFetch(tex, ivec2(clamp(i0.x + i, 0, size.x - 1), y), 0);
+    s += wy[j] * row;
+  }
+  return s;
+}
+`;
+
+/** The lightmap filters the plugin knows (option `filter`, the file's root `filter` hint). */
+export const FILTERS = Object.freeze(['bilinear', 'bicubic']);
+
 // The direction d: each of the four texels decoded to a unit vector (octahedral), the vectors
 // blended with the bilinear weights and normalised (docs/gltf.md "Filtering"). Blending the
 // encoded bytes instead is wrong where the octahedral map folds (directions near the lower
@@ -128,14 +177,16 @@ vec3 ${name}(vec2 uv) {
 
 const CHANNELS = { r: 0, g: 1, b: 2, a: 3 };
 
-/** GLSL that reads one layer set (I_z, w_a, d) into an HHDTexel `dst` at `uv`. */
-function readLayerGLSL(layer, dst, uv) {
+/** GLSL that reads one layer set (I_z, w_a, d) into an HHDTexel `dst` at `uv`; `bicubic`: I_z
+ * and w_a Catmull-Rom (clamped: I_z ≥ 0, w_a in [0, 1]), d bilinear either way. */
+function readLayerGLSL(layer, dst, uv, bicubic) {
   const { prefix, packing, waChannels, dirChannels, waSeparate } = layer;
-  const wa = `hhdBilinearRaw(${waSeparate ? `${prefix}Wa` : `${prefix}Dir`}, ${uv})`;
-  const waExpr =
+  const wa = `${bicubic ? 'hhdBicubicRaw' : 'hhdBilinearRaw'}(${waSeparate ? `${prefix}Wa` : `${prefix}Dir`}, ${uv})`;
+  let waExpr =
     waChannels.length === 3
       ? `${wa}.${waChannels}`
       : `vec3(${wa}.${waChannels})`;
+  if (bicubic) waExpr = `clamp(${waExpr}, 0.0, 1.0)`;
   return `
   {
     ${dst}.Iz = ${prefix}Iz_${packing}(${uv}, ${prefix}Range);
@@ -144,7 +195,7 @@ function readLayerGLSL(layer, dst, uv) {
   }`;
 }
 
-function layerDeclGLSL(layer) {
+function layerDeclGLSL(layer, bicubic) {
   const { prefix, packing, waSeparate, dirChannels } = layer;
   if (!/^[rgba]{2}$/.test(dirChannels)) throw new Error(`${EXTENSION}: direction channels '${dirChannels}'`);
   return `
@@ -152,17 +203,19 @@ uniform sampler2D ${prefix}Iz;
 uniform sampler2D ${prefix}Dir;
 ${waSeparate ? `uniform sampler2D ${prefix}Wa;` : ''}
 uniform float ${prefix}Range;
-HHD_BILINEAR(${prefix}Iz_${packing}, ${prefix}Iz, hhdUnpack_${packing})
+${bicubic ? 'HHD_BICUBIC' : 'HHD_BILINEAR'}(${prefix}Iz_${packing}, ${prefix}Iz, hhdUnpack_${packing})
 ${directionGLSL(`${prefix}Dir_oct`, `${prefix}Dir`, dirChannels)}`;
 }
 
 /** The fragment code that replaces three.js's lightmap term (docs/format.md, "Reconstruction"). */
 function receiverGLSL(spec) {
-  const { layers, sets, ahd, selfBounce } = spec;
+  const { layers, sets, ahd, selfBounce, filter } = spec;
+  const bicubic = filter === 'bicubic';
   const packings = [...new Set(layers.map((l) => l.packing).concat(sets.map((s) => s.packing)))];
   let decl = `${HHD_COMMON}\n${packings.includes('logluv') ? LOGLUV_GLSL : ''}${packings.map(packingGLSL).join('')}${FETCH_GLSL}`;
-  decl += layers.map(layerDeclGLSL).join('');
-  decl += sets.map(layerDeclGLSL).join('');
+  if (bicubic) decl += BICUBIC_GLSL;
+  decl += layers.map((l) => layerDeclGLSL(l, bicubic)).join('');
+  decl += sets.map((s) => layerDeclGLSL(s, bicubic)).join('');
   decl += `uniform int hhdDebug;\nuniform float hhdAtlasIndex;\n`;
   if (sets.length) {
     decl += sets.map((s, i) => `uniform vec3 hhdSetWeight${i};\n`).join('');
@@ -173,13 +226,13 @@ function receiverGLSL(spec) {
   vec3 hhdNv = hhdWorld(nonPerturbedNormal);
   vec3 hhdN = hhdWorld(normal);
   HHDTexel hhdTexel;
-  ${readLayerGLSL(layers[0], 'hhdTexel', 'hhdUv')}`;
+  ${readLayerGLSL(layers[0], 'hhdTexel', 'hhdUv', bicubic)}`;
   if (sets.length) {
     body += `
   if (hhdBlendSets) {
     HHDTexel hhdSets[${sets.length}];
     vec3 hhdW[${sets.length}];
-    ${sets.map((s, i) => readLayerGLSL(s, `hhdSets[${i}]`, 'hhdUv') + `\n    hhdW[${i}] = hhdSetWeight${i};`).join('\n')}
+    ${sets.map((s, i) => readLayerGLSL(s, `hhdSets[${i}]`, 'hhdUv', bicubic) + `\n    hhdW[${i}] = hhdSetWeight${i};`).join('\n')}
     hhdTexel = hhdBlend${sets.length}(hhdSets, hhdW, hhdNv);
   }`;
   }
@@ -310,6 +363,7 @@ export class HHDLightmapControls {
       hhdDebug: { value: DEBUG.OFF },
       hhdBlendSets: { value: (root.lightSets || []).length > 0 },
     };
+    this.filter = 'bilinear'; // the lightmap filter the receivers use (FILTERS; the plugin sets it)
     this.lightSets = (root.lightSets || []).map((s) => s.name);
     this.weights = (root.lightSets || []).map((s) => new Vector3(...(s.weight || [1, 1, 1])));
   }
@@ -334,11 +388,26 @@ export class HHDLightmapControls {
 }
 
 export class HHDLightmapPlugin {
-  /** options: { selfBounce: false, probes: true, lightSets: true } */
+  /** options: { selfBounce: false, probes: true, lightSets: true, filter: undefined }; `filter`
+   * ('bilinear' | 'bicubic', FILTERS) overrides the file's hint (root `filter`, written by the
+   * exporter); neither: bilinear. */
   constructor(parser, options = {}) {
     this.name = EXTENSION;
     this.parser = parser;
-    this.options = { selfBounce: false, probes: true, lightSets: true, ...options };
+    this.options = { selfBounce: false, probes: true, lightSets: true, filter: undefined, ...options };
+    const f = this.options.filter;
+    if (f !== undefined && f !== null && !FILTERS.includes(f)) {
+      throw new Error(`${EXTENSION}: unknown filter '${f}' (one of ${FILTERS.join(', ')})`);
+    }
+  }
+
+  /** The filter the receivers use: the option, else the file's hint, else bilinear. */
+  resolveFilter(root, controls) {
+    if (this.options.filter) return this.options.filter;
+    if (root.filter === undefined) return 'bilinear';
+    if (FILTERS.includes(root.filter)) return root.filter;
+    controls.warnings.push(`unknown filter '${root.filter}' in the file: bilinear`);
+    return 'bilinear';
   }
 
   async afterRoot(result) {
@@ -349,6 +418,7 @@ export class HHDLightmapPlugin {
     if (root.version !== 1) console.warn(`${EXTENSION}: version ${root.version}, this runtime reads 1`);
     const controls = new HHDLightmapControls(root);
     if (!this.options.lightSets) controls.setBlend(false);
+    controls.filter = this.resolveFilter(root, controls);
     result.userData = result.userData || {};
     result.userData.hhdLightmap = controls;
 
@@ -484,6 +554,7 @@ export class HHDLightmapPlugin {
             sets: sets.map((s) => s.glsl),
             ahd: atlas.model === 'ahd',
             selfBounce: this.options.selfBounce,
+            filter: controls.filter,
           };
           patchMaterial(m, receiverGLSL(spec), uniforms, `hhd|${JSON.stringify(spec)}`);
           m.userData.hhdReceiver = { node, atlas: ext.atlas };

@@ -1,2 +1,2 @@
-export { DEBUG, EXTENSION, HHDLightmapControls, HHDLightmapPlugin } from './HHDLightmapPlugin.js';
+export { DEBUG, EXTENSION, FILTERS, HHDLightmapControls, HHDLightmapPlugin } from './HHDLightmapPlugin.js';
 export { HHD_COMMON, blendGLSL } from './shaders.js';

@@ -79,6 +79,7 @@ async function load({ url, plugin = true, options = {} }) {
     probeLit: c ? c.probeLit.length : 0,
     lightSets: c ? c.lightSets : [],
     warnings: c ? c.warnings : [],
+    filter: c ? c.filter : null,
     emissiveMaps: meshes.filter((m) => [].concat(m.material).some((x) => x.emissiveMap)).length,
   };
 }
