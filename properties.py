@@ -268,12 +268,15 @@ class HHDSettings(bpy.types.PropertyGroup):
             (
                 'SPECULAR',
                 "Specular",
-                "GGX specular from the lightmap (HHD, AHD, L1/L2 SH; docs/format.md, \"Specular\"): "
+                "GGX specular from the lightmap (HHD, AHD, L1/L2 SH, SG; docs/format.md): "
                 "Principled Roughness (α = R²) and F0 (IOR, Specular IOR Level, Metallic)",
             ),
             ('BOTH', "Both", "Albedo × (1 − Metallic) × irradiance + specular"),
         ],
-        description="What the EEVEE preview shows; encodings without a specular model show diffuse (applies at Show Preview)",
+        description=(
+            "What the EEVEE preview shows; HL2, H-basis and Scalar have no specular model: they show diffuse, "
+            "with a warning naming them (applies at Show Preview)"
+        ),
     )
     preview_filter: EnumProperty(
         name="Filter",
@@ -285,6 +288,13 @@ class HHDSettings(bpy.types.PropertyGroup):
                 "Bicubic",
                 "Catmull-Rom over 4 × 4 texels (docs/format.md, \"Bicubic sampling\"): sharper, smoother shadow "
                 "edges at low resolution; needs 2 texels of gutter (Mip Levels ≥ 1)",
+            ),
+            (
+                'BSPLINE',
+                "B-spline (prefiltered)",
+                "The cubic B-spline whose mean over every texel is the texel (docs/format.md, \"Prefiltered "
+                "B-spline\"): closest to a sharp shadow at low resolution; reads coefficient images made from the "
+                "preview images on first use; needs 2 texels of gutter",
             ),
         ],
         description="How the EEVEE preview samples the lightmap images (applies at Show Preview)",

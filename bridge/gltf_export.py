@@ -495,11 +495,18 @@ def _build(state: _State, scene_plan) -> None:
         state.exported.append(name)
 
     weights = _light_set_weights(scene, set_names)
+    if settings.preview_filter == 'BSPLINE':
+        state.warn(
+            "the preview's filter 'B-spline (prefiltered)' needs coefficient textures the export does not "
+            "write: the file asks the runtime for Catmull-Rom ('bicubic') instead"
+        )
     root = {
         "version": VERSION,
         "frame": "gltf" if state.yup else "blender_z_up",
         "units": "irradiance_over_pi",
         "threeLightMapIntensity": math.pi,
+        # the runtime's lightmap filter: what the EEVEE preview shows (web/: the plugin's default)
+        "filter": "bicubic" if settings.preview_filter in {'BICUBIC', 'BSPLINE'} else "bilinear",
         "atlases": root_atlases,
         "lightSets": [{"name": n, "weight": w} for n, w in zip(set_names, weights)],
         "probeVolumes": _probe_volumes(b, folder, set_index, state.yup, state),

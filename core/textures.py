@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,6 +110,81 @@ def sample_bicubic(
             weight = wx[:, i] * wy[:, j]
             out += weight.reshape((-1,) + (1,) * (out.ndim - 1)) * image[row, col]
     return np.maximum(out, 0.0) if nonnegative else out
+
+
+#: A texel holds the mean of its 1 × 1 footprint (the bake averages the texel's box), so the cubic
+#: B-spline f(x) = Σ_j c_j β3(x − j) that the texels describe is the one whose means over the
+#: texels are the texels: per axis, (β3 ∗ box)(k) = β4(k) at the integers, the quartic B-spline's
+#: values (1, 76, 230, 76, 1)/384. Interpolating the texel values as if they were point samples
+#: (kernel (1, 4, 1)/6) blurs a shadow's edge more.
+AREA_KERNEL = np.array([1.0, 76.0, 230.0, 76.0, 1.0]) / 384.0
+#: AREA_KERNEL's z-transform's roots inside the unit circle (the others are their inverses).
+_AREA_POLES = tuple(float(z) for z in np.sort(np.roots(AREA_KERNEL * 384.0).real) if abs(z) < 1.0)
+#: Unfilled texels (outside the charts and their gutter) are given their nearest filled
+#: neighbours' mean this many rings out before the prefilter: its response decays by |pole| ≈ 0.36
+#: per texel, so a step left at the gutter's edge would ring into the chart.
+FILL_RINGS = 8
+
+
+def bspline_coefficients(image: np.ndarray, filled: np.ndarray | None = None) -> np.ndarray:
+    """The cubic B-spline coefficients `(H, W, C)` float32 of `image` `(H, W, C)` (texel means):
+    `sample_bicubic(coefficients, uv, kernel="bspline")` is the smooth surface whose mean over
+    every texel is that texel (AREA_KERNEL per axis, solved exactly by the recursive filter of
+    its poles, mirrored at the image's borders). `filled` `(H, W)` bool marks the texels that
+    hold data; the others first take a nearest filled texel's value (FILL_RINGS). Non-finite
+    texels count as unfilled. The coefficients overshoot next to a step (negative next to
+    black): clamp after sampling. Values beyond float32's range are clipped to it."""
+    image = np.asarray(image)
+    planes = image[..., None] if image.ndim == 2 else image
+    finite = np.isfinite(planes).all(axis=-1)
+    known = finite if filled is None else (np.asarray(filled, bool) & finite)
+    source = _nearest_filled(known).ravel()
+    unknown = np.flatnonzero(~known)
+    far = unknown[source[unknown] >= 0]
+    big = float(np.finfo(np.float32).max)
+    out = np.empty(planes.shape, np.float32)
+    for c in range(planes.shape[-1]):
+        work = np.array(planes[..., c], dtype=np.float64, order="C")
+        flat = work.reshape(-1)
+        near = flat[source[far]]
+        flat[unknown] = 0.0
+        flat[far] = near
+        _deconvolve(work)
+        out[..., c] = np.clip(work, -big, big)  # a step of float32's largest overshoots past it
+    return out if image.ndim == 3 else out[..., 0]
+
+
+def _nearest_filled(known: np.ndarray) -> np.ndarray:
+    """`(H, W)` int64: the flat index of a nearest `known` texel (4-neighbour rings, FILL_RINGS
+    out), −1 where none is that close."""
+    h, w = known.shape
+    source = np.where(known, np.arange(h * w).reshape(h, w), -1)
+    for _ in range(FILL_RINGS):
+        if (source >= 0).all():
+            break
+        s = source
+        for dst, src in ((s[1:], s[:-1]), (s[:-1], s[1:]), (s[:, 1:], s[:, :-1]), (s[:, :-1], s[:, 1:])):
+            take = (dst < 0) & (src >= 0)
+            dst[take] = src[take]
+    return source
+
+
+def _deconvolve(x: np.ndarray) -> np.ndarray:
+    """`x` `(H, W)` float64 (C-contiguous), in place: convolved along its rows, then its
+    columns, with AREA_KERNEL's inverse (`texture_kernels`), split over every core."""
+    from . import parallel, texture_kernels
+
+    kernels = texture_kernels.get()
+    poles = np.array(_AREA_POLES)
+    gain = float(np.prod([(1.0 - z) * (1.0 - 1.0 / z) for z in poles]))
+    threads = parallel.machine_threads()
+    with ThreadPoolExecutor(threads) as pool:
+        for kernel, n, m in ((kernels.deconvolve_rows, *x.shape), (kernels.deconvolve_columns, *x.shape[::-1])):
+            horizons = np.array([min(m, int(np.ceil(np.log(1e-17) / np.log(abs(z)))) + 1) for z in poles])
+            bounds = np.linspace(0, n, min(n, 4 * threads) + 1).astype(int)
+            runs = [(bounds[k], bounds[k + 1], poles, horizons, gain) for k in range(len(bounds) - 1)]
+            list(pool.map(lambda run, kernel=kernel: kernel(x, *run), runs))
+    return x
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:

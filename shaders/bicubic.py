@@ -1,4 +1,5 @@
-"""Bicubic (Catmull-Rom) lookup of a preview image in EEVEE: the preview's Bicubic filter.
+"""Bicubic lookups of a preview image in EEVEE: the preview's Filters Bicubic (Catmull-Rom) and
+B-spline (prefiltered).
 
 EEVEE's own Image Texture 'Cubic' interpolation is a cubic B-spline (it blurs: measured in
 bench/results/bicubic.md), not the interpolating Catmull-Rom kernel of
@@ -9,6 +10,9 @@ weights, no mip level) weighted in nodes:
       "UV k" (the centre of tap k = 4 j + i, texel (floor(p) + (i − 1, j − 1)), p = UV · Size − ½)
       and "Weight k" (w_i(fx) · w_j(fy), `core.textures.catmull_rom_weights`).
   "HHD Catmull-Rom Sum": inputs "Color k", "Weight k" (16 each); output Color = Σ weight · colour.
+  "HHD B-spline Taps": the taps with the cubic B-spline's weights (`bspline_weights`), for the
+      Filter 'B-spline (prefiltered)', whose images hold the coefficients of the B-spline whose
+      texel means are the texels (`core.encoding.preview.bspline_image`).
 The taps read one texel further each way than bilinear: a chart needs 2 texels of filled gutter
 (the unwrap's padding ≥ 4, i.e. Mip Levels ≥ 1). Catmull-Rom's negative lobes overshoot next to
 a step: `lookup` clamps I_z at 0 and w_a to [0, 1]; directions are renormalised by the groups.
@@ -22,28 +26,40 @@ from .node_groups import Builder, _new_tree
 
 VERSION = 1
 TAPS_GROUP = "HHD Catmull-Rom Taps"
+#: The taps of the B-spline (the Filter 'B-spline (prefiltered)': the image holds coefficients,
+#: `core.encoding.preview.bspline_image`).
+BSPLINE_TAPS_GROUP = "HHD B-spline Taps"
 SUM_GROUP = "HHD Catmull-Rom Sum"
 TAPS = 16
 #: The preview layers clamped after the blend: (low, high) (I_z ≥ 0, w_a in [0, 1]).
 CLAMPED = {"iz": (0.0, None), "wa": (0.0, 1.0)}
 
 
-def _weights(b: Builder, t) -> list:
-    """Catmull-Rom weights of offsets −1 … 2 at fraction t (a float socket), as float sockets."""
+#: Per kernel, the cubic polynomials (c3, c2, c1, c0) of the weights of offsets −1 … 2 at
+#: fraction t, times `scale` (`core.textures.catmull_rom_weights`, `bspline_weights`).
+POLYNOMIALS = {
+    "catmull_rom": (0.5, ((-1, 2, -1, 0), (3, -5, 0, 2), (-3, 4, 1, 0), (1, -1, 0, 0))),
+    "bspline": (1 / 6, ((-1, 3, -3, 1), (3, -6, 0, 4), (-3, 3, 3, 1), (1, 0, 0, 0))),
+}
+
+
+def _weights(b: Builder, t, kernel: str = "catmull_rom") -> list:
+    """`kernel`'s weights of offsets −1 … 2 at fraction t (a float socket), as float sockets."""
     t2 = b.math("MULTIPLY", t, t)
     t3 = b.math("MULTIPLY", t2, t)
+    scale, polynomials = POLYNOMIALS[kernel]
 
-    def poly(c3, c2, c1, c0):  # 0.5 (c3 t³ + c2 t² + c1 t + c0)
-        s = b.math("MULTIPLY", t3, 0.5 * c3)
-        s = b.math("ADD", s, b.math("MULTIPLY", t2, 0.5 * c2))
-        s = b.math("ADD", s, b.math("MULTIPLY", t, 0.5 * c1)) if c1 else s
-        return b.math("ADD", s, 0.5 * c0) if c0 else s
+    def poly(c3, c2, c1, c0):  # scale (c3 t³ + c2 t² + c1 t + c0)
+        s = b.math("MULTIPLY", t3, scale * c3)
+        s = b.math("ADD", s, b.math("MULTIPLY", t2, scale * c2)) if c2 else s
+        s = b.math("ADD", s, b.math("MULTIPLY", t, scale * c1)) if c1 else s
+        return b.math("ADD", s, scale * c0) if c0 else s
 
-    return [poly(-1, 2, -1, 0), poly(3, -5, 0, 2), poly(-3, 4, 1, 0), poly(1, -1, 0, 0)]
+    return [poly(*c) for c in polynomials]
 
 
-def build_taps():
-    tree = _new_tree(TAPS_GROUP, VERSION)
+def build_taps(kernel: str = "catmull_rom"):
+    tree = _new_tree(TAPS_GROUP if kernel == "catmull_rom" else BSPLINE_TAPS_GROUP, VERSION)
     tree.interface.new_socket("UV", in_out='INPUT', socket_type='NodeSocketVector')
     size = tree.interface.new_socket("Size", in_out='INPUT', socket_type='NodeSocketVector')
     size.default_value = (256.0, 256.0, 1.0)
@@ -55,7 +71,7 @@ def build_taps():
     p = b.vec("SUBTRACT", b.vec("MULTIPLY", i["UV"], i["Size"]), (0.5, 0.5, 0.0))
     base = b.vec("FLOOR", p)
     fx, fy, _ = b.xyz(b.vec("SUBTRACT", p, base))
-    wx, wy = _weights(b, fx), _weights(b, fy)
+    wx, wy = _weights(b, fx, kernel), _weights(b, fy, kernel)
     out = b.node("NodeGroupOutput")
     for j in range(4):
         for k in range(4):
@@ -87,12 +103,14 @@ def _ensure(name: str, build):
     return build()
 
 
-def lookup(tree, new, image, key: str, uv, x: float, y: float):
-    """Colour socket of the Catmull-Rom lookup of `image` (a bpy Image) at the `uv` socket in
-    material `tree`: the taps and sum groups and 16 'Closest' Image Texture nodes, made by
-    `new(tree, kind, name, location)` (named after `key`), clamped per CLAMPED[key]."""
+def lookup(tree, new, image, key: str, uv, x: float, y: float, kernel: str = "catmull_rom"):
+    """Colour socket of the bicubic lookup (`kernel`: "catmull_rom", or "bspline" of an image of
+    coefficients) of `image` (a bpy Image) at the `uv` socket in material `tree`: the taps and
+    sum groups and 16 'Closest' Image Texture nodes, made by `new(tree, kind, name, location)`
+    (named after `key`), clamped per CLAMPED[key]."""
     taps = new(tree, "ShaderNodeGroup", f"{key} Taps", (x, y))
-    taps.node_tree = _ensure(TAPS_GROUP, build_taps)
+    group = TAPS_GROUP if kernel == "catmull_rom" else BSPLINE_TAPS_GROUP
+    taps.node_tree = _ensure(group, lambda: build_taps(kernel))
     tree.links.new(uv, taps.inputs["UV"])
     width, height = image.size
     taps.inputs["Size"].default_value = (float(width), float(height), 1.0)

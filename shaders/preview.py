@@ -45,7 +45,7 @@ import json
 import bpy
 
 from .. import blender_compat
-from ..core.encoding.preview import ENCODED, kind_of, sampled, upgrade_direction
+from ..core.encoding.preview import ENCODED, bspline_image, kind_of, sampled, upgrade_direction
 from ..core.errors import BakeError
 from ..core.lightmap_files import read_sidecar
 from ..properties import sync_light_sets, weight_path
@@ -101,14 +101,23 @@ def _feed(tree, source_input, target_input):
         target_input.default_value = value if len(target_input.default_value) == len(value) else (*value[:3], 1.0)
 
 
-def _image(tree, path, name, uv, x, y, frame, bicubic: bool = False):
+#: `scene.hhd.preview_filter` → the bicubic kernel of shaders/bicubic.py ("": EEVEE's bilinear).
+KERNELS = {'BILINEAR': "", 'BICUBIC': "catmull_rom", 'BSPLINE': "bspline"}
+
+
+def _image(tree, path, name, uv, x, y, frame, bicubic: str = ""):
     """Colour socket of the preview image at `path` sampled at `uv`: one Image Texture node
-    (EEVEE's 'Linear' filter), or with `bicubic` the Catmull-Rom lookup of shaders/bicubic.py."""
+    (EEVEE's 'Linear' filter), or with `bicubic` (a KERNELS value) the lookup of
+    shaders/bicubic.py ("bspline": `path` holds the image's coefficients)."""
     image = bpy.data.images.load(str(path), check_existing=True)
     image.reload()
     image.colorspace_settings.is_data = True
     if bicubic:
-        return bicubic_nodes.lookup(tree, lambda t, kind, n, at: _new(t, kind, n, at, frame), image, name, uv, x, y)
+
+        def new(t, kind, n, at):
+            return _new(t, kind, n, at, frame)
+
+        return bicubic_nodes.lookup(tree, new, image, name, uv, x, y, bicubic)
     node = _new(tree, "ShaderNodeTexImage", name, (x, y), frame)
     node.image, node.interpolation, node.extension = image, 'Linear', 'EXTEND'
     tree.links.new(uv, node.inputs["Vector"])
@@ -119,19 +128,26 @@ def _socket(sockets, identifier):
     return next(s for s in sockets if s.identifier == identifier)
 
 
-def _atlas_image(tree, key, atlases, uv, x, y, frame, bicubic: bool = False):
+def _preview_path(files, key: str, bicubic: str):
+    """The image the preview samples for layer `key` of atlas `files` (its coefficients for the
+    prefiltered B-spline)."""
+    return bspline_image(files, key) if bicubic == "bspline" else files.preview_image(key)
+
+
+def _atlas_image(tree, key, atlases, uv, x, y, frame, bicubic: str = ""):
     """Colour output of preview image `key` for the atlases [(index, AtlasFiles)] whose objects
     use this material: the one atlas's image, or each further atlas's image mixed in where the
     object's ATLAS attribute equals that atlas's index."""
     (_, first), rest = atlases[0], atlases[1:]
     name = key if not rest and not first.parent else f"{key} {first.name}"  # a set's: "iz Lightmap.Lamp"
-    colour = _image(tree, first.preview_image(key), name, uv, x, y, frame, bicubic)
+    colour = _image(tree, _preview_path(first, key, bicubic), name, uv, x, y, frame, bicubic)
     if not rest:
         return colour
     attribute = _new(tree, "ShaderNodeAttribute", f"Atlas {key}", (x - 200, y - 120), frame)
     attribute.attribute_type, attribute.attribute_name = 'INSTANCER', ATLAS
     for k, (index, files) in enumerate(rest, 1):
-        image = _image(tree, files.preview_image(key), f"{key} {files.name}", uv, x + 250 * k, y, frame, bicubic)
+        path = _preview_path(files, key, bicubic)
+        image = _image(tree, path, f"{key} {files.name}", uv, x + 250 * k, y, frame, bicubic)
         equal = _new(tree, "ShaderNodeMath", f"Is {key} {files.name}", (x + 250 * k, y + 120), frame)
         equal.operation = 'COMPARE'
         equal.inputs[1].default_value, equal.inputs[2].default_value = float(index), 0.5
@@ -173,7 +189,7 @@ def _material_light_sets(atlases) -> tuple[list, str | None]:
     return [(name, [(index, sets[k][1]) for index, sets in per_atlas]) for k, name in enumerate(names.pop())], None
 
 
-def _link_light_sets(tree, gi, light_sets, uv, x, y, frame, bicubic: bool = False) -> float:
+def _link_light_sets(tree, gi, light_sets, uv, x, y, frame, bicubic: str = "") -> float:
     """Each set's preview images into the blend group's 'Iz k', 'Wa k', 'Direction k' and a View
     Layer Attribute of the set's weight (`properties.weight_path`) into 'Weight k'; returns the
     next free y."""
@@ -252,16 +268,18 @@ def show_on_material(
     self_bounce: bool,
     light_sets=(),
     instanced: bool = False,
-    bicubic: bool = False,
+    bicubic: str = "",
     term: str = 'DIFFUSE',
 ) -> str | None:
     """Insert the preview into one material; returns a note when a fallback was used. `bicubic`:
-    the images through the Catmull-Rom lookup (shaders/bicubic.py), not EEVEE's bilinear. `files`:
+    "catmull_rom" or "bspline" (KERNELS): the images through that lookup (shaders/bicubic.py),
+    not EEVEE's bilinear. `files`:
     the AtlasFiles of the objects' atlas, or [(index, AtlasFiles)] when objects of several
     atlases share the material (index: the value of their ATLAS attribute). light_sets (HHD mode):
     [(set name, [(index, the set's AtlasFiles)])] to show the live blend of, () for none. `term`
     (`scene.hhd.preview_term`): 'DIFFUSE' (albedo × irradiance), 'SPECULAR' or 'BOTH' through the
-    kind's specular group (shaders/specular_nodes.py; diffuse with a note where there is none)."""
+    kind's specular group (shaders/specular_nodes.py; where there is none, HL2, H-basis, Scalar
+    and light-set blends, diffuse and a note naming the model)."""
     atlases = files if isinstance(files, list) else [(0, files)]
     tree = mat.node_tree if mat.node_tree is not None else blender_compat.ensure_node_tree(mat)
     if RECORD in mat:
@@ -317,8 +335,10 @@ def show_on_material(
     radiance = group.outputs["Radiance"]
     if term != 'DIFFUSE':
         if specular_nodes.KINDS.get(kind) is None or light_sets:
-            what = "a light-set blend" if light_sets else f"the {kind} preview"
-            note = note or f"material '{mat.name}': {what} has no specular model, it shows diffuse"
+            fallback = (
+                f"material '{mat.name}': {_no_specular(kind, light_sets)}, so its {term.title()} term shows diffuse"
+            )
+            note = f"{note}; {fallback}" if note else fallback
         else:
             spec = _specular(tree, kind, colours, group, geometry, principled, (x0 + 600, y0 - 400), frame)
             radiance = spec.outputs["Specular" if term == 'SPECULAR' else "Both"]
@@ -333,6 +353,14 @@ def show_on_material(
     tree.links.new(emission.outputs["Emission"], mix.inputs[2])
     tree.links.new(mix.outputs["Shader"], output.inputs["Surface"])
     return note
+
+
+def _no_specular(kind: str, light_sets) -> str:
+    """Why preview kind `kind` has no specular term (`specular_nodes.KINDS`), by name."""
+    if light_sets:
+        return "the light-set blend has no specular model"
+    names = {"SCALAR": "Scalar (I_z only)", "HBASIS_L1": "L1 H-basis", "HBASIS_L2": "L2 H-basis"}
+    return f"{names.get(kind, kind)} encodes no specular (docs/format.md)"
 
 
 def _specular(tree, kind, colours, group, geometry, principled, at, frame):
@@ -410,7 +438,7 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
     preview mode (`core.encoding.preview`; 'ENCODED': each material shows its atlases' model). In HHD
     mode, atlases baked with light sets show their live blend, weighted by `scene.hhd.light_sets`
     (`scene`: the context's by default), to which missing sets are added. The images are filtered
-    as `scene.hhd.preview_filter` says (Bicubic: shaders/bicubic.py); `scene.hhd.preview_term`
+    as `scene.hhd.preview_filter` says (KERNELS; shaders/bicubic.py); `scene.hhd.preview_term`
     picks the diffuse, specular or both terms (`show_on_material`)."""
     scene = scene if scene is not None else bpy.context.scene
     notes, set_names = [], []
@@ -438,7 +466,7 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
         light_sets, sets_note = _material_light_sets(atlases) if shown == 'HHD' else ([], None)
         set_names += [name for name, _ in light_sets]
         files = atlases if len(atlases) > 1 else atlases[0][1]
-        bicubic = scene.hhd.preview_filter == 'BICUBIC'
+        bicubic = KERNELS[scene.hhd.preview_filter]
         note = show_on_material(
             mat, files, shown, uv_layer, self_bounce, light_sets, mat.name in instanced, bicubic, scene.hhd.preview_term
         )

@@ -11,6 +11,13 @@ core/encoding/ggx.py; units of docs/conventions.md, S = ∫ L f cos dω):
       radiance bands at directions (docs/format.md, "Specular"): band 0 g₀ s₀; band 1
       S₁(u)/c₁ with u = −g₃ x + g₂ z; band 2 (4π/5)[2c₂₀ g₆ S₂(z) − (c₂/3) g₇ (S₂(p) − S₂(q))
       + (2c₂₂/3) g₈ (S₂(x) − S₂(y))], p, q = (x ± z)/√2 (Funk–Hecke: ∫ S₂ P₂(ω·a) dω = (4π/5) S₂(a)).
+  "SG5 Specular" … "SG12 Specular": inputs SG0 … SG{K−1} (lobe amplitudes), then
+      `_material_inputs`; Σ_k of Baking Lab's anisotropic warp, `core.encoding.sg.asg_specular`:
+      z = reflect(−v, n), x = n × z, y = z × x; the lobes' axes μ_k (constants of `sg.layout`) are
+      in n_v's tangent frame (`node_groups._frame`), so x, y, z go into it and μ_k·x … are dot
+      products with constants; S = F ⊙ Σ_k max(a_k, 0) max(μ_k·z, 0) exp(−c_x (μ_k·x)² − c_y
+      (μ_k·y)²) · c_amp/(π α²) · V₁(n·z) V₁(n·v) · n·z (the per-lobe max(·, 0) of core on the
+      amplitude: the rest of the product is ≥ 0).
 Both output Specular and Both = Albedo (1 − Metallic) ⊙ Irradiance + Specular. F0 is the
 Principled BSDF's: mix(((IOR − 1)/(IOR + 1))² · 2 · Specular IOR Level, Base Color, Metallic),
 α = max(Roughness², LUT's α floor). A and B (Schlick's F0 factor and bias) of the lobe's SH
@@ -29,14 +36,42 @@ import bpy
 import numpy as np
 
 from ..core import exr, sh
-from ..core.encoding import ggx
+from ..core.encoding import ggx, sg
 from ..core.encoding.hhd_specular import VISIBILITY_SLOPE
 from ..core.hhd import MIN_COS
-from .node_groups import GROUP_VERSION, Builder, _interface, _new_tree, _socket, direction
+from .node_groups import (
+    GROUP_VERSION,
+    Builder,
+    _fallback_tangent,
+    _frame,
+    _interface,
+    _new_tree,
+    _socket,
+    _sum,
+    _where,
+    direction,
+)
 
-GROUPS = {"HHD": "HHD Specular", "AHD": "AHD Specular", "L1": "L1 SH Specular", "L2": "L2 SH Specular"}
-#: Preview kinds with a specular group -> its key in GROUPS.
-KINDS = {"HHD": "HHD", "AHD": "AHD", "L1": "L1", "L2": "L2", "SH_L1": "L1", "SH_L2": "L2"}
+#: The SG layouts with a specular group (core.encoding.sg).
+SG_COUNTS = (5, 6, 9, 12)
+GROUPS = {
+    "HHD": "HHD Specular",
+    "AHD": "AHD Specular",
+    "L1": "L1 SH Specular",
+    "L2": "L2 SH Specular",
+    **{f"SG{k}": f"SG{k} Specular" for k in SG_COUNTS},
+}
+#: Preview kinds with a specular group -> its key in GROUPS (none for SCALAR, HL2, H-basis:
+#: those models have no specular, docs/format.md).
+KINDS = {
+    "HHD": "HHD",
+    "AHD": "AHD",
+    "L1": "L1",
+    "L2": "L2",
+    "SH_L1": "L1",
+    "SH_L2": "L2",
+    **{f"SG{k}": f"SG{k}" for k in SG_COUNTS},
+}
 #: SH coefficients (of ggx.LOBE_COEFFS) per LUT image, as (A_k, B_k, A_k', B_k') in RGBA.
 LUT_LAYOUT = ((0, 2), (3, 6), (7, 8))
 LUT_IMAGE = "HHD GGX LUT {}"
@@ -272,6 +307,67 @@ def build_sh(order: int, images):
     return tree
 
 
+def _v1(b: Builder, x, m2):
+    """Baking Lab's GGX_V1: 1 / (x + √(α² + (1 − α²) x²))."""
+    root = b.math("SQRT", b.math("ADD", m2, b.math("MULTIPLY", b.math("SUBTRACT", 1.0, m2), b.math("MULTIPLY", x, x))))
+    return b.math("DIVIDE", 1.0, b.math("ADD", x, root))
+
+
+def build_sg(count: int):
+    """The SG`count` specular group: core.encoding.sg.asg_specular summed over the lobes."""
+    axes, lam = sg.layout(count)
+    tree = _new_tree(GROUPS[f"SG{count}"])
+    _interface(
+        tree,
+        [(f"SG{k}", 'NodeSocketColor', (0, 0, 0, 1)) for k in range(count)] + _material_inputs(),
+        ["Specular", "Both"],
+    )
+    b = Builder(tree)
+    i = b.node("NodeGroupInput").outputs
+    c = _Common(b, i)
+    m2 = b.math("MULTIPLY", c.alpha, c.alpha)
+    # the warp frame: z = reflect(−v, n), x = n × z, y = z × x; where |n × z| < 1e-3 (v within
+    # 5e-4 rad of n) the float32 cross product is rounding noise and the warp isotropic to 1e-6:
+    # x = t of tangent_frames(z) (core switches at 1e-8, in float64)
+    z = b.vec("SUBTRACT", b.vec("SCALE", c.n, scale=b.math("MULTIPLY", c.n_v, 2.0)), c.v)
+    cross = b.vec("CROSS_PRODUCT", c.n, z)
+    x = _where(
+        b, b.math("GREATER_THAN", b.vec("LENGTH", cross), 1e-3), b.vec("NORMALIZE", cross), _fallback_tangent(b, z)
+    )
+    y = b.vec("CROSS_PRODUCT", z, x)
+    # the ASG of the warped NDF (λ_x = 2/α² / (8 o²), λ_y = 2/α² / 8) convolved with a lobe of λ/2
+    o = b.math("MAXIMUM", c.n_v, 1e-4)
+    ly = b.math("DIVIDE", 0.25, m2)
+    lx = b.math("DIVIDE", ly, b.math("MULTIPLY", o, o))
+    nu = 0.5 * lam
+    cx, cy = (b.math("DIVIDE", b.math("MULTIPLY", l, nu), b.math("ADD", l, nu)) for l in (lx, ly))
+    camp = b.math("DIVIDE", np.pi, b.math("SQRT", b.math("MULTIPLY", b.math("ADD", lx, nu), b.math("ADD", ly, nu))))
+    # x, y, z in n_v's tangent frame, where the axes μ_k are constants
+    t, bt = _frame(b, c.nv)
+    local = {
+        k: b.combine(*(b.vec("DOT_PRODUCT", w, e) for e in (t, bt, c.nv))) for k, w in (("x", x), ("y", y), ("z", z))
+    }
+    terms = []
+    for k, mu in enumerate(axes):
+        dx, dy, dz = (b.vec("DOT_PRODUCT", local[w], tuple(float(m) for m in mu)) for w in "xyz")
+        exponent = b.math(
+            "ADD",
+            b.math("MULTIPLY", cx, b.math("MULTIPLY", dx, dx)),
+            b.math("MULTIPLY", cy, b.math("MULTIPLY", dy, dy)),
+        )
+        weight = b.math("MULTIPLY", b.math("MAXIMUM", dz, 0.0), b.math("EXPONENT", b.math("MULTIPLY", exponent, -1.0)))
+        # max(·, 0) per lobe and colour: the rest of the product is ≥ 0
+        terms.append(b.vec("SCALE", b.vec("MAXIMUM", i[f"SG{k}"], (0.0, 0.0, 0.0)), scale=weight))
+    nl = b.math("MINIMUM", b.math("MAXIMUM", b.vec("DOT_PRODUCT", c.n, z), 0.0), 1.0)
+    nv = b.math("MINIMUM", b.math("MAXIMUM", c.n_v, 0.0), 1.0)
+    vis = b.math("MULTIPLY", _v1(b, nl, m2), _v1(b, nv, m2))
+    scale = b.math("MULTIPLY", b.math("MULTIPLY", camp, b.math("DIVIDE", 1.0 / np.pi, m2)), b.math("MULTIPLY", vis, nl))
+    h = b.vec("NORMALIZE", b.vec("ADD", z, c.v))
+    fresnel = _schlick_f0(b, c.f0, b.vec("DOT_PRODUCT", z, h))
+    _finish(b, i, b.vec("MULTIPLY", fresnel, b.vec("SCALE", _sum(b, terms), scale=scale)))
+    return tree
+
+
 def ensure(kind: str):
     """The specular group of preview kind `kind` (a key of KINDS), built or rebuilt if stale;
     the LUT images are (re)loaded every time."""
@@ -280,4 +376,6 @@ def ensure(kind: str):
     tree = bpy.data.node_groups.get(GROUPS[key])
     if tree is not None and tree.get("hhd_version") == GROUP_VERSION:
         return tree
+    if key.startswith("SG"):
+        return build_sg(int(key[2:]))
     return build_hhd(key, images) if key in ("HHD", "AHD") else build_sh(int(key[-1]), images)

@@ -3,7 +3,10 @@ shadow on it, shown in HHD mode with Filter Bicubic and rendered from above, sho
 albedo × core's Catmull-Rom sample of the baked I_z (core.textures.sample_bicubic, clamped at 0)
 at the pixel's lightmap UV (flat floor: n = n_v, where the HHD reconstruction is I_z exactly), and
 differs from core's bilinear sampling along the shadow's edge by far more than that agreement
-(one render, for time: the Bilinear preview is EEVEE's own filter, tested in test_preview_eevee).
+(the Bilinear preview is EEVEE's own filter, tested in test_preview_eevee). Then Filter
+B-spline (prefiltered): the coefficient image the preview wrote keeps every covered texel's mean
+(its B-spline averaged over each texel by Gauss-Legendre is the baked I_z), and the render is
+albedo × core's B-spline sample of those coefficients, unlike the Catmull-Rom render along the edge.
 
 The taps are 'Closest' lookups (exact texels) weighted in nodes, so the agreement is float
 arithmetic and the half-float film: measured max relative error ~1e-3 (tolerance 1%)."""
@@ -69,6 +72,13 @@ def test_bicubic_preview_matches_core(extension, tmp_path):
     assert bpy.ops.hhd.preview_show() == {'FINISHED'}
     rendered = render(scene, tmp_path / "bicubic.exr")
     assert bpy.ops.hhd.preview_hide() == {'FINISHED'}
+    scene.hhd.preview_filter = 'BSPLINE'
+    assert bpy.ops.hhd.preview_show() == {'FINISHED'}
+    rendered_bspline = render(scene, tmp_path / "bspline.exr")
+    assert bpy.ops.hhd.preview_hide() == {'FINISHED'}
+    (coefficient_file,) = (tmp_path / "lightmaps").glob("*_preview/iz_bspline.exr")
+    channels, _ = exr.read(coefficient_file)
+    coefficients = np.stack([exr.from_exr_rows(channels[c]) for c in "RGB"], -1).astype(np.float64)
 
     mesh = floor.data
     world = np.array([mesh.vertices[loop.vertex_index].co[:2] for loop in mesh.loops]) * np.array(floor.scale[:2])
@@ -87,3 +97,30 @@ def test_bicubic_preview_matches_core(extension, tmp_path):
     edge = np.abs(expected - linear) > 0.05 * lit  # where the kernels disagree: along the shadow's edge
     assert edge.sum() > 100
     assert np.median(np.abs(bicubic - linear)[edge] / lit) > 10 * np.median(error[edge]), np.median(error[edge])
+
+    # the prefiltered B-spline: the coefficients keep the texel means (inside the floor's chart)...
+    covered = np.zeros(iz.shape[:2], bool)
+    rows, cols = np.nonzero((iz > 0).any(-1))
+    covered[rows.min() + 2 : rows.max() - 1, cols.min() + 2 : cols.max() - 1] = True
+    means = texel_means(coefficients)
+    assert np.abs(means - iz)[covered].max() < 1e-3 * iz.max()
+    # ... EEVEE draws their B-spline ...
+    expected = albedo * sample_bicubic(coefficients, at, clamp=True, kernel="bspline", nonnegative=True)[:, 0]
+    error = np.abs(rendered_bspline.ravel()[inside] - expected) / lit
+    assert np.percentile(error, 99) < 0.01 and error.max() < 0.03, (np.percentile(error, 99), error.max())
+    assert np.median(np.abs(rendered_bspline.ravel()[inside] - bicubic)[edge] / lit) > 10 * np.median(error[edge])
+
+
+def texel_means(coefficients: np.ndarray) -> np.ndarray:
+    """Each texel's mean of the B-spline of `coefficients` (H, W, C): Gauss-Legendre, 2 points per
+    half texel and axis (exact for the piecewise cubic)."""
+    h, w = coefficients.shape[:2]
+    g = np.array([-1.0, 1.0]) / np.sqrt(3.0)
+    offsets = np.concatenate([0.25 + 0.25 * g, 0.75 + 0.25 * g])
+    j, i = np.mgrid[0:h, 0:w]
+    total = 0.0
+    for dy in offsets:
+        for dx in offsets:
+            uv = np.column_stack([(i.ravel() + dx) / w, (j.ravel() + dy) / h])
+            total = total + sample_bicubic(coefficients, uv, clamp=True, kernel="bspline")
+    return (total / 16).reshape(coefficients.shape)

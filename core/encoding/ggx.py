@@ -121,11 +121,12 @@ def lobe_sh(nv: np.ndarray, alpha: np.ndarray, f0) -> np.ndarray:
 
 def view_frames(n: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Frames `(N, 3, 3)`, columns (x, y, z): z = n, x along v's part orthogonal to n (any
-    perpendicular where v ∥ n)."""
+    perpendicular where v ∥ n: within 1e-6 of it, where unit vectors read from float32 data leave
+    x as rounding noise along n itself, and the lobe is symmetric about n to that precision)."""
     x = v - np.sum(v * n, -1, keepdims=True) * n
     length = np.linalg.norm(x, axis=-1, keepdims=True)
     fallback = _sh.tangent_frames(n)[:, :, 0]
-    x = np.where(length > 1e-8, x / np.maximum(length, 1e-300), fallback)
+    x = np.where(length > 1e-6, x / np.maximum(length, 1e-300), fallback)
     return np.stack([x, np.cross(n, x), n], axis=-1)
 
 

@@ -14,6 +14,8 @@ file's), or 'HHD'/'AHD' for an HHD file.
 
 from __future__ import annotations
 
+import numpy as np
+
 from . import hbasis_l1, hbasis_l2, hl2, sg5, sg6, sg9, sg12, sh_l1, sh_l2
 from .hhd import DIRECTION, IZ, WA
 from .raw import SH_LAYERS
@@ -86,3 +88,36 @@ def upgrade_direction(files) -> bool:
         lightmap_files.stage_preview(staging, files, FileSpec(FILE.key, FILE.suffix, (DIRECTION,)), channels)
         staging.commit()
     return True
+
+
+def bspline_image(files, key: str):
+    """Path of preview image `key` of atlas `files` (`lightmap_files.AtlasFiles`) as cubic
+    B-spline coefficients (`textures.bspline_coefficients`, the texels the atlas covers marked
+    filled): what the preview's Filter 'B-spline (prefiltered)' samples. Written beside the image,
+    `<key>_bspline.exr`, when missing or older than the image (a re-bake or re-encode rewrites
+    the image). The coverage is the atlas's texels file's (a light set's: its parent's); without
+    one, a texel is filled where any channel is non-zero."""
+    from .. import exr, lightmap_files, textures
+    from ..errors import BakeError
+    from .raw import TEXELS_FILE
+
+    source = files.preview_image(key)
+    target = source.with_name(f"{key}_bspline.exr")
+    if target.is_file() and target.stat().st_mtime >= source.stat().st_mtime:
+        return target
+    channels, _ = exr.read(source)
+    image = np.stack([exr.from_exr_rows(channels[c]) for c in "RGB" if c in channels], -1)
+    texels = lightmap_files.AtlasFiles(files.folder, files.parent or files.name).texels
+    coverage_name = TEXELS_FILE.channels[1].exr_names[0]
+    try:
+        coverage = exr.from_exr_rows(exr.read(texels)[0][coverage_name]) > 0
+        filled = coverage if coverage.shape == image.shape[:2] else None
+    except (KeyError, BakeError):
+        filled = None
+    if filled is None:
+        filled = (image != 0).any(axis=-1)
+    else:
+        filled = filled | (image != 0).any(axis=-1)  # the gutter: dilated texels outside the coverage
+    coefficients = textures.bspline_coefficients(image, filled)
+    exr.write(target, {c: exr.to_exr_rows(coefficients[..., k]) for k, c in enumerate("RGB"[: image.shape[-1]])})
+    return target
