@@ -29,6 +29,18 @@ cosine-lobe convolution (`SGIrradianceFitted`), divided by π for the project's 
 lobe by the anisotropic-warp approximation (`SpecularTermASGWarp`): the GGX NDF as an SG
 (λ = 2/α², a = 1/(π α²)), warped to an ASG around the reflection of v, convolved with the lobe,
 times Smith visibility, Schlick Fresnel and n·l at the warped axis.
+
+**Specular normalisation** (opt-in, `SGBasis(..., specular_norm="uniform")`; the default "none"
+is Baking Lab's sum above). With w_k ≥ 0 the warp's weight of lobe k at (n, v) (the specular
+of lobe k with amplitude 1) and u the layout's uniform radiance (`uniform_amplitudes`: the least-squares
+amplitudes of radiance 1 at the sample directions), the sum is rescaled so that u reflects
+exactly the GGX directional albedo E(n·v, α, F0) (`ggx` table, the GgxAlbedo table HHD's
+specular reads):
+
+    S = Σ_k max(w_k a_k, 0) · E / Σ_k w_k u_k          (0 where Σ_k w_k u_k = 0)
+
+i.e. the warp serves only as the filter that averages the radiance over the lobe (a split sum)
+and E gives the magnitude. Its error against quadrature: bench/results/sg_specular.md.
 """
 
 from __future__ import annotations
@@ -38,10 +50,13 @@ from functools import cache
 import numpy as np
 
 from .. import sh as _sh
+from . import ggx
 from .basis import CoefficientEncoding, fibonacci_hemisphere, frames, layers
 from .spec import FileSpec
 
 SOLVES = ("adhoc", "ls", "nnls")
+#: Specular normalisations (module docstring): Baking Lab's plain sum, or rescaled by uniform radiance.
+SPECULAR_NORMS = ("none", "uniform")
 #: Radiance samples per texel the solves fit (from the L2 SH).
 SAMPLES = 256
 #: NNLS: coordinate-descent sweeps between active-set polishes, and polish rounds at most.
@@ -116,6 +131,13 @@ def adhoc_scale(count: int) -> float:
 
 
 @cache
+def uniform_amplitudes(count: int) -> np.ndarray:
+    """u `(count,)`: the least-squares amplitudes of uniform radiance 1 at the sample directions
+    (A⁺ 1), what the specular normalisation rescales by (module docstring)."""
+    return np.linalg.pinv(design(count)) @ np.ones(SAMPLES)
+
+
+@cache
 def ls_matrix(count: int) -> np.ndarray:
     """`(count, 9)`: SH -> least-squares amplitudes, A⁺ Y."""
     return np.linalg.pinv(design(count)) @ sample_sh()
@@ -172,10 +194,12 @@ class SGBasis:
 
     SPECULAR = True
 
-    def __init__(self, count: int, solve: str = "nnls"):
+    def __init__(self, count: int, solve: str = "nnls", specular_norm: str = "none"):
         if solve not in SOLVES:
             raise ValueError(f"SG solve must be one of {', '.join(SOLVES)}, not {solve!r}")
-        self.count, self.solve = count, solve
+        if specular_norm not in SPECULAR_NORMS:
+            raise ValueError(f"SG specular_norm must be one of {', '.join(SPECULAR_NORMS)}, not {specular_norm!r}")
+        self.count, self.solve, self.specular_norm = count, solve, specular_norm
         self.name = f"sg{count}"
 
     def coefficients(self, sh: np.ndarray, n_v: np.ndarray) -> np.ndarray:
@@ -203,14 +227,37 @@ class SGBasis:
         return np.einsum("nk,nkc->nc", _hill_irradiance(cos, lam), c) / np.pi
 
     def specular(self, c, n_v, n, v, alpha, f0=1.0) -> np.ndarray:
-        """Σ_k ASG-warp specular of lobe k (Baking Lab `SpecularTermASGWarp`), ≥ 0 per lobe."""
+        """Σ_k ASG-warp specular of lobe k (Baking Lab `SpecularTermASGWarp`), ≥ 0 per lobe;
+        with specular_norm "uniform", rescaled (module docstring)."""
         _, lam = layout(self.count)
-        return asg_specular(_world_axes(self.count, n_v), lam, np.asarray(c, np.float64), n, v, alpha, f0)
+        axes, c = _world_axes(self.count, n_v), np.asarray(c, np.float64)
+        if self.specular_norm == "none":
+            return asg_specular(axes, lam, c, n, v, alpha, f0)
+        return normalised_specular(axes, lam, c, uniform_amplitudes(self.count), n, v, alpha, f0)
+
+
+def normalised_specular(axes: np.ndarray, lam: float, amp: np.ndarray, u: np.ndarray, n, v, alpha, f0=1.0):
+    """`asg_specular` rescaled so that the amplitudes u `(K,)` reflect E(n·v, α, F0) exactly:
+    Σ_k max(w_k a_k, 0) · E / Σ_k w_k u_k `(N, C)` (F0 scalar; module docstring)."""
+    n, v = np.asarray(n, np.float64), np.asarray(v, np.float64)
+    w = asg_weights(axes, lam, n, v, alpha, f0)  # (N, K, 1)
+    s = np.maximum(w * amp, 0.0).sum(axis=1)
+    su = w[:, :, 0] @ np.asarray(u, np.float64)
+    nv = np.clip(np.sum(n * v, -1), 0.0, 1.0)
+    albedo = ggx.lobe_sh(nv, np.broadcast_to(np.asarray(alpha, np.float64), nv.shape), f0)[:, 0] / _sh.Y00
+    gain = np.where(su > 0.0, albedo / np.where(su > 0.0, su, 1.0), 0.0)
+    return s * gain[:, None]
 
 
 def asg_specular(axes: np.ndarray, lam: float, amp: np.ndarray, n, v, alpha, f0=1.0) -> np.ndarray:
     """Specular of SG lights (axes `(N, K, 3)`, sharpness λ, amplitudes `(N, K, C)`) at unit n,
     v `(N, 3)`, GGX α (scalar or `(N,)`) -> `(N, C)` (see the module docstring)."""
+    return np.maximum(asg_weights(axes, lam, n, v, alpha, f0) * amp, 0.0).sum(axis=1)
+
+
+def asg_weights(axes: np.ndarray, lam: float, n, v, alpha, f0=1.0) -> np.ndarray:
+    """w `(N, K, 1)`: the ASG-warp specular of each SG light of amplitude 1 (axes `(N, K, 3)`,
+    sharpness λ) at unit n, v `(N, 3)`, GGX α (scalar or `(N,)`), F0 scalar (module docstring)."""
     n, v = np.asarray(n, np.float64), np.asarray(v, np.float64)
     alpha = np.broadcast_to(np.asarray(alpha, np.float64), (len(n),))[:, None]
     m2 = alpha * alpha
@@ -238,7 +285,7 @@ def asg_specular(axes: np.ndarray, lam: float, amp: np.ndarray, n, v, alpha, f0=
     h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
     fres = f0 + (1.0 - f0) * (1.0 - np.clip(np.sum(z * h, -1), 0.0, 1.0))[:, None] ** 5
     scale = v1(nl) * v1(nv) * fres * nl  # (N, 1)
-    return np.maximum(conv[:, :, None] * scale[:, :, None] * amp, 0.0).sum(axis=1)
+    return conv[:, :, None] * scale[:, :, None]
 
 
 MEANING = "amplitude of SG lobe k (fixed axis in n_v's tangent frame, fixed sharpness: docs/format.md), radiance, RGB"
