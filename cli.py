@@ -490,7 +490,9 @@ def _parser(prog: str = BLENDER_PROG) -> argparse.ArgumentParser:
     q = command(
         "compare",
         "compare every encoding of a finished bake against Cycles from the scene camera (no tracing; the bake's "
-        "files are not changed): bytes per texel, diffuse and specular error, a table and a contact sheet",
+        "files are not changed): bytes per texel, diffuse and specular error, a table and a contact sheet; a "
+        f"progress line per step, Ctrl-C stops after the current render (exit code {EXIT_CANCELLED}, an earlier "
+        "report kept)",
     )
     receivers(q)
     out(q, "folder of the bake")
@@ -819,11 +821,15 @@ def _encode(context, args) -> str:
 
 
 def _compare(context, args) -> str:
+    """`compare`: a progress line per step (each Cycles render, each atlas's post stages and
+    encodings, the report); Ctrl-C or SIGTERM stops at the next step (within a denoise): no
+    report file is replaced, the scene as it was (EXIT_CANCELLED)."""
     from .bridge import compare
+    from .core.console import ConsoleProgress, interrupt_as_cancel
 
     if args.cycles_samples < 2 or not 1 <= args.percentage <= 100 or any(not 0.0 < r <= 1.0 for r in args.roughness):
         raise BakeError("compare: --cycles-samples ≥ 2, --percentage in 1–100 and --roughness in (0, 1]")
-    summary, warnings = compare.run(
+    job = compare.prepare(
         context,
         args.objects,
         args.out,
@@ -833,6 +839,13 @@ def _compare(context, args) -> str:
         models=tuple(args.models or compare.core_compare.MODELS),
         percentage=args.percentage,
     )
+    print(f"compare: {len(job.steps)} steps into {job.report_dir}", flush=True)
+    progress = ConsoleProgress(step=0.0)
+    try:
+        with interrupt_as_cancel() as cancel:
+            summary, warnings = compare.run_steps(job, progress, cancel)
+    finally:
+        progress.close()
     for w in warnings:
         print(f"warning: {w}")
     return summary

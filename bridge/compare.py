@@ -14,14 +14,28 @@ Writes into `folder`: compare.md (the table), compare.json and contact_sheet.png
 reference, then each encoding; columns: diffuse, then specular per roughness; each column one
 exposure, the reference's mean at mid-grey; black: pixels not compared or a term the encoding
 does not model).
+
+In steps (`Comparison`, so that the work shows progress and can be cancelled): `prepare` checks
+everything and finds the compared pixels (no render, nothing changed); then one step per Cycles
+render (two seeds of the diffuse pass, then of each roughness), one per atlas for its post stages
+(reading its files, denoise, stitch), one per atlas and encoding, and the report last. `begin`
+and `advance` run them one at a time with a progress report (the operator's modal path, one per
+timer event); `run_steps` runs them all (`run`: the CLI, the operator's execute). The scene is
+changed only inside a render step and put back at its end, also when the render fails
+(`reference_setup`): between steps, after a cancel or an error it is as it was. The report's
+files are staged and replace the old ones together in the last step only (`exr.Staging`): a
+cancelled or failed comparison leaves an earlier report as it was.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import tempfile
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import bpy
@@ -30,14 +44,27 @@ import numpy as np
 from .. import blender_compat
 from ..core import compare as core_compare
 from ..core import exr, lightmap_files
+from ..core import progress as core_progress
 from ..core.colour import LUMINANCE
+from ..core.console import ConsoleProgress
 from ..core.encoding.web_packing import png_encode
-from ..core.errors import BakeError
+from ..core.errors import BakeCancelled, BakeError
 from . import bake_session, denoiser, mesh_data, scene_data
 
 ROUGHNESS = (0.25, 0.5, 0.75)
 NODE_PREFIX = "HHD Compare"
 GLOSSY, PICK = "Glossy", "Diffuse or Glossy"
+
+# The steps' estimated costs, in microseconds on the 2-core test machine (only their ratios
+# matter: each step's share of the progress bar; `core.progress` has the bake's), from this
+# machine's comparisons (bench/compare.py's scenes, a floor and a cube). A Cycles render: per
+# pixel and sample, × (1 + bounces), and its start (scene sync, shaders). An atlas's post stages
+# and encodings: `core.progress`'s per texel, and for the SG encodings per lobe (their fit).
+COST_RENDER_SAMPLE = 1.5
+COST_RENDER_START = 5e4
+COST_SG_LOBE = 2.0
+#: Writing the report: per contact sheet pixel.
+COST_REPORT_PIXEL = 0.5
 
 
 def camera_of(scene, percentage: int = 100) -> core_compare.Camera:
@@ -62,22 +89,18 @@ def camera_of(scene, percentage: int = 100) -> core_compare.Camera:
     return core_compare.Camera(m[:3, 3].copy(), rotation, width, height, data.type, (hx, hy))
 
 
-def reference_renders(scene, camera, samples: int, roughness, bounces: int, folder: Path) -> tuple[dict, dict]:
-    """({'diffuse': (H, W, 3), roughness: (H, W, 3)} Cycles references (module doc), rows top first,
-    {same keys: half the difference of the two renders each reference averages}). Each reference
-    is the mean of two renders of `samples`//2 samples with other seeds: half their difference
-    has the mean's noise, which the errors then leave out (`_noise_removed`)."""
+@contextlib.contextmanager
+def reference_setup(scene, camera, samples: int, bounces: int):
+    """Inside the block the scene renders a reference (module doc): every material's camera-ray
+    switch added, Cycles set up (`_cycles`) for `samples` samples; after it, also after an
+    error, every material and render setting is as it was (`_render_state`)."""
     saved = _render_state(scene)
     added = []
     try:
         for mat in bpy.data.materials:
             added += _camera_surface(mat)
-        _cycles(scene, camera, max(1, samples // 2), bounces)
-        out, halves = {}, {}
-        for key, r, glossy in [("diffuse", 0.0, False)] + [(r, r, True) for r in roughness]:
-            a, b = (_render(scene, folder / f"reference_{key}_{seed}.exr", r, glossy, seed) for seed in (1, 2))
-            out[key], halves[key] = 0.5 * (a + b), 0.5 * (a - b)
-        return out, halves
+        _cycles(scene, camera, samples, bounces)
+        yield
     finally:
         for tree, nodes, link in added:
             for node in nodes:
@@ -131,19 +154,23 @@ def _set_pass(roughness: float, glossy: bool) -> None:
 
 
 def _render(scene, path: Path, roughness: float, glossy: bool, seed: int) -> np.ndarray:
+    """One reference render (inside `reference_setup`) as (H, W, 3), rows top first. Raises
+    RuntimeError (Blender's) when the render fails, BakeError when it wrote no image."""
     _set_pass(roughness, glossy)
     scene.cycles.seed = seed
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
+    if not path.is_file():
+        raise BakeError(f"Cycles wrote no image to {path}")
     channels, _ = exr.read(path)
     return np.stack([channels[c] for c in "RGB"], -1).astype(np.float64)  # EXR rows: top first
 
 
 _STATE = (
-    ("render", ("engine", "filepath", "resolution_x", "resolution_y", "resolution_percentage", "filter_size")),
+    ("render", ("engine", "filepath", "resolution_x", "resolution_y", "resolution_percentage")),
     ("cycles", ("device", "samples", "use_denoising", "max_bounces", "diffuse_bounces", "glossy_bounces")),
     ("cycles", ("transmission_bounces", "sample_clamp_direct", "sample_clamp_indirect", "use_adaptive_sampling")),
-    ("cycles", ("seed",)),
+    ("cycles", ("seed", "pixel_filter_type", "filter_width")),
     ("image_settings", ("file_format", "color_mode", "color_depth")),
     ("view_settings", ("view_transform", "look", "exposure", "gamma")),
 )
@@ -171,9 +198,10 @@ def _cycles(scene, camera, samples: int, bounces: int) -> None:
     r = scene.render
     r.engine = 'CYCLES'
     r.resolution_x, r.resolution_y, r.resolution_percentage = camera.width, camera.height, 100
-    r.filter_size = 0.0
     c = scene.cycles
     c.device, c.samples, c.use_denoising, c.use_adaptive_sampling = 'CPU', samples, False, False
+    # the pixel's centre, as the compared pixels' camera rays (Cycles reads its own filter, not filter_size)
+    c.pixel_filter_type, c.filter_width = 'BOX', 0.01
     c.max_bounces = c.diffuse_bounces = c.glossy_bounces = bounces  # the camera's hit is the baked point
     c.transmission_bounces = 0
     c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
@@ -192,10 +220,35 @@ def run(
     roughness=ROUGHNESS,
     models=core_compare.MODELS,
     percentage: int = 50,
+    progress: Callable[[float, str], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
 ) -> tuple[str, list[str]]:
     """Compare every encoding of the receivers' atlases (the last bake in `out_dir`, default the
     output folder) against Cycles from the scene camera; writes the report into `folder`
-    (default `<out_dir>/compare`). Returns (summary line, warnings)."""
+    (default `<out_dir>/compare`). Returns (summary line, warnings). `progress(fraction,
+    message)` hears of every step (default: a console line each); `cancel()` True stops at the
+    next step (BakeCancelled; nothing changed)."""
+    job = prepare(context, objects, out_dir, folder, samples, roughness, models, percentage)
+    console = ConsoleProgress(step=0.0) if progress is None else None
+    try:
+        return run_steps(job, progress or console, cancel)
+    finally:
+        if console is not None:
+            console.close()
+
+
+def prepare(
+    context,
+    objects: list[str] | None = None,
+    out_dir: str | None = None,
+    folder: str | None = None,
+    samples: int = 256,
+    roughness=ROUGHNESS,
+    models=core_compare.MODELS,
+    percentage: int = 50,
+) -> Comparison:
+    """The comparison `run` makes, checked (a bake of every atlas, a receiver seen by the camera:
+    BakeError otherwise) and its compared pixels found, before any render; nothing is changed."""
     scene = context.scene
     settings = scene.hhd
     bake_dir = Path(bake_session.output_folder(settings, out_dir))
@@ -208,8 +261,8 @@ def run(
     bare = sorted(o.name for o in receivers if not any(s.material for s in o.material_slots))
     if bare:
         warnings.append(f"{', '.join(repr(n) for n in bare)} have no material: left out of the comparison")
-    seen = []  # (atlas name, its files, the compared pixels): checked before any render
-    for name, _w, _h, members in groups:
+    seen = []
+    for name, width, height, members in groups:
         kept = [o for o in members if o.name not in bare]
         if not kept:
             continue
@@ -218,32 +271,207 @@ def run(
             raise BakeError(f"atlas '{name}' has no bake in {bake_dir}: bake it first")
         g = core_compare.gbuffer(camera, bake_scene, mesh_data.read_surface(kept, settings.uv_layer, depsgraph))
         if len(g.index):
-            seen.append((name, files, g))
+            pipeline = _pipeline(settings, lightmap_files.read_sidecar(files.sidecar))
+            seen.append(Atlas(name, files, g, pipeline, width * height))
         else:
             warnings.append(f"atlas '{name}': none of its receivers is seen by the camera")
     if not seen:
         raise BakeError("no receiver of the baked atlases is seen by the scene camera: nothing to compare")
-    with tempfile.TemporaryDirectory(prefix="hhd-compare-") as tmp:
-        references, halves = reference_renders(scene, camera, samples, tuple(roughness), settings.bounces, Path(tmp))
-    rows, images = [], {}
-    for name, files, g in seen:
-        pipeline = _pipeline(settings, lightmap_files.read_sidecar(files.sidecar))
-        data = lightmap_files.read_texel_data(files)
-        seams = lightmap_files.read_seams(files, data.atlas_shape) if pipeline.stitch_seams else None
-        for rec in core_compare.reconstruct_all(data, pipeline, seams, g, tuple(roughness), tuple(models)):
-            rows.append(_row(name, rec, g, references, halves, roughness))
-            images.setdefault(rec.model, []).append((g, rec))
-        images.setdefault("reference", []).append((g, None))
-    report_dir.mkdir(parents=True, exist_ok=True)
-    _write(report_dir, rows, images, references, roughness, camera, samples)
-    measured = [r for r in rows if math.isfinite(r["diffuse"])]
-    top = min(measured, key=lambda r: r["diffuse"]) if measured else None
-    best = f": lowest diffuse error {top['model']} {100 * top['diffuse']:.1f}%" if top else ""
-    return (
-        f"Compared {len(set(r['model'] for r in rows))} encodings against Cycles ({camera.width}×{camera.height}, "
-        f"{samples} samples) in {report_dir}{best}",
-        warnings,
-    )
+    return Comparison(scene, camera, seen, report_dir, samples, settings.bounces, roughness, models, warnings)
+
+
+@dataclass
+class Atlas:
+    """One compared atlas: its files, its compared pixels (`core_compare.GBuffer`), the post
+    stages its bake ran (`_pipeline`), its texel count."""
+
+    name: str
+    files: lightmap_files.AtlasFiles
+    g: core_compare.GBuffer
+    pipeline: object
+    texels: int
+
+
+@dataclass
+class Step:
+    """One step of a comparison: `message` says what it does (shown while it runs), `cost` its
+    estimated microseconds (its share of the progress bar), `run()` does it."""
+
+    message: str
+    cost: float
+    run: Callable[[], None]
+
+
+class Comparison:
+    """A comparison in steps (module doc), made by `prepare`, run by `begin` / `advance` or
+    `run_steps`. `steps`, `done` (how many ran), `warnings`; `summary` once the last one ran."""
+
+    def __init__(
+        self, scene, camera, seen: list[Atlas], report_dir: Path, samples, bounces, roughness, models, warnings
+    ):
+        self.scene, self.camera, self.seen, self.report_dir = scene, camera, seen, report_dir
+        self.samples, self.bounces = samples, bounces
+        self.roughness, self.models, self.warnings = tuple(roughness), tuple(models), warnings
+        self.renders: dict = {}  # (pass key, seed) → (H, W, 3)
+        self.references: dict = {}
+        self.halves: dict = {}
+        self.rows: list = []
+        self.images: dict = {}
+        self.summary = ""
+        self.check: Callable[[], None] | None = None  # a denoise's cancel check (`advance`)
+        self.callback: Callable[[float, str], None] | None = None
+        self.progress = core_progress.Progress(self._report)  # the fractions and the ETA
+        self._post: tuple | None = None  # the atlas being encoded: (data, records, seams)
+        self._tmp: tempfile.TemporaryDirectory | None = tempfile.TemporaryDirectory(prefix="hhd-compare-")
+        self.steps = self._render_steps() + self._atlas_steps() + [self._report_step()]
+        self.done = 0
+
+    def _passes(self) -> list[tuple]:
+        """(key, roughness, glossy, label) of each reference."""
+        return [("diffuse", 0.0, False, "diffuse")] + [(r, r, True, f"glossy r={r:g}") for r in self.roughness]
+
+    def _render_steps(self) -> list[Step]:
+        half = max(1, self.samples // 2)
+        cost = COST_RENDER_START + self.camera.width * self.camera.height * half * COST_RENDER_SAMPLE * (
+            1 + self.bounces
+        )
+        runs = [(key, r, glossy, label, seed) for key, r, glossy, label in self._passes() for seed in (1, 2)]
+        steps = []
+        for k, run in enumerate(runs):
+            label, seed = run[3], run[4]
+            steps.append(
+                Step(f"Cycles reference {k + 1}/{len(runs)}: {label}, seed {seed}", cost, partial(self._render, *run))
+            )
+        return steps
+
+    def _atlas_steps(self) -> list[Step]:
+        steps = []
+        for atlas in self.seen:
+            post = [
+                name
+                for name, on in (("denoise", atlas.pipeline.denoise), ("stitch", atlas.pipeline.stitch_seams))
+                if on
+            ]
+            cost = atlas.texels * (core_progress.COST_IMAGE + sum(core_progress.POST_COSTS[n] for n in post))
+            stages = f" ({', '.join(post)})" if post else ""
+            steps.append(Step(f"reading atlas '{atlas.name}'{stages}", cost, partial(self._read_atlas, atlas)))
+            for model in self.models:
+                lobes = int(model[2:]) if model.startswith("sg") else 0
+                cost = atlas.texels * (core_progress.COST_ENCODE + lobes * COST_SG_LOBE)
+                steps.append(
+                    Step(f"encoding atlas '{atlas.name}' as {model}", cost, partial(self._encode, atlas, model))
+                )
+        return steps
+
+    def _report_step(self) -> Step:
+        pixels = self.camera.width * self.camera.height * (len(self.models) + 1) * (len(self.roughness) + 1)
+        return Step(f"writing the report into {self.report_dir}", pixels * COST_REPORT_PIXEL, self._write_report)
+
+    def _render(self, key, roughness: float, glossy: bool, label: str, seed: int) -> None:
+        assert self._tmp is not None, "the comparison was closed"
+        path = Path(self._tmp.name) / f"reference_{key}_{seed}.exr"
+        with reference_setup(self.scene, self.camera, max(1, self.samples // 2), self.bounces):
+            try:
+                self.renders[key, seed] = _render(self.scene, path, roughness, glossy, seed)
+            except (RuntimeError, BakeError) as exc:
+                detail = " ".join(str(exc).replace("Error:", "").split())
+                raise BakeError(f"the Cycles reference render ({label}, seed {seed}) failed: {detail}") from exc
+        path.unlink(missing_ok=True)
+
+    def _read_atlas(self, atlas: Atlas) -> None:
+        """The atlas's raw SH after its post stages (`core_compare.post_stages`)."""
+        if not self.references:  # every render done: the references and their noise
+            for key, *_ in self._passes():
+                a, b = self.renders.pop((key, 1)), self.renders.pop((key, 2))
+                self.references[key], self.halves[key] = 0.5 * (a + b), 0.5 * (a - b)
+        data = lightmap_files.read_texel_data(atlas.files)
+        seams = lightmap_files.read_seams(atlas.files, data.atlas_shape) if atlas.pipeline.stitch_seams else None
+        data, records = core_compare.post_stages(data, atlas.pipeline, seams, self.check)
+        self._post = (data, records, seams)
+        self.images.setdefault("reference", []).append((atlas.g, None))
+
+    def _encode(self, atlas: Atlas, model: str) -> None:
+        assert self._post is not None
+        data, records, seams = self._post
+        rec = core_compare.reconstruct_model(model, data, records, atlas.pipeline, seams, atlas.g, self.roughness)
+        self.rows.append(_row(atlas.name, rec, atlas.g, self.references, self.halves, self.roughness))
+        self.images.setdefault(rec.model, []).append((atlas.g, rec))
+        if model == self.models[-1]:
+            self._post = None
+
+    def _write_report(self) -> None:
+        _write(self.report_dir, self.rows, self.images, self.references, self.roughness, self.camera, self.samples)
+        measured = [r for r in self.rows if math.isfinite(r["diffuse"])]
+        top = min(measured, key=lambda r: r["diffuse"]) if measured else None
+        best = f": lowest diffuse error {top['model']} {100 * top['diffuse']:.1f}%" if top else ""
+        self.summary = (
+            f"Compared {len(set(r['model'] for r in self.rows))} encodings against Cycles ({self.camera.width}×"
+            f"{self.camera.height}, {self.samples} samples) in {self.report_dir}{best}"
+        )
+
+    def _report(self, fraction: float, message: str) -> None:
+        if self.callback is not None:
+            self.callback(fraction, message)
+
+    def announce(self) -> None:
+        """Report the step about to run (its start, its message), or 1.0 once all ran."""
+        if self.done < len(self.steps):
+            spent = sum(step.cost for step in self.steps[: self.done])
+            self.progress.report(spent / sum(step.cost for step in self.steps), self.steps[self.done].message)
+        else:
+            self.progress.finish(f"compare: report written to {self.report_dir}")
+
+    def close(self) -> None:
+        """Delete the temporary renders and drop what the steps hold (any time; again is a no-op)."""
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+        self.renders, self._post = {}, None
+
+
+def begin(job: Comparison, progress: Callable[[float, str], None]) -> None:
+    """Report the first step to `progress(fraction, message)` before `advance` runs it."""
+    job.callback = progress
+    job.announce()
+
+
+def advance(job: Comparison, progress: Callable[[float, str], None], cancel: Callable[[], bool]) -> bool:
+    """Run the next step of `job`, then report the one after it to `progress` (1.0 after the
+    last); True while steps remain. `cancel()` True: BakeCancelled instead of the step (and
+    within a denoise). When this raises or returns False the job is closed; the scene is as it
+    was whenever it returns or raises, and the report is written only by the last step."""
+
+    def check() -> None:
+        if cancel():
+            raise BakeCancelled("compare cancelled")
+
+    job.callback, job.check = progress, check
+    try:
+        check()
+        job.steps[job.done].run()
+        job.done += 1
+        job.announce()
+    except BaseException:
+        job.close()
+        raise
+    if job.done < len(job.steps):
+        return True
+    job.close()
+    return False
+
+
+def run_steps(
+    job: Comparison, progress: Callable[[float, str], None], cancel: Callable[[], bool] | None = None
+) -> tuple[str, list[str]]:
+    """Run every step of `job` (`begin`, then `advance` until done): (summary line, warnings)."""
+    stop = cancel or (lambda: False)
+    try:
+        begin(job, progress)
+        while advance(job, progress, stop):
+            pass
+    finally:
+        job.close()
+    return job.summary, job.warnings
 
 
 def _pipeline(settings, sidecar: dict):
@@ -305,10 +533,13 @@ def _write(folder: Path, rows, images, references, roughness, camera, samples) -
     order = ["reference"] + [m for m in images if m != "reference"]
     lines += ["", "contact_sheet.png rows, top to bottom: " + ", ".join(order) + "; columns: diffuse, "
               + ", ".join(f"specular r={r:g}" for r in roughness) + "."]  # fmt: skip
-    (folder / "compare.md").write_text("\n".join(lines) + "\n")
     finite = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()} for r in rows]
-    (folder / "compare.json").write_text(json.dumps({"rows": finite}, indent=1, allow_nan=False) + "\n")
-    (folder / "contact_sheet.png").write_bytes(png_encode(_sheet(order, images, references, roughness)))
+    sheet = png_encode(_sheet(order, images, references, roughness))
+    with exr.Staging() as staging:  # all three replace the old report together, or none does
+        staging.write_text(folder / "compare.md", "\n".join(lines) + "\n")
+        staging.write_text(folder / "compare.json", json.dumps({"rows": finite}, indent=1, allow_nan=False) + "\n")
+        staging.stage(folder / "contact_sheet.png").write_bytes(sheet)
+        staging.commit()
 
 
 def _percent(value) -> str:

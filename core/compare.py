@@ -150,19 +150,30 @@ def reconstruct_all(data, pipeline, seams, g: GBuffer, roughness=(), models=MODE
     """Reconstructions of every model of `models` at `g`'s pixels from `data` (the atlas's raw
     TexelData, whole atlas; spent: the post stages write into it) after the post stages of
     `pipeline` (`bake.PipelineSettings`: denoise and stitch as the bake ran them)."""
-    data, records = post.apply(data, pipeline, seams=seams, in_place=True)
+    data, records = post_stages(data, pipeline, seams)
     out = []
     for model in models:
         if check is not None:
             check()
-        settings = _settings(model, pipeline.encoder)
-        enc = encoding.for_settings(settings)
-        encoded = encoding.encode_atlas(data, enc, raw=False)
-        encoded = post.stitch_encoded(encoded, data.coverage, pipeline, seams, dict(records))
-        spec, images = encoded.files[encoded.encoding_file.key]
-        layers = {ch.name: _layer(ch, images, g.uv) for ch in spec.channels if ch.applies(settings)}
-        out.append(_reconstruction(model, settings, layers, g, roughness))
+        out.append(reconstruct_model(model, data, records, pipeline, seams, g, roughness))
     return out
+
+
+def post_stages(data, pipeline, seams, check=None):
+    """(`data` after the post stages of `pipeline`, their records): `reconstruct_model`'s input. `data`
+    is spent (the stages write into it); `check` as `post.apply` takes it (cancels a denoise)."""
+    return post.apply(data, pipeline, check=check, seams=seams, in_place=True)
+
+
+def reconstruct_model(model: str, data, records: dict, pipeline, seams, g: GBuffer, roughness=()) -> Reconstruction:
+    """One model's reconstruction at `g`'s pixels from `post_stages`' output (not changed)."""
+    settings = _settings(model, pipeline.encoder)
+    enc = encoding.for_settings(settings)
+    encoded = encoding.encode_atlas(data, enc, raw=False)
+    encoded = post.stitch_encoded(encoded, data.coverage, pipeline, seams, dict(records))
+    spec, images = encoded.files[encoded.encoding_file.key]
+    layers = {ch.name: _layer(ch, images, g.uv) for ch in spec.channels if ch.applies(settings)}
+    return _reconstruction(model, settings, layers, g, roughness)
 
 
 def _layer(channel, images: dict, uv: np.ndarray) -> np.ndarray:

@@ -55,11 +55,11 @@ class ModalWork:
         return self._work_done(context, self._state["result"], self._state["error"])
 
 
-def show_progress(context, title: str, fraction: float, message: str) -> None:
+def show_progress(context, title: str, fraction: float, message: str, hint: str = "Esc cancels") -> None:
     """Show a modal job's progress (fraction in [0, 1]) in the window's progress bar (started with
-    `progress_begin(0, 1000)`), the panel's bar and the status bar."""
+    `progress_begin(0, 1000)`), the panel's bar and the status bar (`hint` in brackets after it)."""
     wm = context.window_manager
-    text = f"{title} {100 * fraction:.0f}%: {message} (Esc cancels)"
+    text = f"{title} {100 * fraction:.0f}%: {message} ({hint})"
     wm.progress_update(int(1000 * fraction))
     wm.hhd_progress, wm.hhd_status = fraction, text
     context.workspace.status_text_set(text)
@@ -77,8 +77,9 @@ def clear_progress(context) -> None:
 
 
 def busy(cls) -> bool:
-    """In a poll: True (with the reason shown) while a bake or unwrap runs."""
+    """In a poll: True (with the reason shown) while a bake, unwrap or compare runs (the compare
+    operator sets `ModalWork.running` too)."""
     if ModalWork.running:
-        cls.poll_message_set("A bake or unwrap is running (Esc cancels it)")
+        cls.poll_message_set("A bake, unwrap or compare is running (Esc cancels it)")
         return True
     return False
