@@ -11,6 +11,7 @@ import os
 import sys
 import tempfile
 import time
+import types
 from pathlib import Path
 
 import pytest
@@ -129,7 +130,56 @@ def extension(extension_zip):
     )
     assert result == {"FINISHED"}
     assert EXTENSION_MODULE in bpy.context.preferences.addons
+    load_kernels_compiled_by_the_package_as_developed(Path(sys.modules[EXTENSION_MODULE].__file__).parent)
     return EXTENSION_MODULE
+
+
+def load_kernels_compiled_by_the_package_as_developed(installed: Path) -> None:
+    """In this process, a numba kernel of the installed extension (under `installed`) whose
+    source file is byte for byte the repository's loads what the package as developed
+    (`hhd_lightmapper`, the same file in ROOT) compiled for the same signature, from that
+    file's own numba cache, instead of compiling it a second time (~10-30 s of JIT per suite;
+    numba's cache key includes the function's bytecode). Only when its own cache misses; what
+    it compiles itself goes to its own cache as before; a load that fails compiles. Only one
+    way: an entry compiled by the installed copy would name its module (bl_ext...), which the
+    package's other processes (command lines, farm workers) cannot import. The installed
+    extension's processes (tools/try_install.py in tests/test_install.py) still compile from
+    cold with the zip's own numba."""
+    try:
+        from numba.core import caching
+    except ImportError:
+        return
+    load = caching.FunctionCache.load_overload
+    if getattr(load, "developed_twin", False):
+        return
+    twins: dict[str, Path | None] = {}
+
+    def twin_of(filename: str) -> Path | None:
+        if filename not in twins:
+            path, twins[filename] = Path(filename), None
+            if path.is_relative_to(installed):
+                other = ROOT / path.relative_to(installed)
+                if other.is_file() and other.read_bytes() == path.read_bytes():
+                    twins[filename] = other
+        return twins[filename]
+
+    def load_overload(self, sig, target_context):
+        cres = load(self, sig, target_context)
+        twin = None if cres is not None else twin_of(self._py_func.__code__.co_filename)
+        if twin is None:
+            return cres
+        f = self._py_func
+        try:  # the same function as if defined in the twin file: that file's cache and stamp
+            clone = types.FunctionType(
+                f.__code__.replace(co_filename=str(twin)), f.__globals__, f.__name__, f.__defaults__, f.__closure__
+            )
+            clone.__qualname__ = f.__qualname__
+            return load(caching.FunctionCache(clone), sig, target_context)
+        except Exception:
+            return None
+
+    load_overload.developed_twin = True
+    caching.FunctionCache.load_overload = load_overload
 
 
 @pytest.fixture(scope="session")

@@ -19,6 +19,10 @@ pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.slow]
 #: tolerance is ≥ 10× four standard errors of the mean at this density, so 4× the texels (at
 #: 128/m) would buy it nothing; per-texel agreement does not depend on the texel count.
 DENSITY = 64.0
+#: The density of the closed rooms traced with three bounces (cost ∝ texels): a quarter of the
+#: texels, for which the criterion above still holds (it does not for every scene at 32/m, e.g.
+#: the disk and ellipse area lights, so the others keep DENSITY).
+COARSE_DENSITY = 32.0
 
 
 @pytest.fixture(autouse=True)
@@ -172,7 +176,7 @@ def test_cornell_box_interreflection(extension):
         "Lamp", (0, 0, 1.98), 0.6, kit.material("Lamp", (0, 0, 0), emission=(1, 1, 1, 6.0)), rotation=(math.pi, 0, 0)
     )
     kit.light('POINT', location=(0.4, -0.3, 1.5), energy=60.0, shadow_soft_size=0.0)
-    kit.unwrap([floor], DENSITY)
+    kit.unwrap([floor], COARSE_DENSITY)
     r = cc.compare([floor], samples=128, bounces=3, cycles_samples=128)
     assert r["mean"] > 0.5
     red_side = r["points"].position[r["keep"], 0] < -0.6
@@ -287,7 +291,7 @@ def test_emission_shader_emitter_reflects_nothing(extension):
         kit.plane(name, centre, 2.0, white, rotation=rotation)
     lamp = bpy_emission_material("Ceiling Lamp", (1.0, 0.95, 0.9), 2.0)
     kit.plane("Ceiling", (0, 0, 2.0), 2.0, lamp, rotation=(math.pi, 0, 0))
-    kit.unwrap([floor], DENSITY)
+    kit.unwrap([floor], COARSE_DENSITY)
     r = cc.compare([floor], samples=64, bounces=3, cycles_samples=64)
     assert r["mean"] > 0.5
     cc.assert_agree(r, allowance=0.02)
