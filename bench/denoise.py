@@ -23,7 +23,7 @@ Per scene:
   texels our bake points flag `near_cover`, and without those differing by more than 50%). The
   denoiser is also run on our reference itself: what it changes on converged input (untimed; it
   warms OIDN up).
-- rows: ours raw and denoised (`core.denoise.denoise_texels`, chart by chart, with the noise the
+- rows: ours raw and denoised (`core.post.denoise.pages.denoise_texels`, chart by chart, with the noise the
   tracer measured for its clamp, as a bake runs it) at PLAN's sample
   counts; Cycles raw and "denoised as The Lightmapper's users get it" (the baked atlas, its empty
   texels dilated by `core.dilate`, the whole atlas through RTLightmap in HDR mode in one call) at
@@ -144,12 +144,13 @@ def main() -> int:
 
     import hhd_lightmapper
     from hhd_lightmapper.bridge import denoiser as bridge_denoiser
-    from hhd_lightmapper.core import denoise, parallel
+    from hhd_lightmapper.core import parallel
+    from hhd_lightmapper.core.post.denoise import filtering
 
     hhd_lightmapper.register()
     t_run = time.perf_counter()
     threads = parallel.resolve_threads(0)
-    denoiser = denoise.denoiser_for(bridge_denoiser.oidn_library(), threads)
+    denoiser = filtering.denoiser_for(bridge_denoiser.oidn_library(), threads)
     out = RESULTS / "denoise.json"
     results = {
         "settings": {k: v for k, v in vars(args).items() if k not in ("replot", "out")},
@@ -298,11 +299,12 @@ def cycles_bake(atlas: Atlas, samples: int, seed: int):
 def denoise_ours(traced, denoiser):
     """The denoise post stage on a bake: (denoised SH (P, 9, 3), DenoiseReport, seconds incl. the
     texel images)."""
-    from hhd_lightmapper.core import denoise, encoding
+    from hhd_lightmapper.core import encoding
+    from hhd_lightmapper.core.post.denoise import pages
 
     t = time.perf_counter()
     data = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise())
-    clean, report = denoise.denoise_texels(data, denoiser)
+    clean, report = pages.denoise_texels(data, denoiser)
     seconds = time.perf_counter() - t
     return clean.sh.reshape(-1, 9, 3)[traced.points.texel].astype(np.float64), report, seconds
 

@@ -6,7 +6,7 @@
 Per scene (bench/denoise.py's scenes, receivers and 512² atlas): our reference as two halves of
 `--reference` samples with their own seeds (its noise, the floor, removed in quadrature), then our
 raw bake at each `--samples` (seed 0, the noise the tracer measured kept for the clamp, as a bake
-runs it), denoised twice by `core.denoise.denoise_texels`: with the smooth fill alone
+runs it), denoised twice by `core.post.denoise.pages.denoise_texels`: with the smooth fill alone
 (`MIRROR_RINGS` = 0, the fill until 2026-12-03) and with the chart mirrored through its border
 (`MIRROR_RINGS` as shipped). Errors as bench/denoise.py measures them (relative RMSE of luminance
 I_z over fully covered, unburied texels; each texel over max(reference, FLOOR × its mean)),
@@ -46,11 +46,12 @@ def main() -> int:
     import denoise as denoise_bench
     import hhd_lightmapper
     from hhd_lightmapper.bridge import denoiser as bridge_denoiser
-    from hhd_lightmapper.core import denoise, parallel
+    from hhd_lightmapper.core import parallel
+    from hhd_lightmapper.core.post.denoise import fill, filtering
 
     hhd_lightmapper.register()
-    denoiser = denoise.denoiser_for(bridge_denoiser.oidn_library(), parallel.resolve_threads(0))
-    results = {"settings": vars(args), "mirror_rings": denoise.MIRROR_RINGS, "scenes": {}}
+    denoiser = filtering.denoiser_for(bridge_denoiser.oidn_library(), parallel.resolve_threads(0))
+    results = {"settings": vars(args), "mirror_rings": fill.MIRROR_RINGS, "scenes": {}}
     for name in args.scenes:
         results["scenes"][name] = measure(name, args, denoise_bench, denoiser)
         RESULTS.mkdir(parents=True, exist_ok=True)
@@ -62,7 +63,7 @@ def main() -> int:
 
 def measure(name: str, args, bench, denoiser) -> dict:
     """One scene: reference, then per sample count the raw bake and both fills' errors."""
-    from hhd_lightmapper.core import denoise
+    from hhd_lightmapper.core.post.denoise import fill
 
     atlas = bench.Atlas(bench.load_scene(name), args.resolution, args.padding)
     halves = [bench.our_bake(atlas, args.reference // 2, seed)[0] for seed in bench.REFERENCE_SEEDS]
@@ -80,19 +81,19 @@ def measure(name: str, args, bench, denoiser) -> dict:
         "floor": reference.floor,
         "rows": [],
     }
-    shipped = denoise.MIRROR_RINGS
+    shipped = fill.MIRROR_RINGS
     for samples in args.samples:
         traced, _ = bench.our_bake(atlas, samples, 0)
         row = {"samples": samples, "raw": errors(reference, iz(traced.sh), subsets)}
         for label, rings in (("smooth", 0), ("mirrored", shipped)):
-            denoise.MIRROR_RINGS = rings
+            fill.MIRROR_RINGS = rings
             try:
                 t = time.perf_counter()
                 clean, _, _ = bench.denoise_ours(traced, denoiser)
                 row[label] = errors(reference, iz(clean), subsets)
                 row[label]["seconds"] = time.perf_counter() - t
             finally:
-                denoise.MIRROR_RINGS = shipped
+                fill.MIRROR_RINGS = shipped
         out["rows"].append(row)
         print(
             f"[{name}] {samples} spp: "

@@ -6,7 +6,7 @@
 Per scene (bench/denoise.py's scenes, receivers and 512² atlas): our reference as two halves of
 `--reference` samples with their own seeds (its noise, the floor, removed in quadrature), then our
 raw bake at each `--samples` and `--seeds` (the noise the tracer measured kept for the clamp, as a
-bake runs it), denoised by `core.denoise.denoise_texels` in each of VARIANTS, each one change on
+bake runs it), denoised by `core.post.denoise.pages.denoise_texels` in each of VARIANTS, each one change on
 the one before it, but the last two, which each leave one of `shipped`'s changes out:
 
 - `shelves`: charts shelf-packed (rows as tall as their first, tallest chart, 512 texels wide; the
@@ -57,15 +57,16 @@ def main() -> int:
     import denoise as denoise_bench
     import hhd_lightmapper
     from hhd_lightmapper.bridge import denoiser as bridge_denoiser
-    from hhd_lightmapper.core import denoise, parallel
+    from hhd_lightmapper.core import parallel
+    from hhd_lightmapper.core.post.denoise import filtering, noise_clamp
 
     hhd_lightmapper.register()
-    denoiser = denoise.denoiser_for(bridge_denoiser.oidn_library(), parallel.resolve_threads(0))
+    denoiser = filtering.denoiser_for(bridge_denoiser.oidn_library(), parallel.resolve_threads(0))
     results = {
         "settings": vars(args),
-        "small_chart": denoise.SMALL_CHART,
-        "edge_rings": denoise.EDGE_RINGS,
-        "edge_clamp": denoise.EDGE_CLAMP,
+        "small_chart": noise_clamp.SMALL_CHART,
+        "edge_rings": noise_clamp.EDGE_RINGS,
+        "edge_clamp": noise_clamp.EDGE_CLAMP,
         "scenes": {},
     }
     for name in args.scenes:
@@ -117,23 +118,25 @@ class variant:
         self.name = name
 
     def __enter__(self):
-        from hhd_lightmapper.core import denoise, stages
+        from hhd_lightmapper.core import stages
+        from hhd_lightmapper.core.post.denoise import layout, noise_clamp
 
-        self.saved = (denoise._skyline, denoise.SMALL_CHART, denoise.EDGE_CLAMP, stages.TracedAtlas.noise)
+        self.saved = (layout._skyline, noise_clamp.SMALL_CHART, noise_clamp.EDGE_CLAMP, stages.TracedAtlas.noise)
         if self.name == "shelves":
-            denoise._skyline = shelves
+            layout._skyline = shelves
         if self.name in ("shelves", "skyline"):
-            denoise.SMALL_CHART = 1
+            noise_clamp.SMALL_CHART = 1
         if self.name in ("shelves", "skyline", "small-chart", "no-edge"):
-            denoise.EDGE_CLAMP = 1.0
+            noise_clamp.EDGE_CLAMP = 1.0
         if self.name in ("shelves", "skyline", "small-chart", "no-widening"):
             stages.TracedAtlas.noise = spread
         return self
 
     def __exit__(self, *exc):
-        from hhd_lightmapper.core import denoise, stages
+        from hhd_lightmapper.core import stages
+        from hhd_lightmapper.core.post.denoise import layout, noise_clamp
 
-        denoise._skyline, denoise.SMALL_CHART, denoise.EDGE_CLAMP, stages.TracedAtlas.noise = self.saved
+        layout._skyline, noise_clamp.SMALL_CHART, noise_clamp.EDGE_CLAMP, stages.TracedAtlas.noise = self.saved
         return False
 
 
@@ -153,7 +156,7 @@ def shelves(charts: np.ndarray, rh, rw, ry, rx, width: int) -> list:
     """The packing until 2026-12-03: `charts` (sorted by decreasing height) left to right in
     shelves as tall as their first chart, pages at most `width` wide (or the widest chart), a
     page closed once its shelves reach PAGE_SIZE."""
-    from hhd_lightmapper.core import denoise
+    from hhd_lightmapper.core.post.denoise import layout
 
     width = max(width, int(rw[charts].max()))
     pages: list = []
@@ -162,8 +165,8 @@ def shelves(charts: np.ndarray, rh, rw, ry, rx, width: int) -> list:
         if page is None or x + rw[c] > width:
             y, x = y + shelf, 0
             shelf = int(rh[c])
-            if page is None or y >= denoise.PAGE_SIZE:
-                page, y = denoise.Page((0, 0)), 0
+            if page is None or y >= layout.PAGE_SIZE:
+                page, y = layout.Page((0, 0)), 0
                 pages.append(page)
         page.charts.append(c)
         page.rects.append((int(ry[c]), int(rx[c]), int(rh[c]), int(rw[c])))

@@ -166,7 +166,8 @@ def _stage_of(message: str) -> str | None:
 def child(argv: list[str]) -> int:
     from hhd_lightmapper import cli
     from hhd_lightmapper.bridge import bake_session
-    from hhd_lightmapper.core import bake, console, post, seams, tracer
+    from hhd_lightmapper.core import bake, console, post, tracer
+    from hhd_lightmapper.core.post.seams import geometry
 
     _marked(cli, "_unwrap", "unwrap")
     _marked(bake_session.BakeSession, "__init__", "scene read")
@@ -174,7 +175,7 @@ def child(argv: list[str]) -> int:
     _marked(bake, "ray_scene_of", "BVH")
     _marked(bake, "points_of", "bake points")
     _marked(tracer, "bake", "trace")
-    _marked(seams, "find_seams", "seams")
+    _marked(geometry, "find_seams", "seams")
     for attr, name in (("denoise_stage", "denoise"), ("stitch_stage", "stitch")):
         make = getattr(post, attr)
 

@@ -151,7 +151,7 @@ def oidn_library() -> str:
     """The bpy module's OIDN library (as tests/test_oidn.py finds it), "" if none."""
     import importlib.util
 
-    from hhd_lightmapper.core import oidn
+    from hhd_lightmapper.core.post.denoise import oidn
 
     spec = importlib.util.find_spec("bpy")
     dirs = [Path(d) / "lib" for d in (spec.submodule_search_locations or [])] if spec else []

@@ -28,8 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, lightmap_files, oidn, post, presets, seams, tracer
+from hhd_lightmapper.core import bake, bakepoints, encoding, lightmap_files, post, presets, tracer
 from hhd_lightmapper.core import stages as stages_module
+from hhd_lightmapper.core.post.denoise import oidn
+from hhd_lightmapper.core.post.seams import geometry
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -172,7 +174,7 @@ def main() -> int:
     # the image stage: from the noise image (`bake._finish_files` takes it first) to the post stages
     _mark_at(stages, stages_module.TracedAtlas, "noise", "image")
     for module, attr, name in (
-        (seams, "find_seams", "seams"),
+        (geometry, "find_seams", "seams"),
         (post, "apply", "post"),
         (encoding, "encode_atlas", "encode"),
         (post, "stitch_encoded", "stitch_encoded"),

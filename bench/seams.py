@@ -15,19 +15,19 @@ meshes with curved smooth parts, receive too). Per scene one shared atlas (`--re
 between charts; doubled until the receivers fit one atlas) unwrapped by the extension's
 `bpy.ops.hhd.unwrap`; BOUNCES diffuse bounces.
 
-Per scene, the atlas's seams (`core.seams.find_seams` on the bake points' mesh, timed), then:
+Per scene, the atlas's seams (`core.post.seams.geometry.find_seams` on the bake points' mesh, timed), then:
 
 - rows: the SH the encoder sees and the HHD file it writes with stitching off and on
-  (`core.seams.stitch` after the other post stages, then `core.seams.stitch_encoded` on the
+  (`core.post.seams.stitching.stitch` after the other post stages, then `core.post.seams.encoded_stitch.stitch_encoded` on the
   encoded layers, as `core.post` runs them), for the bake at `--samples` raw and denoised (the
   PRODUCTION preset's pipeline: OIDN's lightmap filter, then stitching) and for the reference.
-- seam metric (`core.seams.seam_metric`, read as the preview reads the lightmap): length-weighted
+- seam metric (`core.post.seams.metrics.seam_metric`, read as the preview reads the lightmap): length-weighted
   mean and P95 of the luminance relative difference across the seams, the interior step (the
   same one texel inside the charts) and their ratio (1: no more visible than the texel grid);
   the same with the normal tilted by 30° four ways (`tilted`); read from the SH (L2 irradiance)
   and from the encoded HHD file's images, also after the SH stitch alone (how far the non-linear
   encoding re-opens the seam before its own stitch). Hidden samples (a side reads a buried texel
-  the encoder leaves black: `core.seams.reads_hidden`) are left out of the metric (and the stitch).
+  the encoder leaves black: `core.post.seams.reads.reads_hidden`) are left out of the metric (and the stitch).
 - interior error: luminance I_z at n_v against the reference (two halves of `--reference`
   samples with other seeds; half their RMS difference is its own noise, the floor), relative
   RMSE over fully covered, unburied texels (each texel's error over max(reference, FLOOR × the
@@ -96,12 +96,13 @@ def main() -> int:
 
     import hhd_lightmapper
     from hhd_lightmapper.bridge import denoiser as bridge_denoiser
-    from hhd_lightmapper.core import denoise, parallel
+    from hhd_lightmapper.core import parallel
+    from hhd_lightmapper.core.post.denoise import filtering
 
     hhd_lightmapper.register()
     t_run = time.perf_counter()
     threads = parallel.resolve_threads(0)
-    denoiser = denoise.denoiser_for(bridge_denoiser.oidn_library(), threads)
+    denoiser = filtering.denoiser_for(bridge_denoiser.oidn_library(), threads)
     results = {
         "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k != "replot"},
         "bounces": BOUNCES,
@@ -233,17 +234,17 @@ def stitch_row(data, seams_, interior: Interior | None) -> dict:
     """Stitching `data` (TexelData) as the pipeline does (`core.post`: the SH, then the encoded
     layers): the seam metric of the SH and of the HHD file before and after (and after the SH
     stitch alone), the interior error of the SH and of the HHD file's I_z, and the time."""
-    from hhd_lightmapper.core import seams
+    from hhd_lightmapper.core.post.seams import encoded_stitch, metrics, stitching
 
     t = time.perf_counter()
-    stitched, record = seams.stitch(data, seams_)
+    stitched, record = stitching.stitch(data, seams_)
     sh_seconds = time.perf_counter() - t
     unstitched, sh_only = encode(data), encode(stitched)
     t = time.perf_counter()
-    final, encoded_record = seams.stitch_encoded(sh_only, seams_, stitched.coverage)
+    final, encoded_record = encoded_stitch.stitch_encoded(sh_only, seams_, stitched.coverage)
     encoded_seconds = time.perf_counter() - t
     t = time.perf_counter()
-    sh_before = brief(seams.seam_metric(data, seams_))
+    sh_before = brief(metrics.seam_metric(data, seams_))
     metric_seconds = time.perf_counter() - t
     row = {
         "stitch_seconds": sh_seconds + encoded_seconds,
@@ -253,11 +254,11 @@ def stitch_row(data, seams_, interior: Interior | None) -> dict:
         "record": {k: v for k, v in record.items() if k not in ("before", "after")},
         "implausible": implausible(data, stitched),
         "encoded_record": {k: v for k, v in encoded_record.items() if k not in ("before", "after")},
-        "sh": {"before": sh_before, "after": brief(seams.seam_metric(stitched, seams_))},
+        "sh": {"before": sh_before, "after": brief(metrics.seam_metric(stitched, seams_))},
         "hhd": {
-            "before": brief(seams.seam_metric(unstitched, seams_, coverage=data.coverage)),
-            "after_sh_stitch": brief(seams.seam_metric(sh_only, seams_, coverage=data.coverage)),
-            "after": brief(seams.seam_metric(final, seams_, coverage=data.coverage)),
+            "before": brief(metrics.seam_metric(unstitched, seams_, coverage=data.coverage)),
+            "after_sh_stitch": brief(metrics.seam_metric(sh_only, seams_, coverage=data.coverage)),
+            "after": brief(metrics.seam_metric(final, seams_, coverage=data.coverage)),
         },
     }
     if interior is not None:
@@ -285,16 +286,18 @@ def implausible(data, stitched) -> dict:
 
 def iz_image(encoded) -> np.ndarray:
     """The luminance of the HHD file's I_z `(H, W)` (rows bottom-up)."""
-    from hhd_lightmapper.core import hhd, seams
+    from hhd_lightmapper.core import hhd
+    from hhd_lightmapper.core.post.seams import reads
 
-    images = seams.encoded_images(encoded)
+    images = reads.encoded_images(encoded)
     return np.stack([images[f"Iz.{c}"] for c in "RGB"], -1).astype(np.float64) @ hhd.LUMINANCE
 
 
 def measure_scene(name: str, args, denoiser) -> dict:
     import denoise as denoise_bench
-    from hhd_lightmapper.core import bake, encoding, seams, tracer
-    from hhd_lightmapper.core import denoise as core_denoise
+    from hhd_lightmapper.core import bake, encoding, tracer
+    from hhd_lightmapper.core.post.denoise import pages
+    from hhd_lightmapper.core.post.seams import geometry
 
     t_scene = time.perf_counter()
     receivers = load_scene(name)
@@ -315,7 +318,7 @@ def measure_scene(name: str, args, denoiser) -> dict:
     traced, bake_seconds = trace(args.samples, SEED)
     points = traced.points
     t = time.perf_counter()
-    seams_ = seams.find_seams(points.mesh, atlas.size, atlas.size)
+    seams_ = geometry.find_seams(points.mesh, atlas.size, atlas.size)
     find_seconds = time.perf_counter() - t
     halves, ref_seconds = [], 0.0
     for seed in REFERENCE_SEEDS:
@@ -333,7 +336,7 @@ def measure_scene(name: str, args, denoiser) -> dict:
     )
     raw = encoding.TexelData.from_points(points, traced.sh)
     t = time.perf_counter()
-    denoised, _ = core_denoise.denoise_texels(raw, denoiser)
+    denoised, _ = pages.denoise_texels(raw, denoiser)
     denoise_seconds = time.perf_counter() - t
     reference = encoding.TexelData.from_points(points, 0.5 * (halves[0] + halves[1]))
     rows = {}

@@ -16,7 +16,7 @@ emissive surfaces only. Per scene, at a base texel density:
   samples per texel, bounces, a few (samples, bounces) pairs, noise target (adaptive stopping),
   time budget, texel density, encoder settings (optimal-linear vs searched direction, φ search,
   golden-section iterations, luminance vs RGB ambient weight, AHD vs HHD; re-encoding the base
-  bake and the reference), and the denoiser (`core.denoise`, OIDN's lightmap filter): samples
+  bake and the reference), and the denoiser (`core.post.denoise`, OIDN's lightmap filter): samples
   per texel with it on, and a few (samples, bounces) pairs with it on (fewer bounces, and 8).
   Every point sets the scene's Denoise explicitly (off unless the point says on; the scene's
   default is on); OIDN is loaded (one denoise) before the timed bakes, as the tracer is warm.
@@ -32,7 +32,7 @@ emissive surfaces only. Per scene, at a base texel density:
   left out), with the Cycles reference's own noise as its floor.
   The errors are of the SH that was encoded: the raw `_sh.exr` keeps the SH as traced, so a
   denoised point's SH read back from it is denoised again here with the bake's thread count
-  (`core.denoise.denoise_texels`, deterministic); every point checks that the I_z it encodes from
+  (`core.post.denoise.pages.denoise_texels`, deterministic); every point checks that the I_z it encodes from
   that SH equals the Iz channels of the written `_hhd.exr` (`encoded_iz_mismatch`: the largest
   relative difference, half-float rounding).
   Points at another texel density have no texel-wise I_z error (other texels); their image error
@@ -399,7 +399,8 @@ class Scene:
         import bpy
 
         from hhd_lightmapper.bridge import bake_session, denoiser
-        from hhd_lightmapper.core import denoise, lightmap_files
+        from hhd_lightmapper.core import lightmap_files
+        from hhd_lightmapper.core.post.denoise import filtering, pages
 
         s = self.scene.hhd
         s.preset = 'CUSTOM'
@@ -426,7 +427,7 @@ class Scene:
                 raise RuntimeError(f"the bake in {folder} was not denoised: {record.get('warning')}")
             # what the bake encoded: the same denoiser (library, threads) on the same SH
             threads = session.settings.trace.threads
-            data, _ = denoise.denoise_texels(data, denoise.denoiser_for(denoiser.oidn_library(), threads))
+            data, _ = pages.denoise_texels(data, filtering.denoiser_for(denoiser.oidn_library(), threads))
         return {
             "seconds": seconds,
             "peak_memory_mb": peak / 2**20 if trace_memory else None,
@@ -604,10 +605,11 @@ def encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors) -> list[dict]:
 def warm_denoiser(scene, data) -> None:
     """Load OIDN (library, device, weights) for the bakes' thread count and run it once on `data`."""
     from hhd_lightmapper.bridge import bake_session, denoiser
-    from hhd_lightmapper.core import denoise, parallel
+    from hhd_lightmapper.core import parallel
+    from hhd_lightmapper.core.post.denoise import filtering, pages
 
     threads = parallel.resolve_threads(bake_session.scene_threads(scene))
-    denoise.denoise_texels(data, denoise.denoiser_for(denoiser.oidn_library(), threads))
+    pages.denoise_texels(data, filtering.denoiser_for(denoiser.oidn_library(), threads))
 
 
 def encoded_iz_mismatch(files, irradz: np.ndarray, baked: np.ndarray) -> float:

@@ -1,7 +1,7 @@
 """The Open Image Denoise library of the running Blender, for the denoise post stage (`core.post`).
 
 The extension ships no OIDN binary: it uses the one Blender itself ships (and the RTLightmap
-weights of `oidn_weights/`, `core.oidn`). Where that library lives:
+weights of `oidn_weights/`, `core.post.denoise.oidn`). Where that library lives:
 
 - bpy as a Python module (pip `bpy`): Linux and macOS `bpy/lib/` (`libOpenImageDenoise.so.2`,
   `libOpenImageDenoise.2.dylib`), Windows the `bpy/` folder itself (`OpenImageDenoise.dll`: the
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import bpy
 
-from ..core import oidn
+from ..core.post.denoise import oidn
 
 
 def candidate_dirs() -> list[Path]:

@@ -33,7 +33,6 @@ from . import (
     parallel,
     post,
     probes,
-    seams,
     stages,
     tracer,
 )
@@ -41,6 +40,7 @@ from . import progress as meter
 from .bakepoints import BakePoints, SurfaceTriangles
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError, InwardFacesRefused
+from .post.seams import geometry
 from .progress import Progress, Tick, ticker
 from .rays import RayScene
 from .scene import BakeScene
@@ -71,7 +71,7 @@ class PipelineSettings:
     """trace: the tracer's settings; encoder: the encoding and its options (`core.encoding`);
     denoise: run the denoise post stage (`core.post`), through the Open Image Denoise library at
     `denoiser_library` (the bpy side finds Blender's; "" = none: the bake is then undenoised, with
-    a warning); stitch_seams: run the stitch post stage (`core.seams`) after it, so a smooth
+    a warning); stitch_seams: run the stitch post stage (`core.post.seams`) after it, so a smooth
     surface split between charts reads the same on both sides of the split. A bake writes the
     atlas's seams file either way, so a re-encode can switch stitching on or off. inward_faces:
     what to do with faces that point into their own object (`core.inward`: OPEN_SIDE bakes them
@@ -505,7 +505,7 @@ class Staged:
         sidecar = {**sidecar, "channels": {**sidecar.get("channels", {}), **self._tables.pop(name, {})}}
         lightmap_files.write_atlas(self.staging, self._files(name, parent), encoded, sidecar, tick)
 
-    def seams(self, name: str, atlas_seams: seams.Seams) -> None:
+    def seams(self, name: str, atlas_seams: geometry.Seams) -> None:
         """Stage the seams file of atlas `name`."""
         lightmap_files.stage_seams(self.staging, self._files(name), atlas_seams)
 
@@ -568,7 +568,7 @@ def finish_atlas(
         [f"seams {tick.name}".strip()] + [None] * (1 + len(traced.sets)),
     )
     seams_part.at(0.0, "finding the seams")
-    atlas_seams = seams.find_seams(traced.points.mesh, atlas.width, atlas.height)
+    atlas_seams = geometry.find_seams(traced.points.mesh, atlas.width, atlas.height)
     seconds = {"bake_points": t_points, "trace": traced.seconds, "seams": time.perf_counter() - t}
     t = time.perf_counter()
     sidecar = dict(extra)

@@ -38,9 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import denoise, encoding, exr, lightmap_files, parallel, post, tracer
+from . import encoding, exr, lightmap_files, parallel, post, tracer
 from .encoding.stage import WINDOW_MARGIN
 from .errors import BakeCancelled, FullBakeNeeded
+from .post.denoise.layout import label_charts
 
 #: Version of the sidecar's "fingerprints" record: a record of another version is "unknown" (full bake).
 FINGERPRINT_VERSION = 1
@@ -620,7 +621,7 @@ def _region_encode(data, fill, settings, atlas_seams, mask, check):
     EncodedAtlas, the post records, the sidecar's `incremental.merge`), or why the whole atlas
     must run instead (then `data` is untouched). The sidecar's stats stay the last full
     encode's (the region's are in `incremental.merge`)."""
-    labels, n = denoise.label_charts(data.coverage != 0.0)  # the denoiser's charts
+    labels, n = label_charts(data.coverage != 0.0)  # the denoiser's charts
     reads = _fill_reads(fill)[mask.reshape(-1)]
     seeds = mask.copy()  # the touched texels and the texels they fill from (a buried texel's: far in its chart)
     seeds.reshape(-1)[reads[reads >= 0]] = True

@@ -46,7 +46,7 @@ from .progress import Tick, ticker
 from .stages import Window
 
 if TYPE_CHECKING:
-    from .seams import Seams
+    from .post.seams.geometry import Seams
 
 __all__ = [
     "CONVENTIONS",
@@ -291,7 +291,7 @@ def read_seams(files: AtlasFiles, shape: tuple[int, int]) -> Seams | None:
     that cannot be read or is of another atlas size."""
     if not files.seams.is_file():
         return None
-    from .seams import Seams
+    from .post.seams.geometry import Seams
 
     try:
         seams = Seams.load(files.seams)

@@ -3,7 +3,7 @@
 Derived from the measured Pareto front of bench/tradeoff.py (README "Speed vs accuracy" gives
 each preset's time and error on the bench scenes): a preset is a maximum sample count, a
 bounce count, a noise target (relative standard error of I_z at which a texel stops early,
-0 = every texel takes every sample) and whether the denoiser runs (`core.denoise`).
+0 = every texel takes every sample) and whether the denoiser runs (`core.post.denoise`).
 """
 
 from __future__ import annotations

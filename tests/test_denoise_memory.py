@@ -1,4 +1,4 @@
-"""core/denoise.py's `in_place` (issue 23: memory): the SH denoised in place with no copy of
+"""The denoiser's `in_place` (core/post/denoise/; issue 23: memory): the SH denoised in place with no copy of
 what it replaced, and the caller's `restore` on failure. Real OIDN (the fixtures of test_oidn.py:
 skipped with the reason when the library or the weights are absent); the filter's numerics are
 never replaced, only wrapped to fail."""
@@ -9,7 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import denoise, encoding
+from hhd_lightmapper.core import encoding
+from hhd_lightmapper.core.post.denoise import layout, oidn
+from hhd_lightmapper.core.post.denoise import pages as denoise
 from test_denoise import atlas_data, banded_atlas
 from test_oidn import bpy_library_dirs, denoiser, library  # noqa: F401  (fixtures)
 
@@ -25,8 +27,8 @@ def copy_of(data: encoding.TexelData) -> encoding.TexelData:
 
 def band_width(data: encoding.TexelData) -> int:
     """Width of the widest page of `data` (BAND_TEXELS = rows × this gives bands of those rows)."""
-    labels, n = denoise.label_charts(data.coverage != 0)
-    return max(p.shape[1] for p in denoise.layout(labels, n, np.ones(n)))
+    labels, n = layout.label_charts(data.coverage != 0)
+    return max(p.shape[1] for p in layout.layout(labels, n, np.ones(n)))
 
 
 def reference_and_lean(data: encoding.TexelData, denoiser):  # noqa: F811
@@ -91,10 +93,10 @@ def test_a_multi_page_atlas_denoised_in_place_has_the_copys_bits(denoiser, monke
     noise = np.where(data.coverage > 0, 0.05 * rng.random(data.coverage.shape), np.nan).astype(np.float32)
     noise[180:190, 60:90] = np.nan  # texels with too few passes: not clamped
     data = replace(data, noise=noise)
-    monkeypatch.setattr(denoise, "PAGE_SIZE", 64)
+    monkeypatch.setattr(layout, "PAGE_SIZE", 64)
     monkeypatch.setattr(denoise, "BAND_TEXELS", 16 * 32)
-    labels, n = denoise.label_charts(data.coverage != 0)
-    pages = denoise.layout(labels, n, np.ones(n))
+    labels, n = layout.label_charts(data.coverage != 0)
+    pages = layout.layout(labels, n, np.ones(n))
     assert sum(bool(denoise._band_rows(p.shape)) for p in pages) == 1
     reference, lean, report = reference_and_lean(data, denoiser)
     assert report.pages >= 5
@@ -137,7 +139,7 @@ class FailingDenoiser:
             self.calls += 1
             if self.calls == self.fail_at:
                 self.written_when_failing = bool((bits(self.data.sh) != bits(self.traced)).any())
-                raise denoise.DenoiserError("injected failure")
+                raise oidn.DenoiserError("injected failure")
         return self.real.denoise(image, directional=directional, input_scale=input_scale)
 
 
@@ -155,7 +157,7 @@ def test_a_failure_after_a_write_calls_restore_and_before_it_does_not(denoiser, 
         calls.append(1)
         data.sh[...] = traced  # the caller's copy (e.g. the raw SH file)
 
-    with pytest.raises(denoise.DenoiserError, match="injected failure"):
+    with pytest.raises(oidn.DenoiserError, match="injected failure"):
         denoise.denoise_texels(data, failing, in_place=True, restore=restore)  # type: ignore[arg-type]
     assert failing.written_when_failing is restored
     assert len(calls) == (1 if restored else 0)
@@ -182,8 +184,8 @@ def cancel(data: encoding.TexelData, denoiser, cancel_at: int, restore) -> None:
 def test_a_cancel_calls_restore_only_once_something_is_written(denoiser, monkeypatch, cancel_at, restored):  # noqa: F811
     data = banded_atlas()
     monkeypatch.setattr(denoise, "BAND_TEXELS", 128 * band_width(data))
-    labels, n = denoise.label_charts(data.coverage != 0)
-    assert [-(-p.shape[0] // 128) for p in denoise.layout(labels, n, np.ones(n))] == [5]
+    labels, n = layout.label_charts(data.coverage != 0)
+    assert [-(-p.shape[0] // 128) for p in layout.layout(labels, n, np.ones(n))] == [5]
     traced = data.sh.copy()
     calls = []
 

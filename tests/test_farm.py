@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, farm, oidn, tracer
+from hhd_lightmapper.core import bake, bakepoints, farm, tracer
 from hhd_lightmapper.core.errors import BakeCancelled, BakeError, DependencyMissing
+from hhd_lightmapper.core.post.denoise import oidn
 from hhd_lightmapper.core.scene import BakeScene, PointLight, SunLight
 from scenekit import meshes
 from test_oidn import bpy_library_dirs

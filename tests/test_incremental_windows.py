@@ -8,7 +8,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, incremental, post, seams
+from hhd_lightmapper.core import bake, bakepoints, encoding, incremental, post
+from hhd_lightmapper.core.post.seams import geometry as seams
 from test_oidn import bpy_library_dirs, denoiser, library  # noqa: F401  (fixtures)
 from test_seams import PLAUSIBLE, cylinder, linear_sh, sphere, surface_of
 

@@ -1,4 +1,4 @@
-"""core/oidn.py: Open Image Denoise's RTLightmap filter through Blender's own OIDN library.
+"""core/post/denoise/oidn.py: Open Image Denoise's RTLightmap filter through Blender's own OIDN library.
 
 The library is the one the bpy module ships (bpy/lib/, found without importing bpy); the weights
 come from tools/fetch_oidn_weights.py (run here if missing: hash-checked, cached). Either absent:
@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import oidn
+from hhd_lightmapper.core.post.denoise import oidn
 
 
 def bpy_library_dirs() -> list[Path]:
@@ -161,7 +161,7 @@ def test_missing_library_or_weights_raise_unavailable(tmp_path, library, denoise
 
 
 def test_shipped_weights_match_their_pins():
-    """The committed-beside licence is there; the blobs (if fetched) hash to core/oidn.py's pins."""
+    """The committed-beside licence is there; the blobs (if fetched) hash to core/post/denoise/oidn.py's pins."""
     assert (oidn.WEIGHTS_DIR / "LICENSE.txt").is_file() and (oidn.WEIGHTS_DIR / "README.md").is_file()
     for mode in oidn.WEIGHTS:
         if (oidn.WEIGHTS_DIR / oidn.WEIGHTS[mode][0]).is_file():

@@ -1,4 +1,4 @@
-"""The pipeline's stages in core/bake.py (no Blender): a post stage plugs in at core/post.py and
+"""The pipeline's stages in core/bake.py (no Blender): a post stage plugs in at core/post/ and
 receives the atlas's texel images; `trace_surface` is stages 1–2 of `run`."""
 
 from dataclasses import replace
@@ -6,7 +6,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, denoise, encoding, exr, lightmap_files, post, seams, unwrap
+from hhd_lightmapper.core import bake, bakepoints, encoding, exr, lightmap_files, post, unwrap
+from hhd_lightmapper.core.post.denoise import filtering, oidn, pages
+from hhd_lightmapper.core.post.seams import geometry, stitching
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
 from scenekit import meshes
@@ -80,13 +82,13 @@ def test_stitching_runs_after_denoising_on_the_seams_of_the_atlas_and_is_off_whe
         seen.append(pairs)
         return data, {"seams": len(pairs)}
 
-    monkeypatch.setattr(seams, "stitch", stitch)
+    monkeypatch.setattr(stitching, "stitch", stitch)
     (on,) = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "on")
     (pairs,) = seen
     traced = bake.trace_surface(surface, RES, RES, scene, trace)
-    expected = seams.find_seams(traced.points.mesh, RES, RES)
+    expected = geometry.find_seams(traced.points.mesh, RES, RES)
     assert len(pairs) == len(expected) and np.array_equal(pairs.a, expected.a) and np.array_equal(pairs.b, expected.b)
-    stored = seams.Seams.load(on.files.seams)
+    stored = geometry.Seams.load(on.files.seams)
     assert np.array_equal(stored.a, expected.a) and np.array_equal(stored.weight, expected.weight)
     record = lightmap_files.read_sidecar(on.files.sidecar)["post"]["stitch"]
     assert record["encoded"]["enabled"]  # the second half, on the encoded layers
@@ -193,7 +195,7 @@ class FailingDenoiser:
         if directional:
             self.calls += 1
             if self.calls == self.fail_at:
-                raise denoise.DenoiserError("injected failure")
+                raise oidn.DenoiserError("injected failure")
         return self.real.denoise(image, directional=directional, input_scale=input_scale)
 
 
@@ -206,12 +208,12 @@ def test_a_denoiser_failing_half_way_gives_the_undenoised_bake(tmp_path, monkeyp
     trace = BakeSettings(samples=8, pass_samples=4, bounces=1, seed=3)
     atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
     (plain,) = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "plain")
-    monkeypatch.setattr(denoise, "BAND_TEXELS", 32 * RES)  # 16-row bands of the 260-row page, written 114 rows behind
+    monkeypatch.setattr(pages, "BAND_TEXELS", 32 * RES)  # 16-row bands of the 260-row page, written 114 rows behind
     restored = []
     real_restore = bake._restore_sh
     monkeypatch.setattr(bake, "_restore_sh", lambda *a: (restored.append(1), real_restore(*a))[1])
-    real_for = denoise.denoiser_for
-    monkeypatch.setattr(denoise, "denoiser_for", lambda lib, threads: FailingDenoiser(real_for(lib, threads), 37))
+    real_for = filtering.denoiser_for
+    monkeypatch.setattr(filtering, "denoiser_for", lambda lib, threads: FailingDenoiser(real_for(lib, threads), 37))
     settings = bake.PipelineSettings(trace=trace, denoise=True, denoiser_library=str(library))
     (failed,) = bake.run([atlas], scene, settings, tmp_path / "failed")
     assert restored == [1], "the failure came before any texel was written: no restore to test"

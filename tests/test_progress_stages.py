@@ -9,8 +9,9 @@ import json
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, denoise, progress, unwrap
+from hhd_lightmapper.core import bake, bakepoints, progress, unwrap
 from hhd_lightmapper.core.errors import BakeCancelled
+from hhd_lightmapper.core.post.denoise import pages as denoise
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
 from scenekit import meshes

@@ -1,4 +1,4 @@
-"""Seams (core/seams.py): finding them, reading the lightmap as the GPU does, the seam metric and
+"""Seams (core/post/seams/): finding them, reading the lightmap as the GPU does, the seam metric and
 least-squares stitching. Deterministic and fast: a linear function of position baked into the
 SH stands in for light, except in the last test (a small traced scene)."""
 
@@ -7,8 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bakepoints, encoding, hhd, raster, rays, seams, sh, tracer, unwrap
+from hhd_lightmapper.core import bakepoints, encoding, hhd, raster, rays, sh, tracer, unwrap
 from hhd_lightmapper.core.errors import BakeCancelled
+from hhd_lightmapper.core.post.seams import encoded_stitch, geometry, metrics, reads, stitching
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from scenekit import meshes
 
@@ -130,8 +131,8 @@ def test_bilinear_matches_the_gpu_convention_and_clamps_to_the_edge():
             + (1 - tx) * ty * at(i, j + 1)
             + tx * ty * at(i + 1, j + 1)
         )
-    np.testing.assert_allclose(seams.bilinear(image, xy), expected, rtol=1e-12)
-    np.testing.assert_array_equal(seams.bilinear(image, np.array([[3.5, 2.5]]))[0], image[2, 3])  # a centre: that texel
+    np.testing.assert_allclose(reads.bilinear(image, xy), expected, rtol=1e-12)
+    np.testing.assert_array_equal(reads.bilinear(image, np.array([[3.5, 2.5]]))[0], image[2, 3])  # a centre: that texel
 
 
 def test_interior_reads_reproduce_a_linear_bake_with_no_half_texel_offset():
@@ -145,7 +146,7 @@ def test_interior_reads_reproduce_a_linear_bake_with_no_half_texel_offset():
     tri = rng.integers(0, 4, 4000)
     bary = rng.dirichlet(np.ones(3), len(tri))
     xy = np.einsum("sk,ski->si", bary, mesh.texel_uv[tri])
-    index, _ = seams.bilinear_taps(xy, RES, RES)
+    index, _ = reads.bilinear_taps(xy, RES, RES)
     cover = raster.rasterise(mesh.texel_uv / RES, RES, RES)
     whole = np.full(RES * RES, -1)  # the triangle covering each texel whole, if one does
     whole[cover.texel[cover.area == 1.0]] = cover.triangle[cover.area == 1.0]
@@ -153,10 +154,10 @@ def test_interior_reads_reproduce_a_linear_bake_with_no_half_texel_offset():
     assert inside.sum() > 1000
     xy, tri = xy[inside], tri[inside]
     truth = linear_sh(world_point(mesh, xy, tri)) * PLAUSIBLE
-    read = seams.bilinear(data.sh, xy)
+    read = reads.bilinear(data.sh, xy)
     scale = np.abs(truth).max()
     assert np.abs(read - truth).max() < 1e-6 * scale
-    shifted = seams.bilinear(data.sh, xy + 0.5)
+    shifted = reads.bilinear(data.sh, xy + 0.5)
     assert np.abs(shifted - truth).max() > 100 * np.abs(read - truth).max()
 
 
@@ -165,7 +166,7 @@ def test_interior_reads_reproduce_a_linear_bake_with_no_half_texel_offset():
 
 def test_a_split_smooth_edge_is_one_seam_sampled_along_its_whole_length():
     points = bakepoints.build(two_quads(ROTATED_B), RES, RES)
-    found = seams.find_seams(points.mesh, RES, RES, samples_per_texel=3.0)
+    found = geometry.find_seams(points.mesh, RES, RES, samples_per_texel=3.0)
     assert found.edges == 1
     assert len(found) == int(np.ceil(52 * 3.0))  # the longer side: 52 texels
     np.testing.assert_allclose(found.weight.sum(), 1.0)  # metres of edge
@@ -182,21 +183,21 @@ def test_a_split_smooth_edge_is_one_seam_sampled_along_its_whole_length():
 
 def test_hard_edges_and_edges_with_equal_uvs_are_not_seams():
     hard = bakepoints.build(two_quads(ROTATED_B, fold=True), RES, RES)
-    assert len(seams.find_seams(hard.mesh, RES, RES)) == 0
+    assert len(geometry.find_seams(hard.mesh, RES, RES)) == 0
     shared = [[60, 20], [100, 20], [100, 60], [60, 60]]  # quad b continues quad a's chart
     same_uv = bakepoints.build(two_quads(shared), RES, RES)
-    assert len(seams.find_seams(same_uv.mesh, RES, RES)) == 0
+    assert len(geometry.find_seams(same_uv.mesh, RES, RES)) == 0
 
 
 def test_the_cylinders_rims_are_hard_and_only_smooth_splits_are_seams(sphere_cylinder):
     points = sphere_cylinder
-    found = seams.find_seams(points.mesh, RES, RES)
+    found = geometry.find_seams(points.mesh, RES, RES)
     on_cylinder = found.position[:, 0] > 1.2
     assert on_cylinder.any() and (~on_cylinder).any()  # both objects have seams
     np.testing.assert_allclose(found.normal[on_cylinder, 2], 0.0, atol=1e-9)  # on the side, never a rim
     # every seam sample lies on its 3D edge on both sides' triangles (same 3D point)
     assert np.isfinite(found.a).all() and np.isfinite(found.b).all()
-    assert (np.abs(found.a - found.b).max(axis=1) > seams.UV_TOLERANCE).all()
+    assert (np.abs(found.a - found.b).max(axis=1) > geometry.UV_TOLERANCE).all()
 
 
 def test_edges_far_shorter_than_a_texel_give_one_finite_sample():
@@ -204,21 +205,21 @@ def test_edges_far_shorter_than_a_texel_give_one_finite_sample():
     surface = two_quads(tiny)
     surface.uv[:2] = ((surface.uv[:2] * RES - 20) / 400 + 30) / RES  # quad a's edge: 0.1 texel
     points = bakepoints.build(surface, RES, RES)
-    found = seams.find_seams(points.mesh, RES, RES)
+    found = geometry.find_seams(points.mesh, RES, RES)
     assert len(found) == 1
     for f in ("a", "b", "weight", "normal", "position", "tangent", "inward_a", "inward_b", "span"):
         assert np.isfinite(getattr(found, f)).all(), f
     data = linear_data(points)
-    metric = seams.seam_metric(data, found)
+    metric = metrics.seam_metric(data, found)
     assert np.isfinite([metric["mean"], metric["interior"], metric["tilted"]["mean"]]).all()
-    out, record = seams.stitch(data, found)
+    out, record = stitching.stitch(data, found)
     assert np.isfinite(out.sh[out.baked]).all() and record["seams"] == 1
 
 
 def test_seams_save_and_load(tmp_path, sphere_cylinder):
-    found = seams.find_seams(sphere_cylinder.mesh, RES, RES)
+    found = geometry.find_seams(sphere_cylinder.mesh, RES, RES)
     found.save(tmp_path / "seams.npz")
-    back = seams.Seams.load(tmp_path / "seams.npz")
+    back = geometry.Seams.load(tmp_path / "seams.npz")
     assert (back.width, back.height, len(back)) == (RES, RES, len(found))
     for f in ("a", "b", "weight", "normal", "edge", "position", "tangent", "inward_a", "inward_b", "span"):
         np.testing.assert_array_equal(getattr(back, f), getattr(found, f))
@@ -231,7 +232,7 @@ def test_two_saves_of_the_same_seams_are_byte_identical(tmp_path, sphere_cylinde
     import io
     import time
 
-    found = seams.find_seams(sphere_cylinder.mesh, RES, RES)
+    found = geometry.find_seams(sphere_cylinder.mesh, RES, RES)
     found.save(tmp_path / "one.npz")
     later = time.time() + 3 * 3600 + 7
     monkeypatch.setattr(time, "time", lambda: later)
@@ -241,7 +242,7 @@ def test_two_saves_of_the_same_seams_are_byte_identical(tmp_path, sphere_cylinde
     found.save(buffer)
     one = (tmp_path / "one.npz").read_bytes()
     assert one == (tmp_path / "two.npz").read_bytes() == buffer.getvalue()
-    back = seams.Seams.load(tmp_path / "two.npz")
+    back = geometry.Seams.load(tmp_path / "two.npz")
     np.testing.assert_array_equal(back.a, found.a)
     assert (back.width, back.height) == (RES, RES)
 
@@ -252,10 +253,10 @@ def test_two_saves_of_the_same_seams_are_byte_identical(tmp_path, sphere_cylinde
 def test_stitching_closes_the_seams_of_a_linear_bake_and_touches_nothing_else(sphere_cylinder):
     points = sphere_cylinder
     data = linear_data(points)
-    found = seams.find_seams(points.mesh, RES, RES)
-    before = seams.seam_metric(data, found)
-    out, record = seams.stitch(data, found)
-    after = seams.seam_metric(out, found)
+    found = geometry.find_seams(points.mesh, RES, RES)
+    before = metrics.seam_metric(data, found)
+    out, record = stitching.stitch(data, found)
+    after = metrics.seam_metric(out, found)
     assert before["mean"] > 2e-4 and before["tilted"]["mean"] > 2e-4  # border texels sit off their centres
     assert after["mean"] < before["mean"] / 20 and after["tilted"]["mean"] < before["tilted"]["mean"] / 20
     assert after["interior"] < 1.01 * before["interior"]
@@ -263,7 +264,7 @@ def test_stitching_closes_the_seams_of_a_linear_bake_and_touches_nothing_else(sp
     assert record["before"]["mean"] == pytest.approx(before["mean"], rel=1e-6)
     assert record["texels"] > 0 and record["groups"] >= 1 and record["samples_dropped"] == 0
     # only texels the seam samples read changed; coverage never; normals only on stitched gutter texels
-    index = np.concatenate([seams.bilinear_taps(xy, RES, RES)[0] for xy in (found.a, found.b)], axis=1)
+    index = np.concatenate([reads.bilinear_taps(xy, RES, RES)[0] for xy in (found.a, found.b)], axis=1)
     read = np.zeros(RES * RES, bool)
     read[index.ravel()] = True
     changed = (out.sh != data.sh).reshape(RES * RES, -1).any(axis=1)
@@ -278,11 +279,11 @@ def test_stitching_closes_the_seams_of_a_linear_bake_and_touches_nothing_else(sp
 
 def test_stitched_gutter_texels_are_encoded_not_overwritten_by_dilation(sphere_cylinder):
     points = sphere_cylinder
-    found = seams.find_seams(points.mesh, RES, RES)
-    out, _ = seams.stitch(linear_data(points), found)
+    found = geometry.find_seams(points.mesh, RES, RES)
+    out, _ = stitching.stitch(linear_data(points), found)
     atlas = encoding.encode_atlas(out, encoding.for_settings(encoding.EncoderSettings()), raw=False)
     gutter = np.flatnonzero(out.extra_sources.reshape(-1))
-    iz = np.stack([seams.encoded_images(atlas)[f"Iz.{c}"].reshape(-1) for c in "RGB"], -1)[gutter]
+    iz = np.stack([reads.encoded_images(atlas)[f"Iz.{c}"].reshape(-1) for c in "RGB"], -1)[gutter]
     expected = hhd.irradz(
         out.sh.reshape(-1, 9, 3)[gutter].astype(np.float64), out.normal.reshape(-1, 3)[gutter].astype(np.float64)
     )
@@ -292,18 +293,18 @@ def test_stitched_gutter_texels_are_encoded_not_overwritten_by_dilation(sphere_c
 def test_a_nan_texel_does_not_spread(sphere_cylinder):
     points = sphere_cylinder
     data = linear_data(points)
-    found = seams.find_seams(points.mesh, RES, RES)
-    index, weight = seams.bilinear_taps(found.a[len(found) // 2 : len(found) // 2 + 1], RES, RES)
+    found = geometry.find_seams(points.mesh, RES, RES)
+    index, weight = reads.bilinear_taps(found.a[len(found) // 2 : len(found) // 2 + 1], RES, RES)
     bad = index[0][np.argmax(weight[0] * (data.coverage.reshape(-1)[index[0]] > 0))]
     sh_bad = data.sh.copy()
     sh_bad.reshape(RES * RES, 9, 3)[bad, 0, 1] = np.nan
-    out, record = seams.stitch(replace(data, sh=sh_bad), found)
+    out, record = stitching.stitch(replace(data, sh=sh_bad), found)
     finite = np.isfinite(out.sh).reshape(RES * RES, -1).all(axis=1)
     assert not finite[bad] and finite.sum() == RES * RES - 1
     assert record["samples_dropped"] > 0
-    metric = seams.seam_metric(out, found)
+    metric = metrics.seam_metric(out, found)
     assert 0 < metric["invalid"] <= record["samples_dropped"] and np.isfinite(metric["mean"])
-    assert metric["mean"] < seams.seam_metric(data, found)["mean"] / 10  # the rest is still stitched
+    assert metric["mean"] < metrics.seam_metric(data, found)["mean"] / 10  # the rest is still stitched
 
 
 BAND_SCALE = np.array([1, 0.3, 0.3, 0.3, 0.1, 0.1, 0.1, 0.1, 0.1])[None, :, None]
@@ -323,23 +324,23 @@ def test_the_hhd_reader_is_the_preview_formula_at_texel_centres(sphere_cylinder)
     n_v /= np.linalg.norm(n_v, axis=1, keepdims=True)
     n = sh.tangent_frames(n_v) @ np.array([0.4, -0.3, 0.866])
     params = hhd.encode(data.sh.reshape(-1, 9, 3)[texel], n_v)
-    images = seams.encoded_images(atlas)
-    got = seams.hhd_reader(images)(xy)(n_v, n)
+    images = reads.encoded_images(atlas)
+    got = reads.hhd_reader(images)(xy)(n_v, n)
     np.testing.assert_allclose(got, hhd.reconstruct(params, n_v, n), rtol=2e-3, atol=1e-4)  # half-float layers
 
 
 def test_no_seams_changes_nothing_and_the_solver_does_not_depend_on_its_thread_count(sphere_cylinder):
     plane = bakepoints.build(two_quads([[60, 20], [100, 20], [100, 60], [60, 60]]), RES, RES)
     data = linear_data(plane)
-    none = seams.find_seams(plane.mesh, RES, RES)
-    out, record = seams.stitch(data, none)
+    none = geometry.find_seams(plane.mesh, RES, RES)
+    out, record = stitching.stitch(data, none)
     np.testing.assert_array_equal(out.sh, data.sh)
-    assert record["texels"] == 0 and record["groups"] == 0 and seams.seam_metric(data, none)["mean"] == 0.0
+    assert record["texels"] == 0 and record["groups"] == 0 and metrics.seam_metric(data, none)["mean"] == 0.0
     points = sphere_cylinder
     data = linear_data(points)
-    found = seams.find_seams(points.mesh, RES, RES)
-    one, _ = seams.stitch(data, found, threads=1)
-    two, _ = seams.stitch(data, found, threads=2)
+    found = geometry.find_seams(points.mesh, RES, RES)
+    one, _ = stitching.stitch(data, found, threads=1)
+    two, _ = stitching.stitch(data, found, threads=2)
     np.testing.assert_array_equal(one.sh, two.sh)
 
 
@@ -351,9 +352,9 @@ def test_stitching_can_be_cancelled_between_solver_iterations(sphere_cylinder):
         if len(calls) > 1:
             raise BakeCancelled("cancelled")
 
-    found = seams.find_seams(sphere_cylinder.mesh, RES, RES)
+    found = geometry.find_seams(sphere_cylinder.mesh, RES, RES)
     with pytest.raises(BakeCancelled):
-        seams.stitch(linear_data(sphere_cylinder), found, check, threads=2)
+        stitching.stitch(linear_data(sphere_cylinder), found, check, threads=2)
 
 
 # --- a traced scene ----------------------------------------------------------------------------
@@ -370,16 +371,16 @@ def test_stitching_a_traced_sphere_and_cylinder_under_sun_and_sky():
     scene = BakeScene(triangles, np.full((len(triangles), 3), 0.6), lights=[sun], world=np.array([0.3, 0.4, 0.6]))
     traced = tracer.bake(points, scene, tracer.BakeSettings(samples=64, bounces=1, seed=1))
     data = encoding.TexelData.from_points(points, traced.sh)
-    found = seams.find_seams(points.mesh, RES, RES)
-    out, record = seams.stitch(data, found)
+    found = geometry.find_seams(points.mesh, RES, RES)
+    out, record = stitching.stitch(data, found)
     before, after = record["before"], record["after"]
     assert after["ratio"] <= 1.5 and after["tilted"]["ratio"] <= 1.5
     assert after["mean"] < before["mean"] / 5
     assert after["interior"] <= 1.01 * before["interior"]
     assert after["tilted"]["interior"] <= 1.01 * before["tilted"]["interior"]
     encoder = encoding.for_settings(encoding.EncoderSettings())
-    hhd_before = seams.seam_metric(encoding.encode_atlas(data, encoder, raw=False), found)
-    hhd_after = seams.seam_metric(encoding.encode_atlas(out, encoder, raw=False), found)
+    hhd_before = metrics.seam_metric(encoding.encode_atlas(data, encoder, raw=False), found)
+    hhd_after = metrics.seam_metric(encoding.encode_atlas(out, encoder, raw=False), found)
     assert hhd_after["ratio"] <= 1.5 and hhd_after["tilted"]["ratio"] <= 1.5
     assert hhd_after["mean"] < hhd_before["mean"] / 2
     assert hhd_after["interior"] <= 1.01 * hhd_before["interior"]
@@ -387,12 +388,12 @@ def test_stitching_a_traced_sphere_and_cylinder_under_sun_and_sky():
     # and d); stitching the encoded layers closes it for straight and tilted normals
     assert hhd_after["mean"] > 3 * after["mean"]
     atlas = encoding.encode_atlas(out, encoder, raw=False)
-    closed, encoded = seams.stitch_encoded(atlas, found, data.coverage)
+    closed, encoded = encoded_stitch.stitch_encoded(atlas, found, data.coverage)
     assert encoded["before"]["mean"] == pytest.approx(hhd_after["mean"])
     assert encoded["after"]["mean"] < hhd_after["mean"] / 4
     assert encoded["after"]["tilted"]["mean"] < hhd_after["tilted"]["mean"] / 2
     assert encoded["after"]["interior"] <= 1.01 * hhd_before["interior"]
-    images = seams.encoded_images(closed)
+    images = reads.encoded_images(closed)
     assert min(images[f"Iz.{c}"].min() for c in "RGB") >= 0.0
     assert 0.0 <= images["Wa.V"].min() and images["Wa.V"].max() <= 1.0
     assert max(np.abs(images[f"Direction.{c}"]).max() for c in "XY") <= 1.0
@@ -423,11 +424,11 @@ def test_stitched_sh_stays_a_plausible_radiance(sphere_cylinder, monkeypatch):
     points = sphere_cylinder
     data = contrast_data(points)
     assert l0_and_iz(data, points.texel)[1].min() > 0.0
-    found = seams.find_seams(points.mesh, RES, RES)
-    out, record = seams.stitch(data, found)
+    found = geometry.find_seams(points.mesh, RES, RES)
+    out, record = stitching.stitch(data, found)
     with monkeypatch.context() as m:
-        m.setattr(seams, "_bounded", lambda s, prior, delta, normal, dtype: (prior[s.texels] + delta, 0))
-        loose, _ = seams.stitch(data, found)
+        m.setattr(stitching, "_bounded", lambda s, prior, delta, normal, dtype: (prior[s.texels] + delta, 0))
+        loose, _ = stitching.stitch(data, found)
     changed = np.flatnonzero((loose.sh != data.sh).reshape(RES * RES, -1).any(axis=1))
     l0, iz = l0_and_iz(loose, changed)
     assert (l0 < 0).any(axis=1).sum() > 100 and (iz < 0).any(axis=1).sum() > 100  # what the bound prevents
@@ -438,12 +439,12 @@ def test_stitched_sh_stays_a_plausible_radiance(sphere_cylinder, monkeypatch):
     # the largest starting L0 (as the SH file shows it: gutter texels dilated) among the texels
     # each stitched texel's samples read; the bound allows BOUND_SLACK × the spread above it
     base = data.fill().apply(data.sh).reshape(-1, 9, 3)[:, 0].astype(np.float64)
-    index = np.concatenate([seams.bilinear_taps(xy, RES, RES)[0] for xy in (found.a, found.b)], axis=1)
+    index = np.concatenate([reads.bilinear_taps(xy, RES, RES)[0] for xy in (found.a, found.b)], axis=1)
     row_max = base[index].max(axis=1)  # (S, 3)
     tied_max = np.zeros((RES * RES, 3))
     for k in range(index.shape[1]):
         np.maximum.at(tied_max, index[:, k], row_max)
-    assert (l0 <= tied_max[changed] * (1.0 + seams.BOUND_SLACK) * (1 + 1e-6)).all()
+    assert (l0 <= tied_max[changed] * (1.0 + stitching.BOUND_SLACK) * (1 + 1e-6)).all()
     assert record["after"]["ratio"] < 0.25 * record["before"]["ratio"]
 
 
@@ -454,23 +455,23 @@ def test_seams_into_buried_texels(monkeypatch):
     metric, not stitched (side a is not pulled towards black)."""
     points = bakepoints.build(two_quads(ROTATED_B), RES, RES)
     data = linear_data(points)
-    found = seams.find_seams(points.mesh, RES, RES)
+    found = geometry.find_seams(points.mesh, RES, RES)
     cover = data.coverage.copy()
     band = np.zeros_like(cover, bool)
     band[29:33, 97:152] = True  # quad b's rows along the seam (y = 30.7)
     assert (cover[band] > 0).sum() > 50
     cover[band & (cover != 0)] = -1.0
     edge = replace(data, coverage=cover)
-    before = seams.seam_metric(edge, found)
-    out, record = seams.stitch(edge, found)
-    after = seams.seam_metric(out, found)
+    before = metrics.seam_metric(edge, found)
+    out, record = stitching.stitch(edge, found)
+    after = metrics.seam_metric(out, found)
     assert before["hidden"] == 0 and record["samples_hidden"] == 0
     assert after["mean"] < before["mean"] / 20
     buried = np.flatnonzero((cover < 0).reshape(-1))
     moved = buried[(out.sh != data.sh).reshape(RES * RES, -1)[buried].any(axis=1)]
     assert len(moved) > 10 and out.extra_sources.reshape(-1)[moved].all()
     atlas = encoding.encode_atlas(out, encoding.for_settings(encoding.EncoderSettings()), raw=False)
-    iz = np.stack([seams.encoded_images(atlas)[f"Iz.{c}"].reshape(-1) for c in "RGB"], -1)[moved]
+    iz = np.stack([reads.encoded_images(atlas)[f"Iz.{c}"].reshape(-1) for c in "RGB"], -1)[moved]
     x = out.sh.reshape(-1, 9, 3)[moved].astype(np.float64)
     n = out.normal.reshape(-1, 3)[moved].astype(np.float64)
     np.testing.assert_allclose(iz, np.maximum(hhd.irradz(x, n), 0.0), rtol=1e-5, atol=1e-6)
@@ -480,8 +481,8 @@ def test_seams_into_buried_texels(monkeypatch):
     quad_b[25:90, 90:160] = True
     whole[quad_b & (whole != 0)] = -1.0
     hidden = replace(data, coverage=whole)
-    metric = seams.seam_metric(hidden, found)
-    out, record = seams.stitch(hidden, found)
+    metric = metrics.seam_metric(hidden, found)
+    out, record = stitching.stitch(hidden, found)
     assert metric["hidden"] == len(found) == record["samples_hidden"] and metric["samples"] == 0
     assert record["texels"] == 0
     np.testing.assert_array_equal(out.sh, hidden.sh)
@@ -489,7 +490,7 @@ def test_seams_into_buried_texels(monkeypatch):
 
 @pytest.mark.parametrize("keep_black", [False, True])
 def test_filled_rows_read_what_the_filled_copy_holds(keep_black):
-    """`seams.FilledRows` (stitching's on-demand read of the filled SH, no copy of the atlas's)
+    """`reads.FilledRows` (stitching's on-demand read of the filled SH, no copy of the atlas's)
     gives, bit for bit, the rows of `Fill.apply`'s copy: sources, dilated texels, texels out of
     the dilation's reach (the sources' mean), black texels; and `put` overrides rows."""
     from hhd_lightmapper.core import dilate
@@ -505,7 +506,7 @@ def test_filled_rows_read_what_the_filled_copy_holds(keep_black):
     image = rng.normal(size=(h, w, 5)).astype(np.float32)
     fill = dilate.Fill(coverage > 0.0, 3, black=coverage < 0.0, chart=coverage != 0.0)
     expected = fill.apply(image, keep_black=keep_black).reshape(h * w, 5)
-    rows = seams.FilledRows(image.reshape(h * w, 5), fill, (h, w), keep_black=keep_black)
+    rows = reads.FilledRows(image.reshape(h * w, 5), fill, (h, w), keep_black=keep_black)
     index = rng.integers(0, h * w, size=(300, 4))
     np.testing.assert_array_equal(rows[index].view(np.uint32), expected[index].view(np.uint32))
     assert (fill.source < 0).any() and len(fill.black)  # some texels take the mean, some stay black

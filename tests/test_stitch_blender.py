@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
-from hhd_lightmapper.core import encoding, exr, lightmap_files, post, seams
+from hhd_lightmapper.core import encoding, exr, lightmap_files, post
+from hhd_lightmapper.core.post.seams import geometry, reads
 from scenekit import blender as kit
 
 pytestmark = pytest.mark.bpy
@@ -102,7 +103,7 @@ def test_a_bake_writes_the_seams_file_and_records_the_stitching(scene):
     assert r["encoded"]["enabled"] and r["encoded"]["texels"] > 0  # the second pass, on the HHD layers
     assert record(off) == {"enabled": False}
     assert on.seams.is_file() and off.seams.is_file()  # written either way: Re-encode may stitch
-    found = [seams.Seams.load(f.seams) for f in (on, off)]
+    found = [geometry.Seams.load(f.seams) for f in (on, off)]
     assert all(np.array_equal(getattr(found[0], k), getattr(found[1], k)) for k in ("a", "b", "weight", "normal"))
     assert on.sh.read_bytes() == off.sh.read_bytes() and on.texels.read_bytes() == off.texels.read_bytes()
     assert pixels(on.hhd) != pixels(off.hhd)
@@ -199,12 +200,12 @@ def test_stitching_brings_the_two_sides_of_each_seam_together(scene):
     scene, folder = scene
     off = bake(scene, folder / "off", False)
     on = bake(scene, folder / "on", True)
-    pairs = seams.Seams.load(on.seams)
+    pairs = geometry.Seams.load(on.seams)
     assert len(pairs) > 0
     gaps = []
     for files in (off, on):
         channels, _ = exr.read(files.hhd)
         iz = np.stack([exr.from_exr_rows(channels[f"Iz.{c}"]) for c in "RGB"], -1).astype(np.float64)
-        a, b = seams.bilinear(iz, pairs.a), seams.bilinear(iz, pairs.b)
+        a, b = reads.bilinear(iz, pairs.a), reads.bilinear(iz, pairs.b)
         gaps.append(float(np.sum(pairs.weight * np.abs(a - b).sum(-1)) / np.sum(pairs.weight)))
     assert gaps[1] < 0.5 * gaps[0], gaps

@@ -11,10 +11,11 @@ dates, absolute paths). `compare` lists every file whose digest differs (exit 1)
 all are identical (exit 0).
 
 The cases cover each light type, the HDRI world, emissive meshes, a textured albedo, a box resting
-on the floor (covered and buried texels), the denoiser and seam stitching, a noise target, one
-thread, two atlases with light sets and an irradiance volume, and a bake on a Dask cluster
-(`dask scheduler` and two `dask worker` processes on 127.0.0.1; skipped when `distributed` is not
-installed). They are small (256 texels square, a few samples) so a capture takes a few minutes.
+on the floor (covered and buried texels), the denoiser, seam stitching (a smooth sphere, whose
+seams move texels, with and without the denoiser), a noise target, one thread, two atlases with
+light sets and an irradiance volume, and a bake on a Dask cluster (`dask scheduler` and two
+`dask worker` processes on 127.0.0.1; skipped when `distributed` is not installed). They are
+small (256 texels square, a few samples) so a capture takes a few minutes.
 """
 
 from __future__ import annotations
@@ -64,6 +65,12 @@ CASES: dict[str, tuple[str, list[str]]] = {
     "noise-target": ("point", [*BASE, "--resolution", "256", "--samples", "64", "--noise-target", "5"]),
     "one-thread": ("point", [*BASE, "--resolution", "256", "--samples", "8", "--threads", "1"]),
     "light-sets": ("light_sets", ["--seed", "3", "--bounces", "1", "--samples", "8", "--stitch"]),
+    "stitched": ("sphere", [*BASE, "--resolution", "256", "--samples", "8", "--stitch"]),
+    "stitched-denoised-ahd": (
+        "sphere",
+        ["--unwrap", "--seed", "3", "--resolution", "256", "--samples", "8", "--bounces", "1"]
+        + ["--denoise", "--stitch", "--model", "ahd"],
+    ),
     "farm": ("sun", [*BASE, "--resolution", "256", "--samples", "8"]),
 }
 
@@ -105,6 +112,20 @@ def build(name: str):
     elif name == "textured":
         receivers[0].data.materials[0] = kit.textured_material("checks", (0.8, 0.2, 0.1), (0.1, 0.3, 0.8))
         kit.light('SUN', rotation=(0.5, 0.1, 0.3), energy=3.0, name="Sun")
+        kit.world((0.2, 0.3, 0.5))
+    elif name == "sphere":  # smooth seams: the stitch moves texels (the room's flat faces have none)
+        from scenekit import meshes
+
+        # from numpy, not Blender's primitive: two builds of the primitive differ in their last bits
+        v, f = meshes.uv_sphere(rings=8, segments=16, radius=0.5)
+        mesh = bpy.data.meshes.new("Sphere")
+        mesh.from_pydata((v + (-0.8, -0.6, 0.5)).tolist(), [], f.tolist())
+        mesh.polygons.foreach_set("use_smooth", [True] * len(mesh.polygons))
+        mesh.materials.append(kit.material("red", (0.8, 0.2, 0.1)))
+        sphere = bpy.data.objects.new("Sphere", mesh)
+        bpy.context.scene.collection.objects.link(sphere)
+        receivers.append(sphere)
+        kit.light('POINT', (-1.0, -0.5, 1.5), energy=150.0, name="Lamp", shadow_soft_size=0.2)
         kit.world((0.2, 0.3, 0.5))
     elif name == "light_sets":
         red = kit.light('POINT', (-1.0, -1.0, 1.5), energy=150.0, name="RedLamp", color=(1.0, 0.2, 0.1))

@@ -1,6 +1,6 @@
 """Extract Open Image Denoise's lightmap weights into ./oidn_weights, hash-checked.
 
-Blender's OIDN library lacks the RTLightmap filter's trained weights (core/oidn.py passes them at
+Blender's OIDN library lacks the RTLightmap filter's trained weights (core/post/denoise/oidn.py passes them at
 run time). The official OIDN 2.5.1 binaries hold them verbatim; we take them from the `pyoidn`
 2.5.1.0 wheel (manylinux x86_64) on the package registry, downloaded with pip into a cache:
 
@@ -8,9 +8,9 @@ run time). The official OIDN 2.5.1 binaries hold them verbatim; we take them fro
 
 The two blobs (`rtlightmap_hdr.tza`, `rtlightmap_dir.tza`, TZA tensor archives starting with the
 bytes D7 41 02) are found in `libOpenImageDenoise_core.so.2.5.1` by scanning for the magic, taking
-WEIGHTS_BYTES bytes and keeping what matches the SHA-256 pins (`core/oidn.py` `WEIGHTS`, their one
+WEIGHTS_BYTES bytes and keeping what matches the SHA-256 pins (`core/post/denoise/oidn.py` `WEIGHTS`, their one
 definition). Nothing else of the wheel is kept. A no-op when both files are present and intact.
-Needs numpy (core/oidn.py imports it), as every tool run from the project's venvs has.
+Needs numpy (core/post/denoise/oidn.py imports it), as every tool run from the project's venvs has.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ TZA_MAGIC = b"\xd7\x41\x02"
 
 
 def _core_oidn():
-    """core/oidn.py, loaded from its file (tools run without the package installed)."""
-    spec = importlib.util.spec_from_file_location("_hhd_core_oidn", ROOT / "core" / "oidn.py")
+    """core/post/denoise/oidn.py, loaded from its file (tools run without the package installed)."""
+    spec = importlib.util.spec_from_file_location("_hhd_core_oidn", ROOT / "core" / "post" / "denoise" / "oidn.py")
     assert spec and spec.loader
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -71,7 +71,7 @@ class TexelData:
     bottom-up): sh (9, 3) radiance SH, normal (3,) n_v, coverage (0 outside charts, -1 buried);
     sh_error (9, 3) the standard error of sh, when the caller asked for it (no file holds it yet);
     extra_sources `(H, W)` bool, optional: texels outside the charts a post stage gave a value
-    of their own (seam stitching's gutter texels, `core.seams`): encoded and dilated from like
+    of their own (seam stitching's gutter texels, `core.post.seams`): encoded and dilated from like
     baked texels instead of being filled; noise `(H, W)`, optional: the standard error of each
     texel's luminance L0 (radiance) as traced, NaN where unknown (`TracedAtlas.noise`), as
     the texels file keeps it (the denoiser's noise clamp reads it). float32 as in the files, so

@@ -36,11 +36,11 @@ def denoiser_identity(library: str) -> str | None:
     """What makes a process's denoised SH what it is: a hash of the OIDN library `library` and
     the core and CPU-device libraries beside it (same files, same version and build: same
     bits), or None when nothing can denoise with it here (no library, or the RTLightmap weights
-    (`core.oidn.WEIGHTS`, hash-checked) missing)."""
+    (`core.post.denoise.oidn.WEIGHTS`, hash-checked) missing)."""
     if not library:
         return None
     if library not in _identities:
-        from .. import oidn
+        from ..post.denoise import oidn
 
         path = Path(library)
         try:
@@ -63,7 +63,7 @@ def local_denoiser() -> tuple[str, str | None]:
     """This process's OIDN library and its `denoiser_identity` ("", None: none): the file or
     folder of $HHD_OIDN_LIBRARY, else the library of a pip-installed `bpy` (found without
     importing it), the one Blender's Python module ships."""
-    from .. import oidn
+    from ..post.denoise import oidn
 
     setting = os.environ.get(OIDN_ENV, "")
     if setting:

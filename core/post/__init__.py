@@ -1,4 +1,6 @@
-"""Post stages: what runs on an atlas's texel images between tracing and encoding. No bpy.
+"""Post stages: what runs on an atlas's texel images between tracing and encoding (the stage's
+package: `denoise/` the denoiser, `seams/` the seams and their stitching; this module runs them).
+No bpy.
 
 A post stage (`PostStage`) takes the atlas's `encoding.TexelData` (SH, normals,
 coverage as images) and a `check()` (raises to cancel) and returns new TexelData for the same
@@ -7,11 +9,11 @@ texels, so the same stage runs on a fresh bake and on a re-encode from the raw S
 keeps the SH as traced: a stage can be switched off later without tracing).
 
 `stages_for(settings, seams)` is the one place that decides which run, in order, from the
-pipeline settings; `apply` runs them. A new post stage is a function here (or a module's) and a
+pipeline settings; `apply` runs them. A new post stage is a function here (or a module's in this package) and a
 line in `stages_for` (and the setting that switches it on in `bake.PipelineSettings`).
 
 Order: denoise, then stitch. The denoiser filters chart by chart, so it leaves (and can widen) a
-step where a smooth surface crosses from one chart to another; stitching (`core.seams`) runs on
+step where a smooth surface crosses from one chart to another; stitching (`seams`) runs on
 the filtered SH so the seams the encoder sees are closed, and once more on the encoded layers
 (`stitch_encoded`, after the encode stage) for the step the non-linear encoding leaves. The seams are geometry, not images: a
 bake finds them on its receivers' mesh, a re-encode reads them from the atlas's seams file
@@ -28,19 +30,19 @@ from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
-from . import progress
-from .encoding import EncodedAtlas, TexelData
-from .stages import PlacedImage, Window
+from .. import progress
+from ..encoding import EncodedAtlas, TexelData
+from ..stages import PlacedImage, Window
 
 if TYPE_CHECKING:
-    from .seams import Seams
+    from .seams.geometry import Seams
 
 #: (texel images, check) -> (new texel images, sidecar record). A record with "warning" is reported to the user.
 PostStage = Callable[[TexelData, Callable[[], None]], tuple[TexelData, dict]]
 
 
 def denoise_stage(library: str, threads: int) -> PostStage:
-    """Open Image Denoise's lightmap filter on the SH (`core.denoise`), through the OIDN library at
+    """Open Image Denoise's lightmap filter on the SH (`denoise.pages`), through the OIDN library at
     `library` ("" = none found). Where it cannot run (no library, no weights, OIDN failing) the
     SH passes through undenoised and the record says why: a bake never fails for its denoiser.
     The stage takes `in_place=True, restore=...` too (`apply`'s): the SH is denoised into the
@@ -50,12 +52,12 @@ def denoise_stage(library: str, threads: int) -> PostStage:
     def denoise(
         data: TexelData, check: Callable[[], None], in_place: bool = False, restore: Callable[[], None] | None = None
     ) -> tuple[TexelData, dict]:
-        from . import denoise as _denoise  # loads numpy-only code; the OIDN library loads on first use
+        from .denoise import filtering, oidn, pages  # loads numpy-only code; the OIDN library loads on first use
 
         try:
-            denoiser = _denoise.denoiser_for(library, threads)
-            out, report = _denoise.denoise_texels(data, denoiser, check, in_place=in_place, restore=restore)
-        except _denoise.DenoiserError as e:
+            denoiser = filtering.denoiser_for(library, threads)
+            out, report = pages.denoise_texels(data, denoiser, check, in_place=in_place, restore=restore)
+        except oidn.DenoiserError as e:
             return data, {"enabled": True, "applied": False, "warning": f"not denoised: {e}"}
         return out, {"enabled": True, "applied": True, "oidn_version": denoiser.version, **report.sidecar()}
 
@@ -67,7 +69,7 @@ NO_SEAMS = "not stitched: this bake has no seams file (bake again to stitch its 
 
 
 def stitch_stage(seams: Seams | None, threads: int) -> PostStage:
-    """Least-squares seam stitching of the SH (`core.seams.stitch`, on `threads` workers) along
+    """Least-squares seam stitching of the SH (`seams.stitching.stitch`, on `threads` workers) along
     `seams`, the atlas's seam sample pairs. `None` (no seams file: an older bake) passes the SH
     through unstitched, with a warning in the record. Its second half runs after encoding
     (`stitch_encoded`). The stage takes `in_place=True` too (`apply`'s): the stitched texels are
@@ -76,9 +78,9 @@ def stitch_stage(seams: Seams | None, threads: int) -> PostStage:
     def stitch(data: TexelData, check: Callable[[], None], in_place: bool = False) -> tuple[TexelData, dict]:
         if seams is None:
             return data, {"enabled": True, "applied": False, "warning": NO_SEAMS}
-        from . import seams as _seams
+        from .seams import stitching
 
-        out, record = _seams.stitch(data, seams, check, threads, in_place=in_place)
+        out, record = stitching.stitch(data, seams, check, threads, in_place=in_place)
         return out, _finite({"enabled": True, "applied": True, **record})
 
     return stitch
@@ -102,7 +104,7 @@ def stitch_encoded(
 ) -> EncodedAtlas:
     """The stitch stage's second half, on the encoding's layers after `encoding.encode_atlas`:
     the encoding is not linear in the SH, so it leaves a small step along seams the SH stitch
-    closed; `core.seams.stitch_encoded` closes it in the encoded layers. Runs only where the SH
+    closed; `seams.encoded_stitch.stitch_encoded` closes it in the encoded layers. Runs only where the SH
     stitch ran (`records`, `apply`'s, says so) and adds its record as `records["stitch"]["encoded"]`.
     `coverage` `(H, W)`: the atlas's (`TexelData.coverage`). `in_place`: the stitched texels are
     written into `encoded`'s own images (a caller that keeps no unstitched copy)."""
@@ -111,10 +113,12 @@ def stitch_encoded(
     if encoded.settings.get("model", "hhd") not in ENCODED_STITCH_MODELS:
         records["stitch"]["encoded"] = {"enabled": False, "why": ENCODED_STITCH_SKIPPED}
         return encoded
-    from . import seams as _seams
+    from .seams import encoded_stitch
 
     window, placed = _windowed(encoded)
-    out, record = _seams.stitch_encoded(placed, seams, coverage, check, settings.trace.threads, window, in_place)
+    out, record = encoded_stitch.stitch_encoded(
+        placed, seams, coverage, check, settings.trace.threads, window, in_place
+    )
     records["stitch"]["encoded"] = _finite(record)
     return out if window is None else _placed(out, encoded)
 
@@ -175,7 +179,7 @@ def apply(
 ) -> tuple[TexelData, dict]:
     """`data` after every post stage of `settings`, in order, and the sidecar's `post` section:
     per stage its record ({"enabled": False} for the known stages that are off). `seams`: the
-    atlas's seam sample pairs (`core.seams.Seams`; None: unknown, stitching is then skipped with
+    atlas's seam sample pairs (`seams.geometry.Seams`; None: unknown, stitching is then skipped with
     a warning). `in_place`: the denoiser and the stitch write into `data`'s images and keep
     nothing of what they overwrote (a bake, whose raw files are written, or a re-encode, which
     read them: `data` is spent), the denoiser calling `restore()` (which must put the traced SH

@@ -43,7 +43,7 @@ WEIGHTS = {
 #: Size in bytes of each blob.
 WEIGHTS_BYTES = 1_830_792
 #: Where the extension ships them: `oidn_weights/` beside `core/`.
-WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "oidn_weights"
+WEIGHTS_DIR = Path(__file__).resolve().parents[3] / "oidn_weights"
 
 #: OIDN's shared-library file name on each platform (the C API's major version is 2).
 LIBRARY_NAMES = {
