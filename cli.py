@@ -650,7 +650,7 @@ def _apply_options(settings, args) -> None:
 
 def _unwrap(context, args) -> str:
     """Unwrap the receivers with a progress line; Ctrl-C cancels (BakeCancelled, no mesh changed).
-    A texel density no atlas can hold is refused before xatlas runs (`core.atlas_limits`, in the
+    A texel density no atlas can hold is refused before xatlas runs (`core.unwrap.atlas_limits`, in the
     core unwrap)."""
     from .bridge import bake_session
     from .core.console import ConsoleProgress, interrupt_as_cancel

@@ -4,7 +4,7 @@
 
 Three meshes (a cube, a cylinder, an ico sphere) × `copies` linked duplicates in rows on a floor,
 half of each row under a roof, each copy turned and scaled a little, a sun and a sky colour. Run A
-unwraps them as instances (one UV layer per mesh, a rectangle per object, `core.instances`) and
+unwraps them as instances (one UV layer per mesh, a rectangle per object, `core.unwrap.instances`) and
 bakes; run C places the same copies as collection instances (each mesh alone in a collection, an
 Empty per copy: `bridge.collection_instances`); run B is the same scene with every object made
 single user and unwrapped fresh (ordinary objects in the shared atlas), baked with the same

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from hhd_lightmapper.core import bakepoints, rays, unwrap
+from hhd_lightmapper.core.unwrap import data
 from scenekit.meshes import sphere_field, texel_overlaps  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -122,7 +123,7 @@ def scene_meshes(path: str) -> list:
         m = np.array(obj.matrix_world, dtype=np.float64)
         world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
         mesh_ = unwrap.UnwrapMesh(obj.name, world, tri.reshape(-1, 3), polygons=poly)
-        if (unwrap.triangle_areas(world, mesh_.triangles) > 0).any():
+        if (data.triangle_areas(world, mesh_.triangles) > 0).any():
             out.append(mesh_)
     return out
 

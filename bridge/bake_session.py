@@ -89,7 +89,7 @@ def atlas_groups(objects, settings) -> tuple[list[tuple[str, int, int, list]], l
 
 def instance_records(objects) -> dict:
     """{object name: {"mesh", "scale", "offset"}} of the objects among `objects` that are instances
-    (a lightmap rectangle other than the identity, `core.instances`): the sidecar's record."""
+    (a lightmap rectangle other than the identity, `core.unwrap.instances`): the sidecar's record."""
     out = {}
     for obj in objects:
         rect = mesh_data.lightmap_rect(obj)

@@ -1,4 +1,4 @@
-"""Collection instances as receivers (`core.instances`): an Empty that shows a collection
+"""Collection instances as receivers (`core.unwrap.instances`): an Empty that shows a collection
 (Instancing > Collection) makes each mesh object of the collection a receiver, without a copy.
 
 A `Member` is one (instancer, object) pair. It reads like the mesh object it shows, so the

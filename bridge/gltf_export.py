@@ -285,7 +285,7 @@ def _check_object(obj, atlas: _Atlas, layer: str) -> str | None:
     rect = atlas.objects[obj.name].get("uv_rect")
     if rect is None:
         return f"'{obj.name}' has no baked texels in atlas '{atlas.name}': bake it again"
-    scale_offset = np.array(mesh_data.lightmap_rect(obj))  # an instance's rectangle (core.instances)
+    scale_offset = np.array(mesh_data.lightmap_rect(obj))  # an instance's rectangle (core.unwrap.instances)
     lo, hi = (b * scale_offset[:2] + scale_offset[2:] for b in bounds)
     tx, ty = 1.5 / atlas.width, 1.5 / atlas.height
     outside = lo[0] < rect[0] - tx or lo[1] < rect[1] - ty or hi[0] > rect[2] + tx or hi[1] > rect[3] + ty

@@ -72,7 +72,7 @@ IDENTITY_RECT = (1.0, 1.0, 0.0, 0.0)
 
 
 def lightmap_rect(obj) -> tuple[float, float, float, float]:
-    """The object's lightmap rectangle: atlas UV = layer UV × rect[:2] + rect[2:] (`core.instances`);
+    """The object's lightmap rectangle: atlas UV = layer UV × rect[:2] + rect[2:] (`core.unwrap.instances`);
     identity unless it is an instance of a shared mesh."""
     return tuple(float(v) for v in obj.hhd.lightmap_rect)  # type: ignore[return-value]
 
@@ -95,7 +95,7 @@ def make_single_user(objects) -> int:
 def read_unwrap_mesh(obj, instance_of: str | None = None) -> tuple[UnwrapMesh, np.ndarray]:
     """(UnwrapMesh in world space with each triangle's polygon, loop indices (T, 3) of each
     triangle corner) for obj.data; `instance_of`: the shared mesh's name for a linked duplicate
-    unwrapped as an instance (`core.instances`). A collection instance's Member
+    unwrapped as an instance (`core.unwrap.instances`). A collection instance's Member
     (`collection_instances`) is always an instance, placed with its collection (its bundle)."""
     mesh = obj.data
     mesh.calc_loop_triangles()

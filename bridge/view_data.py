@@ -3,7 +3,7 @@
 Reads what the unwrap wrote, as the unwrap reads it (`mesh_data.read_unwrap_mesh`: the object's
 own mesh before modifiers, world space, mirrored objects' winding reversed) plus the lightmap UV
 layer per triangle corner (an instance's through its rectangle: atlas UVs), into a
-`core.texel_density.ViewMesh`. Writes a view's colours as a
+`core.unwrap.texel_density.ViewMesh`. Writes a view's colours as a
 FLOAT_VECTOR attribute on the face domain (`COLOUR`: not a colour attribute, so the mesh's active
 and render colour attributes stay as they are), which Hide removes again.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import BakeError
-from ..core.texel_density import ViewMesh
+from ..core.unwrap.texel_density import ViewMesh
 from . import mesh_data
 
 #: The face attribute (FLOAT_VECTOR, FACE domain) holding a view's linear RGB per polygon.
@@ -34,7 +34,7 @@ def read_view_mesh(obj, uv_layer: str) -> ViewMesh | None:
         return None
     uv = np.zeros(len(mesh.loops) * 2, dtype=np.float32)
     layer.data.foreach_get("uv", uv)
-    rect = np.array(mesh_data.lightmap_rect(obj))  # an instance's rectangle (core.instances)
+    rect = np.array(mesh_data.lightmap_rect(obj))  # an instance's rectangle (core.unwrap.instances)
     corners = uv.reshape(-1, 2)[loops] * rect[:2] + rect[2:]
     return ViewMesh.of(
         obj.name, unwrap_mesh.positions, unwrap_mesh.triangles, corners, unwrap_mesh.polygons, len(mesh.polygons)

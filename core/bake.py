@@ -56,7 +56,7 @@ class AtlasInput:
     """One atlas to bake: its name (file stem), size in texels, the receiving triangles and the
     names of the objects they belong to (`surface.object_index` indexes `objects`); instances:
     {object name: {"mesh", "scale", "offset"}} of the objects that share their mesh's lightmap
-    UVs (`core.instances`; the surface's UVs are already atlas UVs), recorded in the sidecar."""
+    UVs (`core.unwrap.instances`; the surface's UVs are already atlas UVs), recorded in the sidecar."""
 
     name: str
     width: int

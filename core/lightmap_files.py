@@ -476,7 +476,7 @@ def read_sh(path: Path) -> np.ndarray:
 def object_rects(points: BakePoints, names: list[str], instances: dict | None = None) -> list[dict]:
     """Per object: its texel rectangle in the atlas (x0, y0 inclusive, x1, y1 exclusive, y from
     the bottom), the same as a UV rectangle, and its number of baked texels; an instance
-    (`instances[name]`: {"mesh", "scale", "offset"}, `core.instances`) also its "instance"."""
+    (`instances[name]`: {"mesh", "scale", "offset"}, `core.unwrap.instances`) also its "instance"."""
     instances = instances or {}
     x = points.texel % points.width
     y = points.texel // points.width

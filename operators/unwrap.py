@@ -16,6 +16,7 @@ from ..bridge import collection_instances, mesh_data
 from ..core import unwrap as core_unwrap
 from ..core.console import ConsoleProgress
 from ..core.errors import BakeCancelled, BakeError
+from ..core.unwrap.data import padding_for_mips
 from . import modal_work
 
 
@@ -115,7 +116,7 @@ class UnwrapJob:
 
 def read_objects(objects, settings, make_single_user=False) -> UnwrapJob:
     """Read `objects` for an unwrap with the scene settings (main thread; changes nothing).
-    Linked duplicates (objects sharing a mesh) become instances (`core.instances`: one layout
+    Linked duplicates (objects sharing a mesh) become instances (`core.unwrap.instances`: one layout
     of the mesh, a rectangle of the atlas per object), or with make_single_user are given their
     own meshes when the result is written."""
     mesh_data.refuse_linked(objects)
@@ -127,7 +128,7 @@ def read_objects(objects, settings, make_single_user=False) -> UnwrapJob:
         for mesh, names in mesh_data.outside_users(objects).items()
     ]
     read = [mesh_data.read_unwrap_mesh(o, o.data.name if o.data.name in instanced else None) for o in objects]
-    padding = settings.padding or core_unwrap.padding_for_mips(settings.mip_levels)
+    padding = settings.padding or padding_for_mips(settings.mip_levels)
     core_settings = core_unwrap.UnwrapSettings(
         resolution=settings.resolution,
         texel_density=settings.texel_density or None,
@@ -218,7 +219,7 @@ def atlas_names(
     instanced: list[bool] | None = None,
 ) -> dict[int, str]:
     """File-name stems per atlas index: "Lightmap_instances" for an atlas of instances (linked
-    duplicates, `core.instances`), "Lightmap" for an atlas shared by several objects (or the
+    duplicates, `core.unwrap.instances`), "Lightmap" for an atlas shared by several objects (or the
     only atlas), "Lightmap_1", "Lightmap_2", … for the further atlases a full shared atlas spilled
     into (`part[atlas]` > 0, see `core.unwrap.UnwrapResult.part`), "Lightmap_<object>" for an
     object's own atlas (characters unsafe in file names replaced by '_'). A name already given,

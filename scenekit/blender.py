@@ -175,6 +175,33 @@ def world(colour, strength=1.0, name="World"):
     return w
 
 
+EEVEE_WORLD = "EEVEE black world"
+
+
+def eevee_fast_lighting(scene) -> None:
+    """Shrink what EEVEE redoes for lighting at every render: the world's light probe at 128²
+    (the default 1024² sphere probe is rendered again at every render; with no world, a black
+    one named EEVEE_WORLD is made, which looks as none does) and a 16 MB shadow pool (512 MB
+    cleared at every render). For the preview renders: an Emission shader reads neither, so its
+    pixels stay bit for bit the same (a lit material's world light comes through the coarser
+    probe). On llvmpipe a small render takes a fifth of the time. Idempotent."""
+    import bpy
+
+    if scene.world is None:
+        world = bpy.data.worlds.get(EEVEE_WORLD)
+        if world is None:
+            world = bpy.data.worlds.new(EEVEE_WORLD)
+            world.color = (0.0, 0.0, 0.0)
+            for node in world.node_tree.nodes if world.node_tree else ():
+                if node.type == 'BACKGROUND':
+                    node.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+        scene.world = world
+    if scene.world.probe_resolution != '128':
+        scene.world.probe_resolution = '128'
+    if scene.eevee.shadow_pool_size != '16':
+        scene.eevee.shadow_pool_size = '16'
+
+
 def sky_pixels(h=32, w=64, sun=(0.75, 0.3), sun_radiance=200.0):
     """An equirectangular float image (H, W, 4), row 0 at the bottom: a blue sky brightening
     towards the zenith, a dim ground, and a 3×3-pixel "sun" at image coordinates `sun` (u, v)."""

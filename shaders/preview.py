@@ -14,7 +14,7 @@ with objects that were not baked keeps its own look on them. A material shared b
 several atlases samples every atlas's images and picks the object's own by a second object
 attribute, `hhd_preview_atlas`. The lightmap UV goes through the object's lightmap rectangle
 (a third, `hhd.lightmap_rect`, read by RNA path): the instances of a mesh (linked duplicates,
-`core.instances`) share its UV layer and its materials, each showing its own part of the atlas.
+`core.unwrap.instances`) share its UV layer and its materials, each showing its own part of the atlas.
 The three are read by Attribute nodes of type Instancer, which read them on the Empty that shows
 a collection (collection instances, `bridge.collection_instances`) and on the object itself
 otherwise.
@@ -208,7 +208,7 @@ def _link_light_sets(tree, gi, light_sets, uv, x, y, frame, bicubic: str = "") -
 def _instance_uv(tree, uv, x, y, frame):
     """The atlas UV of the lightmap layer's `uv` socket: uv × rect.xy + rect.zw, rect the object's
     lightmap rectangle (RECT, an Attribute node of type Instancer: an instance's place in the atlas
-    over its shared mesh, `core.instances`; the identity for other objects, an exact no-op). For
+    over its shared mesh, `core.unwrap.instances`; the identity for other objects, an exact no-op). For
     an object shown by a collection instance, the Instancer lookup reads the Empty's rectangle
     (where its copy of the collection's block lies), and uv first goes through the object's own
     place in that block (INNER, switched on by the Empty's FLAG: off for an object drawn itself)."""

@@ -8,13 +8,13 @@ preview or view is shown at a time (Show hides whatever was shown first). The no
 UV map, the object's atlas size from an object attribute (`SIZE` = (width, height, 0), from the
 unwrap's record, `bridge.bake_session.atlas_groups`; read through the Instancer, so on the Empty
 for a collection instance), the layer's UV through the object's lightmap rectangle
-(`preview._instance_uv`: an instance's own part of the atlas, `core.instances`), the
+(`preview._instance_uv`: an instance's own part of the atlas, `core.unwrap.instances`), the
 "HHD Texel Checker" group (shaders/node_groups.py: cells exactly one texel), an Emission of
 
 - Texel Density: the heat colour of each face's texels per metre against the atlas's target
-  (`core.texel_density`: blue half, green on target, red double) × a faint texel checker;
+  (`core.unwrap.texel_density`: blue half, green on target, red double) × a faint texel checker;
 - Texel Checker: the checker alone (light and dark grey);
-- Problems (`core.uv_problems`): a grey checker × each face's problem colour (flipped, degenerate,
+- Problems (`core.unwrap.uv_problems`): a grey checker × each face's problem colour (flipped, degenerate,
   objects with too few texels), and magenta on exactly the texels two charts share: a mask image
   per atlas sampled with Closest filtering (1 × 1 and empty when there are none);
 
@@ -37,8 +37,9 @@ import numpy as np
 
 from .. import blender_compat
 from ..bridge import bake_session, view_data
-from ..core import exr, texel_density, unwrap, uv_problems
+from ..core import exr, unwrap
 from ..core.errors import BakeError
+from ..core.unwrap import texel_density, uv_problems
 from . import node_groups, preview
 
 MODES = ('DENSITY', 'CHECKER', 'PROBLEMS')
@@ -153,7 +154,7 @@ def measure(atlas: ViewAtlas) -> tuple[list[texel_density.Density], float]:
 
 
 def find_problems(atlas: ViewAtlas, target: float) -> uv_problems.AtlasProblems:
-    """`core.uv_problems.find` over the atlas's viewed objects, then its other objects (whose UVs
+    """`core.unwrap.uv_problems.find` over the atlas's viewed objects, then its other objects (whose UVs
     count for the shared texels): `found.objects` starts with the viewed ones, in order."""
     meshes = [m for _, m in atlas.objects] + [m for _, m in atlas.others]
     return uv_problems.find(meshes, atlas.width, atlas.height, target)

@@ -1,4 +1,4 @@
-"""Collection instances in the core unwrap (`core.instances.Bundle`, no bpy): the members of a
+"""Collection instances in the core unwrap (`core.unwrap.instances.Bundle`, no bpy): the members of a
 collection are placed together once per instancer. Two members (a box and a wedge) shown by
 three instancers, beside a linked duplicate of the box: every member's rectangle is its
 instancer's outer rectangle composed with an inner rectangle that is the same for every

@@ -1,5 +1,5 @@
 """Instances: linked duplicates (objects sharing one mesh) unwrap and bake without being made
-single user (core/instances.py). Three meshes × four instances each, some under a roof (shade),
+single user (core/unwrap/instances.py). Three meshes × four instances each, some under a roof (shade),
 some in the sun: the mesh count stays, each instance has its own rectangle, the sidecar records
 it, and each instance's mean I_z equals that of the same scene made single user with the same
 atlas UVs, baked with the same seed and samples (an independent path: ordinary objects, whose

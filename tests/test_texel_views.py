@@ -22,7 +22,8 @@ import re
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import raster, texel_density, unwrap, uv_problems
+from hhd_lightmapper.core import raster, unwrap
+from hhd_lightmapper.core.unwrap import texel_density, uv_problems
 from scenekit import meshes
 
 # ---- core ------------------------------------------------------------------------------------

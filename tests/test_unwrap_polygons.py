@@ -4,8 +4,9 @@ charts cached by mesh content and re-packed (never re-charted) while fitting the
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import unwrap, xatlas_worker
+from hhd_lightmapper.core import unwrap
 from hhd_lightmapper.core.errors import BakeError
+from hhd_lightmapper.core.unwrap import charting, data, packing, worker_runs, xatlas_packing, xatlas_worker
 from scenekit import meshes
 
 
@@ -83,7 +84,7 @@ def test_charts_are_scaled_to_their_true_area():
     uv = res.objects[0].uv.astype(np.float64) * res.atlas_sizes[0]
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     texels = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    area = unwrap.triangle_areas(v, f)
+    area = data.triangle_areas(v, f)
     live = area > 1e-3
     # per triangle within the charts' own distortion; in total within xatlas's rounding of chart sizes
     assert np.median(texels[live] / area[live]) == pytest.approx(64.0**2, rel=0.05)
@@ -123,8 +124,9 @@ def test_charts_are_cached_by_mesh_content(monkeypatch):
     first = unwrap.unwrap([unwrap.UnwrapMesh("a", v, f, polygons=poly)], settings)
     assert first.stats["charted"] == 1
     tasks = []
-    real = unwrap._run_worker
-    monkeypatch.setattr(unwrap, "_run_worker", lambda job, *a: tasks.append(job["task"]) or real(job, *a))
+    real = worker_runs._run_worker
+    for module in (charting, packing):
+        monkeypatch.setattr(module, "_run_worker", lambda job, *a: tasks.append(job["task"]) or real(job, *a))
     moved = unwrap.unwrap([unwrap.UnwrapMesh("a", v + [5.0, 0.0, 1.0], f, polygons=poly)], settings)
     assert moved.stats == dict(moved.stats, charted=0, cached=1) and tasks == []  # nothing charted or packed
     np.testing.assert_array_equal(moved.objects[0].uv, first.objects[0].uv)
@@ -133,28 +135,28 @@ def test_charts_are_cached_by_mesh_content(monkeypatch):
     bent = v.copy()
     bent[0, 2] += 0.5
     assert unwrap.unwrap([unwrap.UnwrapMesh("a", bent, f, polygons=poly)], settings).stats["charted"] == 1
-    monkeypatch.setattr(unwrap, "CHART_CACHE_BYTES", 1)  # bounded: only the newest stays
+    monkeypatch.setattr(charting, "CHART_CACHE_BYTES", 1)  # bounded: only the newest stays
     sv, sf = meshes.uv_sphere()
     unwrap.unwrap([unwrap.UnwrapMesh("s", sv, sf)], settings)
-    assert len(unwrap._CACHE) == 1
+    assert len(charting._CACHE) == 1
 
 
 def test_a_mesh_of_many_parts_is_charted_in_parallel_pieces(monkeypatch):
     """A mesh larger than one process's share is split between its connected parts; the pieces'
     charts join into one valid set."""
-    monkeypatch.setattr(unwrap, "_cores", lambda: 2)
-    monkeypatch.setattr(unwrap, "TRIANGLES_PER_PROCESS", 100)
+    monkeypatch.setattr(charting, "_cores", lambda: 2)
+    monkeypatch.setattr(charting, "TRIANGLES_PER_PROCESS", 100)
     parts = [meshes.bumpy_quads(n=6, seed=k) for k in range(5)]
     v, f, poly = meshes.combine(*[(pv + [3.0 * k, 0, 0], pf, pp) for k, (pv, pf, pp) in enumerate(parts)])
     mesh = unwrap.UnwrapMesh("parts", v, f, polygons=poly)
-    jobs = unwrap._chart_jobs([mesh])
+    jobs = charting._chart_jobs([mesh])
     assert len(jobs) == 2 and abs(sum(len(p[3]) for p in jobs[0]) - sum(len(p[3]) for p in jobs[1])) <= 72
     res = unwrap.unwrap([mesh], unwrap.UnwrapSettings(resolution=512, padding=2))
     assert res.stats["chart_processes"] == 2
     assert corner_uv_spread(res.objects[0].uv, f, poly) == 0.0
     report = meshes.texel_overlaps([res.objects[0].uv], 512, 512)
     assert report["charts"] == 0 and report["summed"][0] == pytest.approx(report["area"][0], rel=1e-9)
-    labels = unwrap.connected_parts(f, len(v))
+    labels = charting.connected_parts(f, len(v))
     assert len(np.unique(labels)) == 5
 
 
@@ -163,12 +165,14 @@ def test_fitting_packs_the_same_charts_again_at_a_smaller_density(monkeypatch, s
     """Charts that spill out of the atlas are packed again (xatlas charts once) at a density
     shrunk by the share that spilled; then, packing being quick, between the best that fitted
     and the smallest that spilled. In one child, or two densities at a time in parallel ones."""
-    monkeypatch.setattr(unwrap, "_cores", lambda: 2 if side_by_side else 1)
-    monkeypatch.setattr(unwrap, "ONE_CHILD_TRIANGLES", 0)
-    monkeypatch.setattr(xatlas_worker, "FIRST_FILL", (1.6, 1.5))  # first densities far too high
+    for module in (charting, packing):
+        monkeypatch.setattr(module, "_cores", lambda: 2 if side_by_side else 1)
+    monkeypatch.setattr(packing, "ONE_CHILD_TRIANGLES", 0)
+    monkeypatch.setattr(xatlas_packing, "FIRST_FILL", (1.6, 1.5))  # first densities far too high
     tasks = []
-    real = unwrap._run_worker
-    monkeypatch.setattr(unwrap, "_run_worker", lambda job, *a: tasks.append(job["task"]) or real(job, *a))
+    real = worker_runs._run_worker
+    for module in (charting, packing):
+        monkeypatch.setattr(module, "_run_worker", lambda job, *a: tasks.append(job["task"]) or real(job, *a))
     sv, sf = meshes.uv_sphere()
     res = unwrap.unwrap([unwrap.UnwrapMesh("s", sv, sf)], unwrap.UnwrapSettings(resolution=256, padding=2))
     tries = res.stats["tries"][0]
@@ -182,7 +186,7 @@ def test_fitting_packs_the_same_charts_again_at_a_smaller_density(monkeypatch, s
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     best = max(t for t, fits in tries if fits)
     assert 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum() == pytest.approx(
-        best**2 * unwrap.triangle_areas(sv, sf).sum(), rel=0.1
+        best**2 * data.triangle_areas(sv, sf).sum(), rel=0.1
     )
     assert res.atlas_sizes == [(256, 256)]
 

@@ -17,6 +17,7 @@ from conftest import EXTENSION_MODULE
 from hhd_lightmapper import cli
 from hhd_lightmapper.core import unwrap
 from hhd_lightmapper.core.errors import BakeCancelled
+from hhd_lightmapper.core.unwrap import worker_runs
 from scenekit import meshes
 
 
@@ -37,7 +38,7 @@ def child_pids(monkeypatch):
         pids.append(proc.pid)
         return proc
 
-    monkeypatch.setattr(unwrap.subprocess, "Popen", popen)
+    monkeypatch.setattr(worker_runs.subprocess, "Popen", popen)
     return pids
 
 
@@ -54,6 +55,14 @@ def gone(pid: int) -> bool:
     return False
 
 
+def running(pid: int) -> bool:
+    """Whether our child `pid` has not exited yet (its exit status is left to be reaped)."""
+    try:
+        return os.waitid(os.P_PID, pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is None
+    except ChildProcessError:  # exited and already reaped
+        return False
+
+
 def test_progress_is_monotonic_and_ends_at_one():
     calls = []
     unwrap.unwrap(
@@ -67,11 +76,19 @@ def test_progress_is_monotonic_and_ends_at_one():
 
 
 def test_cancel_while_charting_kills_the_child_and_caches_nothing(child_pids):
-    mesh = sphere_mesh()
-    asked = []
+    mesh = sphere_mesh(rings=48, segments=96)  # 9k triangles: about a second of charting
+    at_cancel = []  # the children started when the cancel came, each still running or not
+
+    def cancel():  # the first poll after the charting child started (CANCEL_POLL in)
+        if not child_pids:
+            return False
+        at_cancel.append([running(pid) for pid in child_pids])
+        return True
+
     start = time.perf_counter()
-    with pytest.raises(BakeCancelled):  # cancelled a few polls after the child started
-        unwrap.unwrap([mesh], unwrap.UnwrapSettings(resolution=1024), cancel=lambda: len(asked.append(1) or asked) > 4)
+    with pytest.raises(BakeCancelled):
+        unwrap.unwrap([mesh], unwrap.UnwrapSettings(resolution=1024), cancel=cancel)
+    assert at_cancel == [[True]]  # one child, the charting one, and it was running: cancelled while charting
     assert time.perf_counter() - start < 5.0
     assert child_pids and all(gone(pid) for pid in child_pids)
     assert unwrap.chart_key(mesh) not in unwrap._CACHE and not unwrap._PACKED
@@ -117,7 +134,7 @@ def uv_bytes() -> dict:
 
 @pytest.fixture
 def sphere_scene(extension):
-    """One dense UV sphere (object "Sphere") selected, with a lightmap layer already unwrapped."""
+    """One UV sphere (object "Sphere", 9k triangles) selected, with a lightmap layer already unwrapped."""
     import bpy
 
     for o in list(bpy.data.objects):
@@ -127,7 +144,7 @@ def sphere_scene(extension):
     s = bpy.context.scene
     s.hhd.uv_layer, s.hhd.resolution, s.hhd.atlas_mode, s.hhd.texel_density = "HHD_Lightmap", 512, 'SHARED', 0.0
     importlib.import_module(extension + ".core.unwrap").clear_chart_cache()
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=192, ring_count=96)
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=96, ring_count=48)
     obj = bpy.context.active_object
     obj.name = "Sphere"
     obj.select_set(True)
@@ -168,8 +185,13 @@ def test_command_line_unwrap_shows_progress_and_ctrl_c_leaves_the_blend_unchange
     small = tmp_path / "small.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(small))
     blend = tmp_path / "scene.blend"
-    for k in range(3):  # enough triangles that charting takes a while
-        bpy.ops.mesh.primitive_uv_sphere_add(segments=256, ring_count=128, location=(3 * (k + 1), 0, 0))
+    for k in range(3):  # enough triangles that charting takes a while (65k each, each its own charts)
+        v, f = meshes.uv_sphere(rings=128, segments=256, radius=1.0 + 0.1 * k)
+        mesh = bpy.data.meshes.new(f"Dense{k}")
+        mesh.from_pydata(v.tolist(), [], f.tolist())  # a tenth of the sphere operator's time
+        dense = bpy.data.objects.new(f"Dense{k}", mesh)
+        dense.location = (3 * (k + 1), 0, 0)
+        bpy.context.collection.objects.link(dense)
     bpy.ops.object.select_all(action='SELECT')
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     saved = blend.read_bytes()

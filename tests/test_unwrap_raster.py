@@ -7,6 +7,7 @@ from hhd_lightmapper.core import bakepoints, raster, rays, textures, tracer, unw
 from hhd_lightmapper.core.covers import CoverProbe
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.scene import BakeScene
+from hhd_lightmapper.core.unwrap import charting, data, instance_packing, packing, worker_runs
 from scenekit import meshes
 
 
@@ -374,7 +375,7 @@ def _crashing_worker(tmp_path, crashes):
         "count.write_text(str(runs + 1))\n"
         f"if runs < {crashes}:\n"
         "    os.kill(os.getpid(), signal.SIGSEGV)\n"
-        f"runpy.run_path({unwrap._WORKER!r}, run_name='__main__')\n"
+        f"runpy.run_path({worker_runs._WORKER!r}, run_name='__main__')\n"
     )
     return str(script)
 
@@ -382,14 +383,15 @@ def _crashing_worker(tmp_path, crashes):
 def test_a_crashing_xatlas_child_is_retried_then_named(tmp_path, monkeypatch):
     v, f = meshes.cube()
     unwrap.clear_chart_cache()
-    monkeypatch.setattr(unwrap, "_cores", lambda: 1)  # one child at a time: runs counted in order
-    monkeypatch.setattr(unwrap, "_WORKER", _crashing_worker(tmp_path, crashes=1))
+    for module in (charting, packing):  # one child at a time: runs counted in order
+        monkeypatch.setattr(module, "_cores", lambda: 1)
+    monkeypatch.setattr(worker_runs, "_WORKER", _crashing_worker(tmp_path, crashes=1))
     res = unwrap.unwrap([unwrap.UnwrapMesh("cube", v, f)], unwrap.UnwrapSettings(resolution=256))
     # the charting child crashed, then charted; then one child fitted the charts into the atlas
     assert (tmp_path / "runs").read_text() == "3" and res.objects[0].texels > 0
     unwrap.clear_chart_cache()
     (tmp_path / "runs").unlink()
-    monkeypatch.setattr(unwrap, "_WORKER", _crashing_worker(tmp_path, crashes=99))
+    monkeypatch.setattr(worker_runs, "_WORKER", _crashing_worker(tmp_path, crashes=99))
     with pytest.raises(BakeError, match=r"xatlas failed 3 times unwrapping 'cube'.*SIGSEGV"):
         unwrap.unwrap([unwrap.UnwrapMesh("cube", v, f)], unwrap.UnwrapSettings(resolution=256))
 
@@ -420,15 +422,16 @@ def test_charts_that_need_more_than_one_atlas_spill_into_several_of_the_same_siz
     # an object with its own atlas never spills; one that alone cannot fit is named with the fix
     v, f, _ = meshes.combine(*[(o.positions, o.triangles, np.arange(len(o.triangles))) for o in objs])
     big = unwrap.UnwrapMesh("big", v, f, resolution=256)
-    with pytest.raises(unwrap.AtlasFull, match="'big'.*raise the resolution"):
+    with pytest.raises(data.AtlasFull, match="'big'.*raise the resolution"):
         unwrap.unwrap([big], unwrap.UnwrapSettings(resolution=256, padding=8))
 
 
 def test_texel_density_beyond_the_largest_atlas_spills_too(monkeypatch):
-    monkeypatch.setattr(unwrap, "MAX_RESOLUTION", 512)
+    for module in (unwrap, data, packing, instance_packing):  # everywhere the limit is read
+        monkeypatch.setattr(module, "MAX_RESOLUTION", 512)
     objs = spheres(6, radius=1.0)
     res = unwrap.unwrap(objs, unwrap.UnwrapSettings(texel_density=60.0, padding=4))
     assert len(res.atlas_sizes) >= 2 and all(max(s) <= 512 for s in res.atlas_sizes)
     # the density is kept: every sphere gets the texels of its area at 60 texels/m
-    area = unwrap.triangle_areas(objs[0].positions, objs[0].triangles).sum()
+    area = data.triangle_areas(objs[0].positions, objs[0].triangles).sum()
     assert all(o.texels == pytest.approx(area * 60**2, rel=0.1) for o in res.objects)

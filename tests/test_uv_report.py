@@ -3,7 +3,7 @@ unchanged.
 
 A floor and a cube unwrapped into one atlas, the cube's charts then moved onto the floor's (a
 deliberately overlapped layer), and a plane never unwrapped. The command's JSON equals what the
-views compute (`bridge.view_data` reading, `core.texel_density` and `core.uv_problems`) and what
+views compute (`bridge.view_data` reading, `core.unwrap.texel_density` and `core.unwrap.uv_problems`) and what
 the Problems and Texel Density views report; exit 0 with problems, 1 naming a receiver without
 the UV layer (the others still reported), 1 when none has it; the .blend's bytes unchanged.
 """
@@ -15,7 +15,8 @@ import re
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import raster, texel_density, uv_problems
+from hhd_lightmapper.core import raster
+from hhd_lightmapper.core.unwrap import texel_density, uv_problems
 
 pytestmark = pytest.mark.bpy
 

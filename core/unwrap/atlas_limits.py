@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .errors import BakeError
+from ..errors import BakeError
 
 #: Share of the largest atlas an object's charts may take at most (the rest: padding between
 #: charts, packing gaps); the suggested density leaves that margin.

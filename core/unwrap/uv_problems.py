@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import raster, texel_density, unwrap
+from .. import raster, unwrap
+from . import charting, texel_density
 
 #: The Problems view's colours (linear RGB): texels shared by two charts, flipped faces,
 #: degenerate faces, every face of an object with too few texels; faces without a problem are grey.
@@ -43,7 +44,7 @@ def charts(uv: np.ndarray) -> np.ndarray:
     if not len(uv):
         return np.zeros(0, np.int64)
     points, key = np.unique(uv.reshape(-1, 2), axis=0, return_inverse=True)
-    return unwrap.connected_parts(key.reshape(-1, 3).astype(np.int64), len(points))
+    return charting.connected_parts(key.reshape(-1, 3).astype(np.int64), len(points))
 
 
 @dataclass

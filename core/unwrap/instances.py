@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import BakeError
+from ..errors import BakeError
 
 #: Density search for a fixed resolution: rounds, the share of the atlas area the blocks' first
 #: estimate aims at, the margin taken when shrinking, and when a fitting pack is grown once more.
