@@ -26,9 +26,11 @@ SIZE = 64  # render pixels over the 2 m floor: 2 pixels per texel
 
 
 def render(scene, path: Path) -> np.ndarray:
-    """EEVEE render (SIZE², rows bottom-up) of the red channel."""
+    """EEVEE render (SIZE², rows bottom-up) of the red channel, EEVEE's lighting set-up at its
+    smallest (`kit.eevee_fast_lighting`: the preview's Emission reads none of it)."""
     import bpy
 
+    kit.eevee_fast_lighting(scene)
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
     channels, _ = exr.read(path)

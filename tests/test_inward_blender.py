@@ -168,7 +168,9 @@ def test_room_plane_and_wall_are_not_flagged(extension, restore_hhd_settings, tm
 
 
 def render_cube(scene, path) -> np.ndarray:
-    """An EEVEE render (64², one sample, linear EXR) of the cube's preview from above a corner."""
+    """An EEVEE render (64², one sample, linear EXR) of the cube's preview from above a corner;
+    EEVEE's lighting set-up at its smallest (`kit.eevee_fast_lighting`): the cube's Emission
+    pixels are as without it, only the lit floor's (not compared) change."""
     import bpy
 
     from hhd_lightmapper import blender_compat
@@ -181,6 +183,7 @@ def render_cube(scene, path) -> np.ndarray:
     scene.view_settings.view_transform = 'Standard'
     settings = scene.render.image_settings
     settings.file_format, settings.color_depth = 'OPEN_EXR', '32'
+    kit.eevee_fast_lighting(scene)
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
     assert bpy.ops.hhd.preview_hide() == {'FINISHED'}

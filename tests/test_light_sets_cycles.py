@@ -20,6 +20,10 @@ SAMPLES, BOUNCES = 32, 1
 #: (w_A, w_B): an RGB weight on the warm lamp, a scalar one on the cool lamp
 WEIGHTS = {"A": (1.0, 0.5, 0.25), "B": 2.0}
 COLOUR = {"A": (1.0, 0.8, 0.6), "B": (0.5, 0.7, 1.0)}
+#: Texels per metre of the 2 m floor: a quarter of the 256² atlas's (cost ∝ texels); the bias
+#: tolerance stays ≥ 10× four standard errors of the mean (the allowance dominates it), and the
+#: per-texel agreement does not depend on the texel count (as tests/test_bake_cycles.py's).
+DENSITY = 64.0
 
 
 @pytest.fixture(autouse=True)
@@ -51,7 +55,7 @@ def two_lamps(extension, restore_hhd_settings, tmp_path):
         if group not in layer.lightgroups:
             layer.lightgroups.add(name=group)
         lamp.lightgroup = group
-    kit.unwrap([floor])
+    kit.unwrap([floor], DENSITY)
     s = scene.hhd
     s.preset = 'CUSTOM'
     s.samples, s.bounces, s.denoise, s.stitch_seams = SAMPLES, BOUNCES, False, False
@@ -106,7 +110,8 @@ def test_blended_light_sets_match_cycles_with_the_lamps_scaled(two_lamps):
     c1 = cc.cycles([floor], points, 64, BOUNCES, seed=1)
     c2 = cc.cycles([floor], points, 64, BOUNCES, seed=2)
     r = agreement(o1[keep], o2[keep], c1, c2)
-    print("light sets vs Cycles:", r)
+    ratio = (4 * r["se_mean"] + 0.01 * r["mean"]) / (4 * r["se_mean"])  # assert_agree's bias tolerance
+    print("light sets vs Cycles:", r, f"bias tolerance {ratio:.1f}× four standard errors")
     assert r["mean"] > 0.1, r
     cc.assert_agree(r)
     # the blended file is the weighted sum of the sets' files in I_z (exact up to half floats)

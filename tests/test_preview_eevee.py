@@ -141,8 +141,11 @@ def render_inputs(scene, mat, path):
 
 
 def render(scene, path):
+    """One EEVEE render → `(P, 3)` float64 RGB pixels, EEVEE's lighting set-up at its smallest
+    (`kit.eevee_fast_lighting`: the preview's Emission reads none of it)."""
     import bpy
 
+    kit.eevee_fast_lighting(scene)
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
     channels, _ = exr.read(path)

@@ -301,9 +301,11 @@ def test_volume_choice_prefers_the_containing_then_the_nearest(preview):
 
 
 def render_rgba(scene, path):
-    """One EEVEE render → `(P, 4)` float64 RGBA pixels."""
+    """One EEVEE render → `(P, 4)` float64 RGBA pixels, EEVEE's lighting set-up at its smallest
+    (`kit.eevee_fast_lighting`: the preview's Emission reads none of it)."""
     import bpy
 
+    kit.eevee_fast_lighting(scene)
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
     channels, _ = exr.read(path)
