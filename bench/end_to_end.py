@@ -10,7 +10,10 @@ Each case runs `python -m hhd_lightmapper.cli FILE.blend bake --unwrap ... --pre
   Draft; the CLI takes `--resolution` 256–8192 only, so this small atlas is sized by texel density
   (`--texel-density 2.35`, which lets xatlas size the atlas freely: 182², ~2.4k texels baked);
 - room-256-draft: the same room at the CLI's smallest `--resolution`, 256²;
-- bedroom-1024-draft, bedroom-4096-production: the shared bedroom, all its meshes.
+- bedroom-1024-draft, bedroom-4096-production: the shared bedroom, all its meshes;
+- bedroom-4096-post: the Production bake at 4 samples per texel: the stages around the trace as
+  at 4096² Production (the same texels, denoise, stitching, files) in a fifth of the time, for
+  working on them; its shares are not the Production bake's.
 
 The child is this script (`--child`), which installs markers and then runs the CLI's own
 `standalone`: each wrapped stage function prints `@e2e <stage>` on entry (unwrap `cli._unwrap`,
@@ -111,6 +114,13 @@ CASES = {
         "size": ["--resolution", "4096"],
         "preset": "production",
         "label": "bedroom 4096² Production",
+    },
+    "bedroom-4096-post": {
+        "scene": "bedroom",
+        "size": ["--resolution", "4096"],
+        "preset": "production",
+        "extra": ["--samples", "4"],
+        "label": "bedroom 4096² Production at 4 samples",
     },
 }
 
@@ -318,7 +328,8 @@ def run_case(name: str, scratch: Path) -> dict:
         blend.chmod(0o644)
     objects = _meshes(blend)
     out = folder / "lightmaps"
-    argv = [str(blend), "bake", "--unwrap", *case["size"], "--preset", case["preset"], "--out", str(out)]
+    argv = [str(blend), "bake", "--unwrap", *case["size"], "--preset", case["preset"], *case.get("extra", [])]
+    argv += ["--out", str(out)]
     argv += ["--objects", *objects]
     command = [sys.executable, "-u", str(Path(__file__).resolve()), "--child", "--", *argv]
     load_before = os.getloadavg()

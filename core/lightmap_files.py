@@ -11,7 +11,9 @@ says which channels each file holds):
                      sidecar says which set it is; it shares the atlas's seams file)
   <name>_seams.npz   the atlas's seam sample pairs (`seams.Seams`): what stitching needs on a
                      re-encode besides the SH (internal to re-encoding, not for engines)
-  <name>_preview/    plain RGB EXRs the EEVEE preview samples (one per layer with a preview key)
+  <name>_preview/    plain RGB EXRs the EEVEE preview samples (one per layer with a preview key;
+                     the raw SH file's, sh0 … sh8, only when a preview asks for them:
+                     `encoding.preview.sh_previews`)
 Writing (`write_atlas`) takes the encode stage's `EncodedAtlas`: it turns rows to EXR order
 (top-down), stores each layer as its Channel's dtype says (HALF_OR_FLOAT: half when every value
 fits, else float32: never clipped), writes the sidecar and the preview images. It encodes nothing.
@@ -184,10 +186,17 @@ def write_atlas(
     staging.write_json(files.sidecar, doc, indent=2, ensure_ascii=False)
 
 
+#: Files whose preview images a bake does not write: the raw SH file's nine (sh0 … sh8) would
+#: compress the atlas's SH a second time for the L1/L2 preview modes only; those modes write them
+#: from the file when they need them (`encoding.preview.sh_previews`).
+PREVIEWS_ON_DEMAND = frozenset({SH_FILE.key})
+
+
 def stage_files(staging: exr.Staging, files: AtlasFiles, images_of: dict, tick: Tick | None = None) -> dict:
     """Stage the EXRs of `images_of` ({sidecar key: (FileSpec, {EXR channel name: `(H, W)`
-    image, rows bottom-up})}, as `EncodedAtlas.files`) and their preview images, one file's
-    channels at a time (consumed); returns their channel tables for the sidecar. `tick`
+    image, rows bottom-up})}, as `EncodedAtlas.files`) and their preview images (none for
+    PREVIEWS_ON_DEMAND), one file's channels at a time (consumed); returns their channel tables
+    for the sidecar. `tick`
     (`core.progress.Tick`): each file's and preview's share of it in proportion to the texels
     it compresses (`write_cost`), reported (and cancellable) per band of rows."""
     attributes = {"hhdFormat": FORMAT, "hhdFormatVersion": FORMAT_VERSION, "hhdAtlas": files.name}
@@ -200,7 +209,8 @@ def stage_files(staging: exr.Staging, files: AtlasFiles, images_of: dict, tick: 
         own, previews = part.split([1.0, _preview_share(spec)])
         exr.write_file(staging.stage(path), channels, attributes, _rows_done(own, f"writing {path.name}"))
         tables[key] = channel_table(spec, channels)
-        stage_preview(staging, files, spec, channels, previews)
+        if spec.key not in PREVIEWS_ON_DEMAND:
+            stage_preview(staging, files, spec, channels, previews)
         del channels
     return tables
 
@@ -218,6 +228,8 @@ def write_cost(images) -> int:
 
 def _preview_share(spec: FileSpec) -> float:
     """A file's preview images' cost beside the file's own (1): their RGB channels over its channels."""
+    if spec.key in PREVIEWS_ON_DEMAND:
+        return 0.0
     exr_count = sum(len(ch.exr_names) for ch in spec.channels) or 1
     return 3.0 * sum(1 for ch in spec.channels if ch.preview is not None) / exr_count
 

@@ -58,28 +58,6 @@ def release_rows(a: np.ndarray, stop: int) -> None:
         memory.madvise(mmap.MADV_DONTNEED, first, last - first)
 
 
-def release_zero_pages(a: np.ndarray, chunk: int = 1 << 26) -> None:
-    """Give the system back the pages of `a` (made by `releasable_zeros`) whose bytes are all
-    zero, on Linux only, where a private anonymous page given back reads as zeros again: `a`'s
-    values do not change, only what is resident (e.g. the SH image's texels outside the charts
-    once the raw files' dilation is undone, `encoding.raw_files`). Elsewhere nothing. Scans
-    `chunk` bytes at a time."""
-    mapping = _mapping(a)
-    if mapping is None or not sys.platform.startswith("linux") or a.size == 0:
-        return
-    memory, start = mapping
-    page = mmap.PAGESIZE
-    first = -(-start // page) * page  # whole pages of `a` only
-    last = (start + a.nbytes) // page * page
-    whole = np.frombuffer(memory, np.uint64, count=(last - first) // 8, offset=first).reshape(-1, page // 8)
-    rows = max(chunk // page, 1)
-    for s in range(0, len(whole), rows):
-        zero = ~whole[s : s + rows].any(axis=1)
-        edges = np.flatnonzero(np.diff(np.concatenate([[False], zero, [False]]).astype(np.int8)))
-        for run_start, run_end in zip(edges[::2], edges[1::2]):
-            memory.madvise(mmap.MADV_DONTNEED, first + (s + run_start) * page, (run_end - run_start) * page)
-
-
 def trim_heap() -> None:
     """Give the C heap's free memory back to the system (glibc's `malloc_trim(0)`; nothing where
     the C library has none). Called between stages: the bake points' and the tracer's worker

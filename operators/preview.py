@@ -5,7 +5,7 @@ from pathlib import Path
 import bpy
 
 from ..bridge import bake_session
-from ..core.encoding.preview import kind_of, sampled
+from ..core.encoding.preview import kind_of, sampled, sh_previews
 from ..core.errors import BakeError
 from ..core.lightmap_files import AtlasFiles
 from ..shaders import preview
@@ -32,6 +32,8 @@ def atlas_files_of(objects, settings) -> dict:
                 f"atlas '{name}' is encoded as {model}: choose Preview Encoded (or L1/L2 SH from the raw SH file), "
                 "or re-encode the atlas as HHD (Re-encode, or `encode --model hhd`)"
             )
+        if kind in ("L1", "L2"):
+            sh_previews(files)  # written when first shown, not by the bake
         if not all(files.preview_image(ch.preview).is_file() for ch in sampled(kind)):
             raise BakeError(
                 f"atlas '{name}' ({model}) lacks the preview images of its {kind} layers in {files.preview}: "

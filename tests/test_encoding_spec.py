@@ -128,6 +128,8 @@ def test_half_or_float_is_chosen_per_layer_and_never_clips(tmp_path):
 
 def test_preview_modes_sample_layers_whose_images_the_writer_stages(tmp_path):
     files = write(tmp_path, texel_data())
+    assert not any(files.preview_image(layer.preview).exists() for layer in raw.SH_LAYERS)  # on demand
+    assert preview.sh_previews(files)
     for mode in ("HHD", "AHD", "L1", "L2", "SCALAR"):
         for layer in preview.sampled(mode):
             assert files.preview_image(layer.preview).is_file(), (mode, layer.name)
@@ -135,6 +137,28 @@ def test_preview_modes_sample_layers_whose_images_the_writer_stages(tmp_path):
     assert [layer.name for layer in preview.sampled("HHD")] == ["Iz", "Wa", "Direction"]
     rgb, _ = exr.read(files.preview_image("wa"))
     assert np.array_equal(rgb["R"], rgb["G"]) and np.array_equal(rgb["R"], rgb["B"])  # one component, repeated
+
+
+def test_sh_previews_hold_the_sh_files_values_and_follow_it(tmp_path):
+    """The raw SH file's preview images, written on demand: each layer's colours exactly as the
+    file holds them (float32 RGB, EXR rows), left alone while current, rewritten when the SH
+    file is newer (a re-bake)."""
+    import os
+
+    files = write(tmp_path, texel_data())
+    assert preview.sh_previews(files) and not preview.sh_previews(files)
+    channels, _ = exr.read(files.sh)
+    for k, layer in enumerate(raw.SH_LAYERS):
+        rgb, _ = exr.read(files.preview_image(layer.preview))
+        assert layer.preview == f"sh{k}" and all(rgb[c].dtype == np.float32 for c in "RGB")
+        for c, name in zip("RGB", layer.exr_names):
+            assert np.array_equal(rgb[c], channels[name].astype(np.float32)), (layer.name, c)
+    stamp = files.preview_image("sh4").stat().st_mtime
+    os.utime(files.sh, (stamp + 10, stamp + 10))
+    assert preview.sh_previews(files)
+    assert files.preview_image("sh4").stat().st_mtime > stamp
+    files.preview_image("sh7").unlink()
+    assert preview.sh_previews(files) and files.preview_image("sh7").is_file()
 
 
 @dataclass

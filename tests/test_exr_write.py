@@ -1,14 +1,16 @@
 """Writing EXRs a band of scanlines at a time from views (`exr.write_file`) gives the bytes of the
-OpenEXR binding's whole-image writer, and the raw SH file's channels filled in the TexelData
-itself (`encoding.stage.fill_in_place`) are the filled copies' values, and a layer packed in
+OpenEXR binding's whole-image writer, and the raw SH file's channels filled a band of rows at a
+time (`encoding.filled`) are the filled copies' values, and a layer packed in
 chunks is the layer packed whole: the encode and write stages' memory cuts
 (bench/results/memory.md). No Blender."""
+
+from dataclasses import replace
 
 import numpy as np
 import OpenEXR
 import pytest
 
-from hhd_lightmapper.core import dilate, exr
+from hhd_lightmapper.core import exr
 from hhd_lightmapper.core.encoding import (
     SH_FILE,
     TEXELS_FILE,
@@ -18,7 +20,7 @@ from hhd_lightmapper.core.encoding import (
     for_settings,
     raw_files,
 )
-from hhd_lightmapper.core.encoding.stage import DILATE_RINGS, fill_in_place, raw_images
+from hhd_lightmapper.core.encoding.stage import DILATE_RINGS, raw_images
 
 
 def whole_image_bytes(tmp_path, channels: dict, attributes: dict) -> bytes:
@@ -67,36 +69,43 @@ def texel_data(h=90, w=70, seed=0) -> TexelData:
     return TexelData(sh=sh, normal=np.zeros((h, w, 3), np.float32), coverage=coverage)
 
 
-def test_the_sh_files_channels_filled_in_place_are_the_filled_copies():
+def test_the_sh_files_channels_filled_band_by_band_are_the_filled_copies():
+    """The raw SH file's channels as the writer reads them, a band of rows at a time, in atlas
+    and EXR order: the bits of the filled copies; the TexelData is only read."""
     data = texel_data()
     fill = data.fill()
     assert len(fill.black) and (fill.source < 0).any() and (fill.source >= 0).any()
     assert max(data.coverage.shape) > 2 * DILATE_RINGS
     copies = raw_images(SH_FILE, data.layers(), fill)
     sh_before = data.sh.copy()
-    views = raw_images(SH_FILE, data.layers(), fill, in_place=True)
-    assert views.keys() == copies.keys() and len(views) == 27
-    for name, image in views.items():
-        assert np.shares_memory(image, data.sh)  # no copy of the atlas's SH
-        np.testing.assert_array_equal(image, copies[name], err_msg=name)
-        assert image.tobytes() == copies[name].tobytes()
-    assert not np.array_equal(data.sh, sh_before)  # filled in place
-    baked = data.coverage > 0
-    np.testing.assert_array_equal(data.sh[baked], sh_before[baked])  # sources untouched
+    lazy = raw_images(SH_FILE, data.layers(), fill, banded=True)
+    assert lazy.keys() == copies.keys() and len(lazy) == 27
+    h = data.coverage.shape[0]
+    for name, image in lazy.items():
+        assert image.shape == copies[name].shape and image.dtype == np.float32
+        assert image.astype(np.float32, copy=False) is image
+        assert np.asarray(image).tobytes() == copies[name].tobytes(), name
+        top_down = image[::-1]
+        for a in range(0, h, 7):  # bands of 7 rows, as exr.write_file reads them (in EXR order)
+            b = min(a + 7, h)
+            assert top_down[a:b].tobytes() == np.ascontiguousarray(copies[name][::-1][a:b]).tobytes(), (name, a)
+    assert data.sh.tobytes() == sh_before.tobytes()  # nothing written into the TexelData
 
 
-def test_filling_in_place_refuses_what_is_not_one_run_of_texels():
+def test_a_windowed_atlas_s_banded_channels_are_placed_as_its_copies():
+    """An almost empty atlas (a window of texels): the banded channels placed in the whole atlas
+    with the copies' background, the same bytes."""
+    from hhd_lightmapper.core.stages import Window
+
     data = texel_data()
-    image = data.sh[:, :50, 0, 0]  # part of each row: the rows are not one run of texels
-    fill = dilate.Fill(data.baked[:, :50], DILATE_RINGS, black=data.coverage[:, :50] < 0)
-    before = image.copy()
-    assert not fill_in_place(fill, image, keep_black=True)
-    np.testing.assert_array_equal(image, before)
-    spaced = data.sh[:, ::2, 0, 0]  # every other column: evenly spaced, filled in place
-    fill = dilate.Fill(data.baked[:, ::2], DILATE_RINGS, black=data.coverage[:, ::2] < 0)
-    copy = fill.apply(spaced, keep_black=True)
-    assert fill_in_place(fill, spaced, keep_black=True)
-    np.testing.assert_array_equal(spaced, copy)
+    h, w = data.coverage.shape
+    data = replace(data, window=Window(10, 6, h, w, (h + 40, w + 24)))
+    fill = data.fill()
+    copies = raw_images(SH_FILE, data.layers(), fill, data=data)
+    lazy = raw_images(SH_FILE, data.layers(), fill, banded=True, data=data)
+    for name in copies:
+        assert lazy[name].shape == (h + 40, w + 24)
+        assert np.asarray(lazy[name][::-1]).tobytes() == np.asarray(copies[name][::-1]).tobytes(), name
 
 
 def test_packing_a_layer_in_chunks_gives_the_whole_layers_values(monkeypatch):
@@ -120,8 +129,8 @@ def test_packing_a_layer_in_chunks_gives_the_whole_layers_values(monkeypatch):
 
 def test_raw_files_are_the_encoders_raw_files_and_leave_the_sh_bit_for_bit():
     """`encoding.raw_files` (a bake writes its raw files before the post stages) gives the images
-    `encode_atlas(raw=True)` gives, filled in the SH itself, and puts back every bit it filled:
-    -0.0, NaN and values in buried texels, +0.0 elsewhere."""
+    `encode_atlas(raw=True)` gives, filled a band at a time, and leaves every bit of the SH as it
+    was: -0.0, NaN and values in buried texels, +0.0 elsewhere."""
     data = texel_data(seed=3)
     buried = np.flatnonzero((data.coverage < 0).reshape(-1))
     flat = data.sh.reshape(-1, 27)
@@ -139,14 +148,12 @@ def test_raw_files_are_the_encoders_raw_files_and_leave_the_sh_bit_for_bit():
             assert spec == expected[key][0]
             assert images.keys() == expected[key][1].keys()
             for name, image in images.items():
-                assert image.tobytes() == expected[key][1][name].tobytes(), name
-                if key == SH_FILE.key:
-                    assert np.shares_memory(image, data.sh)  # views: no copy of the atlas's SH
-        assert data.sh.tobytes() != before.tobytes()  # filled while the block runs
+                assert np.asarray(image).tobytes() == expected[key][1][name].tobytes(), name
+        assert data.sh.view(np.uint32).tobytes() == before.view(np.uint32).tobytes()  # only read
     assert data.sh.view(np.uint32).tobytes() == before.view(np.uint32).tobytes()
 
 
-def test_raw_files_put_the_sh_back_when_the_block_raises():
+def test_raw_files_leave_the_sh_as_it_was_when_the_block_raises():
     data = texel_data(seed=4)
     before = data.sh.copy()
     with pytest.raises(RuntimeError, match="disk full"):

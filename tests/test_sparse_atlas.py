@@ -85,7 +85,7 @@ def baked(tmp_path, name, monkeypatch, surface, scene, resolution, whole: bool, 
         bake.run([atlas], scene, bake.PipelineSettings(trace=trace, **settings), tmp_path / name)
     if not whole:
         assert seen and seen[0] is not None and seen[0].h * seen[0].w < resolution**2 / 4, seen
-        assert len(written) == 15, written  # every EXR, the previews too, written from the window
+        assert len(written) == 6, written  # every EXR, the previews too (the HHD file's), from the window
     return files_of(tmp_path / name)
 
 
@@ -97,7 +97,7 @@ def test_a_windowed_bake_writes_the_files_of_the_whole_atlas(tmp_path, monkeypat
     surface, scene = sphere_in_corner(1024, 0.25, corner)
     whole = baked(tmp_path, "whole", monkeypatch, surface, scene, 1024, whole=True)
     window = baked(tmp_path, "window", monkeypatch, surface, scene, 1024, whole=False)
-    assert whole.keys() == window.keys() and len(whole) > 10
+    assert whole.keys() == window.keys() and len(whole) >= 8  # sidecar, seams, 3 EXRs, 3 previews
     stitched = json.loads(window["Lightmap.json"])["post"]["stitch"]
     assert stitched["applied"] and stitched["texels"] > 0 and stitched["encoded"]["texels"] > 0
     for name in whole:

@@ -90,6 +90,45 @@ def upgrade_direction(files) -> bool:
     return True
 
 
+#: Layers of the raw SH file whose preview images one read of the file writes (memory: their
+#: channels as float32 images of the atlas, 3 layers × 3 colours).
+SH_PREVIEW_GROUP = 3
+
+
+def sh_previews(files) -> bool:
+    """Write the preview images of the raw SH file's layers (sh0 … sh8, `raw.SH_LAYERS`) of atlas
+    `files` (`lightmap_files.AtlasFiles`) that are missing or older than the SH file: a bake does
+    not write them (`lightmap_files.PREVIEWS_ON_DEMAND`), the L1 and L2 preview modes need them.
+    The images hold the file's values, as the bake's writer would have written them. Returns
+    whether it wrote any (False too without an SH file)."""
+    from .. import exr, lightmap_files
+    from .raw import SH_FILE
+    from .spec import FileSpec
+
+    source = files.sh
+    if not source.is_file():
+        return False
+    written = source.stat().st_mtime
+    stale = [
+        ch
+        for ch in SH_LAYERS
+        if not (
+            files.preview_image(ch.preview).is_file() and files.preview_image(ch.preview).stat().st_mtime >= written
+        )
+    ]
+    if not stale:
+        return False
+    (h, w), _ = exr.shape_of(source)
+    with exr.Staging() as staging:
+        for s in range(0, len(stale), SH_PREVIEW_GROUP):
+            group = tuple(stale[s : s + SH_PREVIEW_GROUP])
+            channels = exr.read_window(source, [n for ch in group for n in ch.exr_names], (0, h), (0, w))
+            lightmap_files.stage_preview(staging, files, FileSpec(SH_FILE.key, SH_FILE.suffix, group), channels)
+            del channels
+        staging.commit()
+    return True
+
+
 def bspline_image(files, key: str):
     """Path of preview image `key` of atlas `files` (`lightmap_files.AtlasFiles`) as cubic
     B-spline coefficients (`textures.bspline_coefficients`, the texels the atlas covers marked

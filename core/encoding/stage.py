@@ -24,7 +24,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import dilate as _dilate
-from ..stages import PlacedImage, Window, placed, releasable_zeros, release_zero_pages
+from ..stages import PlacedImage, Window, placed, releasable_zeros
+from .filled import FilledChannel, filled_channels
 from .raw import NOISE_UNKNOWN, SH_FILE, TEXELS_FILE
 from .spec import DILATE_BURIED_BLACK, NO_FILL, Channel, Encoding, FileSpec
 
@@ -180,16 +181,17 @@ class TexelData:
         out[noise.name] = noise_image[..., None]
         return out
 
-    def placed(self, name: str, image: np.ndarray, fill: _dilate.Fill | None = None) -> np.ndarray | PlacedImage:
+    def placed(self, name: str, image, fill: _dilate.Fill | None = None, unfilled=None):
         """One raw file's channel image `(h, w)` of the window (layer `name`, `layers`) as the
         atlas's: itself without a window, else a `PlacedImage` whose texels outside the window
         hold what the whole atlas's would: the layer's mean fill (`fill` given: a filled
-        channel, `background`), unknown noise (NOISE_UNKNOWN), else 0."""
+        channel, `background`, taken from `unfilled` if given: the channel before filling, whose
+        sources are the same), unknown noise (NOISE_UNKNOWN), else 0."""
         if self.window is None:
             return image
         value: np.ndarray | float
         if fill is not None:
-            value = background(fill, image)
+            value = background(fill, image if unfilled is None else unfilled)
         else:
             value = NOISE_UNKNOWN if name == TEXELS_FILE.channels[2].name else 0.0
         return placed(image, self.window, value)
@@ -258,43 +260,16 @@ def encode_atlas(
 @contextmanager
 def raw_files(
     data: TexelData, fill: _dilate.Fill
-) -> Iterator[dict[str, tuple[FileSpec, dict[str, np.ndarray | PlacedImage]]]]:
+) -> Iterator[dict[str, tuple[FileSpec, dict[str, np.ndarray | PlacedImage | FilledChannel]]]]:
     """The raw files' images of `data` (as `EncodedAtlas.files`: {sidecar key: (FileSpec, {EXR
     channel name: `(H, W)` image})}) for the duration of the block, which writes them: the SH
-    channels are filled in `data.sh` itself (views of it, no copy of the atlas's SH), and on
-    leaving every texel the fill wrote (`fill.empty`) holds its bits from before again, so the
-    post stages and the encoder read `data` as if nothing had happened. The texels file's
-    channels are unfilled views. `fill`: `data.fill()`. With a window (`TexelData.window`) the
-    images are `stages.PlacedImage`s of the whole atlas around the window's."""
-    h, w = data.coverage.shape
-    flat = data.sh.reshape(h * w, -1)
-    if not np.shares_memory(flat, data.sh):
-        raise ValueError("raw_files needs a contiguous SH image")
-    index, values = _nonzero_rows(flat, fill.empty)  # all others are +0.0 in every channel
-    try:
-        layers = data.layers()
-        yield {
-            spec.key: (spec, raw_images(spec, layers, fill, in_place=True, data=data))
-            for spec in (SH_FILE, TEXELS_FILE)
-        }
-    finally:
-        for s in range(0, len(fill.empty), ENCODE_CHUNK):
-            flat[fill.empty[s : s + ENCODE_CHUNK]] = 0.0
-        flat[index] = values
-        release_zero_pages(data.sh)  # the pages the dilation made resident, zero again (memory)
-
-
-def _nonzero_rows(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Of `flat`'s rows `rows`, those with any bit set (-0.0 and NaN included): their indices and
-    values (a copy), gathered ENCODE_CHUNK rows at a time."""
-    index, values = [np.zeros(0, np.int64)], [np.zeros((0, flat.shape[1]), flat.dtype)]
-    for s in range(0, len(rows), ENCODE_CHUNK):
-        part = rows[s : s + ENCODE_CHUNK]
-        v = flat[part]
-        keep = v.view(np.uint32).any(axis=1)
-        index.append(part[keep])
-        values.append(v[keep])
-    return np.concatenate(index), np.concatenate(values)
+    channels filled a band of rows at a time as the writer asks for them (`filled.FilledChannel`:
+    `data` is only read, no copy of the atlas's SH, none of its empty texels written); the
+    texels file's channels are views. `fill`: `data.fill()`. With a window
+    (`TexelData.window`) the images are `stages.PlacedImage`s of the whole atlas around the
+    window's."""
+    layers = data.layers()
+    yield {spec.key: (spec, raw_images(spec, layers, fill, banded=True, data=data)) for spec in (SH_FILE, TEXELS_FILE)}
 
 
 def encode_images(
@@ -390,41 +365,29 @@ def raw_images(
     spec: FileSpec,
     layers: dict[str, np.ndarray],
     fill: _dilate.Fill,
-    in_place: bool = False,
+    banded: bool = False,
     data: TexelData | None = None,
-) -> dict[str, np.ndarray | PlacedImage]:
+) -> dict[str, np.ndarray | PlacedImage | FilledChannel]:
     """A raw file's channel images `(H, W)` from `layers` (`TexelData.layers`), each filled on
-    its own when its Channel says so (unfilled ones are views of the TexelData). `in_place`:
-    filled in the TexelData itself, the images being views of it (`fill_in_place`). `data`: the
-    TexelData of `layers`, whose window (if any) places them in the atlas (`TexelData.placed`)."""
-    out = {}
+    its own when its Channel says so (unfilled ones are views of the TexelData). `banded`: the
+    filled ones made a band of rows at a time as they are read (`filled.filled_channels`, the
+    same values), else filled copies. `data`: the TexelData of `layers`, whose window (if any)
+    places them in the atlas (`TexelData.placed`)."""
+    out: dict[str, np.ndarray | PlacedImage | FilledChannel] = {}
     for ch in spec.channels:
+        keep_black = ch.fill == DILATE_BURIED_BLACK
+        lazy = filled_channels(layers[ch.name], fill, keep_black) if banded and ch.fill != NO_FILL else None
         for k, name in enumerate(ch.exr_names):
             image = layers[ch.name][..., k]
+            filled: np.ndarray | FilledChannel
             if ch.fill == NO_FILL:
                 filled = image
-            elif in_place and fill_in_place(fill, image, keep_black=ch.fill == DILATE_BURIED_BLACK):
-                filled = image
+            elif lazy is not None:
+                filled = lazy[k]
             else:
-                filled = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
-            out[name] = filled if data is None else data.placed(ch.name, filled, None if ch.fill == NO_FILL else fill)
+                filled = fill.apply(image, keep_black=keep_black)
+            if data is None or data.window is None:
+                out[name] = filled
+            else:  # the background from the sources, which filling leaves as they are
+                out[name] = data.placed(ch.name, filled, None if ch.fill == NO_FILL else fill, unfilled=image)
     return out
-
-
-def fill_in_place(fill: _dilate.Fill, image: np.ndarray, keep_black: bool) -> bool:
-    """`fill.apply(image, keep_black)` written into `image` `(H, W)` itself, which may be a
-    strided view (one channel of a TexelData's SH): the same operations on the same values (a
-    texel's source is never written; the mean of the sources is taken over a contiguous gather
-    of them, as `apply` takes it). False, with nothing written, when `image` cannot be walked as
-    one run of texels (its rows not evenly spaced): fill a copy then."""
-    h, w = image.shape
-    if h > 1 and image.strides[0] != w * image.strides[1]:
-        return False
-    flat = np.lib.stride_tricks.as_strided(image, (h * w,), (image.strides[1],))
-    reached = fill.source >= 0
-    flat[fill.empty[reached]] = flat[fill.source[reached]]
-    if not reached.all():
-        flat[fill.empty[~reached]] = flat[fill.valid].mean(axis=0, dtype=np.float64) if len(fill.valid) else 0.0
-    if keep_black:
-        flat[fill.black] = 0.0
-    return True
