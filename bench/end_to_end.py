@@ -19,7 +19,7 @@ The child is this script (`--child`), which installs markers and then runs the C
 `standalone`: each wrapped stage function prints `@e2e <stage>` on entry (unwrap `cli._unwrap`,
 scene read `BakeSession.__init__`, the inward-faces check `bake.check_inward`, BVH
 `bake.ray_scene_of` (Embree may finish the build on its threads during the bake points), bake
-points `bake.points_of`, trace `tracer.bake`, seams `seams.find_seams`, the denoise and stitch
+points `bake.points_of` (as `bake.runners` calls it), trace `tracer.bake`, seams `seams.find_seams`, the denoise and stitch
 post stages) and `@e2e other` on return, and the console
 progress prints whenever its stage changes (raw files, preview images, encode, write), not only
 every 5% (`core.console.ConsoleProgress`). The parent timestamps every line as it arrives; a
@@ -177,13 +177,14 @@ def child(argv: list[str]) -> int:
     from hhd_lightmapper import cli
     from hhd_lightmapper.bridge import bake_session
     from hhd_lightmapper.core import bake, console, post, tracer
+    from hhd_lightmapper.core.bake import runners
     from hhd_lightmapper.core.post.seams import geometry
 
     _marked(cli, "_unwrap", "unwrap")
     _marked(bake_session.BakeSession, "__init__", "scene read")
     _marked(bake, "check_inward", "inward faces")
     _marked(bake, "ray_scene_of", "BVH")
-    _marked(bake, "points_of", "bake points")
+    _marked(runners, "points_of", "bake points")
     _marked(tracer, "bake", "trace")
     _marked(geometry, "find_seams", "seams")
     for attr, name in (("denoise_stage", "denoise"), ("stitch_stage", "stitch")):

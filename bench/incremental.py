@@ -210,16 +210,17 @@ def main() -> None:
 
 
 def merge_bench(args) -> None:
-    """`--merge`: the merge stage of `bake --only MOVED` (`incremental._merge_files`: the post
+    """`--merge`: the merge stage of `bake --only MOVED` (`core.incremental.merge._merge_files`: the post
     stages and the encoder, then the files staged) timed over the whole atlas and over the region
-    of its touched texels (`incremental.merge_region`, forced whatever its share), each from the same first bake (denoised and
+    of its touched texels (`core.incremental.merge.merge_region`, forced whatever its share), each from the same first bake (denoised and
     stitched, `--samples` with the preset's other knobs; kept in --scratch and reused when its
     resolution matches). Writes bench/results/incremental_merge.json and .md (rows per resolution
     kept from earlier runs)."""
     import bpy
 
     import hhd_lightmapper
-    from hhd_lightmapper.core import incremental
+    from hhd_lightmapper.core.incremental import merge as core_merge
+    from hhd_lightmapper.core.incremental import subset
 
     hhd_lightmapper.register()
     scratch = args.scratch or Path(tempfile.gettempdir()) / f"hhd_incremental_merge_{args.resolution}"
@@ -237,27 +238,27 @@ def merge_bench(args) -> None:
     else:
         bpy.ops.wm.open_mainfile(filepath=str(blend))
     timings: list[dict] = []
-    merge = incremental._merge_files
+    merge = subset._merge_files
 
-    def timed(staging, files, data, sidecar, settings, atlas_seams, mask, update, cancel):
+    def timed(staging, files, data, sidecar, settings, atlas_seams, mask, *, update, cancel):
         t = time.perf_counter()
-        out = merge(staging, files, data, sidecar, settings, atlas_seams, mask, update, cancel)
+        out = merge(staging, files, data, sidecar, settings, atlas_seams, mask, update=update, cancel=cancel)
         timings.append({"file": files.name, "seconds": time.perf_counter() - t})
         return out
 
     rows = []
-    share_max = incremental.WINDOW_SHARE_MAX
+    share_max = core_merge.WINDOW_SHARE_MAX
     for way, limit in (("whole", 0.0), ("region", 1.0), ("whole", 0.0), ("region", 1.0)):
         folder = scratch / way
         shutil.rmtree(folder, ignore_errors=True)
         shutil.copytree(base, folder)
-        incremental.WINDOW_SHARE_MAX = limit
-        incremental._merge_files = timed
+        core_merge.WINDOW_SHARE_MAX = limit
+        subset._merge_files = timed
         timings.clear()
         try:
             seconds = run_cli("bake", *common, "--only", MOVED, "--out", folder)
         finally:
-            incremental._merge_files, incremental.WINDOW_SHARE_MAX = merge, share_max
+            subset._merge_files, core_merge.WINDOW_SHARE_MAX = merge, share_max
         docs = [json.loads(p.read_text()) for p in sorted(folder.glob("*.json"))]
         doc = next(d for d in docs if "incremental" in d)  # the moved object's atlas (bedroom: no light sets)
         rows.append(
@@ -293,7 +294,7 @@ def merge_markdown(doc: dict) -> str:
         "",
         f"`python bench/incremental.py --merge --resolution N`: the shared bedroom, every mesh a receiver, "
         f"{doc['preset'].title()} with {doc['samples']} samples, denoised and stitched; from the same first bake, "
-        f"`bake --only {MOVED}` with the merge stage (`core/incremental.py` `_merge_files`: raw files, denoise, "
+        f"`bake --only {MOVED}` with the merge stage (`core/incremental/merge.py` `_merge_files`: raw files, denoise, "
         "stitch, encode, staging the touched texels of each file) over the whole atlas and over the region of "
         "the touched texels and their charts (`merge_region`, forced whatever its share), each twice, in the same run. "
         "Merge s: that stage's seconds summed over the atlas's files; region share: the region's chart texels over the "

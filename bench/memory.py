@@ -4,7 +4,7 @@
 
 A 200 × 200-quad wavy sheet (80k triangles) mapped as one chart covering 60% of the atlas, lit by
 a sun and a sky. Stages as `bake.run` runs them: bake points (`bake.points_of`), trace
-(`tracer.bake(..., compact=True)`, streamed), then the atlas's files (`bake._write`: seams,
+(`tracer.bake(..., compact=True)`, streamed), then the atlas's files (`bake.finishing._write`: seams,
 image, post stages, encode, write).
 Post stages as the Production preset (`core.presets`): denoised (Blender's OIDN, found as the
 bpy side finds it) and stitched; `--no-post` switches both off.
@@ -30,6 +30,7 @@ import numpy as np
 
 from hhd_lightmapper.core import bake, bakepoints, encoding, lightmap_files, post, presets, tracer
 from hhd_lightmapper.core import stages as stages_module
+from hhd_lightmapper.core.bake import finishing
 from hhd_lightmapper.core.post.denoise import oidn
 from hhd_lightmapper.core.post.seams import geometry
 from hhd_lightmapper.core.scene import BakeScene, SunLight
@@ -171,7 +172,7 @@ def main() -> int:
     )
     atlas = bake.AtlasInput("Lightmap", width, height, surface, ["sheet"])
     stages = Stages()
-    # the image stage: from the noise image (`bake._finish_files` takes it first) to the post stages
+    # the image stage: from the noise image (`bake.finishing._finish_files` takes it first) to the post stages
     _mark_at(stages, stages_module.TracedAtlas, "noise", "image")
     for module, attr, name in (
         (geometry, "find_seams", "seams"),
@@ -198,7 +199,7 @@ def main() -> int:
         out = args.keep or tmp
 
         with exr.Staging() as staging:
-            result = bake._write(staging, atlas, traced, settings, Path(out), 0.0, {})
+            result = finishing._write(staging, atlas, traced, settings, Path(out), 0.0, {})
             del traced
             staging.commit()
         stages.mark(None)

@@ -5,7 +5,7 @@
 One 100 m × 1 cm quad, its lightmap UVs a strip one atlas long and two texels tall (~16k texels
 at 8192²), lit by a sun and a sky, baked with a quality preset (Draft by default: no denoiser;
 seams stitched, as every preset) through the product's own path (`bench/memory.py`'s stages:
-bake points, trace, then `bake._write`: seams, image, raw files, post stages, encode, write),
+bake points, trace, then `bake.finishing._write`: seams, image, raw files, post stages, encode, write),
 with the raw files' and the encoded file's writes and their preview images timed apart.
 `--dense`: `bench/memory.py`'s wavy sheet instead (one chart covering 60% of the atlas), the
 check that a full atlas costs no more than before. Then the atlas is re-encoded from its files
@@ -45,6 +45,7 @@ from hhd_lightmapper.core import (  # noqa: E402
     tracer,
 )
 from hhd_lightmapper.core import stages as stages_module  # noqa: E402
+from hhd_lightmapper.core.bake import finishing  # noqa: E402
 from hhd_lightmapper.core.scene import BakeScene, SunLight  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -203,7 +204,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         out = args.keep or tmp
         with exr.Staging() as staging:
-            result = bake._write(staging, atlas, traced, settings, Path(out), 0.0, {})
+            result = finishing._write(staging, atlas, traced, settings, Path(out), 0.0, {})
             del traced
             staging.commit()
         stages.mark(None)

@@ -1,4 +1,4 @@
-"""The scene's fingerprints for incremental bakes (`core.incremental.Fingerprints`), read from
+"""The scene's fingerprints for incremental bakes (`core.incremental.fingerprints.Fingerprints`), read from
 the evaluated depsgraph without changing anything.
 
 Per mesh object visible to render (as `scene_data.read_bake_scene` takes them; an instance is
@@ -7,7 +7,7 @@ and material indices, its world transform, and its materials' node trees (every 
 properties and links, images by file, size and source, not by pixels: a texture painted in place
 and not saved is not seen); per light its data block's settings, its transform and Light Group;
 the world's node tree and colour. Receivers also get their lightmap UVs' digest, and each atlas
-its layout (`core.incremental.layout_digest`).
+its layout (`core.incremental.fingerprints.layout_digest`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import warnings
 import numpy as np
 
 from .. import blender_compat
-from ..core import incremental
+from ..core.incremental.fingerprints import Fingerprints, digest, layout_digest
 from . import collection_instances
 
 #: RNA property types hashed by value (pointers and collections are walked where they matter).
@@ -161,7 +161,7 @@ def material_digest(material, cache: dict) -> str:
         return "none"
     if material.name not in cache:
         tree = blender_compat.node_tree_of(material)
-        cache[material.name] = incremental.digest(tuple(material.diffuse_color), _tree(tree, set()))
+        cache[material.name] = digest(tuple(material.diffuse_color), _tree(tree, set()))
     return cache[material.name]
 
 
@@ -200,13 +200,13 @@ def instance_key(instance) -> str:
     return instance.object.name
 
 
-def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_layer: str) -> incremental.Fingerprints:
+def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_layer: str) -> Fingerprints:
     """The fingerprints of the scene now: every render-visible mesh object and light, the world,
     and the layout of each atlas of `atlases` ([(name, width, height, receiver objects)], as
     `bake_session.atlas_groups` gives them) from the receivers' `uv_layer`."""
     depsgraph = context.evaluated_depsgraph_get()
     receivers = {o.name: o for _, _, _, members in atlases for o in members}
-    found = incremental.Fingerprints()
+    found = Fingerprints()
     materials: dict = {}
     uv: dict[str, str] = {}
     for instance in depsgraph.object_instances:
@@ -217,7 +217,7 @@ def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_la
             light = obj.data
             position = None if light.type == 'SUN' else matrix[:3, 3].tolist()
             found.lights[key] = {
-                "hash": incremental.digest(matrix, _rna_values(light), str(getattr(obj, "lightgroup", ""))),
+                "hash": digest(matrix, _rna_values(light), str(getattr(obj, "lightgroup", ""))),
                 "position": position,
                 "power": float(light.energy) * float(max(light.color)),
             }
@@ -226,13 +226,13 @@ def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_la
             try:
                 mats = [material_digest(slot.material, materials) for slot in obj.material_slots]
                 entry = {
-                    "hash": incremental.digest(matrix, *_mesh_arrays(mesh), mats, str(getattr(obj, "lightgroup", ""))),
+                    "hash": digest(matrix, *_mesh_arrays(mesh), mats, str(getattr(obj, "lightgroup", ""))),
                     "bounds": _bounds(mesh, matrix),
                     "emits": any(_emits(slot.material) for slot in obj.material_slots),
                 }
                 if key in receivers:
                     rect = tuple(receivers[key].hhd.lightmap_rect)  # an instance's place (part 2)
-                    entry["uv"] = incremental.digest(_uv_digest(mesh, uv_layer), rect)
+                    entry["uv"] = digest(_uv_digest(mesh, uv_layer), rect)
                     uv[key] = entry["uv"]
                 found.objects[key] = entry
             finally:
@@ -244,15 +244,15 @@ def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_la
                 mesh = evaluated.to_mesh()
                 try:
                     rect = tuple(getattr(obj.hhd, "lightmap_rect", ()))
-                    uv[obj.name] = incremental.digest(_uv_digest(mesh, uv_layer), rect)
+                    uv[obj.name] = digest(_uv_digest(mesh, uv_layer), rect)
                 finally:
                     evaluated.to_mesh_clear()
     world = depsgraph.scene.world
     if world is not None:
         tree = blender_compat.node_tree_of(world)
-        found.world = incremental.digest(tuple(world.color), _tree(tree, set()), str(getattr(world, "lightgroup", "")))
+        found.world = digest(tuple(world.color), _tree(tree, set()), str(getattr(world, "lightgroup", "")))
     for name, width, height, members in atlases:
-        found.layout[name] = incremental.layout_digest(width, height, {o.name: uv.get(o.name, "") for o in members})
+        found.layout[name] = layout_digest(width, height, {o.name: uv.get(o.name, "") for o in members})
     return found
 
 
@@ -264,4 +264,4 @@ def _uv_digest(mesh, uv_layer: str) -> str:
     mesh.uv_layers[uv_layer].data.foreach_get("uv", uvs)
     corners = np.empty(len(mesh.loops), np.int32)
     mesh.loops.foreach_get("vertex_index", corners)
-    return incremental.digest(uvs, corners)
+    return digest(uvs, corners)

@@ -5,7 +5,7 @@ output folder (`core.incremental`), changing nothing. `IncrementalSession` is `B
 counterpart for a subset (same interface: `describe`, `run`, `finish`, warnings): its receivers
 are the last bake's (every object listed in the output folder's atlas sidecars), of which it
 re-traces those named (`mode` "only"), those that changed ("changed") or those that changed and
-those the changes influence ("influenced", `incremental.influenced`).
+those the changes influence ("influenced", `core.incremental.fingerprints.influenced`).
 """
 
 from __future__ import annotations
@@ -13,8 +13,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..core import bake as core_bake
-from ..core import incremental, lightmap_files, parallel
+from ..core import lightmap_files, parallel
 from ..core.errors import FullBakeNeeded
+from ..core.incremental import fingerprints as core_fingerprints
+from ..core.incremental import subset as core_subset
 from . import bake_session, collection_instances, fingerprints, mesh_data, scene_data
 
 MODES = ("only", "changed", "influenced")
@@ -54,12 +56,12 @@ def _last_bake(context, out_dir: str):
         raise FullBakeNeeded(f"{', '.join(repr(n) for n in gone)}: baked last time but no longer a mesh here: bake all")
     receivers = list(found.values())
     groups, _ = bake_session.atlas_groups(receivers, settings)
-    old, _ = incremental.folder_state(out_dir, list(atlases))
+    old, _ = core_fingerprints.folder_state(out_dir, list(atlases))
     now = fingerprints.scene_fingerprints(context, groups, settings.uv_layer)
     return receivers, groups, old, now
 
 
-def stale_report(context, out_dir: str | None = None) -> tuple[incremental.Stale | None, list[str]]:
+def stale_report(context, out_dir: str | None = None) -> tuple[core_fingerprints.Stale | None, list[str]]:
     """What changed since the last bake into the output folder (`out_dir` or the scene's): the
     Stale (None when there is no earlier bake with fingerprints) and its lines for the panel and
     the console. Reads the scene and the sidecars only."""
@@ -70,11 +72,11 @@ def stale_report(context, out_dir: str | None = None) -> tuple[incremental.Stale
         return None, [str(exc)]
     if old is None:
         return None, [f"the last bake in {folder} has no fingerprints (made before they were recorded): bake all"]
-    stale = incremental.compare(old, now)
+    stale = core_fingerprints.compare(old, now)
     lines = stale.lines()
     if stale:
-        changed = incremental.changed_receivers(stale, [o.name for o in receivers])
-        influenced = incremental.influenced(stale, old, now, [o.name for o in receivers])
+        changed = core_fingerprints.changed_receivers(stale, [o.name for o in receivers])
+        influenced = core_fingerprints.influenced(stale, old, now, [o.name for o in receivers])
         lines.append(
             f"Bake Changed re-traces {len(changed)}, Changed + Influenced {len(influenced)} of {len(receivers)} receivers"
         )
@@ -120,11 +122,11 @@ class IncrementalSession:
                 )
             chosen = [n for n in all_names if n in set(names)]
         else:
-            stale = incremental.compare(old, now)
+            stale = core_fingerprints.compare(old, now)
             chosen = (
-                incremental.changed_receivers(stale, all_names)
+                core_fingerprints.changed_receivers(stale, all_names)
                 if mode == "changed"
-                else incremental.influenced(stale, old, now, all_names)
+                else core_fingerprints.influenced(stale, old, now, all_names)
             )
         self.chosen = chosen
         depsgraph = context.evaluated_depsgraph_get()
@@ -142,7 +144,7 @@ class IncrementalSession:
             self.atlases.append(core_bake.AtlasInput(name, width, height, surface, order))
             self.only[name] = [o.name for o in mine]
         self.warnings += list(dict.fromkeys(notes + (self.scene.notes if self.scene else [])))
-        self.results: list[incremental.SubsetResult] = []
+        self.results: list[core_subset.SubsetResult] = []
         self.seconds = 0.0
 
     def describe(self) -> str:
@@ -150,7 +152,7 @@ class IncrementalSession:
         names = ", ".join(self.chosen) if self.chosen else "none"
         return f"{what} receivers: {names} ({len(self.chosen)} of {len(self.receivers)})"
 
-    def run(self, progress=None, cancel=None, farm=None) -> list[incremental.SubsetResult]:
+    def run(self, progress=None, cancel=None, farm=None) -> list[core_subset.SubsetResult]:
         """Re-trace the chosen receivers into the files (core work only, worker-thread safe)."""
         import time
 
@@ -162,9 +164,9 @@ class IncrementalSession:
 
         def record(atlas: str, names: list[str]) -> dict:
             base = self.old if self.old is not None else self.now
-            return {"fingerprints": incremental.consumed(base, self.now, names, everything).to_json()}
+            return {"fingerprints": core_fingerprints.consumed(base, self.now, names, everything).to_json()}
 
-        self.results = incremental.bake_subset(
+        self.results = core_subset.bake_subset(
             self.atlases, self.only, self.scene, self.settings, self.out_dir, record, progress, cancel
         )
         self.seconds = time.perf_counter() - t

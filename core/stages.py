@@ -163,8 +163,8 @@ class TracedAtlas:
         release_rows(self.sh_error, stop)
 
     def release_points(self) -> None:
-        """Drop `points` (None from then on) once the atlas's last image is made (`bake.finish_atlas`
-        with `release`): the bake points are as large as the traced SH."""
+        """Drop `points` (None from then on) once the atlas's last image is made
+        (`bake.finishing.finish_atlas` with `release`): the bake points are as large as the traced SH."""
         self.points = None  # type: ignore[assignment]
 
     def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TracedAtlas:

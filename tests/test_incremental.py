@@ -1,4 +1,4 @@
-"""Bake what changed (core/incremental.py, bridge/incremental_session.py, CLI `bake --only` /
+"""Bake what changed (core/incremental/, bridge/incremental_session.py, CLI `bake --only` /
 `--changed`, `stale`): after a full bake, move one object and bake the changed: every texel of
 every file outside that object's charts (and their gutters) keeps its bits; its re-traced texels
 agree with a full rebake's within the noise; no earlier bake or a re-unwrap is refused (exit 6)
@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
-from hhd_lightmapper.core import exr, incremental, lightmap_files
+from hhd_lightmapper.core import exr, lightmap_files
+from hhd_lightmapper.core.incremental import fingerprints
 from scenekit import blender as kit
 
 pytestmark = pytest.mark.bpy
@@ -164,25 +165,25 @@ def test_fingerprints_hash_a_million_triangles_in_well_under_a_second():
     arrays = [rng.random((500_000, 3), dtype=np.float32), rng.integers(0, 500_000, 3_000_000, dtype=np.int32)]
     arrays.append(rng.random((3_000_000, 3), dtype=np.float32))  # corner normals
     t = time.perf_counter()
-    first = incremental.digest(*arrays)
+    first = fingerprints.digest(*arrays)
     assert time.perf_counter() - t < 0.5
     arrays[0][123, 1] += 1e-3
-    assert incremental.digest(*arrays) != first
+    assert fingerprints.digest(*arrays) != first
 
 
 def test_the_influence_rule_is_conservative_by_distance_and_global_for_the_world_and_suns():
     box = {"hash": "a", "bounds": [[0, 0, 0], [1, 1, 1]]}
     near = {"hash": "n", "bounds": [[1.5, 0, 0], [2, 1, 1]]}
     far = {"hash": "f", "bounds": [[9, 0, 0], [10, 1, 1]]}
-    old = incremental.Fingerprints(
+    old = fingerprints.Fingerprints(
         {"Box": box, "Near": near, "Far": far}, {"Sun": {"hash": "s", "position": None, "power": 1.0}}
     )
     moved = dict(box, hash="b", bounds=[[0.2, 0, 0], [1.2, 1, 1]])
-    new = incremental.Fingerprints({"Box": moved, "Near": near, "Far": far}, dict(old.lights))
-    stale = incremental.compare(old, new)
+    new = fingerprints.Fingerprints({"Box": moved, "Near": near, "Far": far}, dict(old.lights))
+    stale = fingerprints.compare(old, new)
     assert stale.objects == ["Box"] and not stale.lights and not stale.world
     receivers = ["Box", "Near", "Far"]
-    assert incremental.changed_receivers(stale, receivers) == ["Box"]
-    assert incremental.influenced(stale, old, new, receivers) == ["Box", "Near"]
+    assert fingerprints.changed_receivers(stale, receivers) == ["Box"]
+    assert fingerprints.influenced(stale, old, new, receivers) == ["Box", "Near"]
     new.lights["Sun"] = {"hash": "t", "position": None, "power": 2.0}
-    assert incremental.influenced(incremental.compare(old, new), old, new, receivers) == receivers
+    assert fingerprints.influenced(fingerprints.compare(old, new), old, new, receivers) == receivers

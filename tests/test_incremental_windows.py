@@ -1,4 +1,4 @@
-"""A subset bake's merge on the region of the touched texels (core/incremental.py `merge_region`,
+"""A subset bake's merge on the region of the touched texels (core/incremental/merge.py `merge_region`,
 `_region_encode`), against the same stages over the whole atlas: no bpy. A sphere and a
 cylinder unwrapped by xatlas, a smooth "bake" (an affine function of position, as test_seams.py)
 with noise; the cylinder's texels re-traced."""
@@ -8,7 +8,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, incremental, post
+from hhd_lightmapper.core import bake, bakepoints, encoding, post
+from hhd_lightmapper.core.incremental import merge as core_merge
+from hhd_lightmapper.core.incremental import subset
 from hhd_lightmapper.core.post.seams import geometry as seams
 from test_oidn import bpy_library_dirs, denoiser, library  # noqa: F401  (fixtures)
 from test_seams import PLAUSIBLE, cylinder, linear_sh, sphere, surface_of
@@ -28,14 +30,14 @@ def atlas():
     noise = (0.15 * sh[:, 0] @ np.array([0.2126, 0.7152, 0.0722])).astype(np.float32)
     data = encoding.TexelData.from_points(points, sh, noise=noise)
     texels = points.texel[points.object_index == 1]
-    mask, hit = incremental.touched_mask(texels, (RES, RES), found, data.baked)
+    mask, hit = subset.touched_mask(texels, (RES, RES), found, data.baked)
     return points, found, data, mask, found.select(hit)
 
 
 def small_region(monkeypatch, halo=24, tile=32):
-    monkeypatch.setattr(incremental, "WINDOW_HALO", halo)
-    monkeypatch.setattr(incremental, "WINDOW_TILE", tile)
-    monkeypatch.setattr(incremental, "WINDOW_SHARE_MAX", 1.0)
+    monkeypatch.setattr(core_merge, "WINDOW_HALO", halo)
+    monkeypatch.setattr(core_merge, "WINDOW_TILE", tile)
+    monkeypatch.setattr(core_merge, "WINDOW_SHARE_MAX", 1.0)
 
 
 def copy(data):
@@ -57,7 +59,7 @@ def whole(data, settings, hit):
 
 def on_region(data, settings, hit, mask):
     part = copy(data)
-    result = incremental._region_encode(part, part.fill(), settings, hit, mask, lambda: None)
+    result = core_merge._region_encode(part, part.fill(), settings, hit, mask, lambda: None)
     assert not isinstance(result, str), result
     return result
 
@@ -67,7 +69,7 @@ def test_the_region_holds_every_held_texel_with_its_halo():
     held = np.zeros((200, 300), bool)
     held[rng.integers(0, 200, 12), rng.integers(0, 300, 12)] = True
     held[50:60, 0:40] = True
-    region = incremental.merge_region(held, halo=7, tile=32)
+    region = core_merge.merge_region(held, halo=7, tile=32)
     near = held.copy()  # the chessboard dilation by 7, by shifts: an independent reference
     for dy in range(-7, 8):
         for dx in range(-7, 8):
@@ -78,7 +80,7 @@ def test_the_region_holds_every_held_texel_with_its_halo():
             shifted[y[ok], x[ok]] = True
             near |= shifted
     assert (region >= near).all() and region.mean() < 0.5
-    assert not incremental.merge_region(np.zeros((64, 64), bool)).any()
+    assert not core_merge.merge_region(np.zeros((64, 64), bool)).any()
 
 
 def test_stitch_and_encode_on_the_region_give_the_whole_atlas_bits_on_the_touched_texels(atlas, monkeypatch):
@@ -104,9 +106,9 @@ def test_stitch_and_encode_on_the_region_give_the_whole_atlas_bits_on_the_touche
 
 def test_too_large_a_region_runs_the_whole_atlas_and_leaves_the_data(atlas, monkeypatch):
     _, _, data, mask, hit = atlas
-    monkeypatch.setattr(incremental, "WINDOW_SHARE_MAX", 0.0)
+    monkeypatch.setattr(core_merge, "WINDOW_SHARE_MAX", 0.0)
     part = copy(data)
-    why = incremental._region_encode(part, part.fill(), bake.PipelineSettings(), hit, mask, lambda: None)
+    why = core_merge._region_encode(part, part.fill(), bake.PipelineSettings(), hit, mask, lambda: None)
     assert why.startswith("the region holds")
     for key in ("sh", "normal", "coverage", "noise"):
         np.testing.assert_array_equal(getattr(part, key), getattr(data, key))

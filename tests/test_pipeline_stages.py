@@ -1,4 +1,4 @@
-"""The pipeline's stages in core/bake.py (no Blender): a post stage plugs in at core/post/ and
+"""The pipeline's stages in core/bake/ (no Blender): a post stage plugs in at core/post/ and
 receives the atlas's texel images; `trace_surface` is stages 1–2 of `run`."""
 
 from dataclasses import replace
@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper.core import bake, bakepoints, encoding, exr, lightmap_files, post, unwrap
+from hhd_lightmapper.core.bake import finishing
 from hhd_lightmapper.core.post.denoise import filtering, oidn, pages
 from hhd_lightmapper.core.post.seams import geometry, stitching
 from hhd_lightmapper.core.scene import BakeScene, SunLight
@@ -210,8 +211,8 @@ def test_a_denoiser_failing_half_way_gives_the_undenoised_bake(tmp_path, monkeyp
     (plain,) = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "plain")
     monkeypatch.setattr(pages, "BAND_TEXELS", 32 * RES)  # 16-row bands of the 260-row page, written 114 rows behind
     restored = []
-    real_restore = bake._restore_sh
-    monkeypatch.setattr(bake, "_restore_sh", lambda *a: (restored.append(1), real_restore(*a))[1])
+    real_restore = finishing._restore_sh
+    monkeypatch.setattr(finishing, "_restore_sh", lambda *a: (restored.append(1), real_restore(*a))[1])
     real_for = filtering.denoiser_for
     monkeypatch.setattr(filtering, "denoiser_for", lambda lib, threads: FailingDenoiser(real_for(lib, threads), 37))
     settings = bake.PipelineSettings(trace=trace, denoise=True, denoiser_library=str(library))

@@ -1,4 +1,4 @@
-"""Progress and cancellation in the stages after the trace (core/progress.py, core/bake.py; no
+"""Progress and cancellation in the stages after the trace (core/progress.py, core/bake/; no
 Blender): seams, denoise, stitch, encode and the EXR writes each report within their share of
 the bake's range, with their name; the fraction never goes back and is 1.0 only at the end; a
 cancel raised while they run leaves the previous files as they were."""

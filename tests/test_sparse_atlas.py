@@ -23,6 +23,7 @@ from hhd_lightmapper.core import (
     tracer,
     unwrap,
 )
+from hhd_lightmapper.core.bake import finishing
 from hhd_lightmapper.core.encoding import stage as encode_stage
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
@@ -154,7 +155,7 @@ def test_an_almost_empty_8192_atlas_allocates_for_its_texels_not_its_area():
     dense_sh = n * n * 27 * 4
     tracemalloc.start()
     try:
-        bake.finish_atlas(atlas, traced, bake.PipelineSettings(trace=tracer.BakeSettings(threads=1)), 0.0, {}, out)
+        finishing.finish_atlas(atlas, traced, bake.PipelineSettings(trace=tracer.BakeSettings(threads=1)), 0.0, {}, out)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper.core import bake, bakepoints, exr, rays, tracer
+from hhd_lightmapper.core.bake import finishing
 from hhd_lightmapper.core.errors import BakeCancelled
 from hhd_lightmapper.core.scene import BakeScene, PointLight, SunLight
 from hhd_lightmapper.core.tracer import scheduler, statistics
@@ -163,7 +164,7 @@ def test_bake_run_writes_the_files_of_the_full_trace(tmp_path):
     full = tracer.bake(points, scene_, PASSES, ray_scene=ray_scene)
     assert full.sh.dtype == np.float64 and full.sh_error.shape[1] == 9
     with exr.Staging() as staging:
-        bake._write(staging, atlas, full, settings, tmp_path / "full", 0.0, {})
+        finishing._write(staging, atlas, full, settings, tmp_path / "full", 0.0, {})
         staging.commit()
     assert files(tmp_path / "run") == files(tmp_path / "full") and len(files(tmp_path / "run")) == 3 * 4
 

@@ -30,12 +30,13 @@ Bake points. `Farm.bake_points` runs `bakepoints.build` of every atlas as one ta
 the BakeScene sent once to every worker; the BakePoints come back as plain data (`plain`,
 `unplain`) and equal the local ones. They are not checkpointed (a restart builds them again).
 
-Every atlas's tracing tasks start at once (`Farm.submit`, called by `bake.run` after the bake points);
-`bake.run` then collects them atlas by atlas (`Farm.finish`) and starts each atlas's finishing task
+Every atlas's tracing tasks start at once (`Farm.submit`, called by `bake.run`'s runner,
+`bake.runners.FarmRunner`, after the bake points); the runner then collects them atlas by atlas
+(`Farm.finish`) and starts each atlas's finishing task
 (`finish_task`) once its tracing is done: on a worker, with the tracing results Dask moves there,
 it reduces the statistics group by group to what the files take, builds the (compact)
-TracedAtlas and runs `bake.finish_atlas` (seams, post stages, encoding), returning the encoded images and sidecars as plain data (`plain`); the client
-only writes them (`bake.Staged`), so the farm traces and finishes the next atlases meanwhile. The
+TracedAtlas and runs `bake.finishing.finish_atlas` (seams, post stages, encoding), returning the encoded images and sidecars as plain data (`plain`); the client
+only writes them (`bake.finishing.Staged`), so the farm traces and finishes the next atlases meanwhile. The
 denoiser runs on a worker only with the client's own OIDN files (`denoiser_identity`,
 `local_denoiser`); a task without them returns the TracedAtlas and the client finishes that atlas.
 `Farm.runner` traces one atlas for `tracer.bake(..., runner=)` (tests, benches).

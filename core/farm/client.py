@@ -501,8 +501,8 @@ class Farm:
 
     def result(self, handle: Finishing, cancel=None) -> tuple[str, object]:
         """Wait for the finishing task of `handle`: ("out", {"out": the files to stage in order
-        [(method of `bake.Staged`, args)], "summary": `bake.finish_atlas`'s}) or ("traced", a
-        TracedAtlas without points: this client must finish it, `finish_task`). BakeCancelled
+        [(method of `bake.finishing.Staged`, args)], "summary": `bake.finishing.finish_atlas`'s}) or
+        ("traced", a TracedAtlas without points: this client must finish it, `finish_task`). BakeCancelled
         when `cancel()` turns True; a failed task is submitted again RETRIES times."""
         try:
             while True:

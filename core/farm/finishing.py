@@ -80,7 +80,7 @@ def local_denoiser() -> tuple[str, str | None]:
 
 
 class _Kept:
-    """A finishing task's stand-in for `bake.Staged`: keeps the finished files' data, in the
+    """A finishing task's stand-in for `bake.finishing.Staged`: keeps the finished files' data, in the
     order the atlas handed them, as plain data for the client to stage."""
 
     def __init__(self):
@@ -92,7 +92,7 @@ class _Kept:
         self.calls.append(("raw", (name, parent, plain(kept))))
 
     def traced_sh(self, name: str, parent: str) -> np.ndarray:
-        """The SH image `(H, W, 9, 3)` of the raw SH file kept for `name` (as `bake.Staged`'s)."""
+        """The SH image `(H, W, 9, 3)` of the raw SH file kept for `name` (as `bake.finishing.Staged`'s)."""
         for method, (kept, _, images_of) in reversed(self.calls):
             if method == "raw" and kept == name:
                 images = images_of[SH_FILE.key][1]
@@ -110,14 +110,15 @@ class _Kept:
 def finish_task(payload: bytes, digest: str, code: str, meta: bytes, *results: dict) -> dict:
     """One task per atlas, run once its tracing tasks are done (`results`: the last stage's of
     every group, which Dask brings to this worker): the atlas's statistics reduced group by group,
-    its compact TracedAtlas built (`tracer.traced_atlas`), then `bake.finish_atlas` (seams, post stages,
+    its compact TracedAtlas built (`tracer.traced_atlas`), then `bake.finishing.finish_atlas` (seams, post stages,
     encoding) exactly as a local bake runs them. `meta` (pickled with worker names): atlas
     (AtlasInput without its surface), settings (PipelineSettings), t_points, extra, rays,
     stopped_by, seconds, denoiser (the client's `denoiser_identity`; None: its OIDN cannot run,
     so the client finishes the atlas). Returns plain data: "out", the files to stage in order, and "summary";
     or, when this worker cannot denoise as the client would (another or no OIDN library, or
     OIDN failing here), "traced", the TracedAtlas without its points, for the client to finish."""
-    from .. import bake, tracer
+    from .. import tracer
+    from ..bake.finishing import finish_atlas
 
     _same_code(code)
     t0 = time.perf_counter()
@@ -143,7 +144,7 @@ def finish_task(payload: bytes, digest: str, code: str, meta: bytes, *results: d
     threads = _worker_threads()
     compute = replace(settings, denoiser_library=library, trace=replace(settings.trace, threads=threads))
     kept = _Kept()
-    summary = bake.finish_atlas(  # released SH only where no fallback may need it
+    summary = finish_atlas(  # released SH only where no fallback may need it
         m["atlas"], traced, compute, m["t_points"], m["extra"], kept, recorded=settings.trace, release=not denoising
     )
     if denoising and not all(args[3]["post"]["denoise"].get("applied") for kind, args in kept.calls if kind == "atlas"):

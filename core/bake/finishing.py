@@ -1,0 +1,263 @@
+"""The finishing of one atlas's files, after its trace: seams → image → raw files → post stages
+→ encode (`finish_atlas`), handed to where they go (`Staged`: staged on this machine; a farm
+worker keeps them instead, `core.farm.finishing`). No bpy."""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Callable
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import encoding, exr, light_sets, lightmap_files, post, stages, tracer
+from .. import progress as meter
+from ..post.seams import geometry
+from ..progress import Tick, ticker
+from ..stages import TracedAtlas
+from .costs import _set_costs, _window_texels, _window_texels_of
+from .data import AtlasInput, AtlasResult, PipelineSettings, _check_cancel, atlas_result
+
+
+class Staged:
+    """Where finished atlases' files go on this machine: staged in `staging` (committed with
+    every other atlas's at the end) under `out_dir`."""
+
+    def __init__(self, staging: exr.Staging, out_dir: Path):
+        self.staging, self.out_dir = staging, Path(out_dir)
+        self._tables: dict[str, dict] = {}  # per atlas: the channel tables of its raw files
+
+    def _files(self, name: str, parent: str = "") -> lightmap_files.AtlasFiles:
+        return lightmap_files.AtlasFiles(self.out_dir, name, parent)
+
+    def raw(self, name: str, parent: str, images_of: dict, tick: Tick | None = None) -> None:
+        """Stage the raw files of one atlas or light set now (`encoding.raw_files`'s images), before its
+        post stages; `atlas` adds their channel tables to its sidecar. `tick`: progress and cancel
+        per band of rows written."""
+        self._tables[name] = lightmap_files.stage_files(self.staging, self._files(name, parent), images_of, tick)
+
+    def traced_sh(self, name: str, parent: str) -> np.ndarray:
+        """The SH image `(H, W, 9, 3)` float32 of the raw SH file `raw` staged for `name`, read back
+        (a denoiser that failed half-way restores the traced SH from it)."""
+        files = self._files(name, parent)
+        return lightmap_files.read_sh(self.staging.staged(files.sh))
+
+    def atlas(
+        self, name: str, parent: str, encoded: encoding.EncodedAtlas, sidecar: dict, tick: Tick | None = None
+    ) -> None:
+        """Stage the files of one atlas or light set (`parent`: the atlas of a light set, else "")."""
+        sidecar = {**sidecar, "channels": {**sidecar.get("channels", {}), **self._tables.pop(name, {})}}
+        lightmap_files.write_atlas(self.staging, self._files(name, parent), encoded, sidecar, tick)
+
+    def seams(self, name: str, atlas_seams: geometry.Seams) -> None:
+        """Stage the seams file of atlas `name`."""
+        lightmap_files.stage_seams(self.staging, self._files(name), atlas_seams)
+
+
+def _write(
+    staging,
+    atlas: AtlasInput,
+    traced: TracedAtlas,
+    settings: PipelineSettings,
+    out_dir: Path,
+    t_points: float,
+    extra: dict,
+    cancel=None,
+) -> AtlasResult:
+    """The last stages of one atlas here (`finish_atlas`, releasing `traced`'s SH as a bake does),
+    its files staged in `staging`."""
+    check = lambda: _check_cancel(cancel)  # noqa: E731
+    info = finish_atlas(atlas, traced, settings, t_points, extra, Staged(staging, out_dir), check, release=True)
+    return atlas_result(atlas, out_dir, info)
+
+
+def finish_atlas(
+    atlas: AtlasInput,
+    traced: TracedAtlas,
+    settings: PipelineSettings,
+    t_points: float,
+    extra: dict,
+    out,
+    check: Callable[[], None] = lambda: None,
+    *,
+    recorded: tracer.BakeSettings | None = None,
+    release: bool = False,
+) -> dict:
+    """The last stages of one atlas: seams → image → raw files → post stages → encode, its files
+    handed to `out` (`Staged` here; a farm worker keeps them to return, `core.farm`): `out.raw(name,
+    parent, images)` once imaged, `out.atlas(name, parent, encoded, sidecar)` per file set as soon
+    as it is encoded, `out.seams(name, seams)`.
+    The raw SH file keeps the SH as traced; the seams file is written whether or not this bake
+    stitches (a re-encode may). With light sets, the same stages then run for each set's SH
+    into its own atlas files (`light_sets.set_atlas_name`), listed in the atlas's sidecar.
+    `check()` raises to cancel; `recorded`: the tracer settings the sidecar records (default
+    `settings.trace`; a farm worker computes with its own thread count). `release`: drop
+    `traced`'s SH and standard error once they are imaged (`TracedAtlas.release_sh`; the caller
+    no longer needs them, and they are the largest arrays of a bake), and without light sets its
+    bake points too (`TracedAtlas.release_points`: the sets' images need them later). Returns the
+    atlas's summary: texels, rays, seconds per stage, warnings, light sets. `check` may be a
+    `core.progress.Tick` (a bake's): each stage gets its part, by `_set_costs`, and reports in it.
+    """
+    t = time.perf_counter()
+    texels = len(traced.points.texel)
+    tick = ticker(check)
+    costs = _set_costs(texels, _window_texels(atlas, traced.points), settings)
+    seams_part, *set_parts = tick.split(
+        [meter.COST_SEAMS * texels] + [sum(costs.values())] * (1 + len(traced.sets)),
+        [f"seams {tick.name}".strip()] + [None] * (1 + len(traced.sets)),
+    )
+    seams_part.at(0.0, "finding the seams")
+    atlas_seams = geometry.find_seams(traced.points.mesh, atlas.width, atlas.height)
+    seconds = {"bake_points": t_points, "trace": traced.seconds, "seams": time.perf_counter() - t}
+    t = time.perf_counter()
+    sidecar = dict(extra)
+    sidecar.update(
+        {
+            "bake": {
+                **asdict(recorded or settings.trace),
+                "samples_taken": traced.samples,
+                "passes": traced.passes,
+                "mean_samples_per_texel": traced.mean_samples,
+                "stopped_by": traced.stopped_by,
+                "rays": traced.rays,
+            },
+            "objects": lightmap_files.object_rects(traced.points, atlas.objects, atlas.instances),
+            "timings_seconds": seconds,
+        }
+    )
+    set_names = [light_sets.set_atlas_name(atlas.name, s) for s in traced.sets]
+    if traced.sets:
+        sidecar["light_sets"] = [{"name": s, "atlas": n} for s, n in zip(traced.sets, set_names)]
+    warnings = _finish_files(
+        out,
+        atlas.name,
+        "",
+        traced,
+        settings,
+        sidecar,
+        atlas_seams,
+        seconds,
+        check=set_parts[0],
+        release=release,
+        last=not traced.sets,
+    )
+    out.seams(atlas.name, atlas_seams)
+    for k, (name, set_name) in enumerate(zip(traced.sets, set_names)):
+        set_sidecar = {key: v for key, v in sidecar.items() if key not in ("light_sets", "timings_seconds")}
+        set_sidecar["light_set"] = {"name": name, "of": atlas.name}
+        set_parts[k + 1].name = f"'{set_name}'"
+        warnings += _finish_files(
+            out,
+            set_name,
+            atlas.name,
+            traced.light_set(k),
+            settings,
+            set_sidecar,
+            atlas_seams,
+            seconds,
+            check=set_parts[k + 1],
+        )
+    seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
+    warnings = [f"atlas '{atlas.name}', {w}" for w in dict.fromkeys(warnings)]
+    rays = traced.rays
+    return {"texels": texels, "rays": rays, "seconds": seconds, "warnings": warnings, "sets": traced.sets}
+
+
+def _finish_files(
+    out,
+    name: str,
+    parent: str,
+    traced: TracedAtlas,
+    settings,
+    sidecar: dict,
+    atlas_seams,
+    seconds: dict,
+    *,
+    check,
+    release: bool = False,
+    last: bool = False,
+) -> list[str]:
+    """Image → raw files (`out.raw`) → post stages → encode of one atlas's SH (the atlas's own, or
+    one light set's), handed to `out.atlas`; adds the post stages' seconds to seconds["post"];
+    returns their warnings.
+    `release`: `traced.release_sh()` once imaged, and with `last` (no image of these bake points
+    follows) `traced.release_points()`. `check` may be a `core.progress.Tick`: split among the
+    stages by `_set_costs`, each named ("encode 'Lightmap'")."""
+    t = time.perf_counter()
+    tick = ticker(check)
+    costs = _set_costs(len(traced.points.texel), _window_texels_of(traced), settings)
+    parts = dict(
+        zip(
+            costs,
+            tick.split(list(costs.values()), [f"{k} {tick.name}".strip() if k != "post" else None for k in costs]),
+        )
+    )
+    parts["image"].at(0.0, "imaging the texels")
+    # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH);
+    # the bake points go before the SH is imaged when nothing else needs them
+    raw = encoding.TexelData.from_points(
+        traced.points,
+        traced.sh,
+        noise=traced.noise(),
+        release=traced.release_points if release and last else None,
+        release_sh=traced.release_sh_rows if release else None,
+        crop=True,  # an almost empty atlas: the window of its texels (the files are the same)
+    )
+    if release:
+        traced.release_sh()
+    # the raw files first, as traced: then the post stages may write into `raw`'s SH (memory)
+    fill = raw.fill()
+    parts["raw"].at(0.0, "raw files")
+    with encoding.raw_files(raw, fill) as images_of:
+        out.raw(name, parent, images_of, *_tick_for(out, parts["raw"]))
+    del images_of
+    restore = functools.partial(_restore_sh, raw.sh, fill.valid, out, name, parent, raw.window)
+    data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, in_place=True, restore=restore)
+    seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
+    del raw, restore  # `data` holds the SH now, denoised in place or as traced
+    data = replace(data, noise=None)  # in the texels file already; the encoder does not read it
+    stages.trim_heap()  # what the post stages' threads freed (memory)
+    parts["encode"].at(0.0, "encoding")
+    encoded = encoding.encode_atlas(
+        data,
+        encoding.for_settings(settings.encoder),
+        raw=False,
+        fill=_same_fill(fill, data),
+        spend=True,
+        tick=parts["encode"],
+        threads=settings.trace.threads,
+    )
+    parts["stitch encoded"].at(0.0)
+    encoded = post.stitch_encoded(
+        encoded, data.coverage, settings, atlas_seams, sidecar["post"], parts["stitch encoded"], in_place=True
+    )
+    del data, fill
+    parts["write"].at(0.0, "encoded files")
+    out.atlas(name, parent, encoded, sidecar, *_tick_for(out, parts["write"]))  # write (here) or keep (a farm worker)
+    return post.warnings(sidecar["post"])
+
+
+def _tick_for(out, tick: Tick) -> tuple:
+    """The optional tick argument of `out.raw` / `out.atlas`: `Staged` writes and reports; other
+    keepers of the files (a farm worker's) take none."""
+    return (tick,) if isinstance(out, Staged) else ()
+
+
+def _restore_sh(sh: np.ndarray, valid: np.ndarray, out, name: str, parent: str, window=None) -> None:
+    """Put the traced SH of the baked texels (flat indices `valid`) back into `sh` `(H, W, 9, 3)`
+    from the raw SH file staged (or kept) in `out`: a denoiser that failed half-way through
+    writing it (the file's other texels are dilated; the denoiser writes baked texels only).
+    `window`: the rectangle of the atlas `sh` is (`TexelData.window`), None for the whole."""
+    h, w = sh.shape[:2]
+    traced = out.traced_sh(name, parent)
+    if window is not None:
+        traced = traced[window.y0 : window.y0 + window.h, window.x0 : window.x0 + window.w]
+    sh.reshape(h * w, -1)[valid] = np.ascontiguousarray(traced).reshape(h * w, -1)[valid]
+
+
+def _same_fill(fill, data: encoding.TexelData):
+    """`fill` (the traced atlas's) if it is `data`'s too: no post stage gave texels outside the charts
+    a value of their own (seam stitching's `extra_sources`), else None (the encoder finds `data`'s)."""
+    return fill if data.extra_sources is None else None
