@@ -13,8 +13,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..core import bake as core_bake
-from ..core import incremental, lightmap_files, parallel
+from ..core import incremental, parallel
 from ..core.errors import FullBakeNeeded
+from ..core.files import lightmap_files
 from . import bake_session, collection_instances, fingerprints, mesh_data, scene_data
 
 MODES = ("only", "changed", "influenced")

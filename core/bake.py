@@ -23,23 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import (
-    bakepoints,
-    encoding,
-    exr,
-    inward,
-    light_sets,
-    lightmap_files,
-    parallel,
-    post,
-    probes,
-    stages,
-    tracer,
-)
+from . import bakepoints, encoding, light_sets, parallel, post, probes, stages, tracer
 from . import progress as meter
-from .bakepoints import BakePoints, SurfaceTriangles
+from .bakepoints import BakePoints, SurfaceTriangles, inward
 from .encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from .errors import BakeCancelled, BakeError, InwardFacesRefused
+from .files import exr, lightmap_files
 from .post.seams import geometry
 from .progress import Progress, Tick, ticker
 from .rays import RayScene
@@ -74,7 +63,7 @@ class PipelineSettings:
     a warning); stitch_seams: run the stitch post stage (`core.post.seams`) after it, so a smooth
     surface split between charts reads the same on both sides of the split. A bake writes the
     atlas's seams file either way, so a re-encode can switch stitching on or off. inward_faces:
-    what to do with faces that point into their own object (`core.inward`: OPEN_SIDE bakes them
+    what to do with faces that point into their own object (`core.bakepoints.inward`: OPEN_SIDE bakes them
     from the side light reaches, AS_MODELLED as they are, with a warning; REFUSE: InwardFacesRefused)."""
 
     trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
@@ -90,7 +79,7 @@ class AtlasResult:
     """One written atlas (kind "atlas") or probe volume (kind "probes": texels are its probes):
     seconds per stage; warnings: what a post stage could not do (e.g. no denoiser), and `inward`;
     sets: its light sets (`core.light_sets`; none without light groups); inward: one message per
-    object with faces that point into it (`core.inward`)."""
+    object with faces that point into it (`core.bakepoints.inward`)."""
 
     name: str
     files: lightmap_files.AtlasFiles
@@ -305,7 +294,7 @@ def _probes_cost(grids, trace: tracer.BakeSettings) -> float:
 def check_inward(
     atlases: list[AtlasInput], scene: BakeScene, mode: str = inward.OPEN_SIDE
 ) -> tuple[list[AtlasInput], list[list[inward.InwardObject]], BakeScene]:
-    """Faces that point into their own object (`core.inward`), found before any bake point:
+    """Faces that point into their own object (`core.bakepoints.inward`), found before any bake point:
     (the atlases to bake: with `mode` OPEN_SIDE those faces' normals turned round, else as
     given; per atlas the objects found; the scene to trace: with OPEN_SIDE those faces' winding
     turned round, `inward.flip_scene`). REFUSE with any found: InwardFacesRefused naming them."""

@@ -38,9 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import encoding, exr, lightmap_files, parallel, post, tracer
+from . import encoding, parallel, post, tracer
 from .encoding.stage import WINDOW_MARGIN
 from .errors import BakeCancelled, FullBakeNeeded
+from .files import exr, lightmap_files
 from .post.denoise.layout import label_charts
 
 #: Version of the sidecar's "fingerprints" record: a record of another version is "unknown" (full bake).

@@ -8,7 +8,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from hhd_lightmapper.core import dilate, exr
+from hhd_lightmapper.core import dilate
 from hhd_lightmapper.core.encoding import (
     SH_FILE,
     TEXELS_FILE,
@@ -19,6 +19,7 @@ from hhd_lightmapper.core.encoding import (
     raw_files,
 )
 from hhd_lightmapper.core.encoding.stage import DILATE_RINGS, fill_in_place, raw_images
+from hhd_lightmapper.core.files import exr
 
 
 def whole_image_bytes(tmp_path, channels: dict, attributes: dict) -> bytes:
