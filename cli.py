@@ -960,7 +960,7 @@ def _os_problem(exc: OSError) -> str:
     """One line for an OSError met while writing: the file (not its temporary) and the fix."""
     import errno
 
-    from .core.exr import target_of
+    from .core.files.exr import target_of
 
     name = target_of(exc.filename) if exc.filename else "the output"
     if exc.errno in (errno.EEXIST, errno.ENOTDIR):

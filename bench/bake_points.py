@@ -36,7 +36,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from hhd_lightmapper.core import bake, bakepoints, covers, raster  # noqa: E402
+from hhd_lightmapper.core import bake, bakepoints, raster  # noqa: E402
+from hhd_lightmapper.core.bakepoints import covers, settling  # noqa: E402
 from hhd_lightmapper.core.rays import RayScene  # noqa: E402
 from hhd_lightmapper.core.scene import BakeScene  # noqa: E402
 from memory import sheet  # noqa: E402
@@ -150,7 +151,7 @@ def run(surface, scene: RayScene, resolution: int, threads: int) -> tuple[bakepo
     phases.wrap(bakepoints, "find_near_cover", "near-cover probe")
     phases.part(RayScene, "intersect", "embree")
     phases.part(RayScene, "occluded", "embree")
-    phases.part(bakepoints, "_spoke_targets", "_spoke_targets")
+    phases.part(settling, "_spoke_targets", "_spoke_targets")
     phases.part(raster_reference, "_spoke_targets", "_spoke_targets")  # the old path's
     covers._shared.clear()  # each run builds its own cover probe (`build` would reuse the last run's)
     load = os.getloadavg()[0]

@@ -66,7 +66,7 @@ def bake(floor, resolution: int, samples: int, folder: Path) -> tuple[np.ndarray
     bottom-up, the 3 × 2 affine map of world (x, y, 1) → its lightmap uv)."""
     import bpy
 
-    from hhd_lightmapper.core import exr, lightmap_files
+    from hhd_lightmapper.core.files import exr, lightmap_files
     from scenekit import blender as kit
 
     s = bpy.context.scene.hhd

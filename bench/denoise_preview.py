@@ -270,7 +270,7 @@ def reference_paths(folder: Path) -> list[Path]:
 
 def read_rgba(path: Path) -> np.ndarray:
     """(H, W, 4) float64 of an RGBA OpenEXR file, as bench/preview.py's `render` returns it."""
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
 
     channels, _ = exr.read(path)
     return np.stack([exr.from_exr_rows(channels[c]) for c in "RGBA"], -1).astype(np.float64)

@@ -23,8 +23,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from hhd_lightmapper.core import exr  # noqa: E402
 from hhd_lightmapper.core.encoding import web_packing as wp  # noqa: E402
+from hhd_lightmapper.core.files import exr  # noqa: E402
 
 FLOOR = 0.01
 LUM = np.array([0.2126, 0.7152, 0.0722])

@@ -46,7 +46,7 @@ def atlases(folder: Path) -> list[str]:
 
 
 def maps(folder: Path, name: str):
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
 
     sh, _ = exr.read(folder / f"{name}_sh.exr")
     tx, _ = exr.read(folder / f"{name}_texels.exr")
@@ -75,7 +75,7 @@ def compare(inc: Path, full: Path, retraced_masks: dict) -> dict:
 
 def retraced(before: Path, after: Path) -> dict:
     """Per atlas, the texels whose raw SH changed (EXR rows), i.e. those re-traced or rewritten."""
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
 
     out = {}
     for name in atlases(before):

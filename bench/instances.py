@@ -138,7 +138,7 @@ def object_stats(objects, folder: Path, uv_layer: str, lightmap_files, exr) -> d
 def run(bpy, kit, args, out: Path, single: bool, collections: bool = False) -> dict:
     """Build, (make single user), unwrap, bake, save; the run's figures (per object keyed by the
     copy's name: a collection instance's Empty is named as the linked duplicate it replaces)."""
-    from hhd_lightmapper.core import exr, lightmap_files
+    from hhd_lightmapper.core.files import exr, lightmap_files
 
     receivers, selected = build(bpy, kit, args.copies, collections)
     if single:

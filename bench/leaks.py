@@ -481,7 +481,7 @@ class Coincident:
     def kind(self, points, rows: np.ndarray) -> np.ndarray:
         """(len(rows),) int: 1 where another triangle facing the same way holds the bake point
         (a duplicate: z-fighting), -1 where only one facing the other way does (a cover, which
-        the bake handles: core.covers), 0 where none does. The texel's own triangle is the one
+        the bake handles: core.bakepoints.covers), 0 where none does. The texel's own triangle is the one
         with its corners; an exact copy of it counts as a duplicate (two with its corners)."""
         out = np.zeros(len(rows), int)
         tol = points.offset

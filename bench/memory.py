@@ -28,9 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, lightmap_files, post, presets, tracer
+from hhd_lightmapper.core import bake, bakepoints, encoding, post, presets, tracer
 from hhd_lightmapper.core import stages as stages_module
 from hhd_lightmapper.core.bake import finishing
+from hhd_lightmapper.core.files import lightmap_files
 from hhd_lightmapper.core.post.denoise import oidn
 from hhd_lightmapper.core.post.seams import geometry
 from hhd_lightmapper.core.scene import BakeScene, SunLight
@@ -194,7 +195,7 @@ def main() -> int:
     del points  # as `bake.run`: the traced atlas holds them until they are imaged
     stages.mark("files_other")
     with tempfile.TemporaryDirectory() as tmp:
-        from hhd_lightmapper.core import exr
+        from hhd_lightmapper.core.files import exr
 
         out = args.keep or tmp
 

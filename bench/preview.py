@@ -141,7 +141,7 @@ def diffuse_cycles(bpy, scene, samples: int, bounces: int) -> None:
 
 
 def render(bpy, scene, path: Path, alpha=False) -> np.ndarray:
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
 
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)

@@ -124,7 +124,8 @@ def build_scene(out: Path, normal_map: bool = True):
 def bake_volume(bpy, block, folder: Path, samples: int, bounces: int):
     """Bake the scene's volume with core (the block hidden) and write it to `folder`."""
     from hhd_lightmapper.bridge import scene_data
-    from hhd_lightmapper.core import exr, probes, tracer
+    from hhd_lightmapper.core import probes, tracer
+    from hhd_lightmapper.core.files import exr
 
     block.hide_render = True
     depsgraph = bpy.context.evaluated_depsgraph_get()

@@ -116,8 +116,9 @@ def _owner(name: str):
 
 def run(folder: Path, atlas: str, scratch: Path, keep: Path | None = None) -> dict:
     import memory as memory_bench  # bench/memory.py: Blender's OIDN library without importing bpy
-    from hhd_lightmapper.core import bake, lightmap_files
+    from hhd_lightmapper.core import bake
     from hhd_lightmapper.core.encoding import EncoderSettings
+    from hhd_lightmapper.core.files import lightmap_files
 
     work = scratch / "lightmaps"
     shutil.copytree(folder, work)

@@ -39,7 +39,7 @@ def main() -> int:
 
     import hhd_lightmapper
     from hhd_lightmapper import blender_compat
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
     from scenekit import blender, scenes
 
     out = args.out.resolve()

@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hhd_lightmapper.core import bakepoints, encoding, exr, lightmap_files, parallel, rays, tracer, unwrap
+from hhd_lightmapper.core import bakepoints, encoding, parallel, rays, tracer, unwrap
 from hhd_lightmapper.core.encoding.stage import raw_images
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from scenekit.meshes import sphere_field  # noqa: E402
 

@@ -390,7 +390,7 @@ def operator_bake(receivers, samples, points, seed=0):
     bake points' texels, seconds, OperatorResult)."""
     import bpy
 
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
     from scenekit.blender import select
 
     folder = Path(tempfile.mkdtemp(prefix="hhd-tte-"))

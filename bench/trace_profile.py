@@ -114,7 +114,8 @@ class Timers:
 def profile(surface, bake_scene, resolution: int, samples: int) -> dict:
     """One 1-thread trace of `samples` spp (the bake points built before, untimed) with its
     Embree queries and kernels timed."""
-    from hhd_lightmapper.core import bake, bakepoint_kernels, rays, sampling, tracer
+    from hhd_lightmapper.core import bake, rays, sampling, tracer
+    from hhd_lightmapper.core.bakepoints import kernels as bakepoint_kernels
     from hhd_lightmapper.core.tracer import hemisphere_kernels, light_kernels, path_kernels, statistics_kernels
     from time_to_error import EmbreexRays
 

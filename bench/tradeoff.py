@@ -399,7 +399,7 @@ class Scene:
         import bpy
 
         from hhd_lightmapper.bridge import bake_session, denoiser
-        from hhd_lightmapper.core import lightmap_files
+        from hhd_lightmapper.core.files import lightmap_files
         from hhd_lightmapper.core.post.denoise import filtering, pages
 
         s = self.scene.hhd
@@ -616,8 +616,8 @@ def encoded_iz_mismatch(files, irradz: np.ndarray, baked: np.ndarray) -> float:
     """Largest relative difference (relative to max(|I_z|, FLOOR × the mean) per channel) between
     `irradz` (N, 3) of the baked texels and the Iz channels of the atlas's written `_hhd.exr`:
     half-float rounding (< 1e-3) when the errors are of the SH the bake encoded. Raises if not."""
-    from hhd_lightmapper.core import exr
     from hhd_lightmapper.core.encoding.hhd import IZ
+    from hhd_lightmapper.core.files import exr
 
     channels, _ = exr.read(files.hhd)
     written = np.stack([exr.from_exr_rows(channels[n]) for n in IZ.exr_names], -1)[baked]
@@ -724,7 +724,7 @@ def attach_memory(res: dict, memory: dict) -> None:
 
 def images_only(args) -> int:
     """Image errors of the EEVEE renders a run left in args.out against fresh Cycles references."""
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
 
     results = json.loads((RESULTS / "tradeoff.json").read_text())
     for name, res in results["scenes"].items():

@@ -146,7 +146,7 @@ def eevee_preview(blend: Path, sizes: list[tuple[int, int]], out: Path) -> tuple
 
     import hhd_lightmapper
     from hhd_lightmapper import blender_compat
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
 
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     try:

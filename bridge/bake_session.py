@@ -16,7 +16,7 @@ from ..core import bake as core_bake
 from ..core import encoding as core_encoding
 from ..core import parallel, tracer
 from ..core.errors import BakeError
-from ..core.lightmap_files import AtlasFiles
+from ..core.files.lightmap_files import AtlasFiles
 from . import collection_instances, denoiser, fingerprints, mesh_data, scene_data
 
 DEFAULT_ATLAS = "Lightmap"
@@ -138,10 +138,10 @@ def pipeline_settings(settings, threads: int = 0) -> core_bake.PipelineSettings:
 
 
 def check_inward(context, objects: list[str] | None = None) -> list[str]:
-    """The receivers' faces that point into their own object (`core.inward`), without baking and
+    """The receivers' faces that point into their own object (`core.bakepoints.inward`), without baking and
     without lightmap UVs: one message per object (the scene's `inward_faces` action named), also
     kept in `scene.hhd.inward_report` for the panel."""
-    from ..core import inward
+    from ..core.bakepoints import inward
 
     settings = context.scene.hhd
     receivers = target_objects(context, objects)

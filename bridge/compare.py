@@ -43,12 +43,12 @@ import numpy as np
 
 from .. import blender_compat
 from ..core import compare as core_compare
-from ..core import exr, lightmap_files
 from ..core import progress as core_progress
 from ..core.colour import LUMINANCE
 from ..core.console import ConsoleProgress
 from ..core.encoding.web_packing import png_encode
 from ..core.errors import BakeCancelled, BakeError
+from ..core.files import exr, lightmap_files
 from . import bake_session, denoiser, mesh_data, scene_data
 
 ROUGHNESS = (0.25, 0.5, 0.75)

@@ -30,11 +30,12 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..core import exr, octahedral
+from ..core import octahedral
 from ..core import sh as core_sh
 from ..core.encoding import web_packing as wp
 from ..core.errors import BakeError
-from ..core.lightmap_files import AtlasFiles, read_sidecar
+from ..core.files import exr
+from ..core.files.lightmap_files import AtlasFiles, read_sidecar
 from . import collection_instances, mesh_data
 
 NAME = "HHD_LIGHTMAP"

@@ -13,8 +13,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..core import bake as core_bake
-from ..core import lightmap_files, parallel
+from ..core import parallel
 from ..core.errors import FullBakeNeeded
+from ..core.files import lightmap_files
 from ..core.incremental import fingerprints as core_fingerprints
 from ..core.incremental import subset as core_subset
 from . import bake_session, collection_instances, fingerprints, mesh_data, scene_data

@@ -13,7 +13,7 @@ import bpy
 
 from ..core import light_sets as core_sets
 from ..core.errors import BakeError
-from ..core.lightmap_files import AtlasFiles, read_sidecar
+from ..core.files.lightmap_files import AtlasFiles, read_sidecar
 from . import bake_session
 
 

@@ -215,7 +215,7 @@ def read_triangles(mesh, matrix_world):
 def read_shape(obj, depsgraph):
     """SurfaceTriangles of the evaluated mesh of `obj` for the shape alone (positions, corner
     normals, polygon per triangle, world space; no UVs or albedo: zeros), or None without faces.
-    What `core.inward` needs, before any unwrap."""
+    What `core.bakepoints.inward` needs, before any unwrap."""
     from ..core.bakepoints import SurfaceTriangles
 
     evaluated = obj.evaluated_get(depsgraph)

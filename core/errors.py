@@ -11,7 +11,7 @@ class BakeCancelled(BakeError):
 
 class InwardFacesRefused(BakeError):
     """Faces Pointing In = Refuse, and some receivers have such faces: `messages`, one per object
-    (`core.inward`), are also the error's lines."""
+    (`core.bakepoints.inward`), are also the error's lines."""
 
     def __init__(self, messages: list[str]):
         super().__init__("\n".join(messages))

@@ -140,7 +140,7 @@ def blend_atlas(files, weights: Mapping[str, object] | None) -> dict:
     sets' files and the raw SH are untouched (Re-encode restores the plain sum). files:
     `lightmap_files.AtlasFiles` of the atlas. Returns the sidecar's `blend` record. Raises
     BakeError for an atlas baked without light sets, one encoded in another model than HHD, or bad weights."""
-    from . import exr, lightmap_files
+    from .files import exr, lightmap_files
 
     sidecar = lightmap_files.read_sidecar(files.sidecar)
     entries = sidecar.get("light_sets", [])
@@ -186,7 +186,8 @@ def read_hhd(files, window=None) -> tuple[HHDParams, list[str]]:
     (`stages.Window`: an almost empty atlas's, `lightmap_files.texel_window`), those of its
     texels `(h·w,)` only, then one more: a texel outside it (every one there holds the same
     fill), the only part of the file read besides the window's ZIP blocks."""
-    from . import exr, octahedral
+    from . import octahedral
+    from .files import exr
 
     if window is None:
         channels, _ = exr.read(files.hhd)
@@ -218,7 +219,7 @@ def read_hhd(files, window=None) -> tuple[HHDParams, list[str]]:
 def _window_and_one(path, names: list[str], window) -> dict[str, np.ndarray]:
     """Channels `names` of EXR `path` as `(h·w + 1, 1)` images in EXR order: turned by
     `exr.from_exr_rows`, `window`'s texels (rows bottom-up), then one texel outside it."""
-    from . import exr
+    from .files import exr
 
     h, w = window.atlas
     rows, cols = (h - window.y0 - window.h, h - window.y0), (window.x0, window.x0 + window.w)
@@ -238,8 +239,8 @@ def _texel_normals(files):
     the charts) take their nearest chart texel's, as the encoded layers were filled, else +z.
     An almost empty atlas's (`lightmap_files.texel_window`): n_v `(h·w + 1, 3)` of its window's
     texels, then of those outside it (all alike: the fill's mean), and the window."""
-    from . import lightmap_files
     from .encoding.stage import background
+    from .files import lightmap_files
 
     data = lightmap_files.read_texel_data(files, crop=True)
     fill = data.fill()
@@ -259,8 +260,9 @@ def write_hhd(
     """Stage an atlas's HHD file (Iz, Wa as `wa_names`, octahedral Direction; the HHD file's
     storage types), its preview images and `sidecar`. `window`: `p` is of its texels and one
     outside it (`read_hhd`'s), written as the whole atlas's (`stages.PlacedImage`)."""
-    from . import exr, lightmap_files, octahedral
+    from . import octahedral
     from .encoding import HHD_FILE
+    from .files import exr, lightmap_files
     from .stages import placed
 
     h, w = shape if window is None else (window.h, window.w)

@@ -28,8 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import exr, light_sets, parallel
+from . import light_sets, parallel
 from .errors import BakeError
+from .files import exr
 from .scene import BakeScene
 from .tracer import scheduler
 from .tracer.paths import TraceScene

@@ -452,7 +452,7 @@ def other_triangles(texel, triangle, area, chosen, face_normals, use_normals, mi
 
 
 def spoke_targets(target, idx, texel, width, triangle, others, texel_uv, positions, face_normal, offset, offsets):
-    """`bakepoints._spoke_targets` after `BakePoints.texel_points`: for the texels idx (n,) (indices
+    """`bakepoints.settling._spoke_targets` after `BakePoints.texel_points`: for the texels idx (n,) (indices
     into the bake points' texel (P,) flat ids, triangle (P,), others (P, m) −1 for none,
     face_normal (P, 3)) that have other triangles, each point at offsets (k, 2) texel units from
     the texel's corner that lies on one of the texel's triangles (its own, then `others` in order;
@@ -496,7 +496,7 @@ def spoke_targets(target, idx, texel, width, triangle, others, texel_uv, positio
 def spoke_rays(position, face_normal, texel_size, offset, start, target):
     """`bakepoints.settle`'s spokes of the bake points start … start + n − 1 (position, face_normal
     (P, 3), texel_size (P,) metres): from each one's ray origin (the anchor: position + face
-    normal × `offset`, scene units) to its k targets (target (n, k, 3), `bakepoints._spoke_targets`).
+    normal × `offset`, scene units) to its k targets (target (n, k, 3), `bakepoints.settling._spoke_targets`).
     Returns anchor (n, 3), origin (n·k, 3) (the anchor repeated), direction (n, k, 3) unit
     (zero-length spokes: 0), length (n, k) and reach (n, k) = max(length, texel size), with the
     numpy code's operations in its order (scenekit/raster_reference.py `settle`: the norm summed

@@ -197,6 +197,20 @@ class Window:
         return (texel // width - self.y0) * self.w + (texel % width - self.x0)
 
 
+#: Largest finite half-float value.
+HALF_MAX = 65504.0
+
+
+def fits_half(values: np.ndarray) -> bool:
+    """True when every finite value is within the half-float range (so nothing would clip to
+    infinity). Values below half's precision lose bits but not range: that is not clipping.
+    An image that knows (`stages.PlacedImage`: an almost empty atlas's) is asked."""
+    if hasattr(values, "fits_half"):
+        return values.fits_half()
+    finite = np.asarray(values)[np.isfinite(values)]
+    return finite.size == 0 or float(np.abs(finite).max()) <= HALF_MAX
+
+
 @dataclass
 class PlacedImage:
     """A full-size `(H, W)` image of one value, `background`, but for the rows and columns of
@@ -242,9 +256,7 @@ class PlacedImage:
         return PlacedImage(np.broadcast_to(z, self.inner.shape), self.window, z, self.flipped)
 
     def fits_half(self) -> bool:
-        """Whether every finite value fits a half float (`exr.fits_half`)."""
-        from .exr import fits_half
-
+        """Whether every finite value fits a half float (`fits_half`)."""
         return fits_half(self.inner) and fits_half(np.asarray(self.background).reshape(1))
 
     def __getitem__(self, key) -> PlacedImage | np.ndarray:

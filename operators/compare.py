@@ -16,8 +16,8 @@ import bpy
 from bpy.props import IntProperty
 
 from ..bridge import compare
-from ..core import exr
 from ..core.errors import BakeCancelled, BakeError
+from ..core.files import exr
 from . import modal_work
 from .bake import receivers_poll
 

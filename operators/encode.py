@@ -16,7 +16,7 @@ import bpy
 from ..bridge import bake_session, denoiser
 from ..core import bake as core_bake
 from ..core.errors import BakeError
-from ..core.lightmap_files import AtlasFiles
+from ..core.files.lightmap_files import AtlasFiles
 from .bake import receivers_poll
 
 

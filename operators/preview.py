@@ -5,16 +5,16 @@ from pathlib import Path
 import bpy
 
 from ..bridge import bake_session
-from ..core.encoding.preview import kind_of, sampled, sh_previews
 from ..core.errors import BakeError
-from ..core.lightmap_files import AtlasFiles
+from ..core.files.lightmap_files import AtlasFiles
+from ..core.files.preview import kind_of, sampled, sh_previews
 from ..shaders import preview
 from .bake import receivers_poll
 
 
 def atlas_files_of(objects, settings) -> dict:
     """{object name: AtlasFiles} for baked objects; raises BakeError naming one without a bake,
-    one whose model the preview mode cannot show (`core.encoding.preview.kind_of`: HHD, AHD and
+    one whose model the preview mode cannot show (`core.files.preview.kind_of`: HHD, AHD and
     Scalar need an HHD file, L1/L2 read the raw SH file of any atlas, Encoded shows the atlas's
     own model), or whose bake lacks the images that mode samples."""
     folder = Path(bake_session.output_folder(settings))

@@ -1,7 +1,7 @@
 """The numpy bake-point code as it was before issue 23 part 5 compiled it: the reference the
 compiled rasteriser, probe points, footprint triangles and settle spokes are checked against
 (tests/test_raster_compiled.py) and the old path `bench/bake_points.py --compare` times. Not
-shipped; copied unchanged from core/raster.py and core/bakepoints.py (only module prefixes
+shipped; copied unchanged from core/raster.py and core/bakepoints/ (only module prefixes
 added)."""
 
 from __future__ import annotations
@@ -13,10 +13,6 @@ import numpy as np
 
 from hhd_lightmapper.core import parallel
 from hhd_lightmapper.core.bakepoints import (
-    _SPOKES,
-    BURIED_FRACTION,
-    BURIED_PROBES,
-    FOOTPRINT,
     FOOTPRINT_MIN_COS,
     FOOTPRINT_TRIANGLES,
     BakePoints,
@@ -25,12 +21,12 @@ from hhd_lightmapper.core.bakepoints import (
     _barycentric,
     _barycentric_grouped,
     _normalise,
-    _probe_directions,
-    _push_out,
-    _Spokes,
     _texel_world_size,
 )
-from hhd_lightmapper.core.covers import CoverProbe
+from hhd_lightmapper.core.bakepoints.covers import CoverProbe
+from hhd_lightmapper.core.bakepoints.data import FOOTPRINT
+from hhd_lightmapper.core.bakepoints.flags import BURIED_FRACTION, BURIED_PROBES, _probe_directions
+from hhd_lightmapper.core.bakepoints.settling import _SPOKES, _push_out, _Spokes
 from hhd_lightmapper.core.raster import PAIRS_PER_CHUNK, Coverage
 from hhd_lightmapper.core.rays import RayScene
 
@@ -221,7 +217,7 @@ def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, cen
 def find_near_cover(
     points: BakePoints, probe: CoverProbe, check=None, chunk: int = 1 << 15, threads: int = 0
 ) -> np.ndarray:
-    """Texels part of whose samples may start under a coplanar face (core.covers): the bake point,
+    """Texels part of whose samples may start under a coplanar face (core.bakepoints.covers): the bake point,
     the footprint's corners and the texel's corners (where the samples' fallback can reach),
     mapped into the texel's triangle, are probed. The tracer probes every sample of the texels
     flagged here, so the flag only has to be conservative at the scale of a texel. (P,) bool."""

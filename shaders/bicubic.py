@@ -12,7 +12,7 @@ weights, no mip level) weighted in nodes:
   "HHD Catmull-Rom Sum": inputs "Color k", "Weight k" (16 each); output Color = Σ weight · colour.
   "HHD B-spline Taps": the taps with the cubic B-spline's weights (`bspline_weights`), for the
       Filter 'B-spline (prefiltered)', whose images hold the coefficients of the B-spline whose
-      texel means are the texels (`core.encoding.preview.bspline_image`).
+      texel means are the texels (`core.files.preview.bspline_image`).
 The taps read one texel further each way than bilinear: a chart needs 2 texels of filled gutter
 (the unwrap's padding ≥ 4, i.e. Mip Levels ≥ 1). Catmull-Rom's negative lobes overshoot next to
 a step: `lookup` clamps I_z at 0 and w_a to [0, 1]; directions are renormalised by the groups.
@@ -27,7 +27,7 @@ from .node_groups import Builder, _new_tree
 VERSION = 1
 TAPS_GROUP = "HHD Catmull-Rom Taps"
 #: The taps of the B-spline (the Filter 'B-spline (prefiltered)': the image holds coefficients,
-#: `core.encoding.preview.bspline_image`).
+#: `core.files.preview.bspline_image`).
 BSPLINE_TAPS_GROUP = "HHD B-spline Taps"
 SUM_GROUP = "HHD Catmull-Rom Sum"
 TAPS = 16

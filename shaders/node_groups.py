@@ -1,7 +1,7 @@
 """EEVEE node groups reconstructing the baked lighting, built by code from core's constants.
 
 The inputs that take baked data are named after the layers of the channel spec each preview mode
-samples (`core.encoding.preview`), so shaders/preview.py links every preview image to the input
+samples (`core.files.preview`), so shaders/preview.py links every preview image to the input
 of its layer's name. Groups (all output `Irradiance` and `Radiance` = Albedo × Irradiance, in
 the units of docs/conventions.md#irradiance-units):
   "HHD Lightmap" / "AHD Lightmap": inputs Iz, Wa (colour; equal channels in luminance mode),
@@ -38,7 +38,7 @@ import numpy as np
 from ..core import hhd, sh
 from ..core.colour import LUMINANCE
 from ..core.encoding import hbasis, hl2, sg
-from ..core.encoding.preview import sampled
+from ..core.files.preview import sampled
 
 GROUP_VERSION = 3  # 3: Direction inputs are unit vectors (2: octahedral pairs)
 GROUPS = {
@@ -505,7 +505,7 @@ def build_tangent(kind: str):
 
 
 def ensure(kind: str):
-    """The node group of `kind` (a key of `core.encoding.preview.MODES`: 'HHD', 'AHD', 'L1',
+    """The node group of `kind` (a key of `core.files.preview.MODES`: 'HHD', 'AHD', 'L1',
     'L2', 'SCALAR', 'HL2', 'HBASIS_L1', …, 'SG12', 'SH_L1', 'SH_L2'), built or rebuilt if stale."""
     tree = bpy.data.node_groups.get(GROUPS[kind])
     if tree is not None and tree.get("hhd_version") == GROUP_VERSION:

@@ -1,14 +1,14 @@
 """Show / hide the baked lighting on the objects' own materials, restorable exactly.
 
 Show inserts, into every material of the baked objects, a frame of nodes named "HHD Preview …":
-the preview images of the layers the mode samples (`core.encoding.preview`) sampled through the
+the preview images of the layers the mode samples (`core.files.preview`) sampled through the
 lightmap UV map (linear filtering) into the node-group inputs of the same names, the chosen node group
 fed by the Principled BSDF's Base Color and Normal links (image textures, normal maps; constants
 when unlinked) and Geometry's Normal as n_v, an Emission shader of albedo × irradiance, and a
 Mix Shader between the material's own surface (factor 0) and the preview (factor 1). The
 direction's image holds its unit vector (`Channel.unpack`), never the octahedral pair the
 bilinear filter would blend wrongly across the map's folds; Show rewrites one that a bake made
-before holds as the pair (`encoding.preview.upgrade_direction`). The mix
+before holds as the pair (`files.preview.upgrade_direction`). The mix
 factor is the object attribute `hhd_preview`, set to 1 on the baked objects only: a material shared
 with objects that were not baked keeps its own look on them. A material shared by objects of
 several atlases samples every atlas's images and picks the object's own by a second object
@@ -19,7 +19,7 @@ The three are read by Attribute nodes of type Instancer, which read them on the 
 a collection (collection instances, `bridge.collection_instances`) and on the object itself
 otherwise.
 
-The Encoded mode (`core.encoding.preview.ENCODED`) shows each material in the model its atlases'
+The Encoded mode (`core.files.preview.ENCODED`) shows each material in the model its atlases'
 sidecar names (one model per material, else Show refuses before changing anything): HL2, H-basis,
 SG and the SH encodings through their own layers' preview images and node groups, HHD/AHD as
 those modes do.
@@ -45,9 +45,9 @@ import json
 import bpy
 
 from .. import blender_compat
-from ..core.encoding.preview import ENCODED, bspline_image, kind_of, sampled, upgrade_direction
 from ..core.errors import BakeError
-from ..core.lightmap_files import read_sidecar
+from ..core.files.lightmap_files import read_sidecar
+from ..core.files.preview import ENCODED, bspline_image, kind_of, sampled, upgrade_direction
 from ..properties import sync_light_sets, weight_path
 from . import bicubic as bicubic_nodes
 from . import node_groups, specular_nodes
@@ -396,7 +396,7 @@ def model_of(files) -> str:
 
 
 def _kind(mat, mode: str, atlases) -> str:
-    """The kind (`core.encoding.preview.MODES`) material `mat` shows in preview mode `mode` for
+    """The kind (`core.files.preview.MODES`) material `mat` shows in preview mode `mode` for
     its atlases (AtlasFiles): `mode` itself, or in the Encoded mode their model's kind. Raises
     BakeError when the Encoded mode meets atlases of different models in one material (a node
     tree has one reconstruction) or a model it cannot show."""
@@ -435,7 +435,7 @@ def hide_on_material(mat) -> bool:
 def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool = False, scene=None) -> list[str]:
     """Preview on `objects` (each with `atlas_files[obj.name]`); returns notes for the report.
     A material shared by objects of several atlases samples each object's own atlas. `kind`: a
-    preview mode (`core.encoding.preview`; 'ENCODED': each material shows its atlases' model). In HHD
+    preview mode (`core.files.preview`; 'ENCODED': each material shows its atlases' model). In HHD
     mode, atlases baked with light sets show their live blend, weighted by `scene.hhd.light_sets`
     (`scene`: the context's by default), to which missing sets are added. The images are filtered
     as `scene.hhd.preview_filter` says (KERNELS; shaders/bicubic.py); `scene.hhd.preview_term`

@@ -35,9 +35,10 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..core import exr, sh
+from ..core import sh
 from ..core.encoding import ggx, sg
 from ..core.encoding.hhd_specular import VISIBILITY_SLOPE
+from ..core.files import exr
 from ..core.hhd import MIN_COS
 from .node_groups import (
     GROUP_VERSION,

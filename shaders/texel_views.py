@@ -37,8 +37,9 @@ import numpy as np
 
 from .. import blender_compat
 from ..bridge import bake_session, view_data
-from ..core import exr, unwrap
+from ..core import unwrap
 from ..core.errors import BakeError
+from ..core.files import exr
 from ..core.unwrap import texel_density, uv_problems
 from . import node_groups, preview
 

@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
-from hhd_lightmapper.core import exr, lightmap_files
 from hhd_lightmapper.core.console import interrupt_as_cancel, terminate_as_interrupt
 from hhd_lightmapper.core.errors import BakeError
+from hhd_lightmapper.core.files import exr, lightmap_files
 from scenekit import blender as kit
 
 pytestmark = pytest.mark.bpy

@@ -14,7 +14,7 @@ import pytest
 
 from hhd_lightmapper import blender_compat, cli
 from hhd_lightmapper.bridge import materials, scene_data
-from hhd_lightmapper.core import bakepoints
+from hhd_lightmapper.core.bakepoints import data as bakepoint_data
 from hhd_lightmapper.core.errors import BakeError
 from scenekit import blender as kit
 
@@ -217,7 +217,7 @@ def test_an_emission_texture_lights_the_receiver_in_its_colour(empty, monkeypatc
 
     import cycles_compare as cc
 
-    monkeypatch.setattr(bakepoints, "FOOTPRINT", cc.cycles_footprint())  # Cycles' texel footprint
+    monkeypatch.setattr(bakepoint_data, "FOOTPRINT", cc.cycles_footprint())  # Cycles' texel footprint
     floor = kit.plane("Floor", (0, 0, 0), 2.0, kit.material("Floor"))
     red = (0.9, 0.15, 0.05)
     textured = kit.material("Textured lamp", (0.0, 0.0, 0.0), emission=(1.0, 1.0, 1.0, 8.0))

@@ -12,6 +12,7 @@ import pytest
 import cycles_compare as cc
 from hhd_lightmapper import blender_compat
 from hhd_lightmapper.core import bakepoints
+from hhd_lightmapper.core.bakepoints import data as bakepoint_data
 from scenekit import blender as kit
 
 pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.slow]
@@ -28,7 +29,7 @@ COARSE_DENSITY = 32.0
 @pytest.fixture(autouse=True)
 def cycles_footprint(monkeypatch):
     """Our bake averages each texel over the same footprint as the running Blender's Cycles."""
-    monkeypatch.setattr(bakepoints, "FOOTPRINT", cc.cycles_footprint())
+    monkeypatch.setattr(bakepoint_data, "FOOTPRINT", cc.cycles_footprint())
     return cc.cycles_footprint()
 
 
@@ -70,7 +71,7 @@ def test_hard_shadow_edge_texels_average_the_same_footprint_as_cycles(floor, mon
     residual = np.sqrt(np.mean((r["ours"][edge] - r["cycles"][edge]) ** 2))
     noise = np.sqrt(np.mean(r["texel_noise"][edge]))
     assert residual <= 1.5 * noise + 0.01 * lit, (residual, noise, lit, edge.sum())
-    monkeypatch.setattr(bakepoints, "FOOTPRINT", 1.5 - cycles_footprint)  # 0.5 <-> 1.0
+    monkeypatch.setattr(bakepoint_data, "FOOTPRINT", 1.5 - cycles_footprint)  # 0.5 <-> 1.0
     points, other, _ = cc.ours([floor], 64, 0, seed=1)
     keep = (points.coverage >= 1.0 - 1e-9) & ~points.buried
     other_residual = np.sqrt(np.mean((other[keep][edge] - r["cycles"][edge]) ** 2))
@@ -79,7 +80,7 @@ def test_hard_shadow_edge_texels_average_the_same_footprint_as_cycles(floor, mon
 
 def footprint_straddles_triangles(points, keep):
     """(kept texels,) bool: the footprint's corners are not all inside the texel's triangle."""
-    corners = 0.5 + bakepoints.FOOTPRINT * (np.array([[0, 0], [1, 0], [0, 1], [1, 1]]) - 0.5)
+    corners = 0.5 + bakepoint_data.FOOTPRINT * (np.array([[0, 0], [1, 0], [0, 1], [1, 1]]) - 0.5)
     texel = points.texel[keep]
     origin = np.stack([texel % points.width, texel // points.width], 1).astype(float)
     tri_uv = points.mesh.texel_uv[points.triangle[keep]]
@@ -205,7 +206,7 @@ def test_floor_under_a_coplanar_face_stays_dark_as_in_cycles(extension):
     """An open-topped box standing on the floor: its bottom face lies in the floor's plane,
     facing down. Cycles' rays start on the floor and hit that face at distance 0, so the floor
     under it is dark; ours start an offset above the floor, inside the box, and without the
-    cover probe (core.covers) see the sky through the open top (measured without it: I_z up to
+    cover probe (core.bakepoints.covers) see the sky through the open top (measured without it: I_z up to
     1.38 under the box, where Cycles is dark). The texels under the box are invalid (no one
     sees them: the files fill them from the visible floor) and bake black; the rest of the floor
     must agree with Cycles within the noise rule, except along the box's edge, where ours

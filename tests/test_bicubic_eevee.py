@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import exr
+from hhd_lightmapper.core.files import exr
 from hhd_lightmapper.core.textures import sample_bicubic, sample_bilinear
 from scenekit import blender as kit
 

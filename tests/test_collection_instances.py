@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import exr, lightmap_files
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.textures import sample_bilinear
 from scenekit import blender as kit
 from test_gltf_export import nodes_by_name, read_glb

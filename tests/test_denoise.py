@@ -8,8 +8,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, encoding, exr, lightmap_files, post, sh
+from hhd_lightmapper.core import bake, encoding, post, sh
 from hhd_lightmapper.core.colour import LUMINANCE
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.post.denoise import fill, filtering, layout, noise_clamp, oidn
 from hhd_lightmapper.core.post.denoise import pages as denoise
 from hhd_lightmapper.core.stages import NOISE_PASSES

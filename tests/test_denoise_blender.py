@@ -15,8 +15,8 @@ import pytest
 
 from conftest import EXTENSION_MODULE
 from hhd_lightmapper import cli
-from hhd_lightmapper.core import exr, lightmap_files
 from hhd_lightmapper.core.colour import LUMINANCE
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.post.denoise import oidn
 from scenekit import blender as kit
 from test_oidn import bpy_library_dirs

@@ -10,10 +10,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, encoding, exr, hhd, lightmap_files, synthetic
-from hhd_lightmapper.core.encoding import doc_tables, preview, raw, registry
+from hhd_lightmapper.core import bake, encoding, hhd, synthetic
+from hhd_lightmapper.core.encoding import doc_tables, raw, registry
 from hhd_lightmapper.core.encoding import hhd as hhd_encoding
 from hhd_lightmapper.core.encoding.spec import DILATE_BURIED_BLACK, FLOAT, Channel, Encoded, FileSpec
+from hhd_lightmapper.core.files import exr, lightmap_files, preview
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -10,7 +10,6 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from hhd_lightmapper.core import exr
 from hhd_lightmapper.core.encoding import (
     SH_FILE,
     TEXELS_FILE,
@@ -21,6 +20,7 @@ from hhd_lightmapper.core.encoding import (
     raw_files,
 )
 from hhd_lightmapper.core.encoding.stage import DILATE_RINGS, raw_images
+from hhd_lightmapper.core.files import exr
 
 
 def whole_image_bytes(tmp_path, channels: dict, attributes: dict) -> bytes:

@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
-from hhd_lightmapper.core import exr, octahedral
+from hhd_lightmapper.core import octahedral
 from hhd_lightmapper.core.encoding import web_packing as wp
+from hhd_lightmapper.core.files import exr
 from scenekit import blender as kit
 
 pytestmark = pytest.mark.bpy

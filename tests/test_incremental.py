@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
-from hhd_lightmapper.core import exr, lightmap_files
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.incremental import fingerprints
 from scenekit import blender as kit
 

@@ -102,13 +102,13 @@ def iz_image(folder: Path, python: str) -> np.ndarray:
     """(H, W) I_z luminance of a bake, read with the package of the given environment (in this
     process when it is this suite's interpreter, else in a subprocess)."""
     if Path(python) == Path(sys.executable):
-        from hhd_lightmapper.core import exr
         from hhd_lightmapper.core.colour import LUMINANCE
+        from hhd_lightmapper.core.files import exr
 
         ch, _ = exr.read(folder / "Lightmap_hhd.exr")
         return np.stack([ch["Iz." + c] for c in "RGB"], -1).astype(np.float64) @ LUMINANCE
     script = (
-        "import json, sys, numpy as np; from hhd_lightmapper.core import exr; "
+        "import json, sys, numpy as np; from hhd_lightmapper.core.files import exr; "
         "from hhd_lightmapper.core.colour import LUMINANCE; "
         "ch, _ = exr.read(sys.argv[1]); "
         "iz = np.stack([ch['Iz.' + c] for c in 'RGB'], -1).astype(np.float64) @ LUMINANCE; "

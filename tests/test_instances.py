@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import exr, lightmap_files
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.textures import sample_bilinear
 from scenekit import blender as kit
 

@@ -1,10 +1,9 @@
-"""Faces that point into their own object (core/inward.py, issue 60): the parity rule on small
+"""Faces that point into their own object (core/bakepoints/inward.py, issue 60): the parity rule on small
 numpy meshes (no Blender). The bakes are in tests/test_inward_blender.py."""
 
 import numpy as np
 
-from hhd_lightmapper.core import inward
-from hhd_lightmapper.core.bakepoints import SurfaceTriangles
+from hhd_lightmapper.core.bakepoints import SurfaceTriangles, inward
 from scenekit import meshes
 
 

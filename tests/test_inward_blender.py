@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
-from hhd_lightmapper.core import exr, lightmap_files
 from hhd_lightmapper.core.colour import LUMINANCE
+from hhd_lightmapper.core.files import exr, lightmap_files
 from scenekit import blender as kit
 
 pytestmark = pytest.mark.bpy

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import quadrature as quad
-from hhd_lightmapper.core import bakepoint_kernels, sampling, sh
+from hhd_lightmapper.core import sampling, sh
+from hhd_lightmapper.core.bakepoints import kernels as bakepoint_kernels
 from hhd_lightmapper.core.tracer import hemisphere_kernels, path_kernels, statistics_kernels
 
 SETS = (sampling, hemisphere_kernels, path_kernels, statistics_kernels, bakepoint_kernels)

@@ -4,8 +4,9 @@ bake without sets of the same seed; every kind of emitter credited to its own se
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, exr, light_sets, lightmap_files, rays, tracer
+from hhd_lightmapper.core import bake, bakepoints, light_sets, rays, tracer
 from hhd_lightmapper.core.errors import BakeError
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.scene import AreaLight, BakeScene, PointLight, SunLight
 from scenekit import meshes
 

@@ -11,7 +11,9 @@ import pytest
 
 import cycles_compare as cc
 from conftest import EXTENSION_MODULE
-from hhd_lightmapper.core import bakepoints, exr, light_sets, lightmap_files
+from hhd_lightmapper.core import light_sets
+from hhd_lightmapper.core.bakepoints import data as bakepoint_data
+from hhd_lightmapper.core.files import exr, lightmap_files
 from scenekit import blender as kit
 
 pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.slow]
@@ -30,8 +32,8 @@ DENSITY = 64.0
 def cycles_footprint(monkeypatch, extension):
     """Our bake averages each texel over the same footprint as the running Blender's Cycles, in
     both copies of core: the tests' and the installed extension's (which the operator runs)."""
-    monkeypatch.setattr(bakepoints, "FOOTPRINT", cc.cycles_footprint())
-    installed = sys.modules.get(f"{EXTENSION_MODULE}.core.bakepoints")
+    monkeypatch.setattr(bakepoint_data, "FOOTPRINT", cc.cycles_footprint())
+    installed = sys.modules.get(f"{EXTENSION_MODULE}.core.bakepoints.data")
     if installed is not None:
         monkeypatch.setattr(installed, "FOOTPRINT", cc.cycles_footprint())
 

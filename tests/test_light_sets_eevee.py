@@ -26,8 +26,9 @@ import json
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import encoding, exr, hhd, light_sets, sh
-from hhd_lightmapper.core.lightmap_files import AtlasFiles, write_atlas
+from hhd_lightmapper.core import encoding, hhd, light_sets, sh
+from hhd_lightmapper.core.files import exr
+from hhd_lightmapper.core.files.lightmap_files import AtlasFiles, write_atlas
 from scenekit import blender as kit
 from test_preview_eevee import normal_mapped_material, read_rgb, render, render_inputs, texel_corners, unit
 

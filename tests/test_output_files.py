@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, dilate, exr, hhd, lightmap_files, octahedral, unwrap
+from hhd_lightmapper.core import bake, bakepoints, dilate, hhd, octahedral, unwrap
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
 from scenekit import meshes
@@ -182,8 +183,8 @@ def test_the_direction_preview_holds_the_unit_vector_and_old_previews_are_upgrad
     """The preview's `dir` image holds each texel's direction decoded (x, y, z: a bilinear filter
     may blend it), not the octahedral pair of the HHD file (filtering that across the map's folds
     blends unrelated directions); Show Preview rewrites one a bake made before holds as the pair
-    (`encoding.preview.upgrade_direction`), once."""
-    from hhd_lightmapper.core.encoding.preview import upgrade_direction
+    (`files.preview.upgrade_direction`), once."""
+    from hhd_lightmapper.core.files.preview import upgrade_direction
 
     files = plane_bake(tmp_path)
     channels, _ = exr.read(files.hhd)

@@ -6,8 +6,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, exr, lightmap_files, post, unwrap
+from hhd_lightmapper.core import bake, bakepoints, encoding, post, unwrap
 from hhd_lightmapper.core.bake import finishing
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.post.denoise import filtering, oidn, pages
 from hhd_lightmapper.core.post.seams import geometry, stitching
 from hhd_lightmapper.core.scene import BakeScene, SunLight

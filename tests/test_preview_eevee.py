@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import exr, hhd, octahedral, sh
+from hhd_lightmapper.core import hhd, octahedral, sh
+from hhd_lightmapper.core.files import exr
 from hhd_lightmapper.core.textures import sample_bilinear
 from scenekit import blender as kit
 
@@ -250,7 +251,7 @@ def fold_preview(tmp_path, normal=None):
     import bpy
 
     from hhd_lightmapper.core import encoding
-    from hhd_lightmapper.core.lightmap_files import AtlasFiles, write_atlas
+    from hhd_lightmapper.core.files.lightmap_files import AtlasFiles, write_atlas
 
     files = AtlasFiles(tmp_path / "lightmaps", "Lightmap")
     data = encoding.TexelData(

@@ -18,9 +18,10 @@ Measured (Blender 5.3): bench/results/preview_encodings.md.
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import exr, sh
+from hhd_lightmapper.core import sh
 from hhd_lightmapper.core.encoding import registry
 from hhd_lightmapper.core.encoding.settings import EncoderSettings
+from hhd_lightmapper.core.files import exr
 from hhd_lightmapper.core.textures import sample_bilinear
 from scenekit import blender as kit
 from test_preview_eevee import normal_mapped_material, render, render_inputs, texel_corners, tree_state, unit
@@ -55,7 +56,7 @@ def sh_field(normal) -> np.ndarray:
 def write_plane_atlas(folder, normal):
     """The atlas "Lightmap" of `sh_field(normal)` written as a bake writes it (HHD, raw files)."""
     from hhd_lightmapper.core import encoding
-    from hhd_lightmapper.core.lightmap_files import AtlasFiles, write_atlas
+    from hhd_lightmapper.core.files.lightmap_files import AtlasFiles, write_atlas
 
     files = AtlasFiles(folder, "Lightmap")
     data = encoding.TexelData(

@@ -19,7 +19,7 @@ import pytest
 from hhd_lightmapper.core import hhd
 from hhd_lightmapper.core.encoding import ggx
 from hhd_lightmapper.core.encoding.hhd_specular import specular
-from hhd_lightmapper.core.encoding.preview import sampled
+from hhd_lightmapper.core.files.preview import sampled
 from hhd_lightmapper.core.textures import sample_bilinear
 from scenekit import blender as kit
 from test_preview_eevee import normal_mapped_material, read_rgb, render, render_inputs, texel_corners, tree_state, unit

@@ -30,7 +30,8 @@ import importlib
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import exr, hlsh, probes, sh
+from hhd_lightmapper.core import hlsh, probes, sh
+from hhd_lightmapper.core.files import exr
 from scenekit import blender as kit
 from test_preview_eevee import normal_mapped_material
 

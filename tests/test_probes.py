@@ -4,8 +4,9 @@ closed forms, validity and filling, trilinear sampling, files."""
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import exr, probes, sh, tracer
+from hhd_lightmapper.core import probes, sh, tracer
 from hhd_lightmapper.core.errors import BakeError
+from hhd_lightmapper.core.files import exr
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from scenekit import meshes
 

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper.core import bakepoints, raster, rays
+from hhd_lightmapper.core.bakepoints import data as bakepoint_data
+from hhd_lightmapper.core.bakepoints import settling
 from scenekit import meshes
 from scenekit import raster_reference as ref
 
@@ -207,7 +209,7 @@ def test_near_cover_probes_each_distinct_ray_once():
     flags = bakepoints.find_near_cover(points, Counting(), chunk=5000)
     np.testing.assert_array_equal(flags, ref.find_near_cover(points, probe, chunk=5000))
     assert flags.sum() > 20
-    if bakepoints.FOOTPRINT == 1.0:
+    if bakepoint_data.FOOTPRINT == 1.0:
         assert sum(rays_probed) < 3.0 * len(points.texel)
 
 
@@ -237,24 +239,24 @@ def test_compiled_other_triangles_are_the_numpy_ones(normals):
 
 
 def test_compiled_spoke_targets_are_the_numpy_ones():
-    """`bakepoints._spoke_targets` (`raster_kernels.spoke_targets`: points on the texel's other
+    """`settling._spoke_targets` (`raster_kernels.spoke_targets`: points on the texel's other
     triangles where they lie on one) is the numpy version bit for bit, for settle's spokes and
     for points anywhere around the texel, any texels in any order."""
     surface, occluders = scene(np.random.default_rng(8))
     points = bakepoints.build(surface, 96, 96, occluders=occluders)
-    spokes = bakepoints._SPOKES * bakepoints.FOOTPRINT + 0.5 * (1.0 - bakepoints.FOOTPRINT)
+    spokes = settling._SPOKES * bakepoint_data.FOOTPRINT + 0.5 * (1.0 - bakepoint_data.FOOTPRINT)
     rng = np.random.default_rng(9)
     moved = 0
     for offsets in (spokes, rng.random((5, 2)) * 2.0 - 0.5):
         idx = rng.permutation(len(points.texel))[: len(points.texel) // 2]
         want = ref._spoke_targets(points, idx, offsets)
-        got = bakepoints._spoke_targets(points, idx, offsets)
+        got = settling._spoke_targets(points, idx, offsets)
         np.testing.assert_array_equal(got, want, strict=True)
         moved += (got != points.texel_points(idx, offsets)).any(axis=2).sum()
     assert moved > 500  # many points lie on another triangle of their texel
     alone = dataclasses.replace(points, others=None)
     np.testing.assert_array_equal(
-        bakepoints._spoke_targets(alone, idx, offsets), ref._spoke_targets(alone, idx, offsets), strict=True
+        settling._spoke_targets(alone, idx, offsets), ref._spoke_targets(alone, idx, offsets), strict=True
     )
 
 
@@ -268,7 +270,7 @@ def test_compiled_spoke_rays_are_numpys():
     points = bakepoints.build(surface, 64, 64, occluders=occluders)
     start, stop = 100, len(points.texel) - 50
     idx = np.arange(start, stop)
-    target = ref._spoke_targets(points, idx, bakepoints._SPOKES)
+    target = ref._spoke_targets(points, idx, settling._SPOKES)
     target[::7, 3] = points.origins(idx[::7])  # zero length
     got = raster_kernels.get().spoke_rays(
         points.position, points.face_normal, points.texel_size, points.offset, start, target
@@ -278,7 +280,7 @@ def test_compiled_spoke_rays_are_numpys():
     length = np.linalg.norm(ray, axis=2)
     direction = ray / np.maximum(length, 1e-300)[..., None]
     reach = np.maximum(length, points.texel_size[idx][:, None])
-    want = anchor, np.repeat(anchor, len(bakepoints._SPOKES), axis=0), direction, length, reach
+    want = anchor, np.repeat(anchor, len(settling._SPOKES), axis=0), direction, length, reach
     for name, a, b in zip(("anchor", "origin", "direction", "length", "reach"), got, want):
         np.testing.assert_array_equal(a, b, err_msg=name, strict=True)
     assert (length == 0.0).sum() >= len(idx) // 7 and (length < reach).sum() > 1000
@@ -289,7 +291,7 @@ def test_compiled_near_box_is_numpys(dtype):
     """`covers._near_box` (the cover probe's filter, compiled) keeps exactly the triangles the
     numpy per-axis reductions kept: boxes touching the receivers' box edge on, triangles
     straddling it, far ones and NaN ones (never kept)."""
-    from hhd_lightmapper.core import covers
+    from hhd_lightmapper.core.bakepoints import covers
 
     rng = np.random.default_rng(11)
     tri = rng.uniform(-3.0, 3.0, (20000, 3, 3)).astype(dtype) * rng.uniform(0.01, 1.0, (20000, 1, 1)).astype(dtype)

@@ -10,21 +10,10 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import (
-    bake,
-    bakepoints,
-    encoding,
-    exr,
-    light_sets,
-    lightmap_files,
-    raster,
-    sparse_exr,
-    stages,
-    tracer,
-    unwrap,
-)
+from hhd_lightmapper.core import bake, bakepoints, encoding, light_sets, raster, stages, tracer, unwrap
 from hhd_lightmapper.core.bake import finishing
 from hhd_lightmapper.core.encoding import stage as encode_stage
+from hhd_lightmapper.core.files import exr, lightmap_files, sparse_exr
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
 from scenekit import meshes

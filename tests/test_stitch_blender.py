@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
-from hhd_lightmapper.core import encoding, exr, lightmap_files, post
+from hhd_lightmapper.core import encoding, post
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.post.seams import geometry, reads
 from scenekit import blender as kit
 

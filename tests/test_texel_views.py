@@ -268,7 +268,7 @@ def test_problems_view_marks_exactly_the_overlapped_texels(unwrapped_scene, tmp_
     import bpy
 
     from hhd_lightmapper.bridge import view_data
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
     from scenekit import blender as kit
 
     scene, floor, cube, other = unwrapped_scene
@@ -304,7 +304,7 @@ def test_checker_cells_are_one_texel_in_an_orthographic_render(extension, restor
     import bpy
 
     from hhd_lightmapper import blender_compat
-    from hhd_lightmapper.core import exr
+    from hhd_lightmapper.core.files import exr
     from scenekit import blender as kit
 
     scene = kit.clear_scene()

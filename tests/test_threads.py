@@ -8,8 +8,9 @@ import os
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, exr, lightmap_files, parallel, tracer
+from hhd_lightmapper.core import bake, bakepoints, parallel, tracer
 from hhd_lightmapper.core.errors import BakeError
+from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.scene import BakeScene, PointLight, SunLight
 from scenekit import meshes
 

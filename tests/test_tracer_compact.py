@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, exr, rays, tracer
+from hhd_lightmapper.core import bake, bakepoints, rays, tracer
 from hhd_lightmapper.core.bake import finishing
 from hhd_lightmapper.core.errors import BakeCancelled
+from hhd_lightmapper.core.files import exr
 from hhd_lightmapper.core.scene import BakeScene, PointLight, SunLight
 from hhd_lightmapper.core.tracer import scheduler, statistics
 from scenekit import meshes

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper.core import bakepoints, rays, sh, tracer
+from hhd_lightmapper.core.bakepoints.data import weld
 from hhd_lightmapper.core.environment import EnvironmentMap
 from hhd_lightmapper.core.scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
 from hhd_lightmapper.core.tracer import hemisphere_kernels, lights
@@ -175,7 +176,7 @@ def test_emission_groups_make_one_emitter_light_each():
 def test_welded_corner_ids_join_equal_positions_only():
     v, f = meshes.cube(1.0)
     tris = v[f]
-    ids = bakepoints.weld(tris)
+    ids = weld(tris)
     assert ids.shape == (12, 3) and len(np.unique(ids)) == 8
     for a in range(12):  # same id exactly where the position is the same
         for b in range(12):
@@ -184,7 +185,7 @@ def test_welded_corner_ids_join_equal_positions_only():
     flipped = tris.copy()
     flipped[flipped == 0.0] = -0.0
     np.testing.assert_array_equal(
-        bakepoints.weld(flipped)[:, :, None] == bakepoints.weld(flipped)[:, None, :], ids[:, :, None] == ids[:, None, :]
+        weld(flipped)[:, :, None] == weld(flipped)[:, None, :], ids[:, :, None] == ids[:, None, :]
     )
     vertex = every_light_scene()[0].mesh.vertex  # the floor: two triangles, one diagonal
     assert len(np.unique(vertex)) == 4 and vertex[0, 0] == vertex[1, 0] and vertex[0, 2] == vertex[1, 1]

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper.core import bakepoints, raster, rays, textures, tracer, unwrap
-from hhd_lightmapper.core.covers import CoverProbe
+from hhd_lightmapper.core.bakepoints import data as bakepoint_data
+from hhd_lightmapper.core.bakepoints import flags
+from hhd_lightmapper.core.bakepoints.covers import CoverProbe
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.scene import BakeScene
 from hhd_lightmapper.core.unwrap import charting, data, instance_packing, packing, worker_runs
@@ -110,7 +112,7 @@ def test_sample_origins_cover_the_footprint_of_the_texel_inside_its_triangle(mes
     texel's triangle (rejection sampling); texels whose triangle misses that square (partly
     covered texels at chart edges) sample the triangle's part of the whole texel instead.
     (Sampling every triangle of a texel, the default: tests/test_leaks_footprint.py.)"""
-    monkeypatch.setattr(bakepoints, "FOOTPRINT", footprint)
+    monkeypatch.setattr(bakepoint_data, "FOOTPRINT", footprint)
     monkeypatch.setattr(bakepoints, "FOOTPRINT_TRIANGLES", 1)
     v, f, result = unwrapped(mesh_fn)
     uv = result.objects[0].uv.astype(np.float64)
@@ -277,7 +279,7 @@ def test_buried_probes_in_two_stages_flag_exactly_what_all_probes_flag(monkeypat
     v, f = meshes.cube(1.0)
     v = v * [0.03, 2.0, 1.2] + [0.0, 0.0, 0.4]
     pts, scene = floor_with(v, f)
-    local = bakepoints._probe_directions(bakepoints.BURIED_PROBES)
+    local = flags._probe_directions(flags.BURIED_PROBES)
     from hhd_lightmapper.core import sh
 
     dirs = np.einsum("pij,kj->pki", sh.tangent_frames(pts.face_normal), local).reshape(-1, 3)
@@ -286,7 +288,7 @@ def test_buried_probes_in_two_stages_flag_exactly_what_all_probes_flag(monkeypat
     t, prim, ng = scene.intersect(np.repeat(pts.origins(), k, axis=0), dirs, reach)
     hits = ((prim >= 0) & (np.einsum("ri,ri->r", dirs, ng) > 0.0)).reshape(-1, k).sum(axis=1)
     assert (hits == 0).any() and (hits >= k // 2).sum() > 50
-    np.testing.assert_array_equal(pts.buried, hits >= k * bakepoints.BURIED_FRACTION)
+    np.testing.assert_array_equal(pts.buried, hits >= k * flags.BURIED_FRACTION)
 
 
 def test_closed_box_pushed_into_the_floor_is_dark_inside():
@@ -354,7 +356,7 @@ def test_texels_under_an_open_tray_resting_on_the_floor_are_flagged_near_cover()
         bakepoints.find_near_cover(pts, near), bakepoints.find_near_cover(pts, CoverProbe(with_far, pts.offset))
     )
     # the tracer reuses the bake points' probe when it traces the same Embree scene, else builds its own
-    from hhd_lightmapper.core import covers
+    from hhd_lightmapper.core.bakepoints import covers
 
     flagged_with = covers.shared_probe(scene, pts.offset, pts.mesh.positions.copy())  # the one build() made
     corners = scene.local_triangles.astype(float) + scene.origin

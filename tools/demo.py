@@ -210,7 +210,8 @@ def plot_results(folder: Path, irradz_png: Path, encoder_png: Path) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hhd_lightmapper.core import exr, hhd, lightmap_files
+    from hhd_lightmapper.core import hhd
+    from hhd_lightmapper.core.files import exr, lightmap_files
 
     channels, _ = exr.read(folder / "Lightmap_hhd.exr")
     iz = np.stack([channels[f"Iz.{c}"].astype(float) for c in "RGB"], axis=-1)

@@ -177,7 +177,7 @@ def summary(out: Path) -> dict:
     import bpy
     import numpy as np
 
-    exr = importlib.import_module(MODULE + ".core.exr")
+    exr = importlib.import_module(MODULE + ".core.files.exr")
     hhd_ch, _ = exr.read(out / "Lightmap_hhd.exr")
     tx_ch, _ = exr.read(out / "Lightmap_texels.exr")
     covered = tx_ch["Coverage.V"] > 0

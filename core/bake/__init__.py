@@ -27,11 +27,12 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from .. import exr, inward, lightmap_files, parallel, probes, tracer
+from .. import parallel, probes, tracer
 from .. import progress as meter
-from ..bakepoints import SurfaceTriangles
+from ..bakepoints import SurfaceTriangles, inward
 from ..encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
 from ..errors import BakeError
+from ..files import exr, lightmap_files
 from ..progress import Progress
 from ..rays import RayScene
 from ..scene import BakeScene

@@ -7,10 +7,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .. import inward, lightmap_files, tracer
-from ..bakepoints import SurfaceTriangles
+from .. import tracer
+from ..bakepoints import SurfaceTriangles, inward
 from ..encoding import EncoderSettings
 from ..errors import BakeCancelled
+from ..files import lightmap_files
 
 
 @dataclass
@@ -36,7 +37,7 @@ class PipelineSettings:
     a warning); stitch_seams: run the stitch post stage (`core.post.seams`) after it, so a smooth
     surface split between charts reads the same on both sides of the split. A bake writes the
     atlas's seams file either way, so a re-encode can switch stitching on or off. inward_faces:
-    what to do with faces that point into their own object (`core.inward`: OPEN_SIDE bakes them
+    what to do with faces that point into their own object (`core.bakepoints.inward`: OPEN_SIDE bakes them
     from the side light reaches, AS_MODELLED as they are, with a warning; REFUSE: InwardFacesRefused)."""
 
     trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
@@ -52,7 +53,7 @@ class AtlasResult:
     """One written atlas (kind "atlas") or probe volume (kind "probes": texels are its probes):
     seconds per stage; warnings: what a post stage could not do (e.g. no denoiser), and `inward`;
     sets: its light sets (`core.light_sets`; none without light groups); inward: one message per
-    object with faces that point into it (`core.inward`)."""
+    object with faces that point into it (`core.bakepoints.inward`)."""
 
     name: str
     files: lightmap_files.AtlasFiles

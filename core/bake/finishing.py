@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import encoding, exr, light_sets, lightmap_files, post, stages, tracer
+from .. import encoding, light_sets, post, stages, tracer
 from .. import progress as meter
+from ..files import exr, lightmap_files
 from ..post.seams import geometry
 from ..progress import Tick, ticker
 from ..stages import TracedAtlas

@@ -1,6 +1,6 @@
 """Stage 1 of a bake's atlases: the Embree scene every stage of one bake shares, each atlas's
 bake points (checked: every object covers a texel), and the faces that point into their own
-object (`core.inward`), found and turned round before any bake point. No bpy."""
+object (`core.bakepoints.inward`), found and turned round before any bake point. No bpy."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import bakepoints, inward, stages
-from ..bakepoints import BakePoints
+from .. import bakepoints, stages
+from ..bakepoints import BakePoints, inward
 from ..errors import BakeError, InwardFacesRefused
 from ..rays import RayScene
 from ..scene import BakeScene
@@ -54,7 +54,7 @@ def ray_scene_of(scene: BakeScene) -> RayScene | None:
 def check_inward(
     atlases: list[AtlasInput], scene: BakeScene, mode: str = inward.OPEN_SIDE
 ) -> tuple[list[AtlasInput], list[list[inward.InwardObject]], BakeScene]:
-    """Faces that point into their own object (`core.inward`), found before any bake point:
+    """Faces that point into their own object (`core.bakepoints.inward`), found before any bake point:
     (the atlases to bake: with `mode` OPEN_SIDE those faces' normals turned round, else as
     given; per atlas the objects found; the scene to trace: with OPEN_SIDE those faces' winding
     turned round, `inward.flip_scene`). REFUSE with any found: InwardFacesRefused naming them."""

@@ -7,7 +7,8 @@ import functools
 
 import numpy as np
 
-from .. import encoding, lightmap_files, post
+from .. import encoding, post
+from ..files import lightmap_files
 from .data import PipelineSettings
 from .finishing import _restore_sh
 

@@ -7,7 +7,6 @@ hhd         the HHD / AHD encoding and its file `<name>_hhd.exr`
 raw         the raw SH file and the texels file
 registry    encodings by `EncoderSettings.model`; adding one = a module + a line there
 stage       the encode stage: TexelData → EncodedAtlas (encode, fill, pack)
-preview     the layers each EEVEE preview mode samples
 doc_tables  docs/format.md's channel tables from the spec
 """
 

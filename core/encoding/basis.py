@@ -68,7 +68,7 @@ def fibonacci_hemisphere(count: int) -> np.ndarray:
 def layers(prefix: str, count: int, meaning: str, preview: str) -> tuple[Channel, ...]:
     """`count` RGB layers `<prefix>0` … (half, or float32 beyond half's range), filled like I_z,
     each shown by the preview image `<preview>_<k>` (the encoding's file key: the Encoded
-    preview mode, `encoding.preview`; unique across encodings, so a re-encode into another
+    preview mode, `files.preview`; unique across encodings, so a re-encode into another
     model never overwrites one another model's sidecar could name)."""
     return tuple(
         Channel(

@@ -5,7 +5,7 @@ A `FileSpec` (one EXR per atlas) lists `Channel`s: EXR layers whose channels are
 spec is the single source of
   * the EXR channel names, their order and storage type (`lightmap_files` writes them),
   * the sidecar's channel table (`{type, meaning}` per EXR channel),
-  * the preview images and the node-group inputs that sample them (`encoding.preview`),
+  * the preview images and the node-group inputs that sample them (`files.preview`),
   * the channel tables of docs/format.md (`encoding.doc_tables`).
 An `Encoding` turns radiance SH into the values of its file's channels, texel by texel; the
 encode stage (`encoding.stage`) then fills texels without a bake value and packs the values.

@@ -2,7 +2,7 @@
 
 No bpy: the exporter (`bridge/gltf_export.py`), the bench (bench/gltf_packing.py), the tests and the
 browser test's reference all use this module. Images are (H, W, C) arrays in **file row order**
-(row 0 = the top row = EXR scanline 0 = glTF v = 0), as `core.exr.read` returns them.
+(row 0 = the top row = EXR scanline 0 = glTF v = 0), as `core.files.exr.read` returns them.
 
 HDR packings of I_z (RGB, ≥ 0) into RGBA8, `range` > 0 in I units (docs/gltf.md, "Packed"):
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import lightmap_files
+from ..files import lightmap_files
 
 #: Version of the sidecar's "fingerprints" record: a record of another version is "unknown" (full bake).
 FINGERPRINT_VERSION = 1

@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import encoding, exr, lightmap_files, post
+from .. import encoding, post
 from ..encoding.stage import WINDOW_MARGIN
 from ..errors import BakeCancelled, FullBakeNeeded
+from ..files import exr, lightmap_files
 from ..post.denoise.layout import label_charts
 
 #: A subset bake's merge runs its post stages and encoder on the region of the touched texels
@@ -163,7 +164,8 @@ def _stage_merged(staging, files, spec, images: dict, mask: np.ndarray) -> dict:
     """Stage one file of `spec`: the previous file's channels with the `mask` texels (rows
     bottom-up) taken from `images` (the merged atlas's, bottom-up); a channel stored as half
     before and needing float now (or the reverse) is stored as float, so no old value changes.
-    Its preview images follow from the merged channels. Returns its channel table."""
+    Its preview images follow from the merged channels (but for PREVIEWS_ON_DEMAND). Returns its
+    channel table."""
     channels = lightmap_files.exr_channels(spec, images)
     path = files.path(spec)
     old, _ = exr.read(path)
@@ -183,5 +185,6 @@ def _stage_merged(staging, files, spec, images: dict, mask: np.ndarray) -> dict:
         "hhdAtlas": files.name,
     }
     exr.write_file(staging.stage(path), merged, attributes)
-    lightmap_files.stage_preview(staging, files, spec, merged)
+    if spec.key not in lightmap_files.PREVIEWS_ON_DEMAND:
+        lightmap_files.stage_preview(staging, files, spec, merged)
     return lightmap_files.channel_table(spec, merged)

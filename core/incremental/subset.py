@@ -11,8 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import encoding, exr, lightmap_files, parallel, tracer
+from .. import encoding, parallel, tracer
 from ..errors import BakeCancelled, FullBakeNeeded
+from ..files import exr, lightmap_files
 from .fingerprints import _now, _receivers_of
 from .merge import _merge, _merge_files
 

@@ -23,7 +23,7 @@ texel's FOOTPRINT square over its triangle and the others overlapping it, `BakeP
 where geometry crosses the footprint (a wall standing on the surface: `BakePoints.crossed`), only
 the part the bake point sees is averaged (samples hidden from it are replaced by visible ones),
 so light from the far side of the wall does not leak in; samples starting on a part of the
-texel a coplanar face covers receive nothing (core.covers).
+texel a coplanar face covers receive nothing (core.bakepoints.covers).
 Lights are added by next-event estimation at the bake point too: one shadow ray per light per
 sample (its random numbers from the texel's own stratified sequence across all its passes,
 `lights.light.TexelStream`; emitters chosen by what they bring to the texel, `lights.emitters.EmissiveTriangles`),
@@ -39,10 +39,10 @@ from typing import Literal
 
 import numpy as np
 
-from .. import bakepoints as _bakepoints
-from .. import covers as _covers
 from ..bakepoints import BakePoints
-from ..covers import CoverProbe
+from ..bakepoints import covers as _covers
+from ..bakepoints import data as _bakepoint_data
+from ..bakepoints.covers import CoverProbe
 from . import hemisphere_kernels, lights, shipping
 from .paths import Paths, TexelSamples, TraceScene, seed
 from .scheduler import UnitResult, WorkUnit
@@ -68,7 +68,7 @@ STRATIFIED_LIGHTS = True
 
 class TexelEstimator(shipping.Shipped):
     """Traces work units of texels of `points` in `scene`, `pass_samples` samples per texel each.
-    footprint: the texel footprint origins cover (`bakepoints.FOOTPRINT` when built). Picklable
+    footprint: the texel footprint origins cover (`bakepoints.data.FOOTPRINT` when built). Picklable
     (`shipping.Shipped`): the cover probe is rebuilt where it is unpickled."""
 
     _live = ("_covers",)
@@ -77,7 +77,7 @@ class TexelEstimator(shipping.Shipped):
         self.points = points
         self.scene = scene
         self.pass_samples = pass_samples
-        self.footprint = _bakepoints.FOOTPRINT
+        self.footprint = _bakepoint_data.FOOTPRINT
         self._covers = self._cover_probe()
 
     @property
@@ -165,7 +165,7 @@ class TexelEstimator(shipping.Shipped):
 
     def _uncovered(self, paths: Paths, idx, texel, origins) -> np.ndarray | None:
         """(n·k,) bool, False for samples starting on a part of the texel a coplanar face covers
-        (core.covers: no light reaches it, as in Cycles), probed for the texels `_probed`
+        (core.bakepoints.covers: no light reaches it, as in Cycles), probed for the texels `_probed`
         (flagged near_cover, or sampling other triangles too); None when no texel of the unit is."""
         covers = self.covers
         if covers is None:

@@ -23,7 +23,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from ..covers import content_key
+from ..bakepoints.covers import content_key
 from ..rays import RayScene
 
 #: Contexts and Embree scenes a process keeps (an atlas's and the next one's).

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..stages import PlacedImage
 from . import exr
-from .stages import PlacedImage
 
 #: Scanlines per ZIP block (OpenEXR's ZIP_COMPRESSION, what `exr.write_file` writes).
 BLOCK_ROWS = 16

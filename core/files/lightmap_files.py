@@ -28,9 +28,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import exr
-from .bakepoints import BakePoints
-from .encoding import (
+from ..bakepoints import BakePoints
+from ..encoding import (
     CONVENTIONS,
     FLOAT,
     HALF,
@@ -43,12 +42,13 @@ from .encoding import (
     FileSpec,
     TexelData,
 )
-from .errors import BakeError
-from .progress import Tick, ticker
-from .stages import Window
+from ..errors import BakeError
+from ..progress import Tick, ticker
+from ..stages import Window, fits_half
+from . import exr
 
 if TYPE_CHECKING:
-    from .post.seams.geometry import Seams
+    from ..post.seams.geometry import Seams
 
 __all__ = [
     "CONVENTIONS",
@@ -128,7 +128,7 @@ def storage_type(dtype: str, images: list[np.ndarray]) -> type:
     """np.float16 or np.float32 for a layer of spec dtype HALF, FLOAT or HALF_OR_FLOAT (half when
     every finite value of its `images` fits)."""
     if dtype == HALF_OR_FLOAT:
-        return np.float16 if all(exr.fits_half(a) for a in images) else np.float32
+        return np.float16 if all(fits_half(a) for a in images) else np.float32
     return {HALF: np.float16, FLOAT: np.float32}[dtype]
 
 
@@ -265,7 +265,7 @@ def stage_preview(staging: exr.Staging, files: AtlasFiles, spec: FileSpec, chann
 
 #: Header attribute of a packed layer's preview image (the direction's): it holds the unpacked
 #: value (x, y, z), which the preview's bilinear filter may blend; images written before it was
-#: added hold the octahedral pair (`encoding.preview.upgrade_direction`).
+#: added hold the octahedral pair (`files.preview.upgrade_direction`).
 PREVIEW_UNPACKED = {"hhdPreviewValue": "unpacked"}
 #: Rows unpacked at a time (the memory of a band's float64 temporaries, not the atlas's).
 _UNPACK_ROWS = 256
@@ -303,7 +303,7 @@ def read_seams(files: AtlasFiles, shape: tuple[int, int]) -> Seams | None:
     that cannot be read or is of another atlas size."""
     if not files.seams.is_file():
         return None
-    from .post.seams.geometry import Seams
+    from ..post.seams.geometry import Seams
 
     try:
         seams = Seams.load(files.seams)
@@ -415,8 +415,8 @@ def texel_window(files: AtlasFiles, shape: tuple[int, int]) -> Window | None:
     no texel). None for the whole atlas: when at most half its blocks are background (a dense
     atlas: read whole, as before), or the file cannot be scanned so (read whole, which reports
     a damaged file)."""
+    from ..encoding.stage import window_of
     from . import sparse_exr
-    from .encoding.stage import window_of
 
     scan = sparse_exr.uniform_blocks(files.texels)
     if scan is None or scan[0] != tuple(shape) or 2 * scan[1].sum() <= len(scan[1]):

@@ -1,14 +1,14 @@
 """Compiled (numba) kernels of the bake points' rays: origins over a texel's footprint
-(`bakepoints`) and the triangles near a box (`covers`). No bpy. Nothing compiles until `get()`
-(`core.compiled`); the sequences are `core.sampling`'s.
+(`data.BakePoints.sample_origins`) and the triangles near a box (`covers`). No bpy. Nothing
+compiles until `get()` (`core.compiled`); the sequences are `core.sampling`'s.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from . import compiled, sampling
-from .sampling import radical_inverse, sobol_pair, stream_key, uniform
+from .. import compiled, sampling
+from ..sampling import radical_inverse, sobol_pair, stream_key, uniform
 
 #: The stream number of `footprint_origins`' first tries (`sampling.stream_key`), apart from the
 #: tracer's direction streams (`tracer.hemisphere_kernels`).

@@ -27,8 +27,8 @@ import weakref
 
 import numpy as np
 
-from . import bakepoint_kernels as _kernels
-from .rays import RayScene, bounds, frame_origin
+from ..rays import RayScene, bounds, frame_origin
+from . import kernels as _kernels
 
 #: How far every triangle is pushed back for the probe, as a fraction of the ray offset: far
 #: enough to break the coplanar tie at float32 precision (the offset is ≥ 32 ulps), near enough

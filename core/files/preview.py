@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import hbasis_l1, hbasis_l2, hl2, sg5, sg6, sg9, sg12, sh_l1, sh_l2
-from .hhd import DIRECTION, IZ, WA
-from .raw import SH_LAYERS
-from .spec import Channel
+from ..encoding import hbasis_l1, hbasis_l2, hl2, sg5, sg6, sg9, sg12, sh_l1, sh_l2
+from ..encoding.hhd import DIRECTION, IZ, WA
+from ..encoding.raw import SH_LAYERS
+from ..encoding.spec import Channel
 
 #: The mode that shows the model the atlas was encoded in (`kind_of`).
 ENCODED = "ENCODED"
@@ -63,9 +63,10 @@ def upgrade_direction(files) -> bool:
     from its HHD file when it holds the octahedral pair (written before the preview images held
     the unit vector, `Channel.unpack`), so the node groups of this version read it right. Reads
     the image's header only when it is current. Returns whether it rewrote it."""
-    from .. import deps, exr, lightmap_files
-    from .hhd import DIRECTION, FILE
-    from .spec import FileSpec
+    from .. import deps
+    from ..encoding.hhd import DIRECTION, FILE
+    from ..encoding.spec import FileSpec
+    from . import exr, lightmap_files
 
     path = files.preview_image(DIRECTION.preview)
     if not path.is_file() or not files.hhd.is_file():
@@ -101,9 +102,9 @@ def sh_previews(files) -> bool:
     not write them (`lightmap_files.PREVIEWS_ON_DEMAND`), the L1 and L2 preview modes need them.
     The images hold the file's values, as the bake's writer would have written them. Returns
     whether it wrote any (False too without an SH file)."""
-    from .. import exr, lightmap_files
-    from .raw import SH_FILE
-    from .spec import FileSpec
+    from ..encoding.raw import SH_FILE
+    from ..encoding.spec import FileSpec
+    from . import exr, lightmap_files
 
     source = files.sh
     if not source.is_file():
@@ -136,9 +137,10 @@ def bspline_image(files, key: str):
     `<key>_bspline.exr`, when missing or older than the image (a re-bake or re-encode rewrites
     the image). The coverage is the atlas's texels file's (a light set's: its parent's); without
     one, a texel is filled where any channel is non-zero."""
-    from .. import exr, lightmap_files, textures
+    from .. import textures
+    from ..encoding.raw import TEXELS_FILE
     from ..errors import BakeError
-    from .raw import TEXELS_FILE
+    from . import exr, lightmap_files
 
     source = files.preview_image(key)
     target = source.with_name(f"{key}_bspline.exr")

@@ -28,8 +28,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .bakepoints import SurfaceTriangles, weld
-from .rays import RayScene, ray_offset
+from ..rays import RayScene, ray_offset
+from .data import SurfaceTriangles, weld
 
 #: What a bake does with faces that point in (scene `inward_faces`, CLI `--inward-faces`).
 OPEN_SIDE, AS_MODELLED, REFUSE = "OPEN_SIDE", "AS_MODELLED", "REFUSE"

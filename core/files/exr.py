@@ -31,21 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import deps
-from .errors import BakeError
-
-#: Largest finite half-float value.
-HALF_MAX = 65504.0
-
-
-def fits_half(values: np.ndarray) -> bool:
-    """True when every finite value is within the half-float range (so nothing would clip to
-    infinity). Values below half's precision lose bits but not range: that is not clipping.
-    An image that knows (`stages.PlacedImage`: an almost empty atlas's) is asked."""
-    if hasattr(values, "fits_half"):
-        return values.fits_half()
-    finite = np.asarray(values)[np.isfinite(values)]
-    return finite.size == 0 or float(np.abs(finite).max()) <= HALF_MAX
+from .. import deps
+from ..errors import BakeError
 
 
 def to_exr_rows(image: np.ndarray, copy: bool = True) -> np.ndarray:
