@@ -3,10 +3,12 @@ the texel-to-texel step inside the charts (`seam_metric`; `_metric` on a `Reader
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 
+from ... import parallel
 from ...colour import LUMINANCE
 from .geometry import Seams, _unit
 from .reads import Reader, hidden_texels, reader_for, reads_hidden
@@ -85,17 +87,23 @@ def _luminances(read: Reader, seams: Seams, normals: list[np.ndarray]) -> list[d
     """The luminance of the irradiance the metric reads, per shading normal of `normals` (each
     `(S, 3)`; n_v is the seams' normal), by place: 'a', 'b' (the seam) and (side, offset)
     inward: `[{place: (S,)}]`, one dict per normal. Each place is read once and evaluated at
-    every normal before the next is read (memory: one place's filtered texels at a time)."""
+    every normal; the places are read on every core (`parallel.resolve_threads`: numpy's
+    gathers let go of the GIL), each worker holding one place's filtered texels at a time."""
     places: list[tuple[Any, np.ndarray]] = [("a", seams.a), ("b", seams.b)]
     for side, xy, inward in (("a", seams.a, seams.inward_a), ("b", seams.b, seams.inward_b)):
         for offset in sorted(set(INTERIOR + EDGE_STEP)):
             places.append(((side, offset), xy + offset * inward))
-    out: list[dict] = [{} for _ in normals]
-    for key, xy in places:
+
+    def evaluate(xy: np.ndarray) -> list[np.ndarray]:
         at = read(xy)
-        for lum, n in zip(out, normals):
-            lum[key] = at(seams.normal, n) @ LUMINANCE
-        del at
+        return [at(seams.normal, n) @ LUMINANCE for n in normals]
+
+    with ThreadPoolExecutor(max_workers=min(parallel.resolve_threads(0), len(places))) as pool:
+        read_places = list(pool.map(evaluate, [xy for _, xy in places]))  # in place order
+    out: list[dict] = [{} for _ in normals]
+    for (key, _), values in zip(places, read_places):
+        for lum, value in zip(out, values):
+            lum[key] = value
     return out
 
 

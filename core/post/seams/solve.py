@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...progress import Tick, ticker
+from . import solve_kernels
 from .geometry import Seams
 from .reads import bilinear_taps
 
@@ -93,18 +94,29 @@ def _system(seams: Seams, coverage: np.ndarray, prior, use: np.ndarray | None = 
 
 
 def _apply_a(s: _System, x: np.ndarray) -> np.ndarray:
-    """A x: each row's read difference `(C, R)` of the unknowns `x (C, N)` (in x's dtype)."""
+    """A x: each row's read difference `(C, R)` of the unknowns `x (C, N)` (in x's dtype), the
+    taps added in turn (`solve_kernels.apply_a`)."""
     out = np.zeros((x.shape[0], s.taps.shape[1]), x.dtype)
-    for k in range(len(s.taps)):
-        out += np.take(x, s.taps[k], axis=1) * s.coeff[k]
+    solve_kernels.get().apply_a(s.taps, s.coeff, np.ascontiguousarray(x), out)
     return out
 
 
 def _apply_at(s: _System, r: np.ndarray) -> np.ndarray:
-    """Aᵀ r: row values `r (C, R)` summed onto the unknowns -> `(C, N)` (in r's dtype)."""
+    """Aᵀ r: row values `r (C, R)` summed onto the unknowns -> `(C, N)` (in r's dtype), each
+    unknown's terms as numpy's `add.reduceat` sums them (`solve_kernels.apply_at`; the few runs
+    longer than its block summed by numpy itself)."""
+    r = np.ascontiguousarray(r)
     out = np.zeros((r.shape[0], len(s.texels)), r.dtype)
-    if len(s.starts):
-        out[:, s.owner] = np.add.reduceat(np.take(r, s.entry_row, axis=1) * s.entry_coeff, s.starts, axis=1)
+    if not len(s.starts):
+        return out
+    long = np.zeros(len(s.starts), bool)
+    negative_zero = np.full(1, -0.0, np.result_type(r.dtype, s.entry_coeff.dtype))
+    solve_kernels.get().apply_at(s.entry_row, s.entry_coeff, s.starts, s.owner, r, out, long, negative_zero)
+    ends = np.append(s.starts[1:], len(s.entry_row))
+    for i in np.flatnonzero(long):
+        a, b = int(s.starts[i]), int(ends[i])
+        terms = np.take(r, s.entry_row[a:b], axis=1) * s.entry_coeff[a:b]
+        out[:, s.owner[i]] = np.add.reduceat(terms, [0], axis=1)[:, 0]
     return out
 
 
