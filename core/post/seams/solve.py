@@ -48,6 +48,21 @@ class _System:
     dropped: int
 
 
+#: Seam sample rows whose read texels `_system` gathers at once (memory: each row reads 8
+#: texels of every SH channel, float64 where it sums them; ~60 MB at 27 channels).
+SYSTEM_ROWS = 1 << 15
+
+
+def _rows_finite(prior, index: np.ndarray) -> np.ndarray:
+    """`(S,)` bool: whether every texel row `index (S, 8)` reads from `prior` (an array or
+    `FilledRows`: only the rows read are made) is finite in every channel, SYSTEM_ROWS rows at a time."""
+    out = np.ones(len(index), bool)
+    for start in range(0, len(index), SYSTEM_ROWS):
+        rows = slice(start, start + SYSTEM_ROWS)
+        out[rows] = np.isfinite(prior[index[rows]]).all(axis=(1, 2))
+    return out
+
+
 def _system(seams: Seams, coverage: np.ndarray, prior, use: np.ndarray | None = None) -> _System:
     """Set up the least squares of `stitch` over the flat images `coverage (HW,)`, `prior (HW, C)`
     (an array or rows read on demand: `FilledRows`, `_Stacked`),
@@ -57,7 +72,7 @@ def _system(seams: Seams, coverage: np.ndarray, prior, use: np.ndarray | None = 
     ib, wb = bilinear_taps(seams.b, seams.width, seams.height)
     index = np.concatenate([ia, ib], axis=1)  # (S, 8)
     coeff = np.concatenate([wa, -wb], axis=1)
-    finite = np.isfinite(prior[index]).all(axis=(1, 2))  # only the rows read (prior may be `FilledRows`)
+    finite = _rows_finite(prior, index)
     good = finite if use is None else finite & use
     index, coeff, span = index[good], coeff[good], seams.span[good]
     free = coeff != 0.0  # a zero weight reads nothing
@@ -68,9 +83,11 @@ def _system(seams: Seams, coverage: np.ndarray, prior, use: np.ndarray | None = 
     fixed = taps < 0
     constant = np.zeros((prior.shape[1], len(index)))
     some = np.flatnonzero(fixed.any(axis=1))  # rows with a tap of weight 0
-    constant[:, some] = np.einsum(
-        "rk,rkc->cr", np.where(fixed, coeff, 0.0)[some], prior[index[some]].astype(np.float64)
-    )
+    for start in range(0, len(some), SYSTEM_ROWS):  # each row's own sum: the same whatever the chunk
+        rows = some[start : start + SYSTEM_ROWS]
+        constant[:, rows] = np.einsum(
+            "rk,rkc->cr", np.where(fixed[rows], coeff[rows], 0.0), prior[index[rows]].astype(np.float64)
+        )
     coeff = np.where(fixed, 0.0, coeff)
     taps = np.where(fixed, 0, taps)
     flat = np.where(fixed, -1, taps).T.reshape(-1)  # tap-major, like taps.T
