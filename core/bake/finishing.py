@@ -214,6 +214,7 @@ def _finish_files(
     with encoding.raw_files(raw, fill) as images_of:
         out.raw(name, parent, images_of, *_tick_for(out, parts["raw"]))
     del images_of
+    stages.trim_heap()  # the writer's bands of rows (memory)
     restore = functools.partial(_restore_sh, raw.sh, fill.valid, out, name, parent, raw.window)
     data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, in_place=True, restore=restore)
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t

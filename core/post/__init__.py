@@ -32,7 +32,7 @@ import numpy as np
 
 from .. import progress
 from ..encoding import EncodedAtlas, TexelData
-from ..stages import PlacedImage, Window
+from ..stages import PlacedImage, Window, trim_heap
 
 if TYPE_CHECKING:
     from .seams.geometry import Seams
@@ -199,6 +199,7 @@ def apply(
             data, records[name] = stage(data, part, in_place=True)  # type: ignore[call-arg]
         else:
             data, records[name] = stage(data, part)
+        trim_heap()  # what the stage's threads freed, before the next one allocates (memory)
     return data, records
 
 
