@@ -29,6 +29,7 @@ if __name__ == "__main__":  # a Ctrl-C or SIGTERM while bpy and numpy load: exit
 import bpy  # noqa: E402
 
 from . import blender_compat  # noqa: E402
+from .bridge import settings as bridge_settings  # noqa: E402
 from .core import encoding, presets  # noqa: E402
 from .core.errors import BakeError, DependencyMissing, FullBakeNeeded  # noqa: E402
 from .core.light_sets import MAX_WEIGHT  # noqa: E402
@@ -619,36 +620,59 @@ def _conflicts(args) -> str | None:
     return None
 
 
-def _apply_options(settings, args) -> None:
-    """Command-line options override the scene settings for this run (not saved unless --save)."""
-    if getattr(args, "preset", None):  # first: explicit options below override it
-        settings.preset = args.preset.upper()
-    for key in (
-        "resolution",
-        "texel_density",
-        "samples",
-        "bounces",
-        "noise_target",
-        "time_budget",
-        "seed",
-        "phi_search",
-        "denoise",
-        "stitch_seams",
-    ):
+#: Options that set the scene setting of their name as given, and those that set an enum setting.
+_PLAIN_OPTIONS = (
+    "resolution",
+    "texel_density",
+    "samples",
+    "bounces",
+    "noise_target",
+    "time_budget",
+    "seed",
+    "phi_search",
+    "denoise",
+    "stitch_seams",
+)
+_ENUM_OPTIONS = ("model", "direction", "ambient", "solve", "inward_faces")
+
+
+def _option_values(args) -> dict:
+    """{scene setting: value} of the options given (not --preset), in the order the settings are
+    set; BakeError for a --collection the .blend does not have."""
+    values = {key: getattr(args, key) for key in _PLAIN_OPTIONS if getattr(args, key, None) is not None}
+    for key in _ENUM_OPTIONS:
         value = getattr(args, key, None)
         if value is not None:
-            setattr(settings, key, value)
-    for key in ("model", "direction", "ambient", "solve", "inward_faces"):
-        value = getattr(args, key, None)
-        if value is not None:
-            setattr(settings, key, value.upper().replace("-", "_"))
+            values[key] = value.upper().replace("-", "_")
     if getattr(args, "collection", None):
         if args.collection not in bpy.data.collections:
             raise BakeError(f"no collection named '{args.collection}'")
-        settings.target, settings.target_collection = 'COLLECTION', bpy.data.collections[args.collection]
+        values["target"], values["target_collection"] = 'COLLECTION', bpy.data.collections[args.collection]
+    return values
 
 
-def _unwrap(context, args) -> str:
+def _settings(scene, args) -> bridge_settings.Overridden:
+    """The scene's HHD settings overridden by the command line's options for this run: a
+    read-only view (`bridge.settings.Overridden`); `scene.hhd` is not written (`_apply_options`
+    does that for --save). --preset sets its knobs first, explicit options override them."""
+    values = _option_values(args)
+    if getattr(args, "preset", None):
+        values = bridge_settings.with_preset(args.preset, values)
+    return bridge_settings.Overridden(scene.hhd, values)
+
+
+def _apply_options(settings, args) -> None:
+    """--save: write the command line's options into the scene's settings `settings`
+    (`scene.hhd`), so the saved .blend keeps this run's settings: the preset first (its update
+    sets its knobs), then the explicit options, which override it (the same values `_settings`
+    gives)."""
+    if getattr(args, "preset", None):
+        settings.preset = args.preset.upper()
+    for key, value in _option_values(args).items():
+        setattr(settings, key, value)
+
+
+def _unwrap(context, args, settings) -> str:
     """Unwrap the receivers with a progress line; Ctrl-C cancels (BakeCancelled, no mesh changed).
     A texel density no atlas can hold is refused before xatlas runs (`core.unwrap.atlas_limits`, in the
     core unwrap)."""
@@ -656,10 +680,10 @@ def _unwrap(context, args) -> str:
     from .core.console import ConsoleProgress, interrupt_as_cancel
     from .operators import unwrap
 
-    objects = bake_session.target_objects(context, args.objects)
+    objects = bake_session.target_objects(context, args.objects, settings)
     if not objects:
         raise BakeError("no receivers: pass --objects or --collection, or save the .blend with them selected")
-    job = unwrap.read_objects(objects, context.scene.hhd, getattr(args, "make_single_user", False))
+    job = unwrap.read_objects(objects, settings, getattr(args, "make_single_user", False))
     print(f"unwrap: {len(objects)} object(s)", flush=True)
     progress = ConsoleProgress()
     try:
@@ -667,21 +691,21 @@ def _unwrap(context, args) -> str:
             result = unwrap.compute(job, progress, cancel)
     finally:
         progress.close()
-    summary, warnings = unwrap.write_objects(job, context.scene.hhd, result)
+    summary, warnings = unwrap.write_objects(job, settings, result)
     for w in warnings:
         print(f"warning: {w}")
     return summary
 
 
-def _bake(context, args) -> str:
+def _bake(context, args, settings) -> str:
     from .bridge import bake_session
     from .core.console import ConsoleProgress, interrupt_as_cancel
 
     if args.only or args.changed:
-        return _bake_subset(context, args)
+        return _bake_subset(context, args, settings)
     if args.unwrap:
-        print(_unwrap(context, args), flush=True)
-    session = bake_session.BakeSession(context, args.objects, args.out, threads=args.threads)
+        print(_unwrap(context, args, settings), flush=True)
+    session = bake_session.BakeSession(context, args.objects, args.out, threads=args.threads, settings=settings)
     for w in session.warnings:
         print(f"warning: {w}")
     print(f"bake: {session.describe()}", flush=True)
@@ -706,13 +730,15 @@ def _bake(context, args) -> str:
     return summary
 
 
-def _bake_subset(context, args) -> str:
+def _bake_subset(context, args, settings) -> str:
     """`bake --only NAMES` / `--changed [--influenced]`: `bridge.incremental_session`."""
     from .bridge import incremental_session
     from .core.console import ConsoleProgress, interrupt_as_cancel
 
     mode = "only" if args.only else "influenced" if args.influenced else "changed"
-    session = incremental_session.IncrementalSession(context, mode, args.only, args.out, threads=args.threads)
+    session = incremental_session.IncrementalSession(
+        context, mode, args.only, args.out, threads=args.threads, settings=settings
+    )
     for w in session.warnings:
         print(f"warning: {w}")
     print(f"bake: {session.describe()}", flush=True)
@@ -728,8 +754,9 @@ def _bake_subset(context, args) -> str:
     return summary
 
 
-def _stale(context, args) -> str:
-    """`stale`: what changed since the last bake (`bridge.incremental_session.stale_report`)."""
+def _stale(context, args, _view) -> str:
+    """`stale`: what changed since the last bake (`bridge.incremental_session.stale_report`); it
+    takes no option that overrides a scene setting (--out is its folder)."""
     from .bridge import incremental_session
 
     stale, lines = incremental_session.stale_report(context, args.out)
@@ -751,7 +778,7 @@ def _farm(address: str, trace):
     return connected
 
 
-def _uv_report(context, args) -> str:
+def _uv_report(context, args, settings) -> str:
     """`uv-report`: the views' figures (`shaders.texel_views.report`), printed and with --json
     written; the .blend is not changed. Receivers without the lightmap UV layer: EXIT_INPUT,
     named, after the report of the others."""
@@ -760,10 +787,10 @@ def _uv_report(context, args) -> str:
     from .bridge import bake_session
     from .shaders import texel_views
 
-    objects = bake_session.target_objects(context, args.objects)
+    objects = bake_session.target_objects(context, args.objects, settings)
     if not objects:
         raise BakeError("no receivers: pass --objects or --collection, or save the .blend with them selected")
-    document, lines = texel_views.report(objects, context.scene.hhd)
+    document, lines = texel_views.report(objects, settings)
     for line in lines:
         print(line)
     if args.json:
@@ -782,7 +809,7 @@ def _uv_report(context, args) -> str:
         them = "it" if len(missing) == 1 else "them"
         raise BakeError(
             f"{', '.join(repr(n) for n in missing)} ha{'s' if len(missing) == 1 else 've'} no lightmap UV layer "
-            f"'{context.scene.hhd.uv_layer}' (or no faces): unwrap {them} first, or leave {them} out of the "
+            f"'{settings.uv_layer}' (or no faces): unwrap {them} first, or leave {them} out of the "
             "receivers (the others are reported above)"
         )
     t = document["totals"]
@@ -795,32 +822,31 @@ def _uv_report(context, args) -> str:
     )
 
 
-def _export(context, args) -> str:
-    """`export`: Blender's glTF exporter with the HHD hook (bridge/gltf_export.py), as File > Export."""
+def _export(context, args, _view) -> str:
+    """`export`: Blender's glTF exporter with the HHD hook (bridge/gltf_export.py), as File > Export;
+    the lightmaps from --out, else the scene's Output Folder."""
     from .bridge import gltf_export
 
-    if args.out:
-        context.scene.hhd.output_dir = args.out  # this run only (export never saves the .blend)
     path = args.glb or args.gltf
-    result = gltf_export.export(path, glb=bool(args.glb))
+    result = gltf_export.export(path, glb=bool(args.glb), out_dir=args.out)
     for w in result["warnings"]:
         print(f"warning: {w}")
     return f"{len(result['exported'])} object(s) with lightmaps -> {path}"
 
 
-def _encode(context, args) -> str:
+def _encode(context, args, settings) -> str:
     from .bridge import bake_session
     from .operators import encode
 
-    objects = bake_session.target_objects(context, args.objects)
-    threads = bake_session.scene_threads(context.scene) if args.threads is None else args.threads
-    summary, warnings = encode.reencode_objects(objects, context.scene.hhd, args.out, threads=threads)
+    objects = bake_session.target_objects(context, args.objects, settings)
+    threads = bridge_settings.scene_threads(context.scene) if args.threads is None else args.threads
+    summary, warnings = encode.reencode_objects(objects, settings, args.out, threads=threads)
     for w in warnings:
         print(f"warning: {w}")
     return summary
 
 
-def _compare(context, args) -> str:
+def _compare(context, args, settings) -> str:
     """`compare`: a progress line per step (each Cycles render, each atlas's post stages and
     encodings, the report); Ctrl-C or SIGTERM stops at the next step (within a denoise): no
     report file is replaced, the scene as it was (EXIT_CANCELLED)."""
@@ -838,6 +864,7 @@ def _compare(context, args) -> str:
         roughness=tuple(args.roughness),
         models=tuple(args.models or compare.core_compare.MODELS),
         percentage=args.percentage,
+        settings=settings,
     )
     print(f"compare: {len(job.steps)} steps into {job.report_dir}", flush=True)
     progress = ConsoleProgress(step=0.0)
@@ -851,11 +878,11 @@ def _compare(context, args) -> str:
     return summary
 
 
-def _blend(context, args) -> str:
+def _blend(context, args, settings) -> str:
     from .bridge import bake_session, light_sets
 
-    objects = bake_session.target_objects(context, args.objects)
-    return light_sets.blend_objects(objects, context.scene.hhd, dict(args.weights), args.out)
+    objects = bake_session.target_objects(context, args.objects, settings)
+    return light_sets.blend_objects(objects, settings, dict(args.weights), args.out)
 
 
 def main(argv: list[str]) -> int:
@@ -939,8 +966,9 @@ def _save(args) -> None:
         ) from None
 
 
-def _check_before(context, args) -> None:
-    """What can be known to fail before any work: an unwritable output folder or .blend (--save)."""
+def _check_before(context, args, settings) -> None:
+    """What can be known to fail before any work: an unwritable output folder or .blend (--save);
+    `settings`: this run's (`_settings`)."""
     from .bridge import bake_session
 
     if getattr(args, "save", False):
@@ -951,7 +979,7 @@ def _check_before(context, args) -> None:
             raise _OutputProblem(problem)
     # unwrap, uv-report and export write no bake files (--json, --glb are checked as they are written)
     if args.action not in ("unwrap", "uv-report", "export", "stale", "compare"):
-        problem = _output_problem(bake_session.output_folder(context.scene.hhd, args.out))
+        problem = _output_problem(bake_session.output_folder(settings, args.out))
         if problem:
             raise _OutputProblem(problem)
 
@@ -981,10 +1009,10 @@ def _run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         with terminate_as_interrupt():
-            _apply_options(context.scene.hhd, args)
+            settings = _settings(context.scene, args)
             for w in _soft_warnings(args):
                 print(f"warning: {w}", flush=True)
-            _check_before(context, args)
+            _check_before(context, args, settings)
             commands = {
                 "unwrap": _unwrap,
                 "bake": _bake,
@@ -995,8 +1023,9 @@ def _run(args: argparse.Namespace) -> int:
                 "uv-report": _uv_report,
                 "stale": _stale,
             }
-            summary = commands[args.action](context, args)
+            summary = commands[args.action](context, args, settings)
             if getattr(args, "save", False):
+                _apply_options(context.scene.hhd, args)  # --save keeps this run's settings
                 _save(args)
     except DependencyMissing as exc:
         return _fail(EXIT_DEPENDENCY, exc)

@@ -258,7 +258,7 @@ def our_bake(atlas: Atlas, samples: int, seed: int):
     time_to_error.our_bake). Returns (TracedAtlas, seconds)."""
     from hhd_lightmapper.core import bake, tracer
 
-    settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=BOUNCES, seed=seed)
+    settings = tracer.BakeSettings.from_samples(samples, bounces=BOUNCES, seed=seed)
     t = time.perf_counter()
     traced = bake.trace_surface(atlas.surface, atlas.size, atlas.size, atlas.bake_scene, settings)
     seconds = time.perf_counter() - t

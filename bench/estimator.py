@@ -149,7 +149,7 @@ def bake(surface, bake_scene, resolution: int, samples: int, seed: int, variant)
         hemisphere.STRATIFIED_FIRST_BOUNCE,
         hemisphere.UNIFORM_SHARE,
     ) = variant[1:]
-    settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=3, seed=seed)
+    settings = tracer.BakeSettings.from_samples(samples, bounces=3, seed=seed)
     result = _bake.trace_surface(surface, resolution, resolution, bake_scene, settings)
     iz = hhd.irradz(result.sh, result.points.normal) @ LUMINANCE
     normal = result.points.normal / np.linalg.norm(result.points.normal, axis=1, keepdims=True)

@@ -648,7 +648,7 @@ def our_bake(receivers_or_atlas, size: int, samples: int, bounces: int, seed: in
         scene = scene_data.read_bake_scene(depsgraph)
     else:
         surface, scene = receivers_or_atlas.surface, receivers_or_atlas.bake_scene
-    settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=bounces, seed=seed)
+    settings = tracer.BakeSettings.from_samples(samples, bounces=bounces, seed=seed)
     old = bakepoints.SETTLE, bakepoints.FOOTPRINT_TRIANGLES
     bakepoints.SETTLE = settle
     bakepoints.FOOTPRINT_TRIANGLES = old[1] if settle else 1

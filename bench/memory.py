@@ -166,7 +166,7 @@ def main() -> int:
     post_on = not args.no_post
     library = _denoiser_library() if post_on else ""
     settings = bake.PipelineSettings(
-        trace=tracer.BakeSettings(samples=args.samples, pass_samples=min(16, args.samples), bounces=args.bounces),
+        trace=tracer.BakeSettings.from_samples(args.samples, bounces=args.bounces),
         denoise=post_on and production.denoise,
         denoiser_library=library,
         stitch_seams=post_on,

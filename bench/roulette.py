@@ -86,9 +86,7 @@ def measure(surface, bake_scene, args) -> dict:
             for way, *values in WAYS:
                 for knob, value in zip(_KNOBS, values):
                     setattr(paths, knob, value)
-                settings = tracer.BakeSettings(
-                    samples=args.samples, pass_samples=min(16, args.samples), bounces=args.bounces, seed=100 + seed
-                )
+                settings = tracer.BakeSettings.from_samples(args.samples, bounces=args.bounces, seed=100 + seed)
                 result = tracer.bake(points, bake_scene, settings, ray_scene=ray_scene)
                 if seed < 0:
                     continue

@@ -310,7 +310,7 @@ def measure_scene(name: str, args, denoiser) -> dict:
     print(f"[{name}] receivers {[o.name for o in receivers]}; {atlas.unwrap_summary}", flush=True)
 
     def trace(samples: int, seed: int):
-        settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=BOUNCES, seed=seed)
+        settings = tracer.BakeSettings.from_samples(samples, bounces=BOUNCES, seed=seed)
         t = time.perf_counter()
         traced = bake.trace_surface(atlas.surface, atlas.size, atlas.size, atlas.bake_scene, settings)
         return traced, time.perf_counter() - t

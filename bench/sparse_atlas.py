@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import memory as _memory  # noqa: E402  (bench/memory.py: the stage timer and the wavy sheet)
-from hhd_lightmapper.core import bake, bakepoints, encoding, parallel, post, presets, seams, tracer
+from hhd_lightmapper.core import bake, bakepoints, encoding, post, presets, seams, tracer
 from hhd_lightmapper.core import stages as stages_module  # noqa: E402
 from hhd_lightmapper.core.bake import finishing  # noqa: E402
 from hhd_lightmapper.core.files import exr, lightmap_files
@@ -148,14 +148,12 @@ def main() -> int:
     samples, bounces, noise_target, denoise = preset.knobs()
     library = _memory._denoiser_library() if denoise else ""
     settings = bake.PipelineSettings(
-        trace=tracer.BakeSettings(
-            samples=samples, pass_samples=min(16, samples), bounces=bounces, noise_target=noise_target
-        ),
+        trace=tracer.BakeSettings.from_samples(samples, bounces=bounces, noise_target=noise_target),
         denoise=denoise,
         denoiser_library=library,
     )
     atlas = bake.AtlasInput("Lightmap", args.resolution, args.resolution, surface, ["quad"])
-    exr.set_threads(parallel.resolve_threads(settings.trace.threads))  # as `bake.run`
+    exr.set_threads(settings.trace.worker_threads)  # as `bake.run`
     stages = Nested()
     originals = [
         (owner, attr, getattr(owner, attr))
@@ -219,7 +217,7 @@ def main() -> int:
         "resolution": args.resolution,
         "texels": int(texels),
         "preset": args.preset,
-        "exr_threads": parallel.resolve_threads(settings.trace.threads),
+        "exr_threads": settings.trace.worker_threads,
         "seconds": total,
         "peak_rss_mb": max(r["peak_rss_mb"] for r in stages.rows.values()),
         "load_average_before": load_before,

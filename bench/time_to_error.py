@@ -364,7 +364,7 @@ def our_bake(surface, bake_scene, samples, points_before, seed=0):
     from hhd_lightmapper.core import bake, hhd, tracer
 
     t = time.perf_counter()
-    settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=BOUNCES, seed=seed)
+    settings = tracer.BakeSettings.from_samples(samples, bounces=BOUNCES, seed=seed)
     result = bake.trace_surface(surface, points_before.width, points_before.height, bake_scene, settings)
     points = result.points
     iz = hhd.irradz(result.sh, points.normal)

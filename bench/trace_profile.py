@@ -122,7 +122,7 @@ def profile(surface, bake_scene, resolution: int, samples: int) -> dict:
     ray_scene = rays.RayScene(bake_scene.triangles)
     raw = raw_rate_1(EmbreexRays(bake_scene.triangles), bake_scene.triangles, np.float32)
     raw_ours = raw_rate_1(ray_scene, bake_scene.triangles, np.float64)
-    settings = tracer.BakeSettings(samples=samples, pass_samples=min(16, samples), bounces=3, threads=1)
+    settings = tracer.BakeSettings.from_samples(samples, bounces=3, threads=1)
     objects = [str(k) for k in range(int(surface.object_index.max(initial=-1)) + 1)]
     points = bake.points_of(bake.AtlasInput("atlas", resolution, resolution, surface, objects), ray_scene)
     tracer.bake(points, bake_scene, settings, ray_scene=ray_scene)  # untimed: warm

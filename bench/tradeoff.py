@@ -604,11 +604,10 @@ def encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors) -> list[dict]:
 
 def warm_denoiser(scene, data) -> None:
     """Load OIDN (library, device, weights) for the bakes' thread count and run it once on `data`."""
-    from hhd_lightmapper.bridge import bake_session, denoiser
-    from hhd_lightmapper.core import parallel
+    from hhd_lightmapper.bridge import denoiser, settings
     from hhd_lightmapper.core.post.denoise import filtering, pages
 
-    threads = parallel.resolve_threads(bake_session.scene_threads(scene))
+    threads = settings.scene_settings(scene).trace.threads
     pages.denoise_texels(data, filtering.denoiser_for(denoiser.oidn_library(), threads))
 
 

@@ -2,8 +2,10 @@
 
 `scene_data` turns the evaluated depsgraph into a `core.scene.BakeScene` (occluders, lights,
 world); `mesh_data` reads meshes with foreach_get (the receivers' `SurfaceTriangles`, the
-meshes to unwrap) and writes the lightmap UV layer; `bake_session` is the bpy half of a bake
-(read the scene and settings, run `core.bake`, load the written images); `denoiser` finds the
+meshes to unwrap) and writes the lightmap UV layer; `settings` builds the bake's settings value
+(`core.bake.PipelineSettings`) from `scene.hhd`, or from the CLI's read-only view of it overridden
+by its options; `bake_session` is the bpy half of a bake (read the scene and settings, run
+`core.bake`, load the written images); `denoiser` finds the
 Open Image Denoise library Blender ships. Nothing here is an operator or registers anything.
 
 Besides `operators/`, `panels/`, `shaders/` and `cli.py`, this is the only package that imports

@@ -14,20 +14,21 @@ import bpy
 
 from ..core import bake as core_bake
 from ..core import encoding as core_encoding
-from ..core import parallel, tracer
 from ..core.errors import BakeError
 from ..core.files.lightmap_files import AtlasFiles
 from . import collection_instances, denoiser, fingerprints, mesh_data, scene_data
+from . import settings as bake_settings
 
 DEFAULT_ATLAS = "Lightmap"
 
 
-def target_objects(context, names: list[str] | None = None) -> list:
-    """Receivers: the named objects, else the scene's target (selected objects or a collection);
-    an Empty that shows a collection stands for its Members (`collection_instances`), and a
-    Member can be named as "<instancer>/<object>". Raises BakeError naming an object that does
-    not exist or is neither a mesh nor a collection instance."""
-    settings = context.scene.hhd
+def target_objects(context, names: list[str] | None = None, settings=None) -> list:
+    """Receivers: the named objects, else the target of `settings` (the scene's HHD settings, or
+    an `Overridden` view of them: selected objects or a collection); an Empty that shows a
+    collection stands for its Members (`collection_instances`), and a Member can be named as
+    "<instancer>/<object>". Raises BakeError naming an object that does not exist or is neither
+    a mesh nor a collection instance."""
+    settings = context.scene.hhd if settings is None else settings
     if names:
         found = {n: collection_instances.find(n) for n in names}
         missing = [n for n, o in found.items() if o is None]
@@ -108,35 +109,6 @@ def _check_receivers(objects, uv_layer: str) -> None:
             raise BakeError(f"'{obj.name}' has no '{uv_layer}' UV layer: run Unwrap first")
 
 
-def scene_threads(scene) -> int:
-    """The bake's thread setting (0 = every core) from Blender's Render > Performance > Threads
-    of `scene` (`parallel.blender_threads`)."""
-    return parallel.blender_threads(scene.render.threads_mode, scene.render.threads)
-
-
-def pipeline_settings(settings, threads: int = 0) -> core_bake.PipelineSettings:
-    """The core settings from the scene's HHD settings; `threads`: worker threads, 0 = every core.
-    Denoising goes through the OIDN library of the running Blender (`denoiser.oidn_library`)."""
-    samples, bounces = max(4, settings.samples), settings.bounces
-    trace = tracer.BakeSettings(
-        samples=samples,
-        pass_samples=min(16, -(-samples // 4) * 4),
-        bounces=bounces,
-        seed=settings.seed,
-        noise_target=settings.noise_target / 100.0,
-        time_budget=settings.time_budget,
-        threads=threads,
-    )
-    return core_bake.PipelineSettings(
-        trace=trace,
-        encoder=encoder_settings(settings),
-        denoise=settings.denoise,
-        denoiser_library=denoiser.oidn_library() if settings.denoise else "",
-        stitch_seams=settings.stitch_seams,
-        inward_faces=settings.inward_faces,
-    )
-
-
 def check_inward(context, objects: list[str] | None = None) -> list[str]:
     """The receivers' faces that point into their own object (`core.bakepoints.inward`), without baking and
     without lightmap UVs: one message per object (the scene's `inward_faces` action named), also
@@ -161,17 +133,6 @@ def check_inward(context, objects: list[str] | None = None) -> list[str]:
 def set_inward_report(scene, messages: list[str]) -> None:
     """The panel's warning rows: `messages`, one per line."""
     scene.hhd.inward_report = "\n".join(messages)
-
-
-def encoder_settings(settings) -> core_bake.EncoderSettings:
-    return core_bake.EncoderSettings(
-        model=settings.model.lower(),
-        direction=settings.direction.lower(),
-        ambient=settings.ambient.lower(),
-        phi_search=settings.phi_search,
-        golden_iterations=settings.golden_iterations,
-        solve=settings.solve.lower(),
-    )
 
 
 def stitch_outcome(enabled: bool, atlas_warnings: list[list[str]]) -> str:
@@ -206,7 +167,8 @@ def _probes_text(grids) -> str:
 class BakeSession:
     """Everything one bake needs, read from Blender at construction (see the module doc).
     `threads`: worker threads (0 = every core); None takes the scene's Render > Performance >
-    Threads (`scene_threads`)."""
+    Threads (`settings.scene_threads`). `settings`: the scene's HHD settings, or an `Overridden`
+    view of them (the CLI's options)."""
 
     def __init__(
         self,
@@ -215,16 +177,15 @@ class BakeSession:
         out_dir: str | None = None,
         threads: int | None = None,
         scheduler: str | None = None,
+        settings=None,
     ):
-        settings = context.scene.hhd
+        settings = context.scene.hhd if settings is None else settings
         #: a Dask scheduler's address to bake on (core.farm), "" for this machine
         self.scheduler = (settings.scheduler if scheduler is None else scheduler).strip()
         self.farm_warnings: list[str] = []
-        if threads is None:
-            threads = scene_threads(context.scene)
-        self.settings = pipeline_settings(settings, parallel.resolve_threads(threads))
+        self.settings = bake_settings.scene_settings(context.scene, threads, settings)
         self.out_dir = output_folder(settings, out_dir)
-        self.receivers = target_objects(context, objects)
+        self.receivers = target_objects(context, objects, settings)
         _check_receivers(self.receivers, settings.uv_layer)
         groups, self.warnings = atlas_groups(self.receivers, settings)
         depsgraph = context.evaluated_depsgraph_get()

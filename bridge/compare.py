@@ -50,6 +50,7 @@ from ..core.encoding.web_packing import png_encode
 from ..core.errors import BakeCancelled, BakeError
 from ..core.files import exr, lightmap_files
 from . import bake_session, denoiser, mesh_data, scene_data
+from . import settings as bake_settings
 
 ROUGHNESS = (0.25, 0.5, 0.75)
 NODE_PREFIX = "HHD Compare"
@@ -246,14 +247,16 @@ def prepare(
     roughness=ROUGHNESS,
     models=core_compare.MODELS,
     percentage: int = 50,
+    settings=None,
 ) -> Comparison:
     """The comparison `run` makes, checked (a bake of every atlas, a receiver seen by the camera:
-    BakeError otherwise) and its compared pixels found, before any render; nothing is changed."""
+    BakeError otherwise) and its compared pixels found, before any render; nothing is changed.
+    `settings`: the scene's HHD settings (None) or an `Overridden` view of them (the CLI's)."""
     scene = context.scene
-    settings = scene.hhd
+    settings = scene.hhd if settings is None else settings
     bake_dir = Path(bake_session.output_folder(settings, out_dir))
     report_dir = Path(folder) if folder else bake_dir / "compare"
-    receivers = bake_session.target_objects(context, objects)
+    receivers = bake_session.target_objects(context, objects, settings)
     groups, warnings = bake_session.atlas_groups(receivers, settings)
     camera = camera_of(scene, percentage)
     depsgraph = context.evaluated_depsgraph_get()
@@ -480,7 +483,7 @@ def _pipeline(settings, sidecar: dict):
     post_ = sidecar.get("post", {})
     denoise = bool(post_.get("denoise", {}).get("enabled", False))
     return replace(
-        bake_session.pipeline_settings(settings),
+        bake_settings.pipeline_settings(settings),
         denoise=denoise,
         denoiser_library=denoiser.oidn_library() if denoise else "",
         stitch_seams=bool(post_.get("stitch", {}).get("enabled", False)),

@@ -81,6 +81,9 @@ class _State:
 #: the last export's state, for `export()` (which may find the hook of another copy of the
 #: package enabled in Blender: it reads that module's _LAST)
 _LAST: dict = {}
+#: the folder of the bake `export(out_dir=)` exports ("out_dir"; none: the scene's Output
+#: Folder), set on every hook module for the one export, as _LAST is read
+_OPTIONS: dict = {}
 
 
 def _state(export_settings) -> _State:
@@ -372,7 +375,7 @@ def _build(state: _State, scene_plan) -> None:
     layer_name = settings.uv_layer
     b = _Builder(state)
     try:
-        folder = Path(bake_session.output_folder(settings))
+        folder = Path(bake_session.output_folder(settings, _OPTIONS.get("out_dir")))
     except BakeError as exc:
         state.warn(f"no lightmaps exported: {exc}")
         return
@@ -615,8 +618,9 @@ def _hook_modules() -> list:
     return out
 
 
-def export(filepath: str, glb: bool = True) -> dict:
-    """Export the open scene to `filepath` (.glb or .gltf) with the hook (the CLI's `export`).
+def export(filepath: str, glb: bool = True, out_dir: str | None = None) -> dict:
+    """Export the open scene to `filepath` (.glb or .gltf) with the hook (the CLI's `export`),
+    the lightmaps from `out_dir` (None: the scene's Output Folder; the scene is not changed).
     Returns {"exported": [...objects with lightmaps], "warnings": [...]}. Raises BakeError for
     a hook failure."""
     root_package = __package__.rsplit(".", 1)[0]
@@ -629,6 +633,9 @@ def export(filepath: str, glb: bool = True) -> dict:
     for module in modules:
         if module is not None:
             module._LAST.clear()
+            module._OPTIONS.clear()
+            if out_dir:
+                module._OPTIONS["out_dir"] = out_dir
     try:
         os.makedirs(os.path.dirname(os.path.abspath(filepath)) or ".", exist_ok=True)
         bpy.ops.export_scene.gltf(
@@ -640,6 +647,9 @@ def export(filepath: str, glb: bool = True) -> dict:
             export_yup=True,
         )
     finally:
+        for module in modules:
+            if module is not None:
+                module._OPTIONS.clear()
         if temporary is not None:
             bpy.context.preferences.addons.remove(temporary)
     states = [m._LAST.get("state") for m in modules if m is not None and m._LAST.get("state") is not None]

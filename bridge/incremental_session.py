@@ -13,12 +13,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..core import bake as core_bake
-from ..core import parallel
 from ..core.errors import FullBakeNeeded
 from ..core.files import lightmap_files
 from ..core.incremental import fingerprints as core_fingerprints
 from ..core.incremental import subset as core_subset
 from . import bake_session, collection_instances, fingerprints, mesh_data, scene_data
+from . import settings as bake_settings
 
 MODES = ("only", "changed", "influenced")
 
@@ -42,11 +42,10 @@ def baked_atlases(out_dir: str) -> dict[str, dict]:
     return out
 
 
-def _last_bake(context, out_dir: str):
+def _last_bake(context, out_dir: str, settings):
     """(receivers of the last bake, atlas groups now, the last bake's fingerprints or None,
-    the scene's fingerprints now). FullBakeNeeded without an earlier bake or when a receiver of it
-    is gone."""
-    settings = context.scene.hhd
+    the scene's fingerprints now), `settings` the scene's HHD settings or an `Overridden` view.
+    FullBakeNeeded without an earlier bake or when a receiver of it is gone."""
     atlases = baked_atlases(out_dir)
     if not atlases:
         raise FullBakeNeeded(f"no earlier bake in {out_dir}: bake all first")
@@ -66,9 +65,10 @@ def stale_report(context, out_dir: str | None = None) -> tuple[core_fingerprints
     """What changed since the last bake into the output folder (`out_dir` or the scene's): the
     Stale (None when there is no earlier bake with fingerprints) and its lines for the panel and
     the console. Reads the scene and the sidecars only."""
-    folder = bake_session.output_folder(context.scene.hhd, out_dir)
+    settings = context.scene.hhd
+    folder = bake_session.output_folder(settings, out_dir)
     try:
-        receivers, groups, old, now = _last_bake(context, folder)
+        receivers, groups, old, now = _last_bake(context, folder, settings)
     except FullBakeNeeded as exc:
         return None, [str(exc)]
     if old is None:
@@ -90,18 +90,22 @@ class IncrementalSession:
     there is no earlier bake, a layout changed, or a name is not a receiver of it."""
 
     def __init__(
-        self, context, mode: str, names: list[str] | None = None, out_dir: str | None = None, threads: int | None = None
+        self,
+        context,
+        mode: str,
+        names: list[str] | None = None,
+        out_dir: str | None = None,
+        threads: int | None = None,
+        settings=None,
     ):
         if mode not in MODES:
             raise ValueError(f"mode {mode!r}: one of {MODES}")
-        settings = context.scene.hhd
-        if threads is None:
-            threads = bake_session.scene_threads(context.scene)
-        self.settings = bake_session.pipeline_settings(settings, parallel.resolve_threads(threads))
+        settings = context.scene.hhd if settings is None else settings
+        self.settings = bake_settings.scene_settings(context.scene, threads, settings)
         self.out_dir = bake_session.output_folder(settings, out_dir)
         self.mode = mode
         self.warnings: list[str] = []
-        receivers, groups, old, now = _last_bake(context, self.out_dir)
+        receivers, groups, old, now = _last_bake(context, self.out_dir, settings)
         self.receivers, self.old, self.now = receivers, old, now
         if old is not None:
             changed_layouts = [a for a in now.layout if old.layout.get(a) not in (None, now.layout[a])]

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import light_sets, parallel
+from . import light_sets
 from .errors import BakeError
 from .files import exr
 from .scene import BakeScene
@@ -117,7 +117,7 @@ def bake(
     """Trace every probe of `grid` with `settings` (samples, pass_samples, bounces, seed,
     threads, light_sets; no noise target), test validity and fill the invalid probes."""
     start = time.perf_counter()
-    settings = replace(settings, threads=parallel.resolve_threads(settings.threads), noise_target=0.0, time_budget=0.0)
+    settings = replace(settings.resolved(), noise_target=0.0, time_budget=0.0)
     ts = trace_scene or TraceScene(scene, settings.bounces, light_sets=settings.light_sets)
     positions = grid.positions()
     back = back_face_fraction(ts, positions, VALIDITY_RAYS, settings.seed)

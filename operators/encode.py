@@ -14,6 +14,7 @@ from pathlib import Path
 import bpy
 
 from ..bridge import bake_session, denoiser
+from ..bridge import settings as bake_settings
 from ..core import bake as core_bake
 from ..core.errors import BakeError
 from ..core.files.lightmap_files import AtlasFiles
@@ -35,7 +36,7 @@ class HHD_OT_encode(bpy.types.Operator):
         settings = context.scene.hhd
         try:
             objects = bake_session.target_objects(context)
-            summary, warnings = reencode_objects(objects, settings, threads=bake_session.scene_threads(context.scene))
+            summary, warnings = reencode_objects(objects, settings, threads=bake_settings.scene_threads(context.scene))
         except BakeError as exc:  # a damaged or mismatched bake: the message names the file and the fix
             self.report({'ERROR'}, f"Re-encode failed: {exc}")
             return {'CANCELLED'}
@@ -63,7 +64,7 @@ def reencode_objects(objects, settings, out_dir: str | None = None, threads: int
         raise BakeError("no mesh objects to re-encode: select baked objects")
     folder = bake_session.output_folder(settings, out_dir)
     groups, _ = bake_session.atlas_groups(objects, settings)
-    encoder = bake_session.encoder_settings(settings)
+    encoder = bake_settings.encoder_settings(settings)
     library = denoiser.oidn_library() if settings.denoise else ""
     done, warnings = [], []
     for name, *_ in groups:

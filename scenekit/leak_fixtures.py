@@ -283,9 +283,8 @@ def core_bake(fixture: Fixture, resolution=256, samples=16, bounces=None, seed=1
     """Bake the fixture's receivers with the core; (points, luminance I_z (P,), truth (P,), full (P,))."""
     from hhd_lightmapper.core import bake, colour, hhd, tracer
 
-    settings = tracer.BakeSettings(
-        samples=samples,
-        pass_samples=min(16, samples),
+    settings = tracer.BakeSettings.from_samples(
+        samples,
         bounces=fixture.bounces if bounces is None else bounces,
         seed=seed,
     )

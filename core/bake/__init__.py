@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 
 from .. import parallel, probes, tracer
@@ -88,7 +87,7 @@ def run(
     `probes.json`, committed with the atlases'). `progress(fraction, message)` is called often
     (at least once per tracer chunk); `cancel()` returning True stops within a chunk (raises
     BakeCancelled) with no file replaced. Every stage uses
-    `parallel.resolve_threads(settings.trace.threads)` worker threads. `farm`: a
+    `settings.trace.worker_threads` worker threads. `farm`: a
     `core.farm.Farm` building the bake points, tracing the atlases and running their post stages
     and encoding on a Dask cluster, this process writing the files (`runners.FarmRunner`; the
     same files; its checkpoints go when the files are committed); without, all of it here
@@ -103,9 +102,8 @@ def run(
         raise BakeError("nothing to bake: no target objects")
     runner = runners.runner_for(farm)
     runner.check(settings)
-    threads = parallel.resolve_threads(settings.trace.threads)
-    settings = replace(settings, trace=replace(settings.trace, threads=threads))
-    exr.set_threads(threads)
+    settings = settings.resolved()
+    exr.set_threads(settings.trace.threads)
     report = Progress(progress, cancel)
     t0 = time.perf_counter()
     atlases, found, scene = check_inward(atlases, scene, settings.inward_faces)
@@ -115,7 +113,7 @@ def run(
     guess = [a.width * a.height // 2 for a in atlases]
     report.plan(sum(meter.COST_POINTS * n + sum(_atlas_costs(n, 2 * n, settings)) for n in guess))
     report.plan(_probes_cost(probe_grids or [], settings.trace))
-    build = runner.bake_points(atlases, scene, ray_scene, threads, cancel)
+    build = runner.bake_points(atlases, scene, ray_scene, settings.trace.threads, cancel)
     for i, atlas in enumerate(atlases):
         tick = report.span(meter.COST_POINTS * guess[i])
         _check_cancel(cancel)

@@ -23,7 +23,7 @@ def _window_texels_of(traced: TracedAtlas) -> int:
 
 def _trace_cost(texels: int, trace: tracer.BakeSettings) -> float:
     """The estimated cost of tracing `texels` (`core.progress`): its samples, at most its time budget."""
-    samples = -(-trace.samples // trace.pass_samples) * trace.pass_samples
+    samples = trace.passes * trace.pass_samples
     cost = meter.COST_SAMPLE * texels * samples * (1.0 + trace.bounces / 2)
     return min(cost, trace.time_budget * 1e6) if trace.time_budget else cost
 
@@ -58,5 +58,5 @@ def _atlas_costs(texels: int, area: int, settings: PipelineSettings, sets: int =
 
 
 def _probes_cost(grids, trace: tracer.BakeSettings) -> float:
-    samples = -(-trace.samples // trace.pass_samples) * trace.pass_samples
+    samples = trace.passes * trace.pass_samples
     return sum(meter.COST_PROBE * g.count * samples * (1.0 + trace.bounces / 2) for g in grids)

@@ -4,7 +4,7 @@ every job of a bake shares. No bpy."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .. import tracer
@@ -29,7 +29,7 @@ class AtlasInput:
     instances: dict = field(default_factory=dict)
 
 
-@dataclass
+@dataclass(frozen=True)
 class PipelineSettings:
     """trace: the tracer's settings; encoder: the encoding and its options (`core.encoding`);
     denoise: run the denoise post stage (`core.post`), through the Open Image Denoise library at
@@ -38,7 +38,11 @@ class PipelineSettings:
     surface split between charts reads the same on both sides of the split. A bake writes the
     atlas's seams file either way, so a re-encode can switch stitching on or off. inward_faces:
     what to do with faces that point into their own object (`core.bakepoints.inward`: OPEN_SIDE bakes them
-    from the side light reaches, AS_MODELLED as they are, with a warning; REFUSE: InwardFacesRefused)."""
+    from the side light reaches, AS_MODELLED as they are, with a warning; REFUSE: InwardFacesRefused).
+
+    A value (frozen): the Blender side builds it once per bake from the scene's settings, or
+    from them overridden by the command line's options (`bridge.settings`); the samples per
+    pass, the pass count and the thread count are `trace`'s (`tracer.BakeSettings`)."""
 
     trace: tracer.BakeSettings = field(default_factory=tracer.BakeSettings)
     encoder: EncoderSettings = field(default_factory=EncoderSettings)
@@ -46,6 +50,10 @@ class PipelineSettings:
     denoiser_library: str = ""
     stitch_seams: bool = True
     inward_faces: str = inward.OPEN_SIDE
+
+    def resolved(self) -> PipelineSettings:
+        """These settings with the trace's thread count resolved (`BakeSettings.resolved`)."""
+        return replace(self, trace=self.trace.resolved())
 
 
 @dataclass

@@ -27,7 +27,7 @@ from . import finishing as finishing_tasks
 from . import worker as worker_tasks
 from .finishing import STATISTICS, denoiser_identity
 from .names import PACKAGE, WORKER_PACKAGE, _Named, dumps, ship, unplain
-from .worker import MATCHED, code_fingerprint, environment, max_passes
+from .worker import MATCHED, code_fingerprint, environment
 
 #: The hidden folder of the output folder holding finished tasks' checkpoints.
 CHECKPOINTS = ".hhd_farm"
@@ -268,7 +268,7 @@ class Farm:
         key = hashlib.blake2b(
             repr((name, digest, sorted(trace.items()), self.chunks_per_task, code)).encode(), digest_size=10
         ).hexdigest()
-        passes = max_passes(settings)
+        passes = settings.passes
         two_stages = bool(settings.noise_target) and passes >= MIN_ADAPTIVE_PASSES
         return {
             "name": name,

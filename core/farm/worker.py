@@ -99,7 +99,7 @@ def trace_group(
     t0 = time.perf_counter()
     estimator = shipping._receive(digest, payload)
     trace = BakeSettings(**settings)
-    first_pass, end_pass = passes if passes is not None else (0, max_passes(trace))
+    first_pass, end_pass = passes if passes is not None else (0, trace.passes)
     channels = estimator.scene.channels
     first, end = chunks[0][1], chunks[-1][2]
     n = end - first
@@ -185,7 +185,3 @@ def _worker_threads() -> int:
         return max(int(getattr(get_worker(), "nthreads", 1)), 1)
     except (ImportError, ValueError):
         return 1
-
-
-def max_passes(settings: BakeSettings) -> int:
-    return max(1, -(-settings.samples // settings.pass_samples))

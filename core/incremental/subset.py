@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import encoding, parallel, tracer
+from .. import encoding, tracer
 from ..errors import BakeCancelled, FullBakeNeeded
 from ..files import exr, lightmap_files
 from .fingerprints import _now, _receivers_of
@@ -138,9 +138,8 @@ def bake_subset(
     texel lies outside the earlier bake's charts (the layout changed), or the settings differ."""
     from ..bake import points as bake_points
 
-    threads = parallel.resolve_threads(settings.trace.threads)
-    settings = replace(settings, trace=replace(settings.trace, threads=threads))
-    exr.set_threads(threads)
+    settings = settings.resolved()
+    exr.set_threads(settings.trace.threads)
     chosen = [(a, only[a.name]) for a in atlases if only.get(a.name)]
     if not chosen:
         raise FullBakeNeeded("nothing to bake: none of the named objects is a receiver of a baked atlas")

@@ -24,11 +24,9 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from concurrent.futures import Executor
-from dataclasses import replace
 
 import numpy as np
 
-from .. import parallel as _parallel
 from ..bakepoints import BakePoints
 from ..errors import BakeCancelled, BakeError
 from ..rays import RayScene
@@ -98,7 +96,7 @@ def bake(
     if settings.noise_target < 0 or settings.time_budget < 0 or not np.isfinite(settings.noise_target):
         raise BakeError("the noise target and the time budget must be ≥ 0 (0 switches them off)")
     start = time.perf_counter()
-    settings = replace(settings, threads=_parallel.resolve_threads(settings.threads))
+    settings = settings.resolved()
     estimator = texel_estimator(points, scene, settings, ray_scene)
     channels, sets = estimator.scene.channels, estimator.scene.sets
     if compact and runner is None and scheduler.streams(settings):

@@ -121,7 +121,7 @@ class _Run:
         settings, stats = self.settings, self.stats
         assert stats is not None
         n = len(stats.passes)
-        max_passes = max(1, -(-settings.samples // settings.pass_samples))
+        max_passes = settings.passes
         active = chunks(settings, n)
         floor = None
         for first, end in _runs(settings, max_passes):
@@ -161,7 +161,7 @@ class _Run:
         `reduced` once its last pass is added (`run_streamed`)."""
         settings = self.settings
         n = len(reduced.passes)
-        max_passes = max(1, -(-settings.samples // settings.pass_samples))
+        max_passes = settings.passes
         size = settings.chunk_texels
         count = -(-n // size)
         current: dict = {}

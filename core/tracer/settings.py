@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+
+from .. import parallel
+
+#: The most samples per texel one pass takes (`BakeSettings.from_samples`).
+MAX_PASS_SAMPLES = 16
 
 
-@dataclass
+@dataclass(frozen=True)
 class BakeSettings:
     """samples: hemisphere samples per texel, rounded up to whole passes (the most a texel gets
     when a noise target or time budget stops it earlier); pass_samples: samples per texel per
@@ -25,7 +30,10 @@ class BakeSettings:
     always completes, so every texel has an estimate.
 
     light_sets: when the scene uses light groups, keep each light set's SH apart
-    (`core.light_sets`: one trace, one result per set and their sum); off: the sum only."""
+    (`core.light_sets`: one trace, one result per set and their sum); off: the sum only.
+
+    A value (frozen): the rules derived from it are defined here once, `from_samples` (the
+    samples per pass for a sample count), `passes` and `worker_threads`."""
 
     samples: int = 256
     pass_samples: int = 16
@@ -36,6 +44,29 @@ class BakeSettings:
     noise_target: float = 0.0
     time_budget: float = 0.0
     light_sets: bool = True
+
+    @classmethod
+    def from_samples(cls, samples: int, **rest) -> BakeSettings:
+        """The settings for `samples` per texel (the scene's Samples, the CLI's --samples) by the
+        samples-per-pass rule: at least 4 samples, in passes of `samples` rounded up to a multiple
+        of 4, at most MAX_PASS_SAMPLES each; `rest`: the other fields."""
+        samples = max(4, samples)
+        return cls(samples=samples, pass_samples=min(MAX_PASS_SAMPLES, -(-samples // 4) * 4), **rest)
+
+    @property
+    def passes(self) -> int:
+        """The most passes a texel takes: `samples` rounded up to whole passes (at least 1)."""
+        return max(1, -(-self.samples // self.pass_samples))
+
+    @property
+    def worker_threads(self) -> int:
+        """The worker threads `threads` stands for (`parallel.resolve_threads`: 0 = every core this
+        process may use). Raises BakeError for a negative count."""
+        return parallel.resolve_threads(self.threads)
+
+    def resolved(self) -> BakeSettings:
+        """These settings with `threads` resolved (`worker_threads`), as a bake records them."""
+        return replace(self, threads=self.worker_threads)
 
 
 #: Passes a texel takes before its pass-to-pass spread may stop it (the spread of few passes is
