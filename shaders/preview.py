@@ -265,6 +265,7 @@ def show_on_material(
     files,
     kind: str,
     uv_layer: str,
+    *,
     self_bounce: bool,
     light_sets=(),
     instanced: bool = False,
@@ -468,7 +469,15 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
         files = atlases if len(atlases) > 1 else atlases[0][1]
         bicubic = KERNELS[scene.hhd.preview_filter]
         note = show_on_material(
-            mat, files, shown, uv_layer, self_bounce, light_sets, mat.name in instanced, bicubic, scene.hhd.preview_term
+            mat,
+            files,
+            shown,
+            uv_layer,
+            self_bounce=self_bounce,
+            light_sets=light_sets,
+            instanced=mat.name in instanced,
+            bicubic=bicubic,
+            term=scene.hhd.preview_term,
         )
         notes += [n for n in (sets_note, note) if n]
     sync_light_sets(scene, set_names)
