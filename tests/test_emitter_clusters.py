@@ -161,7 +161,7 @@ def test_the_light_tree_splits_the_top_clusters_down_to_single_triangles(monkeyp
     capped = lights.emitters.EmissiveTriangles(tris, emission)
     assert 32 < (capped.child_count[:-1] == 0).sum() <= 50
     np.testing.assert_allclose(np.bincount(capped.cluster_of[1:], capped.within[1:]), capped.child_count[:-1] == 0)
-    monkeypatch.setattr(lights.emitters, "LIGHT_TREE", False)
+    monkeypatch.setattr(lights.emitters, "FANOUT", 0)  # the top clusters alone
     flat = lights.emitters.EmissiveTriangles(tris, emission)
     assert (flat.child_count[:-1] == 0).all() and flat.child_count[-1] == len(flat.parent) <= lights.emitters.CLUSTERS
 
@@ -186,7 +186,7 @@ def test_among_many_lamps_the_tree_gives_the_one_overhead_several_times_the_samp
     k = 100_000
     share, variance = {}, {}
     for tree in (False, True):
-        monkeypatch.setattr(lights.emitters, "LIGHT_TREE", tree)
+        monkeypatch.setattr(lights.emitters, "FANOUT", 8 if tree else 0)
         light = lights.emitters.EmissiveTriangles(tris, emission)
         p = light.cluster_probability(x[None], n[None])[0]
         share[tree] = (p[light.cluster_of[1 + overhead]] * light.within[1 + overhead]).sum()
@@ -427,20 +427,20 @@ def test_the_new_emitter_sampling_bakes_what_power_and_area_sampling_bakes():
     results = {}
     saved = (
         lights.emitters.CLUSTERS,
-        lights.emitters.LIGHT_TREE,
+        lights.emitters.FANOUT,
         lights.emitters.SOLID_ANGLE_RANGE,
         hemisphere.STRATIFIED_LIGHTS,
     )
     try:
         for on in (False, True):
-            lights.emitters.CLUSTERS, lights.emitters.LIGHT_TREE = (32, True) if on else (1, False)
+            lights.emitters.CLUSTERS, lights.emitters.FANOUT = (32, 8) if on else (1, 0)
             lights.emitters.SOLID_ANGLE_RANGE = (3e-4, 6.22) if on else (np.inf, np.inf)
             hemisphere.STRATIFIED_LIGHTS = on
             results[on] = tracer.bake(points, scene, settings)
     finally:
         (
             lights.emitters.CLUSTERS,
-            lights.emitters.LIGHT_TREE,
+            lights.emitters.FANOUT,
             lights.emitters.SOLID_ANGLE_RANGE,
             hemisphere.STRATIFIED_LIGHTS,
         ) = saved
