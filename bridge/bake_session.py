@@ -163,8 +163,8 @@ def set_inward_report(scene, messages: list[str]) -> None:
     scene.hhd.inward_report = "\n".join(messages)
 
 
-def encoder_settings(settings) -> core_bake.EncoderSettings:
-    return core_bake.EncoderSettings(
+def encoder_settings(settings) -> core_encoding.EncoderSettings:
+    return core_encoding.EncoderSettings(
         model=settings.model.lower(),
         direction=settings.direction.lower(),
         ambient=settings.ambient.lower(),

@@ -269,11 +269,6 @@ class EmissiveTriangles(Light):
 SOLID_ANGLE_RANGE = (3e-4, 6.22)
 
 
-def by_solid_angle(solid_angle: np.ndarray) -> np.ndarray:
-    """(R,) bool: the triangles of these solid angles (R,) are sampled by direction."""
-    return (solid_angle >= SOLID_ANGLE_RANGE[0]) & (solid_angle <= SOLID_ANGLE_RANGE[1])
-
-
 def _unit(v: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
