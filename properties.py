@@ -12,6 +12,7 @@ from bpy.props import (
     StringProperty,
 )
 
+from .bridge import probe_mode
 from .core import hhd, presets
 
 # Blender 4.5+ wants path properties that accept "//" to say so (4.2-4.4 do not know the flag).
@@ -47,15 +48,13 @@ def _mark_custom(self, _context):
 def _probe_mode_changed(self, context):
     """The probe preview's node groups read the mode as a number from a scene custom property
     (a View Layer Attribute node): mirror the enum there, so every material relights live."""
-    from .shaders import probe_nodes, probe_preview
-
-    context.scene[probe_preview.MODE] = probe_nodes.MODES[self.probe_mode]
+    probe_mode.mirror(context.scene, self.probe_mode)
 
 
 class HHDLightSet(bpy.types.PropertyGroup):
     """One light set of the last bake (`scene.hhd.light_sets`): `name` is the set's name in the
     atlas sidecars' "light_sets" (a Light Group, or core.light_sets.DEFAULT), `weight` its RGB
-    blend weight. The EEVEE live blend reads the weight by RNA path (`weight_path`), so keyframes
+    blend weight. The EEVEE live blend reads the weight by RNA path (`bridge.light_sets.weight_path`), so keyframes
     on it play back in the viewport and in renders."""
 
     weight: FloatVectorProperty(
@@ -68,27 +67,6 @@ class HHDLightSet(bpy.types.PropertyGroup):
         default=(1.0, 1.0, 1.0),
         description="RGB weight of this light set in the blend (1 = as baked, 0 = off; animatable)",
     )
-
-
-def weight_path(name: str) -> str:
-    """RNA path, from the scene, of light set `name`'s weight: what the live blend's View Layer
-    Attribute nodes read (keyed by name, so it survives reordering of the list)."""
-    return f'hhd.light_sets["{bpy.utils.escape_identifier(name)}"].weight'
-
-
-def sync_light_sets(scene, names) -> list[str]:
-    """Make `scene.hhd.light_sets` list every set of `names` (a bake's, from its sidecar): missing
-    sets are appended at weight 1, existing ones keep their weight (and keyframes). Sets no longer
-    baked are kept, never removed or reordered: keyframes address the items by index
-    (`hhd.light_sets[i].weight`), so removing one would move the animation onto another set.
-    Returns the names added."""
-    items = scene.hhd.light_sets
-    added = [name for name in dict.fromkeys(names) if name not in items]
-    for name in added:
-        item = items.add()
-        item.name = name
-        item.weight = (1.0, 1.0, 1.0)
-    return added
 
 
 class HHDSettings(bpy.types.PropertyGroup):

@@ -25,7 +25,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from hhd_lightmapper.core import hhd, synthetic  # noqa: E402
+from hhd_lightmapper.core import hhd, sh  # noqa: E402
+from scenekit import synthetic  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -64,7 +65,7 @@ def search_accuracy(n_texels: int, rng: np.random.Generator) -> dict:
         s = synthetic.hemisphere_sh(env, normals)
         p = hhd.encode(s, normals)
         e_search, _ = hhd.fit_error(s, normals, p.direction)
-        frames = hhd._sh.tangent_frames(normals)
+        frames = sh.tangent_frames(normals)
         d_local = np.einsum("nji,nj->ni", frames, p.direction)
         phi = np.arctan2(d_local[:, 1], d_local[:, 0])
         best = np.full(len(normals), np.inf)

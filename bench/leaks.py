@@ -274,7 +274,16 @@ def audit_scene(name: str, args) -> dict:
         arrays |= {state: o_mean, f"{state}_se": o_se, f"{state}_position": runs[0].points.position}
         flagged = compare(o_mean, o_se, c_mean, c_se, keep, crossed)
         causes, masks = explain(
-            runs[0].points, atlas.bake_scene, twin, o_mean, o_se, c_mean, c_se, keep, crossed, cycles_again
+            runs[0].points,
+            atlas.bake_scene,
+            twin,
+            o_mean,
+            o_se,
+            c_mean,
+            c_se,
+            keep=keep,
+            crossed=crossed,
+            cycles_again=cycles_again,
         )
         arrays |= {f"{state}_{k}": v for k, v in masks.items()}
         if state == "after":  # against Cycles' own texels, the whole footprint of crossed ones
@@ -375,7 +384,7 @@ def flags(o, o_se, c, c_se, keep) -> tuple[np.ndarray, np.ndarray]:
     return keep & (excess > K * sigma) & (excess > X * level), keep & (-excess > K * sigma) & (-excess > X * level)
 
 
-def explain(points, scene, twin, o, o_se, c, c_se, keep, crossed, cycles_again=None) -> tuple[dict, dict]:
+def explain(points, scene, twin, o, o_se, c, c_se, *, keep, crossed, cycles_again=None) -> tuple[dict, dict]:
     """Why the texels the two-seed rule flags differ from Cycles. Each flagged texel is first
     checked for a coincident twin (`Coincident`: duplicated geometry, where Cycles' own bake is
     the artefact: its rays start on the surface and hit the twin at distance 0, so it bakes such

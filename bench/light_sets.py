@@ -15,7 +15,7 @@ Blend accuracy: for every weight pair (w_A, w_B) of WEIGHTS (RGB weights include
 normals tilted 0°, 30°, 60° and 80° from n_v (four azimuths each, in the texel's tangent frame), the
 irradiance reconstructed (`core.hhd.reconstruct`) from
   (a) `light_sets.blend`: the talk's runtime blend through linear SH,
-  (b) `light_sets.parameter_blend`: blending the HHD parameters (what the talk warns against),
+  (b) `scenekit.light_set_reference.parameter_blend`: blending the HHD parameters (what the talk warns against),
   (c) `hhd.encode` of the weighted SH Σ w_k set_sh_k: the best a single HHD texel can do (the
       encoder's fit, as if the blended lighting had been baked),
 against (d) the irradiance of that SH itself (`core.sh.irradiance`, the L2 cosine convolution).
@@ -53,7 +53,7 @@ RESULTS = ROOT / "bench" / "results"
 
 from hhd_lightmapper.core import bake, bakepoints, hhd, light_sets, sh, tracer  # noqa: E402
 from hhd_lightmapper.core.scene import BakeScene, PointLight  # noqa: E402
-from scenekit import meshes  # noqa: E402
+from scenekit import light_set_reference, meshes  # noqa: E402
 
 SCALARS = (0.0, 0.25, 0.5, 1.0, 2.0)
 #: (w_A, w_B) RGB weight pairs: the scalar grid (both 0 left out) and three coloured pairs
@@ -142,7 +142,7 @@ def blended(set_params, set_sh, n_v, w):
     weighted = np.einsum("kc,kpjc->pjc", w, set_sh)
     return {
         "linear_sh_blend": light_sets.blend(set_params, n_v, w),
-        "parameter_blend": light_sets.parameter_blend(set_params, w),
+        "parameter_blend": light_set_reference.parameter_blend(set_params, w),
         "direct_encode": hhd.encode(weighted, n_v),
     }, weighted
 

@@ -89,7 +89,8 @@ def main() -> int:
         timings[f"eevee_{mode.lower()}"] = time.perf_counter() - t
         rows[mode] = {key: errors(helpers, images[mode], ref, mask, shaded) for key, (ref, _) in references.items()}
     rate = bake_rate(bpy, args.rate_samples, args.bounces)
-    report(args, out, rows, timings, rate, baked, {key: noise for key, (_, noise) in references.items()}, origin, stem)
+    noises = {key: noise for key, (_, noise) in references.items()}
+    report(args, out, rows, timings, rate=rate, baked=baked, noise=noises, origin=origin, stem=stem)
     side_by_side(references["probed"][0], images, mask, RESULTS / f"{stem}.png")
     return 0
 
@@ -294,7 +295,7 @@ def face_mask(bpy, helpers, block, out: Path):
     return image[..., 0] > 0.5
 
 
-def report(args, out, rows, timings, rate, baked, noise, origin, stem: str) -> None:
+def report(args, out, rows, timings, *, rate, baked, noise, origin, stem: str) -> None:
     """Print and write <stem>.json / <stem>.md."""
     lines = [
         "# Probe lighting: plain SH vs HLSH vs HLSH + cone (bench/probes.py)",

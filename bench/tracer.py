@@ -7,7 +7,8 @@ a sun and a constant sky, 2 bounces. Prints (a) raw embreex closest-hit rays/s f
 rays in batches of 1M, on 1 and 2 threads (embreex's own API; and our binding of its Embree,
 core.embree, on 2 threads); (b) the bake's rays/s (every ray it traces, shadow
 rays included) and texel-samples/s on 2 threads, and its ratio to raw Embree; (c) the same
-bake with one ray per Embree query (`core.embree.PACKETS` off) against 8-ray packets, after an
+bake with one ray per Embree query (as for a library without packets: `core.embree.library().packets`
+off) against 8-ray packets, after an
 untimed bake, the two alternated (which goes first swaps every round), median of `--rounds`
 each: one bake on this machine swings by 15% (the bakes are the same but for rays grazing a
 triangle within float rounding). Writes bench/results/tracer.json.
@@ -79,12 +80,13 @@ def main():
     settings = tracer.BakeSettings(samples=args.samples, bounces=2, threads=2)
     tracer.bake(points, scene, settings, ray_scene=ray_scene)  # untimed: kernels loaded, memory touched
     seconds = {True: [], False: []}
+    answers = embree.library().packets
     for k in range(args.rounds):
         for packets in (False, True) if k % 2 == 0 else (True, False):
-            embree.PACKETS = packets
+            embree.library().packets = packets
             result = tracer.bake(points, scene, settings, ray_scene=ray_scene)
             seconds[packets].append(result.seconds)
-    embree.PACKETS = True
+    embree.library().packets = answers
     single, packet = float(np.median(seconds[False])), float(np.median(seconds[True]))
     bake_rate = result.rays / packet
     texel_samples = len(points.texel) * result.samples / packet

@@ -6,7 +6,9 @@ meshes to unwrap) and writes the lightmap UV layer; `settings` builds the bake's
 (`core.bake.PipelineSettings`) from `scene.hhd`, or from the CLI's read-only view of it overridden
 by its options; `bake_session` is the bpy half of a bake (read the scene and settings, run
 `core.bake`, load the written images); `denoiser` finds the
-Open Image Denoise library Blender ships. Nothing here is an operator or registers anything.
+Open Image Denoise library Blender ships; `light_sets` and `probe_mode` hold the scene data the
+settings (properties.py) and the previews (shaders/) both read: the light sets' weights and the
+probe preview's mode. Nothing here is an operator or registers anything.
 
 Besides `operators/`, `panels/`, `shaders/` and `cli.py`, this is the only package that imports
 bpy; `core/` never does.

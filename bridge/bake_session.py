@@ -266,7 +266,7 @@ class BakeSession:
         stitched = stitch_outcome(self.settings.stitch_seams, warnings)
         sets = list(dict.fromkeys(name for r in self.results for name in r.sets))
         if sets:
-            from ..properties import sync_light_sets
+            from .light_sets import sync_light_sets  # light_sets imports this module
 
             sync_light_sets(bpy.data.scenes[self.scene_name], sets)
         sets_text = f", light sets {', '.join(sets)}" if sets else ""

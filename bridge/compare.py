@@ -217,6 +217,7 @@ def run(
     objects: list[str] | None = None,
     out_dir: str | None = None,
     folder: str | None = None,
+    *,
     samples: int = 256,
     roughness=ROUGHNESS,
     models=core_compare.MODELS,
@@ -229,7 +230,9 @@ def run(
     (default `<out_dir>/compare`). Returns (summary line, warnings). `progress(fraction,
     message)` hears of every step (default: a console line each); `cancel()` True stops at the
     next step (BakeCancelled; nothing changed)."""
-    job = prepare(context, objects, out_dir, folder, samples, roughness, models, percentage)
+    job = prepare(
+        context, objects, out_dir, folder, samples=samples, roughness=roughness, models=models, percentage=percentage
+    )
     console = ConsoleProgress(step=0.0) if progress is None else None
     try:
         return run_steps(job, progress or console, cancel)
@@ -243,6 +246,7 @@ def prepare(
     objects: list[str] | None = None,
     out_dir: str | None = None,
     folder: str | None = None,
+    *,
     samples: int = 256,
     roughness=ROUGHNESS,
     models=core_compare.MODELS,
@@ -280,7 +284,17 @@ def prepare(
             warnings.append(f"atlas '{name}': none of its receivers is seen by the camera")
     if not seen:
         raise BakeError("no receiver of the baked atlases is seen by the scene camera: nothing to compare")
-    return Comparison(scene, camera, seen, report_dir, samples, settings.bounces, roughness, models, warnings)
+    return Comparison(
+        scene,
+        camera,
+        seen,
+        report_dir,
+        samples=samples,
+        bounces=settings.bounces,
+        roughness=roughness,
+        models=models,
+        warnings=warnings,
+    )
 
 
 @dataclass
@@ -310,7 +324,7 @@ class Comparison:
     `run_steps`. `steps`, `done` (how many ran), `warnings`; `summary` once the last one ran."""
 
     def __init__(
-        self, scene, camera, seen: list[Atlas], report_dir: Path, samples, bounces, roughness, models, warnings
+        self, scene, camera, seen: list[Atlas], report_dir: Path, *, samples, bounces, roughness, models, warnings
     ):
         self.scene, self.camera, self.seen, self.report_dir = scene, camera, seen, report_dir
         self.samples, self.bounces = samples, bounces

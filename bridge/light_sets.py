@@ -22,6 +22,27 @@ def scene_weights(settings) -> dict[str, tuple[float, float, float]]:
     return {item.name: tuple(item.weight) for item in getattr(settings, "light_sets", [])}
 
 
+def weight_path(name: str) -> str:
+    """RNA path, from the scene, of light set `name`'s weight: what the live blend's View Layer
+    Attribute nodes read (keyed by name, so it survives reordering of the list)."""
+    return f'hhd.light_sets["{bpy.utils.escape_identifier(name)}"].weight'
+
+
+def sync_light_sets(scene, names) -> list[str]:
+    """Make `scene.hhd.light_sets` list every set of `names` (a bake's, from its sidecar): missing
+    sets are appended at weight 1, existing ones keep their weight (and keyframes). Sets no longer
+    baked are kept, never removed or reordered: keyframes address the items by index
+    (`hhd.light_sets[i].weight`), so removing one would move the animation onto another set.
+    Returns the names added."""
+    items = scene.hhd.light_sets
+    added = [name for name in dict.fromkeys(names) if name not in items]
+    for name in added:
+        item = items.add()
+        item.name = name
+        item.weight = (1.0, 1.0, 1.0)
+    return added
+
+
 def baked_atlases(objects, settings, out_dir: str | None = None) -> list[AtlasFiles]:
     """The files of the atlases of `objects` in the output folder that were baked with light sets."""
     if not objects:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import bake as core_bake
+from ..core import encoding as core_encoding
 from ..core import parallel, presets, tracer
 from . import denoiser
 
@@ -52,9 +53,9 @@ def pipeline_settings(settings, threads: int = 0) -> core_bake.PipelineSettings:
     )
 
 
-def encoder_settings(settings) -> core_bake.EncoderSettings:
+def encoder_settings(settings) -> core_encoding.EncoderSettings:
     """The encoder's settings from HHD settings `settings` (`scene.hhd` or an `Overridden` view)."""
-    return core_bake.EncoderSettings(
+    return core_encoding.EncoderSettings(
         model=settings.model.lower(),
         direction=settings.direction.lower(),
         ambient=settings.ambient.lower(),

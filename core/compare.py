@@ -146,19 +146,6 @@ class Reconstruction:
     specular: dict = field(default_factory=dict)
 
 
-def reconstruct_all(data, pipeline, seams, g: GBuffer, roughness=(), models=MODELS, check=None):
-    """Reconstructions of every model of `models` at `g`'s pixels from `data` (the atlas's raw
-    TexelData, whole atlas; spent: the post stages write into it) after the post stages of
-    `pipeline` (`bake.PipelineSettings`: denoise and stitch as the bake ran them)."""
-    data, records = post_stages(data, pipeline, seams)
-    out = []
-    for model in models:
-        if check is not None:
-            check()
-        out.append(reconstruct_model(model, data, records, pipeline, seams, g, roughness))
-    return out
-
-
 def post_stages(data, pipeline, seams, check=None):
     """(`data` after the post stages of `pipeline`, their records): `reconstruct_model`'s input. `data`
     is spent (the stages write into it); `check` as `post.apply` takes it (cancels a denoise)."""

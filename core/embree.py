@@ -53,10 +53,9 @@ _RAY_WORDS = 32  # RTCRayHit is 80–96 bytes by build options; 128 is enough
 _UNBOUNDED = float(np.float32(3e38))
 _CHUNK = 1 << 18  # triangles moved into a scene's frame at a time  # the length of a shadow ray towards a direction
 #: Rays per packet query of the compiled kernels (`rtcIntersect8` / `rtcOccluded8`), used where
-#: the library answers them (`library().packets`) and PACKETS is True (False: one ray per query,
-#: as before packets; bench/tracer.py compares the two).
+#: the library answers them (`library().packets`; else one ray per query: bench/tracer.py
+#: compares the two).
 PACKET = 8
-PACKETS = True
 
 _HANDLE = ctypes.c_size_t  # Embree handles and pointers, passed as integers
 _ERRORS = {
@@ -497,9 +496,8 @@ class Scene:
         return np.asarray(origins, np.float64) - self.origin
 
     def _kernel(self, query: str):
-        """The compiled kernel of `query`: packets where the library answers them (and PACKETS)."""
-        packets = PACKETS and self._lib.packets
-        return getattr(self._lib.kernels, f"{query}_packets" if packets else f"{query}_rays")
+        """The compiled kernel of `query`: packets where the library answers them."""
+        return getattr(self._lib.kernels, f"{query}_packets" if self._lib.packets else f"{query}_rays")
 
     def __del__(self):
         handle, self.handle = getattr(self, "handle", 0), 0

@@ -40,15 +40,3 @@ def quantize(uv: np.ndarray, bits: int) -> np.ndarray:
     both map [-1, 1] onto an evenly spaced grid with the end points exact), returning floats."""
     levels = (1 << bits) - 1
     return np.round((np.clip(uv, -1.0, 1.0) * 0.5 + 0.5) * levels) / levels * 2.0 - 1.0
-
-
-def worst_angular_error(bits_per_channel: int, n: int = 400_000, seed: int = 0) -> float:
-    """Largest angle (radians) between a direction and its quantised round trip, over `n` random
-    directions plus the axes and octant diagonals."""
-    rng = np.random.default_rng(seed)
-    d = rng.normal(size=(n, 3))
-    special = np.vstack([np.eye(3), -np.eye(3), np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T])
-    d = np.vstack([d, special])
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    back = decode(quantize(encode(d), bits_per_channel))
-    return float(np.arccos(np.clip((d * back).sum(axis=1), -1.0, 1.0)).max())

@@ -11,14 +11,13 @@ import bpy
 
 from ..bridge import light_sets
 from ..core.errors import BakeError
-from ..properties import sync_light_sets
 
 
 def refresh(scene) -> list[str]:
     """List the light sets of the last bake's atlases in `scene.hhd.light_sets`; returns every
     set name found (sorted)."""
     names = sorted(light_sets.atlas_sets(light_sets.scene_atlases(scene)))
-    sync_light_sets(scene, names)
+    light_sets.sync_light_sets(scene, names)
     return names
 
 

@@ -15,6 +15,12 @@ Which module for what:
                      box on a floor, a thin wall between a lit and a dark room, a thin table top)
                      with each texel's exact answer; tests/test_leaks.py bakes them with the
                      core, bench/leaks.py also in Blender against Cycles.
+- `scenekit.synthetic`  numpy, no bpy: analytic lighting environments as hemisphere-sampled
+                     radiance SH (`hemisphere_sh`, `benchmark_set`, `random_normals`) for the
+                     encoder's tests and bench/encoder.py.
+- `scenekit.light_set_reference`  numpy, no bpy: `parameter_blend`, the blend of light sets'
+                     HHD parameters the talk warns against (tests and bench/light_sets.py
+                     compare `core.light_sets.blend` with it).
 - `scenekit.scenes`  named whole scenes: demo_room (the README's demo), outdoor / emissive (with
                      the demo room bench/tradeoff.py's three, `build(name)`), classroom and
                      field (bench/time_to_error.py's, against Cycles).

@@ -2,7 +2,8 @@
 compiled rasteriser, probe points, footprint triangles and settle spokes are checked against
 (tests/test_raster_compiled.py) and the old path `bench/bake_points.py --compare` times. Not
 shipped; copied unchanged from core/raster.py and core/bakepoints/ (only module prefixes
-added)."""
+added). `_barycentric`, `_normalise` and `_texel_world_size`, which only this reference uses, moved
+here from core/bakepoints/ (issue 55)."""
 
 from __future__ import annotations
 
@@ -18,10 +19,7 @@ from hhd_lightmapper.core.bakepoints import (
     BakePoints,
     SurfaceTriangles,
     _albedo,
-    _barycentric,
     _barycentric_grouped,
-    _normalise,
-    _texel_world_size,
 )
 from hhd_lightmapper.core.bakepoints.covers import CoverProbe
 from hhd_lightmapper.core.bakepoints.data import FOOTPRINT
@@ -184,6 +182,29 @@ def choose_per_texel(cov: Coverage):
     chosen = order[first]
     total = np.bincount(np.searchsorted(texels_sorted[first], cov.texel), weights=cov.area, minlength=len(chosen))
     return chosen, np.minimum(total, 1.0)
+
+
+def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates `(P, 3)` of 2D points in 2D triangles `(P, 3, 2)`, clamped to
+    the triangle (the centroid is inside up to rounding)."""
+    bary = np.clip(_barycentric_grouped(p[:, None, :], tri)[:, 0], 0.0, 1.0)
+    return bary / bary.sum(axis=1, keepdims=True)
+
+
+def _normalise(v: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _texel_world_size(pos: np.ndarray, texel_uv: np.ndarray) -> np.ndarray:
+    """World-space edge length of one texel on each triangle `pos (n, 3, 3)` whose UVs in texel
+    units are `texel_uv (n, 3, 2)`: √(world area / texel area)."""
+    world = 0.5 * np.linalg.norm(np.cross(pos[:, 1] - pos[:, 0], pos[:, 2] - pos[:, 0]), axis=1)
+    t = texel_uv
+    texels = 0.5 * np.abs(
+        (t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1]) - (t[:, 2, 0] - t[:, 0, 0]) * (t[:, 1, 1] - t[:, 0, 1])
+    )
+    return np.sqrt(world / np.maximum(texels, 1e-12))
 
 
 def texel_points(self: BakePoints, idx: np.ndarray, offsets: np.ndarray) -> np.ndarray:

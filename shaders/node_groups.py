@@ -146,7 +146,7 @@ def direction(b: Builder, sampled):
     return b.vec("NORMALIZE", sampled)
 
 
-def hhd_irradiance(b: Builder, iz, wa, d, n, nv, albedo, self_bounce, model: str = "HHD"):
+def hhd_irradiance(b: Builder, iz, wa, d, n, nv, *, albedo, self_bounce, model: str = "HHD"):
     """I(n) of the HHD (or AHD) model as nodes, docs/format.md and core.hhd.reconstruct:
     Iz ⊙ [wa·(1 + n·n_v)/2 + (1 − wa)·max(n·d, 0)/max(d·n_v, MIN_COS/2)] + self_bounce·albedo ⊙ Iz·(1 − n·n_v)/2.
     iz, wa, albedo: colours (wa equal channels in luminance mode); d, n, nv: unit world vectors;
@@ -192,7 +192,9 @@ def build_hhd(model: str):
     n = b.vec("NORMALIZE", i["Normal"])
     nv = b.vec("NORMALIZE", i["Vertex Normal"])
     d = direction(b, i[dir_layer.name])
-    irradiance = hhd_irradiance(b, i[iz_layer.name], i[wa_layer.name], d, n, nv, i["Albedo"], i["Self Bounce"], model)
+    irradiance = hhd_irradiance(
+        b, i[iz_layer.name], i[wa_layer.name], d, n, nv, albedo=i["Albedo"], self_bounce=i["Self Bounce"], model=model
+    )
     _finish(b, irradiance, i["Albedo"])
     return tree
 
@@ -328,7 +330,9 @@ def build_blend(sets: int):
     directional = _sum(b, [b.vec("SCALE", t[2], scale=_luminance(b, t[1])) for t in terms])
     iz, wa, d = _solve(b, ca, cd, cdz, directional, nv)
     wa_colour = b.combine(wa, wa, wa)
-    irradiance = hhd_irradiance(b, iz, wa_colour, d, n, nv, i["Albedo"], i["Self Bounce"], "HHD")
+    irradiance = hhd_irradiance(
+        b, iz, wa_colour, d, n, nv, albedo=i["Albedo"], self_bounce=i["Self Bounce"], model="HHD"
+    )
     _finish(b, irradiance, i["Albedo"])
     return tree
 

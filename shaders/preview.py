@@ -27,7 +27,7 @@ those modes do.
 Light sets (core.light_sets): in HHD mode, when an atlas's sidecar lists "light_sets", the group
 is the live blend of them (`node_groups.build_blend`) instead of the HHD group: every set's preview
 images (`<atlas>.<set>_preview/`) feed its inputs, and each set's RGB weight comes from a View Layer
-Attribute node reading `scene.hhd.light_sets[<set>].weight` by RNA path (`properties.weight_path`),
+Attribute node reading `scene.hhd.light_sets[<set>].weight` by RNA path (`bridge.light_sets.weight_path`),
 so editing or animating a weight updates the viewport and renders without rebuilding anything.
 Show adds the sets to `scene.hhd.light_sets` (weight 1) if they are missing there.
 
@@ -45,10 +45,10 @@ import json
 import bpy
 
 from .. import blender_compat
+from ..bridge.light_sets import sync_light_sets, weight_path
 from ..core.errors import BakeError
 from ..core.files.lightmap_files import read_sidecar
 from ..core.files.preview import ENCODED, bspline_image, kind_of, sampled, upgrade_direction
-from ..properties import sync_light_sets, weight_path
 from . import bicubic as bicubic_nodes
 from . import node_groups, specular_nodes
 
@@ -191,7 +191,7 @@ def _material_light_sets(atlases) -> tuple[list, str | None]:
 
 def _link_light_sets(tree, gi, light_sets, uv, x, y, frame, bicubic: str = "") -> float:
     """Each set's preview images into the blend group's 'Iz k', 'Wa k', 'Direction k' and a View
-    Layer Attribute of the set's weight (`properties.weight_path`) into 'Weight k'; returns the
+    Layer Attribute of the set's weight (`bridge.light_sets.weight_path`) into 'Weight k'; returns the
     next free y."""
     for k, (name, atlases) in enumerate(light_sets, 1):
         for layer in sampled("HHD"):
@@ -265,6 +265,7 @@ def show_on_material(
     files,
     kind: str,
     uv_layer: str,
+    *,
     self_bounce: bool,
     light_sets=(),
     instanced: bool = False,
@@ -468,7 +469,15 @@ def show(objects, atlas_files: dict, kind: str, uv_layer: str, self_bounce: bool
         files = atlases if len(atlases) > 1 else atlases[0][1]
         bicubic = KERNELS[scene.hhd.preview_filter]
         note = show_on_material(
-            mat, files, shown, uv_layer, self_bounce, light_sets, mat.name in instanced, bicubic, scene.hhd.preview_term
+            mat,
+            files,
+            shown,
+            uv_layer,
+            self_bounce=self_bounce,
+            light_sets=light_sets,
+            instanced=mat.name in instanced,
+            bicubic=bicubic,
+            term=scene.hhd.preview_term,
         )
         notes += [n for n in (sets_note, note) if n]
     sync_light_sets(scene, set_names)

@@ -34,7 +34,6 @@ from .node_groups import Builder
 GROUP = "HHD Probe Lighting"
 GROUP_VERSION = 1
 SH_INPUTS = tuple(f"SH{k}" for k in range(9))
-MODES = {"SH": 0, "HLSH": 1, "HLSH_CONE": 2}
 #: node labels of the intermediates of `project_hlsh` (per colour channel unless noted)
 LABELS = ("l1_dot", "pz2", "iz", "ca", "tangent0", "tangent1", "tangent2", "hlsh", "sh", "cos_alpha")
 

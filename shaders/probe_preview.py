@@ -37,6 +37,7 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from .. import blender_compat
+from ..bridge import probe_mode
 from ..core import probes
 from ..core.errors import BakeError
 from . import probe_nodes
@@ -45,10 +46,8 @@ from .preview import _output, _principled  # the material lookups the lightmap p
 PREFIX = "HHD Probe"
 #: material record of the original Surface link; object property marking the previewed objects
 RECORD = "hhd_probe_preview"
-#: scene custom properties: the mode (probe_nodes.MODES) and the folder of probes.json
-MODE = "hhd_probe_mode"
+#: scene custom property: the folder of probes.json (the mode's is `bridge.probe_mode.MODE`)
 FOLDER = "hhd_probe_folder"
-DEFAULT_MODE = probe_nodes.MODES["HLSH_CONE"]
 #: relative change of an SH coefficient (of the largest) below which a property is not rewritten
 EPSILON = 1e-6
 #: 4-float object properties holding an object's SH: 27 floats + the switch (`pack`)
@@ -277,7 +276,7 @@ def show_on_material(mat) -> str | None:
     ao = _new(tree, "ShaderNodeAmbientOcclusion", "AO", (x0 + 200, y0 - 1800), frame)
     tree.links.new(geometry.outputs["Normal"], ao.inputs["Normal"])
     tree.links.new(ao.outputs["AO"], group.inputs["AO"])
-    mode = _attribute(tree, 'VIEW_LAYER', MODE, (x0 + 200, y0 - 2000), frame, "Mode")
+    mode = _attribute(tree, 'VIEW_LAYER', probe_mode.MODE, (x0 + 200, y0 - 2000), frame, "Mode")
     tree.links.new(mode.outputs["Fac"], group.inputs["Mode"])
     note = _feed_group(tree, mat, group, geometry, _principled(tree))
     emission = _new(tree, "ShaderNodeEmission", "Emission", (x0 + 650, y0), frame)
@@ -326,7 +325,10 @@ def show(objects, folder, scene=None) -> list[str]:
         raise BakeError(f"{Path(folder) / probes.SIDECAR} lists no probe volume")
     scene[FOLDER] = str(folder)
     settings = getattr(scene, "hhd", None)  # the panel's Probe Lighting mode, mirrored for the nodes
-    scene[MODE] = probe_nodes.MODES[settings.probe_mode] if settings is not None else scene.get(MODE, DEFAULT_MODE)
+    if settings is not None:
+        probe_mode.mirror(scene, settings.probe_mode)
+    else:
+        scene[probe_mode.MODE] = scene.get(probe_mode.MODE, probe_mode.DEFAULT_MODE)
     notes, materials = [], {}
     for obj in objects:
         obj[RECORD] = 1.0

@@ -249,10 +249,10 @@ def test_denoised_bake_keeps_the_raw_sh_and_reencode_switches_denoising_off_and_
     assert read(on.files.sh) == read(off.files.sh)  # the SH as traced
     denoised = read(on.files.hhd)
     assert denoised != read(off.files.hhd)
-    _, warnings = bake.reencode(on.files, bake.EncoderSettings(), threads=2, denoise=False)
+    _, warnings = bake.reencode(on.files, encoding.EncoderSettings(), threads=2, denoise=False)
     assert warnings == [] and read(on.files.hhd) == read(off.files.hhd)
     assert lightmap_files.read_sidecar(on.files.sidecar)["post"]["denoise"] == {"enabled": False}
-    bake.reencode(on.files, bake.EncoderSettings(), threads=2, denoise=True, denoiser_library=str(library))
+    bake.reencode(on.files, encoding.EncoderSettings(), threads=2, denoise=True, denoiser_library=str(library))
     assert read(on.files.hhd) == denoised
 
 

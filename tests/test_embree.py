@@ -128,7 +128,7 @@ def test_packets_answer_exactly_as_single_rays(scene, count, monkeypatch):
         )
 
     packets = queries()
-    monkeypatch.setattr(embree, "PACKETS", False)
+    monkeypatch.setattr(embree.library(), "packets", False)  # as a library without packets
     single = queries()
     for a, b in zip(packets, single):
         np.testing.assert_array_equal(a, b)

@@ -10,6 +10,13 @@ import pytest
 from hhd_lightmapper.core.tracer import lights
 
 
+def by_solid_angle(solid_angle: np.ndarray) -> np.ndarray:
+    """(R,) bool: the triangles of these solid angles (R,) are sampled by direction
+    (`lights.emitters.SOLID_ANGLE_RANGE`, read at the call: tests change it)."""
+    lo, hi = lights.emitters.SOLID_ANGLE_RANGE
+    return (solid_angle >= lo) & (solid_angle <= hi)
+
+
 def quad(centre, size, normal_axis=2, flip=False) -> np.ndarray:
     """Two triangles (2, 3, 3) of a square of side `size` centred at `centre`, facing ±axis."""
     a, b = [i for i in range(3) if i != normal_axis]
@@ -105,7 +112,7 @@ def test_picked_triangles_follow_the_reported_density(normal, scene):
     cos = np.abs(np.einsum("ri,ri->r", dirs, light.normal[pick]))
     chosen = row[light.cluster_of[pick]] * light.within[pick]
     solid_angle = lights.emitters.spherical_triangles(x, tris[pick])[-1]
-    spherical = lights.emitters.by_solid_angle(solid_angle)
+    spherical = by_solid_angle(solid_angle)
     assert spherical.any() and not spherical.all()  # both ways of sampling a triangle are exercised
     want = np.where(spherical, chosen / solid_angle, chosen / light.area[pick] * dist**2 / cos)
     np.testing.assert_allclose(p, want, rtol=1e-9)
@@ -161,7 +168,7 @@ def test_the_light_tree_splits_the_top_clusters_down_to_single_triangles(monkeyp
     capped = lights.emitters.EmissiveTriangles(tris, emission)
     assert 32 < (capped.child_count[:-1] == 0).sum() <= 50
     np.testing.assert_allclose(np.bincount(capped.cluster_of[1:], capped.within[1:]), capped.child_count[:-1] == 0)
-    monkeypatch.setattr(lights.emitters, "LIGHT_TREE", False)
+    monkeypatch.setattr(lights.emitters, "FANOUT", 0)  # the top clusters alone
     flat = lights.emitters.EmissiveTriangles(tris, emission)
     assert (flat.child_count[:-1] == 0).all() and flat.child_count[-1] == len(flat.parent) <= lights.emitters.CLUSTERS
 
@@ -186,7 +193,7 @@ def test_among_many_lamps_the_tree_gives_the_one_overhead_several_times_the_samp
     k = 100_000
     share, variance = {}, {}
     for tree in (False, True):
-        monkeypatch.setattr(lights.emitters, "LIGHT_TREE", tree)
+        monkeypatch.setattr(lights.emitters, "FANOUT", 8 if tree else 0)
         light = lights.emitters.EmissiveTriangles(tris, emission)
         p = light.cluster_probability(x[None], n[None])[0]
         share[tree] = (p[light.cluster_of[1 + overhead]] * light.within[1 + overhead]).sum()
@@ -213,7 +220,7 @@ def numpy_pdf(light, x, normals, d, t, prim):
     solid_angle = lights.emitters.spherical_triangles(x, light.triangles[prim])[-1]
     cos = np.abs(np.einsum("ri,ri->r", d, light.normal[prim]))
     by_area = chosen / light.area[prim] * t * t / cos
-    return np.where(lights.emitters.by_solid_angle(solid_angle), chosen / solid_angle, by_area)
+    return np.where(by_solid_angle(solid_angle), chosen / solid_angle, by_area)
 
 
 @pytest.mark.parametrize("with_normals", [False, True])
@@ -382,7 +389,7 @@ def test_the_compiled_samples_are_the_numpy_spec():
     point = x + dirs * dist[:, None]
     pick = 1 + np.argmin(np.linalg.norm(point[:, None] - tris[1:].mean(axis=1)[None], axis=2), axis=1)
     solid_angle = lights.emitters.spherical_triangles(x, tris[pick])[-1]
-    spherical = lights.emitters.by_solid_angle(solid_angle) & (pdf > 0)
+    spherical = by_solid_angle(solid_angle) & (pdf > 0)
     assert spherical.sum() > 1000 and (~spherical).sum() > 100
     want = lights.emitters.sample_spherical_triangles(
         x[spherical], tris[pick[spherical]], u[2, spherical], u[3, spherical]
@@ -427,20 +434,20 @@ def test_the_new_emitter_sampling_bakes_what_power_and_area_sampling_bakes():
     results = {}
     saved = (
         lights.emitters.CLUSTERS,
-        lights.emitters.LIGHT_TREE,
+        lights.emitters.FANOUT,
         lights.emitters.SOLID_ANGLE_RANGE,
         hemisphere.STRATIFIED_LIGHTS,
     )
     try:
         for on in (False, True):
-            lights.emitters.CLUSTERS, lights.emitters.LIGHT_TREE = (32, True) if on else (1, False)
+            lights.emitters.CLUSTERS, lights.emitters.FANOUT = (32, 8) if on else (1, 0)
             lights.emitters.SOLID_ANGLE_RANGE = (3e-4, 6.22) if on else (np.inf, np.inf)
             hemisphere.STRATIFIED_LIGHTS = on
             results[on] = tracer.bake(points, scene, settings)
     finally:
         (
             lights.emitters.CLUSTERS,
-            lights.emitters.LIGHT_TREE,
+            lights.emitters.FANOUT,
             lights.emitters.SOLID_ANGLE_RANGE,
             hemisphere.STRATIFIED_LIGHTS,
         ) = saved

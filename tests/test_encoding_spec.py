@@ -10,11 +10,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, encoding, hhd, synthetic
+from hhd_lightmapper.core import bake, encoding, hhd
 from hhd_lightmapper.core.encoding import doc_tables, raw, registry
 from hhd_lightmapper.core.encoding import hhd as hhd_encoding
 from hhd_lightmapper.core.encoding.spec import DILATE_BURIED_BLACK, FLOAT, Channel, Encoded, FileSpec
 from hhd_lightmapper.core.files import exr, lightmap_files, preview
+from scenekit import synthetic
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -209,8 +210,7 @@ def test_unknown_model_is_refused():
         encoding.for_settings(encoding.EncoderSettings(model="nope"))
 
 
-def test_encoder_settings_live_in_the_encoding_and_bake_re_exports_them():
-    assert bake.EncoderSettings is encoding.EncoderSettings
+def test_the_models_and_the_sh_channels_have_one_home():
     assert set(registry.MODELS) >= {"hhd", "ahd"}
     assert lightmap_files.SH_CHANNELS == raw.SH_FILE.exr_names
 

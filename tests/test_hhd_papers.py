@@ -5,7 +5,9 @@ import pytest
 
 import quadrature as quad
 from hhd_cases import delta_light_sh, hemisphere_light_sh, tilted
-from hhd_lightmapper.core import hhd, synthetic
+from hhd_lightmapper.core import hhd
+from hhd_lightmapper.core.hhd import lobes
+from scenekit import synthetic
 
 
 @pytest.fixture
@@ -141,7 +143,7 @@ def test_factorised_directional_lobe_equals_the_direct_one(rng):
     """The search's fast path: d_j = f_j(θ) g_j(φ) must reproduce (π/d_z) conv(Y(d))."""
     theta = rng.uniform(0.0, 1.5, 50)
     phi = rng.uniform(-np.pi, np.pi, 50)
-    f = hhd._theta_functions(theta)
-    g = hhd._phi_factors(phi)
-    factorised = np.stack([f[hhd._FUNCTION_OF_COEFF[j]] * g[j] * np.ones(50) for j in range(9)], axis=1)
+    f = lobes.theta_functions(theta)
+    g = lobes.phi_factors(phi)
+    factorised = np.stack([f[lobes.FUNCTION_OF_COEFF[j]] * g[j] * np.ones(50) for j in range(9)], axis=1)
     np.testing.assert_allclose(factorised, hhd.directional_lobe(theta, phi), rtol=1e-12, atol=1e-12)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import quadrature as quad
-from hhd_lightmapper.core import hlsh, sh, sh_reference
+import sh_reference
+from hhd_lightmapper.core import hlsh, sh
 
 # Cosine-convolution factors per band up to l = 4 (E = (1/π)∫ L max(n·ω,0)): 1, 2/3, 1/4, 0, -1/24.
 A_L4 = [1.0, 2.0 / 3.0, 0.25, 0.0, -1.0 / 24.0]

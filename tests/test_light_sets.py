@@ -4,7 +4,7 @@ bake without sets of the same seed; every kind of emitter credited to its own se
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, light_sets, rays, tracer
+from hhd_lightmapper.core import bake, bakepoints, encoding, light_sets, rays, tracer
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.scene import AreaLight, BakeScene, PointLight, SunLight
@@ -172,7 +172,7 @@ def test_blend_writes_the_blended_state_and_reencode_restores_the_sum(baked_file
     light_sets.blend_atlas(files, {"Lamp": 2.0})  # the others weigh 1
     want = main_before + read_iz(sets[2].hhd)
     assert np.abs(read_iz(files.hhd) - want).mean() <= 3e-3 * want.mean()
-    bake.reencode(files, bake.EncoderSettings())
+    bake.reencode(files, encoding.EncoderSettings())
     assert "blend" not in lightmap_files.read_sidecar(files.sidecar)
     np.testing.assert_array_equal(read_iz(files.hhd), main_before)
     with pytest.raises(BakeError, match="unknown light set"):

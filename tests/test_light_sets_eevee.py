@@ -43,9 +43,9 @@ WEIGHTS = {
 }
 
 
-def properties(extension):
-    """The installed extension's properties module (its registered types)."""
-    return importlib.import_module(f"{extension}.properties")
+def bridge_sets(extension):
+    """The installed extension's bpy side of light sets (`bridge.light_sets`)."""
+    return importlib.import_module(f"{extension}.bridge.light_sets")
 
 
 def set_sh(name: str) -> np.ndarray:
@@ -107,7 +107,7 @@ def light_set_files(request, extension, restore_hhd_settings, tmp_path):
 def test_sync_keeps_weights_and_order(extension):
     import bpy
 
-    sync = properties(extension).sync_light_sets
+    sync = bridge_sets(extension).sync_light_sets
     scene = bpy.context.scene
     scene.hhd.light_sets.clear()
     assert sync(scene, ["Lamp", "Default"]) == ["Lamp", "Default"]
@@ -117,7 +117,7 @@ def test_sync_keeps_weights_and_order(extension):
     assert [i.name for i in items] == ["Lamp", "Default", "Sun"]  # appended only: keyframes address items by index
     assert tuple(items["Lamp"].weight) == (0.5, 0.25, 0.0)
     assert tuple(items["Sun"].weight) == tuple(items["Default"].weight) == (1.0, 1.0, 1.0)
-    path = properties(extension).weight_path("Lamp")
+    path = bridge_sets(extension).weight_path("Lamp")
     assert scene.path_resolve(path)[:] == items["Lamp"].weight[:]  # what the blend group's attributes read
     scene.hhd.light_sets.clear()
 

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, dilate, hhd, octahedral, unwrap
+from hhd_lightmapper.core import bake, bakepoints, dilate, encoding, hhd, octahedral, unwrap
 from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from hhd_lightmapper.core.tracer import BakeSettings
@@ -95,7 +95,7 @@ def test_nearest_source_is_the_ring_by_ring_rule(seed):
     np.testing.assert_array_equal(found, nearest_source_by_loops(valid, rings, through))
 
 
-def plane_bake(tmp_path, sun=(3.0, 2.0, 1.0), resolution=256, encoder=bake.EncoderSettings()):
+def plane_bake(tmp_path, sun=(3.0, 2.0, 1.0), resolution=256, encoder=encoding.EncoderSettings()):
     v, f = meshes.plane(2.0)
     res = unwrap.unwrap([unwrap.UnwrapMesh("floor", v, f)], unwrap.UnwrapSettings(resolution=resolution))
     surface = bakepoints.SurfaceTriangles(
@@ -148,14 +148,14 @@ def test_hdr_values_beyond_half_are_stored_as_float_not_clipped(tmp_path):
 def test_reencode_reads_the_sh_exr_and_changes_only_the_encoded_file(tmp_path):
     files = plane_bake(tmp_path)
     sh_before, texels_before = files.sh.read_bytes(), files.texels.read_bytes()
-    bake.reencode(files, bake.EncoderSettings(model="ahd", ambient="rgb"))
+    bake.reencode(files, encoding.EncoderSettings(model="ahd", ambient="rgb"))
     assert files.sh.read_bytes() == sh_before and files.texels.read_bytes() == texels_before
     channels, _ = exr.read(files.hhd)
     assert {"Wa.R", "Wa.G", "Wa.B"} <= set(channels) and "Wa.V" not in channels
     doc = json.loads(files.sidecar.read_text())
     assert doc["encoder"]["model"] == "ahd" and doc["reencoded_from_sh"]
     other = tmp_path / "direct"
-    direct = plane_bake(other, encoder=bake.EncoderSettings(model="ahd", ambient="rgb"))
+    direct = plane_bake(other, encoder=encoding.EncoderSettings(model="ahd", ambient="rgb"))
     assert exr.read(direct.hhd)[0]["Iz.G"].tobytes() == channels["Iz.G"].tobytes()
 
 

@@ -155,12 +155,12 @@ def test_a_stitched_bake_keeps_the_traced_files_and_reencodes_to_the_same_bytes(
         assert getattr(on.files, f).read_bytes() == getattr(off.files, f).read_bytes(), f
     stitched, unstitched = on.files.hhd.read_bytes(), off.files.hhd.read_bytes()
     assert stitched != unstitched
-    bake.reencode(off.files, bake.EncoderSettings(), threads=1)
+    bake.reencode(off.files, encoding.EncoderSettings(), threads=1)
     assert off.files.hhd.read_bytes() == stitched
-    bake.reencode(on.files, bake.EncoderSettings(), threads=1, stitch_seams=False)
+    bake.reencode(on.files, encoding.EncoderSettings(), threads=1, stitch_seams=False)
     assert on.files.hhd.read_bytes() == unstitched
     on.files.seams.unlink()  # a bake from before seams files: encoded unstitched, with a warning
-    _, warnings = bake.reencode(on.files, bake.EncoderSettings(), threads=1)
+    _, warnings = bake.reencode(on.files, encoding.EncoderSettings(), threads=1)
     assert warnings == [f"atlas 'Lightmap', stitch: {post.NO_SEAMS}"] and on.files.hhd.read_bytes() == unstitched
 
 
@@ -172,7 +172,7 @@ def test_a_stitched_bake_in_a_coefficient_encoding_encodes_the_stitched_sh(tmp_p
     surface, scene = sphere()
     atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["sphere"])
     trace = BakeSettings(samples=4, pass_samples=4, bounces=1, seed=1)
-    settings = bake.PipelineSettings(trace=trace, encoder=bake.EncoderSettings(model=model))
+    settings = bake.PipelineSettings(trace=trace, encoder=encoding.EncoderSettings(model=model))
     (done,) = bake.run([atlas], scene, settings, tmp_path / "on")
     record = lightmap_files.read_sidecar(done.files.sidecar)["post"]["stitch"]
     assert record["applied"] and record["seams"] > 0

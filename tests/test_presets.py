@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import hhd, presets, synthetic
+from hhd_lightmapper.core import hhd, presets
+from scenekit import synthetic
 
 MEASURED = Path(__file__).resolve().parent.parent / "bench" / "results" / "presets.json"
 

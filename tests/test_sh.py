@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import quadrature as quad
-from hhd_lightmapper.core import sh, sh_reference
+import sh_reference
+from hhd_lightmapper.core import sh
 
 
 @pytest.fixture

@@ -213,7 +213,7 @@ def reencoded(folder, monkeypatch, whole: bool) -> tuple[dict[str, bytes], list]
         else:
             real = lightmap_files.texel_window
             m.setattr(lightmap_files, "texel_window", lambda *a: (read.append(real(*a)), read[-1])[1])
-        bake.reencode(lightmap_files.AtlasFiles(folder, "Lightmap"), bake.EncoderSettings(), threads=2)
+        bake.reencode(lightmap_files.AtlasFiles(folder, "Lightmap"), encoding.EncoderSettings(), threads=2)
     files = files_of(folder)
     doc = json.loads(files["Lightmap.json"])
     assert doc.pop("reencoded_from_sh") and doc.pop("reencode_threads") == 2
@@ -273,14 +273,14 @@ def test_reencoding_an_almost_empty_8192_atlas_allocates_for_its_texels_not_its_
     with exr.Staging() as staging:
         with encoding.raw_files(data, fill) as images_of:
             lightmap_files.stage_files(staging, files, images_of)
-        encoded = encoding.encode_atlas(data, encoding.for_settings(bake.EncoderSettings()), raw=False)
+        encoded = encoding.encode_atlas(data, encoding.for_settings(encoding.EncoderSettings()), raw=False)
         lightmap_files.write_atlas(staging, files, encoded, {"objects": []})
         staging.commit()
     before = files.hhd.read_bytes()
     dense_sh = n * n * 27 * 4
     tracemalloc.start()
     try:
-        bake.reencode(files, bake.EncoderSettings(), threads=1)
+        bake.reencode(files, encoding.EncoderSettings(), threads=1)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -312,7 +312,7 @@ def test_blending_the_light_sets_of_an_almost_empty_atlas_reads_its_window(tmp_p
     assert read and read[0] is not None and read[0].h * read[0].w < size**2 / 4
     window, whole = files_of(tmp_path / "window"), files_of(tmp_path / "whole")
     assert window == whole and window["Lightmap_hhd.exr"] != baked_files["Lightmap_hhd.exr"]
-    bake.reencode(lightmap_files.AtlasFiles(tmp_path / "window", "Lightmap"), bake.EncoderSettings(), threads=2)
+    bake.reencode(lightmap_files.AtlasFiles(tmp_path / "window", "Lightmap"), encoding.EncoderSettings(), threads=2)
     assert (
         exr.read(tmp_path / "window" / "Lightmap_hhd.exr")[0].keys()
         == exr.read(tmp_path / "bake" / "Lightmap_hhd.exr")[0].keys()

@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, parallel, tracer
+from hhd_lightmapper.core import bake, bakepoints, encoding, parallel, tracer
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.scene import BakeScene, PointLight, SunLight
@@ -102,7 +102,7 @@ def test_one_thread_and_many_write_byte_identical_files(tmp_path):
 
 def test_reencode_is_byte_identical_whatever_the_thread_count_and_records_it(tmp_path):
     files = bake_with(tmp_path, 2)
-    encoder = bake.EncoderSettings(model="ahd", ambient="rgb")
+    encoder = encoding.EncoderSettings(model="ahd", ambient="rgb")
     bake.reencode(files, encoder, threads=1)
     encoded_one = files.hhd.read_bytes()
     assert lightmap_files.read_sidecar(files.sidecar)["reencode_threads"] == 1

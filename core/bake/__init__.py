@@ -29,7 +29,7 @@ from pathlib import Path
 from .. import parallel, probes, tracer
 from .. import progress as meter
 from ..bakepoints import SurfaceTriangles, inward
-from ..encoding import EncoderSettings  # re-exported: core.bake.EncoderSettings (operators, CLI, tests)
+from ..encoding import EncoderSettings
 from ..errors import BakeError
 from ..files import exr, lightmap_files
 from ..progress import Progress

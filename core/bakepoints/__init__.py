@@ -189,13 +189,6 @@ def _fill_points(points: BakePoints, surface: SurfaceTriangles, rows: slice, cen
         points.albedo[rows] = _albedo(surface, tri, bary)
 
 
-def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """Barycentric coordinates `(P, 3)` of 2D points in 2D triangles `(P, 3, 2)`, clamped to
-    the triangle (the centroid is inside up to rounding)."""
-    bary = np.clip(_barycentric_grouped(p[:, None, :], tri)[:, 0], 0.0, 1.0)
-    return bary / bary.sum(axis=1, keepdims=True)
-
-
 def _barycentric_grouped(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     """Barycentric coordinates of k points per triangle: p (n, k, 2), tri (n, 3, 2) ->
     (n, k, 3), not clamped (a point outside the triangle has a negative coordinate)."""
@@ -206,22 +199,6 @@ def _barycentric_grouped(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     w1 = (v2[..., 0] * v1[..., 1] - v1[..., 0] * v2[..., 1]) / den
     w2 = (v0[..., 0] * v2[..., 1] - v2[..., 0] * v0[..., 1]) / den
     return np.stack([1.0 - w1 - w2, w1, w2], axis=-1)
-
-
-def _normalise(v: np.ndarray) -> np.ndarray:
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-
-def _texel_world_size(pos: np.ndarray, texel_uv: np.ndarray) -> np.ndarray:
-    """World-space edge length of one texel on each triangle `pos (n, 3, 3)` whose UVs in texel
-    units are `texel_uv (n, 3, 2)`: √(world area / texel area)."""
-    world = 0.5 * np.linalg.norm(np.cross(pos[:, 1] - pos[:, 0], pos[:, 2] - pos[:, 0]), axis=1)
-    t = texel_uv
-    texels = 0.5 * np.abs(
-        (t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1]) - (t[:, 2, 0] - t[:, 0, 0]) * (t[:, 1, 1] - t[:, 0, 1])
-    )
-    return np.sqrt(world / np.maximum(texels, 1e-12))
 
 
 def _albedo(surface: SurfaceTriangles, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:

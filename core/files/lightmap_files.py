@@ -51,12 +51,10 @@ if TYPE_CHECKING:
     from ..post.seams.geometry import Seams
 
 __all__ = [
-    "CONVENTIONS",
     "FORMAT",
     "FORMAT_VERSION",
     "SH_CHANNELS",
     "AtlasFiles",
-    "TexelData",
     "channel_table",
     "exr_channels",
     "object_rects",

@@ -22,16 +22,12 @@ The package, by job (this module re-exports the public API):
 
 from __future__ import annotations
 
-from .. import sh as _sh  # noqa: F401  (kept for callers that used hhd._sh)
 from ..colour import LUMINANCE
 from ..sh import IRRADZ_FROM_R10
 from .encoder import CHUNK, encode
 from .fit import channel_weights
 from .linear_sh import from_linear_sh, to_linear_sh
-from .lobes import FUNCTION_OF_COEFF as _FUNCTION_OF_COEFF  # noqa: F401  (the factorised lobe, for tests)
 from .lobes import MIN_COS, HHDParams, ambient_lobe, directional_lobe, irradz, reconstruct
-from .lobes import phi_factors as _phi_factors  # noqa: F401
-from .lobes import theta_functions as _theta_functions  # noqa: F401
 from .metrics import fit_error, hemisphere_quadrature, hemispherical_rmse
 from .search import GOLDEN_ITERATIONS, PHI_GOLDEN_ITERATIONS, PHI_SCAN_STEPS, SCAN_STEPS, optimal_linear_angles
 

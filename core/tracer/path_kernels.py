@@ -38,7 +38,6 @@ def advance_paths(
     survival_power,
     survival_reference,
     seed,
-    back_faces_black=False,
     u_dir=_NO_NUMBERS,
 ):
     """One wavefront step after a closest-hit query of the rays o + t·d (R, 3), (R,), one row per
@@ -52,9 +51,7 @@ def advance_paths(
     max_survival): a path whose throughput is at least the reference is kept (with max_survival
     1), and a power below 1 ends fewer of the others than their throughput alone. A survivor gets a
     cosine-distributed direction around n (pdf cosθ/π) and the weight 1/p for what follows.
-    With `back_faces_black`, a hit on the back of a triangle (ng · d > 0: the ray started inside
-    a closed mesh or behind a wall's modelled side) ends the path like a miss without sky: the
-    light gathered before it stays, nothing more is added there. u_dir (2, R), if it has
+    u_dir (2, R), if it has
     columns: the uniform numbers of each row's new direction (else drawn from `seed`'s stream).
 
     Returns the hits compacted, survivors first: (live, acc, throughput, x, n, directions, pdf,
@@ -75,10 +72,6 @@ def advance_paths(
             s = i if per_row_sky else 0
             for c in range(cols):
                 radiance[live[i], c] = acc[i, c] + throughput[i, c % 3] * sky[s, c]
-            continue
-        if back_faces_black and ng[i, 0] * d[i, 0] + ng[i, 1] * d[i, 1] + ng[i, 2] * d[i, 2] > 0.0:
-            for c in range(cols):  # the back of a surface: the path ends, carrying no more light
-                radiance[live[i], c] = acc[i, c]
             continue
         for c in range(3):
             albedo = row_albedo[i, c] if per_row_albedo else tri_albedo[prim[i], c]

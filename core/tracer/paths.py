@@ -8,10 +8,15 @@ world, or the HDRI weighted by MIS), hits take the emission of the triangle they
 against emitter sampling), and every hit adds next-event estimation (`irradiance_at`: one
 shadow ray per light and vertex, the point, spot and area lights being one light chosen per
 vertex: `lights.choice.Choice`), then continues diffusely (two-sided,
-cosine-distributed; with BACK_FACES_BLACK a path that reaches the back of a triangle ends
-there, carrying no more light) with Russian roulette from RR_START bounces on (survival
+cosine-distributed) with Russian roulette from RR_START bounces on (survival
 √(throughput / ½), none ended above ½: RR_SURVIVAL_POWER, RR_REFERENCE), at most `bounces`
 reflections. The per-sample work between two Embree queries runs in `path_kernels.advance_paths`.
+
+A path that reaches the back of a triangle goes on as from its front: surfaces are two-sided, as
+in Cycles, because real scenes show their back faces to the room (single-sided planes, rooms
+whose normals face outwards: README, "Leaks"). Godot's and Unity's bakers end such a path
+instead (it started inside a closed mesh or behind a wall's modelled side); here the bake points
+keep their samples out of solids (`bakepoints.settle`).
 
 Light sets (`core.light_sets`): with `TraceScene.sets` the radiance has 3 columns per set (RGB of
 set 0, RGB of set 1, ...) and every contribution (next-event estimation, emitters and the world
@@ -48,13 +53,6 @@ RR_START = 2  # bounces before Russian roulette may end a path
 RR_SURVIVAL_POWER = 0.5
 RR_REFERENCE = 0.5
 RR_MAX_SURVIVAL = 1.0
-#: A path that hits the back of a triangle carries no light from there on (as Godot's and
-#: Unity's bakers do): it started inside a closed mesh or behind a wall's modelled side, where
-#: any light it finds has leaked through. Off by default: surfaces are two-sided, as in Cycles,
-#: because real scenes show their back faces to the room (single-sided planes, rooms whose
-#: normals face outwards: README, "Leaks"); the bake points keep samples out of solids instead
-#: (`bakepoints.settle`).
-BACK_FACES_BLACK = False
 _BLACK = np.zeros((1, 3))  # the sky of a scene without a world (path_kernels.advance_paths)
 _NO_ROWS = np.zeros((0, 3))  # no per-row albedo: the kernel takes the triangles' own
 _NO_NUMBERS = np.zeros((2, 0))  # no given numbers: advance_paths draws its own
@@ -84,7 +82,6 @@ class TraceScene:
             raise BakeError("the bake scene has no geometry")
         self.scene = scene
         self.bounces = bounces
-        self.back_faces_black = BACK_FACES_BLACK
         self.shared_rays = ray_scene is not None
         self._rays: RayScene | None = ray_scene if ray_scene is not None else RayScene(scene.triangles)
         self.offset = max(min_offset, ray_offset(scene.triangles, self._rays.origin))
@@ -95,7 +92,7 @@ class TraceScene:
         for light in self.lights:
             light.column = self.column(light.group)
         self.world_column = self.column(scene.world_group) if scene.world is not None else 0
-        chosen = [light for light in self.lights if light.chosen] if _lights.choice.CHOOSE else []
+        chosen = [light for light in self.lights if light.chosen]
         self.choice = _lights.choice.Choice(chosen) if chosen else None
         self.surface_lights = [light for light in self.lights if light.reachable and not light.at_infinity]
         self.sky_lights = [light for light in self.lights if light.reachable and light.at_infinity]
@@ -213,7 +210,6 @@ class Paths:
                 RR_SURVIVAL_POWER,
                 RR_REFERENCE,
                 seed(rng),
-                ts.back_faces_black,
                 u_dir,
             )
             if len(live) == 0:

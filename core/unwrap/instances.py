@@ -55,19 +55,6 @@ class Block:
 
 
 @dataclass
-class InstanceLayout:
-    """An instance atlas: its size, the density packed, each mesh group's Block (in the order of
-    the groups) and per instance (mesh index) its block's lower-left texel (x, y)."""
-
-    width: int
-    height: int
-    texels_per_metre: float
-    blocks: list[Block]
-    placed: dict[int, tuple[int, int]]
-    packs: int
-
-
-@dataclass
 class Bundle:
     """A collection's member blocks packed together: the block every instance of the collection
     (an Empty instancing it) gets a copy of. width × height texels; parts: per member, in the

@@ -114,9 +114,23 @@ def denoise_texels(
             band = _band_rows(page.shape)
             if band:
                 part.name = ": ".join(x for x in (part.name, f"page {k + 1} of {len(pages)}") if x)
-                _denoise_banded(page, labels, sh, normal, noise, finite, out, denoiser, band, part, written)
+                _denoise_banded(
+                    page,
+                    labels,
+                    sh,
+                    normal,
+                    noise=noise,
+                    finite=finite,
+                    out=out,
+                    denoiser=denoiser,
+                    band=band,
+                    check=part,
+                    written=written,
+                )
             else:
-                _denoise_page(page, labels, sh, normal, noise, finite, out, denoiser, written)
+                _denoise_page(
+                    page, labels, sh, normal, noise=noise, finite=finite, out=out, denoiser=denoiser, written=written
+                )
             report.charts += len(page.charts)
             report.pages += 1
             report.page_texels += page.shape[0] * page.shape[1]
@@ -139,6 +153,7 @@ def _denoise_page(
     labels: np.ndarray,
     sh: np.ndarray,
     normal: np.ndarray,
+    *,
     noise: _ChartNoise | None,
     finite: np.ndarray,
     out: np.ndarray,
@@ -185,6 +200,7 @@ def _denoise_banded(
     labels: np.ndarray,
     sh: np.ndarray,
     normal: np.ndarray,
+    *,
     noise: _ChartNoise | None,
     finite: np.ndarray,
     out: np.ndarray,

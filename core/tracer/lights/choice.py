@@ -8,11 +8,6 @@ from .. import light_kernels as _kernels
 from .emitters import POWER_SHARE
 from .light import Light, Strata, _rows, uniforms
 
-#: Whether a shading point picks one of the point, spot and area lights (`Choice`); False
-#: samples every one of them at every point, as until 2026-12-05 (bench/light_sampling.py).
-CHOOSE = True
-
-
 #: Share of a shading point's choice among point, spot and area lights made by intensity alone
 #: (`Choice`), as POWER_SHARE is the emitter clusters': the bound knows nothing of occlusion.
 CHOICE_SHARE = POWER_SHARE

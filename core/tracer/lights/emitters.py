@@ -18,10 +18,8 @@ CLUSTERS = 32
 #: Split clusters of more than one emitting triangle again into at most FANOUT clusters each, down
 #: to single triangles (or MAX_LEAVES leaves): a light tree, descended at each shading point by
 #: the same weights one level at a time, so a scene with thousands of emitters picks the one
-#: beside the point, not a cluster's triangle by power alone. False: the top clusters alone.
-LIGHT_TREE = True
-
-
+#: beside the point, not a cluster's triangle by power alone (0: the top clusters alone,
+#: `tree.light_tree`).
 FANOUT = 8
 
 
@@ -106,7 +104,7 @@ class EmissiveTriangles(Light):
             return
         corners = self.triangles[self.index]
         leaf, self.child_first, self.child_count, self.parent = light_tree(
-            corners.mean(axis=1), CLUSTERS, FANOUT if LIGHT_TREE else 0, MAX_LEAVES
+            corners.mean(axis=1), CLUSTERS, FANOUT, MAX_LEAVES
         )
         k = len(self.parent)
         self.cluster_of[self.index] = leaf
@@ -269,11 +267,6 @@ class EmissiveTriangles(Light):
 #: formulas lose precision and the two agree anyway; above, a triangle fills most of a
 #: hemisphere (PBRT-v4's bounds).
 SOLID_ANGLE_RANGE = (3e-4, 6.22)
-
-
-def by_solid_angle(solid_angle: np.ndarray) -> np.ndarray:
-    """(R,) bool: the triangles of these solid angles (R,) are sampled by direction."""
-    return (solid_angle >= SOLID_ANGLE_RANGE[0]) & (solid_angle <= SOLID_ANGLE_RANGE[1])
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import sh as _sh
-from .hhd import hemisphere_quadrature
+from hhd_lightmapper.core import sh as _sh
+from hhd_lightmapper.core.hhd import hemisphere_quadrature
 
 
 @dataclass
