@@ -32,10 +32,11 @@ from pathlib import Path
 import numpy as np
 
 import memory as _memory  # noqa: E402  (bench/memory.py: the stage timer and the wavy sheet)
-from hhd_lightmapper.core import bake, bakepoints, encoding, post, presets, seams, tracer
+from hhd_lightmapper.core import bake, bakepoints, encoding, post, presets, tracer
 from hhd_lightmapper.core import stages as stages_module  # noqa: E402
 from hhd_lightmapper.core.bake import finishing  # noqa: E402
 from hhd_lightmapper.core.files import exr, lightmap_files
+from hhd_lightmapper.core.post.seams import geometry as seams
 from hhd_lightmapper.core.scene import BakeScene, SunLight  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
