@@ -49,7 +49,7 @@ class _System:
 
 
 #: Seam sample rows whose read texels `_system` gathers at once (memory: each row reads 8
-#: texels of every SH channel, float64 where it sums them; ~60 MB at 27 channels).
+#: texels of every SH channel, float64 where it sums them: 8 · C · 8 bytes a row).
 SYSTEM_ROWS = 1 << 15
 
 
