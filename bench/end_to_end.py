@@ -103,6 +103,12 @@ CASES = {
         "preset": "draft",
         "label": "room 182² Draft (density 2.35)",
     },
+    "bedroom-256-draft": {
+        "scene": "bedroom",
+        "size": ["--resolution", "256"],
+        "preset": "draft",
+        "label": "bedroom 256² Draft (the CLI's smallest atlas)",
+    },
     "bedroom-1024-draft": {
         "scene": "bedroom",
         "size": ["--resolution", "1024"],
@@ -288,9 +294,10 @@ def _room(folder: Path) -> Path:
 
 
 def _atlases(out: Path) -> dict:
-    """The atlases' sizes, their baked texels and each sidecar's `timings_seconds` (by atlas:
-    "bake_points" is the bake points of every atlas, built before the first trace, in each)."""
-    sizes, texels, timings = [], 0, {}
+    """The atlases' sizes, their baked texels, each sidecar's `timings_seconds` (by atlas:
+    "bake_points" is the bake points of every atlas, built before the first trace, in each) and,
+    where the denoiser ran, its charts, pages and page texels (OIDN's work is in page texels)."""
+    sizes, texels, timings, denoise = [], 0, {}, {}
     for path in sorted(out.glob("*.json")) if out.exists() else []:
         sidecar = json.loads(path.read_text())
         if "timings_seconds" not in sidecar:
@@ -298,7 +305,9 @@ def _atlases(out: Path) -> dict:
         sizes.append(f"{sidecar.get('width')}×{sidecar.get('height')}")
         texels += (sidecar.get("stats") or {}).get("texels_baked", 0)
         timings[path.stem] = {k: round(v, 3) for k, v in sidecar["timings_seconds"].items()}
-    return {"atlases": sizes, "texels_baked": texels, "sidecar_timings_seconds": timings}
+        if (sidecar.get("post") or {}).get("denoise", {}).get("applied"):
+            denoise[path.stem] = {k: sidecar["post"]["denoise"].get(k) for k in ("charts", "pages", "page_texels")}
+    return {"atlases": sizes, "texels_baked": texels, "sidecar_timings_seconds": timings, "denoise_pages": denoise}
 
 
 def _sidecar_text(timings: dict) -> str:
