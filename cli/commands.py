@@ -101,12 +101,12 @@ def bake_subset(context, args, settings) -> str:
     return summary
 
 
-def stale(context, args, _view) -> str:
+def stale(context, args, settings) -> str:
     """`stale`: what changed since the last bake (`bridge.incremental_session.stale_report`); it
     takes no option that overrides a scene setting (--out is its folder)."""
     from ..bridge import incremental_session
 
-    _, lines = incremental_session.stale_report(context, args.out)
+    _, lines = incremental_session.stale_report(context, args.out, settings)
     for line in lines[:-1]:
         print(f"stale: {line}")
     return lines[-1]
@@ -183,13 +183,14 @@ def export(context, args, _view) -> str:
 
 def encode(context, args, settings) -> str:
     """`encode`: the receivers' atlases encoded again from their SH EXRs
-    (`operators.encode.reencode_objects`); --threads, else the scene's."""
+    (`operators.encode.reencode_objects`), with the settings value a bake of this run would take
+    (`bridge.settings.scene_settings`: the encoder, denoise, stitch; --threads, else the scene's)."""
     from ..bridge import bake_session
     from ..operators import encode as reencoding
 
     objects = bake_session.target_objects(context, args.objects, settings)
-    threads = bridge_settings.scene_threads(context.scene) if args.threads is None else args.threads
-    summary, warnings = reencoding.reencode_objects(objects, settings, args.out, threads=threads)
+    pipeline = bridge_settings.scene_settings(context.scene, args.threads, settings)
+    summary, warnings = reencoding.reencode_objects(objects, settings, pipeline, args.out)
     for w in warnings:
         print(f"warning: {w}")
     return summary
