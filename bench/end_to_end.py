@@ -16,7 +16,7 @@ Each case runs `python -m hhd_lightmapper.cli FILE.blend bake --unwrap ... --pre
   working on them; its shares are not the Production bake's.
 
 The child is this script (`--child`), which installs markers and then runs the CLI's own
-`standalone`: each wrapped stage function prints `@e2e <stage>` on entry (unwrap `cli._unwrap`,
+`standalone`: each wrapped stage function prints `@e2e <stage>` on entry (unwrap `cli.commands.unwrap`,
 scene read `BakeSession.__init__`, the inward-faces check `bake.check_inward`, BVH
 `bake.ray_scene_of` (Embree may finish the build on its threads during the bake points), bake
 points `bake.points_of` (as `bake.runners` calls it), trace `tracer.bake`, seams `seams.find_seams`, the denoise and stitch
@@ -182,11 +182,12 @@ def _stage_of(message: str) -> str | None:
 def child(argv: list[str]) -> int:
     from hhd_lightmapper import cli
     from hhd_lightmapper.bridge import bake_session
+    from hhd_lightmapper.cli import commands
     from hhd_lightmapper.core import bake, console, post, tracer
     from hhd_lightmapper.core.bake import runners
     from hhd_lightmapper.core.post.seams import geometry
 
-    _marked(cli, "_unwrap", "unwrap")
+    _marked(commands, "unwrap", "unwrap")  # as `bake --unwrap` calls it
     _marked(bake_session.BakeSession, "__init__", "scene read")
     _marked(bake, "check_inward", "inward faces")
     _marked(bake, "ray_scene_of", "BVH")

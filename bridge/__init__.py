@@ -10,6 +10,6 @@ Open Image Denoise library Blender ships; `light_sets` and `probe_mode` hold the
 settings (properties.py) and the previews (shaders/) both read: the light sets' weights and the
 probe preview's mode. Nothing here is an operator or registers anything.
 
-Besides `operators/`, `panels/`, `shaders/` and `cli.py`, this is the only package that imports
+Besides `operators/`, `panels/`, `shaders/` and `cli/`, this is the only package that imports
 bpy; `core/` never does.
 """

@@ -109,14 +109,15 @@ def _check_receivers(objects, uv_layer: str) -> None:
             raise BakeError(f"'{obj.name}' has no '{uv_layer}' UV layer: run Unwrap first")
 
 
-def check_inward(context, objects: list[str] | None = None) -> list[str]:
+def check_inward(context, objects: list[str] | None = None, settings=None) -> list[str]:
     """The receivers' faces that point into their own object (`core.bakepoints.inward`), without baking and
-    without lightmap UVs: one message per object (the scene's `inward_faces` action named), also
-    kept in `scene.hhd.inward_report` for the panel."""
+    without lightmap UVs: one message per object (the `inward_faces` action of `settings` named:
+    the scene's HHD settings when None, or an `Overridden` view of them, which also choose the
+    receivers), also kept in `scene.hhd.inward_report` for the panel."""
     from ..core.bakepoints import inward
 
-    settings = context.scene.hhd
-    receivers = target_objects(context, objects)
+    settings = context.scene.hhd if settings is None else settings
+    receivers = target_objects(context, objects, settings)
     depsgraph = context.evaluated_depsgraph_get()
     lights = inward.light_points(scene_data.read_bake_scene(depsgraph))
     messages = []

@@ -61,11 +61,15 @@ def _last_bake(context, out_dir: str, settings):
     return receivers, groups, old, now
 
 
-def stale_report(context, out_dir: str | None = None) -> tuple[core_fingerprints.Stale | None, list[str]]:
-    """What changed since the last bake into the output folder (`out_dir` or the scene's): the
-    Stale (None when there is no earlier bake with fingerprints) and its lines for the panel and
-    the console. Reads the scene and the sidecars only."""
-    settings = context.scene.hhd
+def stale_report(
+    context, out_dir: str | None = None, settings=None
+) -> tuple[core_fingerprints.Stale | None, list[str]]:
+    """What changed since the last bake into the output folder (`out_dir` or the Output Folder
+    setting): the Stale (None when there is no earlier bake with fingerprints) and its lines for
+    the panel and the console. `settings`: the scene's HHD settings (None) or an `Overridden` view
+    of them (the CLI's), for the folder, the atlas sizes and the UV layer. Reads the scene and the
+    sidecars only."""
+    settings = context.scene.hhd if settings is None else settings
     folder = bake_session.output_folder(settings, out_dir)
     try:
         receivers, groups, old, now = _last_bake(context, folder, settings)

@@ -2,7 +2,7 @@
 `PipelineSettings` (its trace's samples per pass, pass count and thread count are
 `core.tracer.BakeSettings`'s) from a scene's HHD settings (`scene.hhd`), for the operators and,
 through an `Overridden` view of those settings, for the command line, which never writes its
-options into the scene to read them back (only `--save` keeps them: cli.py).
+options into the scene to read them back (only `--save` keeps them: cli/overrides.py).
 """
 
 from __future__ import annotations

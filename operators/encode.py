@@ -36,7 +36,7 @@ class HHD_OT_encode(bpy.types.Operator):
         settings = context.scene.hhd
         try:
             objects = bake_session.target_objects(context)
-            summary, warnings = reencode_objects(objects, settings, threads=bake_settings.scene_threads(context.scene))
+            summary, warnings = reencode_objects(objects, settings, bake_settings.scene_settings(context.scene))
         except BakeError as exc:  # a damaged or mismatched bake: the message names the file and the fix
             self.report({'ERROR'}, f"Re-encode failed: {exc}")
             return {'CANCELLED'}
@@ -55,33 +55,37 @@ class HHD_OT_encode(bpy.types.Operator):
         return {'FINISHED'}
 
 
-def reencode_objects(objects, settings, out_dir: str | None = None, threads: int = 0) -> tuple[str, list[str]]:
-    """Re-encode the atlases of `objects` found in the output folder with `threads` workers
-    (0 = every core), denoised if `settings.denoise` (through Blender's OIDN library), stitched if
-    `settings.stitch_seams`; returns a summary line and the warnings (what a post stage could not
-    do, e.g. no denoiser, no seams file)."""
+def reencode_objects(
+    objects, settings, pipeline: core_bake.PipelineSettings, out_dir: str | None = None
+) -> tuple[str, list[str]]:
+    """Re-encode the atlases of `objects` found in the output folder with the settings value
+    `pipeline` (`bridge.settings.scene_settings`, as a bake builds it): its encoder, denoised if
+    `pipeline.denoise` (through Blender's OIDN library it names), stitched if
+    `pipeline.stitch_seams`, with its trace's thread count. `settings` (the scene's HHD settings
+    or the CLI's `Overridden` view) give what is not the pipeline's: the output folder (`out_dir`
+    else theirs), the atlases' sizes and whether the images are packed. Returns a summary line
+    and the warnings (what a post stage could not do, e.g. no denoiser, no seams file)."""
     if not objects:
         raise BakeError("no mesh objects to re-encode: select baked objects")
     folder = bake_session.output_folder(settings, out_dir)
     groups, _ = bake_session.atlas_groups(objects, settings)
-    encoder = bake_settings.encoder_settings(settings)
-    library = denoiser.oidn_library() if settings.denoise else ""
+    encoder = pipeline.encoder
     done, warnings = [], []
     for name, *_ in groups:
         files = AtlasFiles(Path(folder), name)
         seconds, atlas_warnings = core_bake.reencode(
             files,
             encoder,
-            threads,
-            denoise=settings.denoise,
-            denoiser_library=library,
-            stitch_seams=settings.stitch_seams,
+            pipeline.trace.threads,
+            denoise=pipeline.denoise,
+            denoiser_library=pipeline.denoiser_library,
+            stitch_seams=pipeline.stitch_seams,
         )
         bake_session.load_atlas_images(files, settings.pack_images)
         done.append(f"'{name}' {seconds:.1f} s")
         warnings.append(atlas_warnings)
-    denoised = denoiser.outcome(settings.denoise, warnings)
-    stitched = bake_session.stitch_outcome(settings.stitch_seams, warnings)
+    denoised = denoiser.outcome(pipeline.denoise, warnings)
+    stitched = bake_session.stitch_outcome(pipeline.stitch_seams, warnings)
     summary = (
         f"Re-encoded ({encoder.model}, {encoder.direction}, {encoder.ambient} ambient, {stitched}, {denoised}): "
         f"{', '.join(done)}"

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
+from hhd_lightmapper.cli import option_types, options
 from hhd_lightmapper.core.console import interrupt_as_cancel, terminate_as_interrupt
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.files import exr, lightmap_files
@@ -110,9 +111,9 @@ def assert_plain(result, code: int, *words: str) -> None:
         (["--time-budget", "inf"], ["--time-budget", "not a finite number"]),
         (["--texel-density", "-1"], ["--texel-density", "≥ 0"]),
         (["--texel-density", "inf"], ["--texel-density", "not a finite number"]),
-        (["--seed", "-1"], ["--seed", f"0–{cli.INT_MAX}"]),
-        (["--seed", "99999999999"], ["--seed", f"0–{cli.INT_MAX}"]),
-        (["--threads", "100000"], ["--threads", f"≤ {cli.MAX_THREADS}"]),
+        (["--seed", "-1"], ["--seed", f"0–{option_types.INT_MAX}"]),
+        (["--seed", "99999999999"], ["--seed", f"0–{option_types.INT_MAX}"]),
+        (["--threads", "100000"], ["--threads", f"≤ {option_types.MAX_THREADS}"]),
         (["--scheduler", "farm-head"], ["--scheduler", "tcp://HOST:PORT"]),
         (["--scheduler", "tcp://[::1"], ["--scheduler", "brackets"]),
         (["--scheduler", "http://farm:8786"], ["--scheduler", "unknown protocol"]),
@@ -149,9 +150,11 @@ def test_other_commands_options_exit_2(args, words, capsys):
 
 
 def test_help_and_a_valid_value_still_parse(capsys):
-    args = cli._parse(cli._parser(), ["bake", "--samples", "4", "--time-budget", "0", "--seed", str(cli.INT_MAX)])
-    assert args.samples == 4 and args.time_budget == 0.0 and args.seed == cli.INT_MAX
-    args = cli._parse(cli._parser(), ["unwrap", "--texel-density", "0", "--resolution", "512"])  # 0: no density
+    args = options.parse(
+        options.parser(), ["bake", "--samples", "4", "--time-budget", "0", "--seed", str(option_types.INT_MAX)]
+    )
+    assert args.samples == 4 and args.time_budget == 0.0 and args.seed == option_types.INT_MAX
+    args = options.parse(options.parser(), ["unwrap", "--texel-density", "0", "--resolution", "512"])  # 0: no density
     assert args.resolution == 512
     assert cli.main(["bake", "--texel-density", "500", "--help"]) == cli.EXIT_OK
     capsys.readouterr()

@@ -17,6 +17,7 @@ import sys
 import pytest
 
 from hhd_lightmapper import cli
+from hhd_lightmapper.cli import options
 
 pytestmark = pytest.mark.bpy
 
@@ -57,7 +58,7 @@ def exit_codes() -> dict[str, int]:
 
 
 def assert_top_level_help(text: str, prog: str) -> None:
-    parser = cli._parser(prog)
+    parser = options.parser(prog)
     names = list(commands(parser))
     assert set(names) == {"unwrap", "bake", "encode", "compare", "blend", "uv-report", "export", "stale"}
     head = usage(text)
@@ -98,7 +99,7 @@ def test_no_arguments_print_the_full_help_as_a_usage_error(entry, capsys):
 
 
 @pytest.mark.parametrize("entry", ENTRIES)
-@pytest.mark.parametrize("command", list(commands(cli._parser())))
+@pytest.mark.parametrize("command", list(commands(options.parser())))
 def test_each_command_help_lists_every_option_with_its_default(entry, command, capsys):
     """`COMMAND --help` (no .blend) lists every option string of the command, each option's help
     says its default, and the exit codes follow."""
@@ -107,7 +108,7 @@ def test_each_command_help_lists_every_option_with_its_default(entry, command, c
     out, err = capsys.readouterr()
     assert err == ""
     assert usage(out).startswith(f"usage: {prog} {command}")
-    subparser = commands(cli._parser(prog))[command]
+    subparser = commands(options.parser(prog))[command]
     assert subparser.description and subparser.description in out
     for action in subparser._actions:
         for option in action.option_strings:
@@ -125,7 +126,7 @@ def test_help_quotes_the_scene_settings_ranges_and_defaults(capsys):
     from hhd_lightmapper.properties import HHDSettings
 
     checked = 0
-    for command, subparser in commands(cli._parser()).items():
+    for command, subparser in commands(options.parser()).items():
         for action in subparser._actions:
             prop = HHDSettings.__annotations__.get(action.dest)
             if prop is None or "min" not in prop.keywords or isinstance(prop.keywords["default"], bool):

@@ -1,5 +1,5 @@
 """The command line's options as settings values: a bake with options leaves the scene's HHD
-settings as they were (`cli._settings`: an overridden view, never written into `scene.hhd`
+settings as they were (`cli.overrides.overridden`: an overridden view, never written into `scene.hhd`
 without --save), and the settings built from the options equal those built from a scene holding
 them (`bridge.settings.scene_settings`)."""
 
@@ -10,6 +10,7 @@ import pytest
 
 from hhd_lightmapper import cli
 from hhd_lightmapper.bridge import settings as bridge_settings
+from hhd_lightmapper.cli import options, overrides
 from scenekit import blender as kit
 
 pytestmark = pytest.mark.bpy
@@ -85,12 +86,12 @@ def test_a_command_line_bake_with_options_leaves_the_scene_settings_unchanged(sa
 
 def test_the_settings_from_options_equal_those_of_a_scene_holding_them(saved_scene):
     scene, _ = saved_scene
-    args = cli._parser().parse_args(["bake", "--threads", "3", *OPTIONS])
+    args = options.parser().parse_args(["bake", "--threads", "3", *OPTIONS])
     before = scene_settings_now()
-    view = cli._settings(scene, args)
+    view = overrides.overridden(scene, args)
     from_options = bridge_settings.scene_settings(scene, args.threads, view)
     assert scene_settings_now() == before  # building the value wrote nothing
-    cli._apply_options(scene.hhd, args)  # what --save keeps
+    overrides.apply_options(scene.hhd, args)  # what --save keeps
     from_scene = bridge_settings.scene_settings(scene, args.threads)
     assert from_options == from_scene
     assert {key: getattr(view, key) for key in before} == scene_settings_now()  # the preset switched to Custom too
@@ -102,7 +103,7 @@ def test_the_settings_from_options_equal_those_of_a_scene_holding_them(saved_sce
 
 def test_the_operators_and_the_command_line_take_the_scenes_settings_alike(saved_scene):
     scene, _ = saved_scene
-    view = cli._settings(scene, cli._parser().parse_args(["bake"]))
+    view = overrides.overridden(scene, options.parser().parse_args(["bake"]))
     assert bridge_settings.scene_settings(scene, None, view) == bridge_settings.scene_settings(scene)
     mode, threads = scene.render.threads_mode, scene.render.threads
     try:

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
+from hhd_lightmapper.bridge import incremental_session
+from hhd_lightmapper.bridge import settings as bridge_settings
 from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.incremental import fingerprints
 from scenekit import blender as kit
@@ -99,6 +101,12 @@ def test_bake_changed_rewrites_only_the_moved_object_and_matches_a_full_rebake(r
     assert cli.main(["stale"]) == cli.EXIT_OK
     out = capfd.readouterr().out
     assert "objects: Box" in out and "Bake Changed re-traces 1," in out, out
+    # the settings value given (the command line's overridden view) chooses the folder, not scene.hhd
+    elsewhere = bridge_settings.Overridden(scene.hhd, {"output_dir": str(tmp / "elsewhere")})
+    assert incremental_session.stale_report(bpy.context, settings=elsewhere) == (
+        None,
+        [f"no earlier bake in {tmp / 'elsewhere'}: bake all first"],
+    )
     assert bpy.ops.hhd.check_stale() == {'FINISHED'}  # the panel's line
     assert "objects: Box" in scene.hhd.stale_report
     assert bpy.ops.hhd.bake_changed(mode='CHANGED') == {'FINISHED'}

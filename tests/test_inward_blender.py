@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper import cli
+from hhd_lightmapper.bridge import bake_session
+from hhd_lightmapper.bridge import settings as bridge_settings
 from hhd_lightmapper.core.colour import LUMINANCE
 from hhd_lightmapper.core.files import exr, lightmap_files
 from scenekit import blender as kit
@@ -108,6 +110,11 @@ def test_operator_and_panel_check_name_the_faces(cube_scene):
     bpy.types.HHD_PT_main.draw_bake(layout, bpy.context.scene.hhd, bpy.context)
     (row,) = [text for text, icon in layout.labels if icon == 'ERROR']
     assert row == bpy.context.scene.hhd.inward_report and "inward_faces" in layout.props
+    assert row.endswith("the bake takes the open side")  # the scene's Faces Pointing In
+    # the settings value given (the command line's overridden view), not scene.hhd, names the action
+    view = bridge_settings.Overridden(bpy.context.scene.hhd, {"inward_faces": 'REFUSE'})
+    (message,) = bake_session.check_inward(bpy.context, ["Cube"], view)
+    assert message.endswith("the bake refuses them") and bpy.context.scene.hhd.inward_faces == 'OPEN_SIDE'
 
 
 class Recorder:
@@ -130,8 +137,6 @@ def test_room_plane_and_wall_are_not_flagged(extension, restore_hhd_settings, tm
     """A closed room with inward normals and a lamp inside; an open room (no ceiling) with inward
     normals under the sun; a flipped plane; a 2 cm wall: none is flagged, and the room bakes lit."""
     import bpy
-
-    from hhd_lightmapper.bridge import bake_session
 
     scene = kit.clear_scene()
     scene.hhd.resolution = 256

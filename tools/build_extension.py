@@ -134,8 +134,9 @@ def check_zip(path: Path) -> list[str]:
     problems = []
     if platform is None:
         return [f"names no platform of the manifest {manifest['platforms']}"]
-    if "blender_manifest.toml" not in names or "__init__.py" not in names or "core/bake/__init__.py" not in names:
-        problems.append("the package (blender_manifest.toml, __init__.py, core/) is incomplete")
+    required = ("blender_manifest.toml", "__init__.py", "core/bake/__init__.py", "cli/__init__.py", "cli/__main__.py")
+    if not all(name in names for name in required):
+        problems.append("the package (blender_manifest.toml, __init__.py, core/, cli/) is incomplete")
     dev = [n for n in names if n.startswith(DEV_PREFIXES) or "__pycache__/" in n]
     if dev:
         problems.append(f"development files: {dev[:5]}")
