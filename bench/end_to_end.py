@@ -103,12 +103,6 @@ CASES = {
         "preset": "draft",
         "label": "room 182² Draft (density 2.35)",
     },
-    "bedroom-256-draft": {
-        "scene": "bedroom",
-        "size": ["--resolution", "256"],
-        "preset": "draft",
-        "label": "bedroom 256² Draft (the CLI's smallest atlas)",
-    },
     "bedroom-1024-draft": {
         "scene": "bedroom",
         "size": ["--resolution", "1024"],
