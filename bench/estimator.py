@@ -7,22 +7,27 @@ Our bake against our own converged bake (two halves of `--reference` samples wit
 seeds; their noise, the floor, is removed from every error in quadrature), so the variants are
 compared with each other, not with Cycles (bench/time_to_error.py does that). Scenes and atlas
 as bench/time_to_error.py sets them up, BOUNCES bounces, `--resolution` atlas. Variants
-(`core.tracer.hemisphere`):
+(`core.tracer.hemisphere`; the parts not yet across passes drawn pass by pass by
+scenekit/estimator_reference.py):
 
-- `per pass`: half the directions uniform, half cosine-weighted, in four groups each Latin-
-  hypercube stratified within its pass only, β of the control variate from the other half's
-  cosine samples (`hemisphere_kernels.hemisphere_rays`, `hemisphere_kernels.project_hemisphere`), the origins a
-  shifted Hammersley set per pass (until 2026-12-02);
-- `directions across passes`: the mixture α/(2π) + (1 − α)·cosθ/π (α ½) sampled by inversion,
-  in two halves each from its texel's own scrambled (0,2)-sequence stratified across all the
-  texel's passes, β from the other half's mean (`hemisphere_kernels.texel_hemisphere_rays`,
-  `hemisphere_kernels.project_halves`);
+- `pass by pass`: the mixture α/(2π) + (1 − α)·cosθ/π (α ½), independent directions, β of the
+  control variate from the other half's mean (`hemisphere_kernels.project_halves`), the origins
+  a shifted Hammersley set per pass, the first bounce independent;
+- `directions across passes`: the mixture sampled by inversion in two halves, each from its
+  texel's own scrambled (0,2)-sequence stratified across all the texel's passes
+  (`hemisphere_kernels.texel_hemisphere_rays`);
 - `+ origins across passes`: the origins' first tries from the texel's own (0,2)-sequence too
   (`BakePoints.sample_origins`);
 - `+ first bounce across passes`: each path's first bounce (its light samples and its next
   direction) from the texel's own sequences too (`paths.TexelSamples`);
 - `+ α 1/3`, `+ α 0.25`, `+ α 0.1`: a third, a quarter, a tenth of the mixture uniform
   instead of half.
+
+Until commit 054f7f8 the first row was `per pass`: the estimator until 2026-12-02, half the
+directions uniform, half cosine-weighted, in four groups each Latin-hypercube stratified within
+its pass, β from the other half's cosine samples (a switch of the product's, retired after that
+commit with the kernels it kept); bench/results holds it as measured then (a rerun of a scene
+writes `pass by pass` instead).
 
 Every row is the mean over `--seeds` bakes with different seeds (a few heavy-tailed texels make
 one bake's error swing by ±10%).
@@ -53,15 +58,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 SCENES = ("classroom", "field", "staircase2", "bedroom")
-#: (name, STRATIFIED_DIRECTIONS, STRATIFIED_ORIGINS, STRATIFIED_FIRST_BOUNCE, UNIFORM_SHARE)
+#: (name, the parts drawn pass by pass (`estimator_reference.PARTS`), UNIFORM_SHARE)
 VARIANTS = (
-    ("per pass", False, False, False, 0.5),
-    ("directions across passes", True, False, False, 0.5),
-    ("+ origins across passes", True, True, False, 0.5),
-    ("+ first bounce across passes", True, True, True, 0.5),
-    ("+ α 1/3", True, True, True, 1.0 / 3.0),
-    ("+ α 0.25", True, True, True, 0.25),
-    ("+ α 0.1", True, True, True, 0.1),
+    ("pass by pass", ("directions", "origins", "first_bounce"), 0.5),
+    ("directions across passes", ("origins", "first_bounce"), 0.5),
+    ("+ origins across passes", ("first_bounce",), 0.5),
+    ("+ first bounce across passes", (), 0.5),
+    ("+ α 1/3", (), 1.0 / 3.0),
+    ("+ α 0.25", (), 0.25),
+    ("+ α 0.1", (), 0.1),
 )
 #: The α of the closed-form line at the top of the table (label, α).
 IDEAL_ALPHAS = (("1/2", 0.5), ("1/3", 1.0 / 3.0), ("1/4", 0.25), ("1/10", 0.1))
@@ -142,15 +147,12 @@ def bake(surface, bake_scene, resolution: int, samples: int, seed: int, variant)
     from hhd_lightmapper.core import hhd, tracer
     from hhd_lightmapper.core.colour import LUMINANCE
     from hhd_lightmapper.core.tracer import hemisphere
+    from scenekit import estimator_reference
 
-    (
-        hemisphere.STRATIFIED_DIRECTIONS,
-        hemisphere.STRATIFIED_ORIGINS,
-        hemisphere.STRATIFIED_FIRST_BOUNCE,
-        hemisphere.UNIFORM_SHARE,
-    ) = variant[1:]
+    _, independent, hemisphere.UNIFORM_SHARE = variant
     settings = tracer.BakeSettings.from_samples(samples, bounces=3, seed=seed)
-    result = _bake.trace_surface(surface, resolution, resolution, bake_scene, settings)
+    with estimator_reference.used(*independent):
+        result = _bake.trace_surface(surface, resolution, resolution, bake_scene, settings)
     iz = hhd.irradz(result.sh, result.points.normal) @ LUMINANCE
     normal = result.points.normal / np.linalg.norm(result.points.normal, axis=1, keepdims=True)
     values = np.concatenate([iz[:, None], (result.sh @ LUMINANCE)[:, :4], shaded(result.sh, normal)], axis=1)

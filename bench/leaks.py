@@ -5,11 +5,12 @@ Cycles' Diffuse bake of the same texels.
     .venv/bin/python bench/leaks.py --quick                          # 256² scenes, few samples
     .venv/bin/python bench/leaks.py --fixtures thin_wall_rooms --scenes
 
-"Before" is the bake with the leak fixes off (`bakepoints.SETTLE` off and
-`bakepoints.FOOTPRINT_TRIANGLES` = 1: the bake points and their samples as they were: a texel
-averages its whole footprint on its own triangle, both sides of a wall standing on it included,
-samples starting under a coplanar face receive nothing, and a texel straddling a triangle edge
-averages only its own triangle's part); "after" the default. Both are judged as the files hold
+"Before" is the bake with the leak fixes off (the bake points not settled,
+scenekit/bakepoint_reference.py, and `bakepoints.FOOTPRINT_TRIANGLES` = 1: the bake points and
+their samples as they were: a texel averages its whole footprint on its own triangle, both
+sides of a wall standing on it included, samples starting under a coplanar face receive
+nothing, and a texel straddling a triangle edge averages only its own triangle's part);
+"after" the default. Both are judged as the files hold
 them: buried (invalid) texels filled as the encoder fills them.
 
 Fixtures (scenekit/leak_fixtures.py, built here in Blender so Cycles bakes them too): a wall
@@ -644,12 +645,14 @@ def luminance(traced) -> np.ndarray:
 
 
 def our_bake(receivers_or_atlas, size: int, samples: int, bounces: int, seed: int, settle: bool):
-    """Our bake (stages 1–2) with the leak fixes (`bakepoints.SETTLE`, and
-    `bakepoints.FOOTPRINT_TRIANGLES` as set, else 1) on or off. Returns (TracedAtlas, seconds)."""
+    """Our bake (stages 1–2) with the leak fixes (`settle`: the default) or without them (the
+    bake points not settled, scenekit/bakepoint_reference.py, and `bakepoints.FOOTPRINT_TRIANGLES`
+    1). Returns (TracedAtlas, seconds)."""
     import bpy
 
     from hhd_lightmapper.bridge import mesh_data, scene_data
     from hhd_lightmapper.core import bake, bakepoints, tracer
+    from scenekit import bakepoint_reference
 
     if isinstance(receivers_or_atlas, list):
         depsgraph = bpy.context.evaluated_depsgraph_get()
@@ -658,15 +661,15 @@ def our_bake(receivers_or_atlas, size: int, samples: int, bounces: int, seed: in
     else:
         surface, scene = receivers_or_atlas.surface, receivers_or_atlas.bake_scene
     settings = tracer.BakeSettings.from_samples(samples, bounces=bounces, seed=seed)
-    old = bakepoints.SETTLE, bakepoints.FOOTPRINT_TRIANGLES
-    bakepoints.SETTLE = settle
-    bakepoints.FOOTPRINT_TRIANGLES = old[1] if settle else 1
+    trace = bake.trace_surface if settle else bakepoint_reference.trace_unsettled
+    old = bakepoints.FOOTPRINT_TRIANGLES
+    bakepoints.FOOTPRINT_TRIANGLES = old if settle else 1
     try:
         t = time.perf_counter()
-        traced = bake.trace_surface(surface, size, size, scene, settings)
+        traced = trace(surface, size, size, scene, settings)
         return traced, time.perf_counter() - t
     finally:
-        bakepoints.SETTLE, bakepoints.FOOTPRINT_TRIANGLES = old
+        bakepoints.FOOTPRINT_TRIANGLES = old
 
 
 def cycles_bake(receivers, size: int, samples: int, bounces: int, seed: int) -> np.ndarray:
@@ -703,7 +706,7 @@ def cycles_bake(receivers, size: int, samples: int, bounces: int, seed: int) -> 
 def markdown(results: dict) -> str:
     lines = ["# Leak audit (`bench/leaks.py`)", ""]
     lines += [
-        "Before: bake points and samples as they were (`bakepoints.SETTLE` off, "
+        "Before: bake points and samples as they were (not settled: scenekit/bakepoint_reference.py; "
         "`bakepoints.FOOTPRINT_TRIANGLES` = 1); after: the default (bake points moved out of solids, "
         "samples hidden from the bake point replaced, texels whose bake point stays under a coplanar "
         "face invalid, invalid texels filled from their own chart, a texel's samples over its whole "

@@ -9,7 +9,8 @@ receivers and atlas as bench/time_to_error.py sets them up. Cycles' reference: t
 `--reference` samples with their own seeds (its noise, the floor, is removed from every error in
 quadrature); Cycles' rows and ours at `--samples`, BOUNCES bounces (`--direct`: 0, light straight
 from the emitters only). Our rows turn the parts of the emitter sampling on one after another
-(`lights.emitters.EmissiveTriangles`, `hemisphere.STRATIFIED_LIGHTS`):
+(`lights.emitters.EmissiveTriangles`; the rows before `+ stratified` draw the light samples'
+numbers pass by pass, scenekit/estimator_reference.py):
 
 - `power, area`: emitters picked by power alone, a uniform point on the triangle, independent
   random numbers per sample (the sampling before 2026-12-02);
@@ -49,12 +50,14 @@ bench/results/light_sampling.json and .md.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -102,17 +105,26 @@ def main() -> int:
     return 0
 
 
-def variant(name: str) -> None:
-    """Switch the emitter sampling to `name` of VARIANTS (each includes the ones before it; the
-    point, spot and area lights are one chosen per point in every one: module doc)."""
-    from hhd_lightmapper.core.tracer import hemisphere, lights
+@contextlib.contextmanager
+def variant(name: str) -> Iterator[None]:
+    """Within: the emitter sampling of `name` of VARIANTS (each includes the ones before it; the
+    point, spot and area lights are one chosen per point in every one: module doc); the
+    product's own after."""
+    from hhd_lightmapper.core.tracer import lights
+    from scenekit import estimator_reference
 
+    e = lights.emitters
+    product = e.CLUSTERS, e.SOLID_ANGLE_RANGE, e.NEAR_RADII, e.FANOUT
     level = VARIANTS.index(name)
-    lights.emitters.CLUSTERS = 32 if level >= 1 else 1
-    hemisphere.STRATIFIED_LIGHTS = level >= 2
-    lights.emitters.SOLID_ANGLE_RANGE = (3e-4, 6.22) if level >= 3 else (math.inf, math.inf)
-    lights.emitters.NEAR_RADII = 1.0 if level >= 4 else 0.0
-    lights.emitters.FANOUT = 8 if level >= 6 else 0
+    e.CLUSTERS = product[0] if level >= 1 else 1
+    e.SOLID_ANGLE_RANGE = product[1] if level >= 3 else (math.inf, math.inf)
+    e.NEAR_RADII = product[2] if level >= 4 else 0.0
+    e.FANOUT = product[3] if level >= 6 else 0
+    try:
+        with estimator_reference.used(*(() if level >= 2 else ("lights",))):
+            yield
+    finally:
+        e.CLUSTERS, e.SOLID_ANGLE_RANGE, e.NEAR_RADII, e.FANOUT = product
 
 
 def measured(name: str, lamps: bool) -> bool:
@@ -165,8 +177,8 @@ def measure(tte, name: str, args) -> dict:
         cycles.update(tte.errors(iz, reference, keep, mean, floor))
         result["rows"].append(cycles)
         for v in (v for v in VARIANTS if measured(v, lamps)):
-            variant(v)
-            iz, seconds, _ = tte.our_bake(surface, bake_scene, samples, points)
+            with variant(v):
+                iz, seconds, _ = tte.our_bake(surface, bake_scene, samples, points)
             row = {"method": v, "samples": samples, "seconds": seconds}
             row.update(tte.errors(iz @ LUMINANCE, reference, keep, mean, floor))
             row["variance_vs_cycles"] = (row["rmse"] / cycles["rmse"]) ** 2
@@ -177,7 +189,6 @@ def measure(tte, name: str, args) -> dict:
                 f"variance / Cycles' {row['variance_vs_cycles']:.2f}  rate / Cycles' {row['rate_vs_cycles']:.2f}",
                 flush=True,
             )
-        variant(VARIANTS[-1])
     result["load_average_end"] = os.getloadavg()
     return result
 

@@ -211,14 +211,66 @@ def fits_half(values: np.ndarray) -> bool:
     return finite.size == 0 or float(np.abs(finite).max()) <= HALF_MAX
 
 
+class BandedImage:
+    """An `(H, W)` image the EXR writer (`exr.write_file`) takes a band of rows at a time, without
+    the whole image ever existing: `[a:b]` gives those rows (an ndarray), `[::-1]` the image with
+    its rows reversed (EXR's top-down order), `astype` to its own dtype without a copy is itself,
+    `np.asarray` makes it whole. Each kind is a dataclass with a field `flipped` (rows reversed)
+    and gives `shape`, `dtype` and `_rows`."""
+
+    flipped: bool
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        raise NotImplementedError
+
+    @property
+    def dtype(self) -> np.dtype:
+        raise NotImplementedError
+
+    def _rows(self, a: int, b: int) -> np.ndarray:
+        """Rows a … b (a ≤ b) in this image's order, `(b - a, W)`: a new array or a view of one."""
+        raise NotImplementedError
+
+    @property
+    def ndim(self) -> int:
+        return 2
+
+    @property
+    def size(self) -> int:
+        return self.shape[0] * self.shape[1]
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def astype(self, dtype, copy: bool = True):
+        if np.dtype(dtype) == self.dtype and not copy:
+            return self
+        return np.asarray(self).astype(dtype)
+
+    def __getitem__(self, key):
+        """`[::-1]` (this image, rows reversed) or `[a:b]` (those rows, an ndarray)."""
+        kind = type(self).__name__
+        if not isinstance(key, slice):
+            raise TypeError(f"a {kind} takes a slice of rows, not {key!r}")
+        if key == slice(None, None, -1):
+            return replace(self, flipped=not self.flipped)  # type: ignore[type-var]  # every kind is a dataclass
+        start, stop, step = key.indices(self.shape[0])
+        if step != 1:
+            raise ValueError(f"a {kind} gives rows in order or reversed only")
+        return self._rows(start, max(stop, start))
+
+    def __array__(self, dtype=None, copy=None):
+        whole = np.ascontiguousarray(self[0 : self.shape[0]])
+        return whole if dtype is None else whole.astype(dtype, copy=False)
+
+
 @dataclass
-class PlacedImage:
+class PlacedImage(BandedImage):
     """A full-size `(H, W)` image of one value, `background`, but for the rows and columns of
     `window`, which hold `inner` `(h, w)` (any strides: a view of a TexelData's or a layer's
-    window image). What the files of an almost empty atlas are made of: the EXR writer takes it
-    a band of rows at a time (`[rows]` gives an ndarray), `[::-1]` turns it to EXR rows and
-    `astype` stores it, without the whole image ever existing (`np.asarray` makes it whole).
-    `flipped`: rows reversed (row 0 is the atlas's top)."""
+    window image). What the files of an almost empty atlas are made of: a `BandedImage`, whose
+    `astype` stores it as small. `flipped`: rows reversed (row 0 is the atlas's top)."""
 
     inner: np.ndarray
     window: Window
@@ -232,17 +284,6 @@ class PlacedImage:
     @property
     def dtype(self) -> np.dtype:
         return self.inner.dtype
-
-    @property
-    def ndim(self) -> int:
-        return 2
-
-    @property
-    def size(self) -> int:
-        return self.shape[0] * self.shape[1]
-
-    def __len__(self) -> int:
-        return self.shape[0]
 
     def astype(self, dtype, copy: bool = True) -> PlacedImage:
         if np.dtype(dtype) == self.dtype and not copy:
@@ -259,29 +300,18 @@ class PlacedImage:
         """Whether every finite value fits a half float (`fits_half`)."""
         return fits_half(self.inner) and fits_half(np.asarray(self.background).reshape(1))
 
-    def __getitem__(self, key) -> PlacedImage | np.ndarray:
-        """`[::-1]` (this image, rows reversed) or `[a:b]` (those rows, an ndarray)."""
-        if not isinstance(key, slice):
-            raise TypeError(f"a PlacedImage takes a slice of rows, not {key!r}")
-        h = self.shape[0]
-        if key == slice(None, None, -1):
-            return replace(self, flipped=not self.flipped)
-        start, stop, step = key.indices(h)
-        if step != 1:
-            raise ValueError("a PlacedImage gives rows in order or reversed only")
-        out = np.full((max(stop - start, 0), self.shape[1]), self.background, self.dtype)
+    def _rows(self, a: int, b: int) -> np.ndarray:
+        out = np.full((b - a, self.shape[1]), self.background, self.dtype)
         w = self.window
         # the window's rows in this image's order (flipped: atlas row y is row h - 1 - y)
-        first = h - w.y0 - w.h if self.flipped else w.y0
-        a, b = max(start, first), min(stop, first + w.h)
-        if a < b:
-            rows = self.inner[a - first : b - first] if not self.flipped else self.inner[::-1][a - first : b - first]
-            out[a - start : b - start, w.x0 : w.x0 + w.w] = rows
+        first = self.shape[0] - w.y0 - w.h if self.flipped else w.y0
+        lo, hi = max(a, first), min(b, first + w.h)
+        if lo < hi:
+            rows = (
+                self.inner[lo - first : hi - first] if not self.flipped else self.inner[::-1][lo - first : hi - first]
+            )
+            out[lo - a : hi - a, w.x0 : w.x0 + w.w] = rows
         return out
-
-    def __array__(self, dtype=None, copy=None):
-        whole = self[0 : self.shape[0]]
-        return whole if dtype is None else whole.astype(dtype, copy=False)
 
 
 def placed(inner: np.ndarray, window: Window | None, background) -> np.ndarray | PlacedImage:

@@ -21,6 +21,13 @@ Which module for what:
 - `scenekit.light_set_reference`  numpy, no bpy: `parameter_blend`, the blend of light sets'
                      HHD parameters the talk warns against (tests and bench/light_sets.py
                      compare `core.light_sets.blend` with it).
+- `scenekit.bakepoint_reference`  no bpy: the bake points before the leak fixes settled them
+                     (`unsettled`, `trace_unsettled`), what tests/test_leaks.py,
+                     tests/test_unwrap_raster.py and bench/leaks.py measure the fixes against.
+- `scenekit.estimator_reference`  no bpy: the texel estimator with some of its numbers drawn
+                     pass by pass, not from each texel's own sequences across its passes
+                     (`used(*parts)`), what tests/test_tracer.py, tests/test_emitter_clusters.py,
+                     bench/estimator.py and bench/light_sampling.py measure it against.
 - `scenekit.scenes`  named whole scenes: demo_room (the README's demo), outdoor / emissive (with
                      the demo room bench/tradeoff.py's three, `build(name)`), classroom and
                      field (bench/time_to_error.py's, against Cycles).

@@ -279,16 +279,21 @@ def judge(iz: np.ndarray, truth: np.ndarray, full: np.ndarray, noise: np.ndarray
     }
 
 
-def core_bake(fixture: Fixture, resolution=256, samples=16, bounces=None, seed=1):
-    """Bake the fixture's receivers with the core; (points, luminance I_z (P,), truth (P,), full (P,))."""
+def core_bake(fixture: Fixture, resolution=256, samples=16, bounces=None, seed=1, settled=True):
+    """Bake the fixture's receivers with the core; (points, luminance I_z (P,), truth (P,), full (P,)).
+    `settled` False: with the bake points as they were before the leak fixes
+    (`bakepoint_reference.unsettled`)."""
     from hhd_lightmapper.core import bake, colour, hhd, tracer
+
+    from .bakepoint_reference import trace_unsettled
 
     settings = tracer.BakeSettings.from_samples(
         samples,
         bounces=fixture.bounces if bounces is None else bounces,
         seed=seed,
     )
-    traced = bake.trace_surface(surface_of(fixture, resolution), resolution, resolution, scene_of(fixture), settings)
+    trace = bake.trace_surface if settled else trace_unsettled
+    traced = trace(surface_of(fixture, resolution), resolution, resolution, scene_of(fixture), settings)
     points = traced.points
     iz = filled(points, hhd.irradz(traced.sh, points.normal) @ colour.LUMINANCE)
     return points, iz, expected(fixture, points), fixture.full(points.face_normal)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from hhd_lightmapper.core import bakepoints, encoding, rays
+from scenekit import bakepoint_reference
 from scenekit import leak_fixtures as lf
 
 FIXTURES = lf.fixtures()
@@ -42,16 +43,12 @@ def test_the_dark_rooms_floor_is_exactly_black_at_every_bounce():
 
 
 def test_before_settling_the_fixtures_leak():
-    """The same audit with the bake points as they were (`bakepoints.SETTLE` off): the dark
-    room receives light through the wall's texels, and the floor next to the wall and the box
-    darkens; what the fixes are measured against (bench/results/leaks.md)."""
-    old = bakepoints.SETTLE
-    bakepoints.SETTLE = False
-    try:
-        rooms = lf.judge(*lf.core_bake(FIXTURES["thin_wall_rooms"], resolution=256, samples=16)[1:])
-        box = lf.judge(*lf.core_bake(FIXTURES["box_on_floor"], resolution=128, samples=16)[1:])
-    finally:
-        bakepoints.SETTLE = old
+    """The same audit with the bake points as they were (not settled:
+    scenekit/bakepoint_reference.py): the dark room receives light through the wall's texels,
+    and the floor next to the wall and the box darkens; what the fixes are measured against
+    (bench/results/leaks.md)."""
+    rooms = lf.judge(*lf.core_bake(FIXTURES["thin_wall_rooms"], resolution=256, samples=16, settled=False)[1:])
+    box = lf.judge(*lf.core_bake(FIXTURES["box_on_floor"], resolution=128, samples=16, settled=False)[1:])
     assert rooms["light_zero"] > 0 and box["dark"] > 0, (rooms, box)
 
 
@@ -64,22 +61,14 @@ def test_a_bake_point_inside_a_wall_moves_out_and_one_in_an_outward_facing_room_
     scene = rays.RayScene(fixture.triangles())
     points = bakepoints.build(surface, 64, 64, occluders=rays.RayScene(fixture.triangles()))
     inside_room = np.max(np.abs(lf.texel_centres(points)[:, :2]), axis=1) < 0.9 - points.texel_size
-    np.testing.assert_array_equal(points.position[inside_room], unsettled(surface, scene).position[inside_room])
+    unsettled = bakepoint_reference.unsettled(surface, 64, 64, scene)
+    np.testing.assert_array_equal(points.position[inside_room], unsettled.position[inside_room])
     wall = lf.fixtures()["wall_through_floor"]
     points = bakepoints.build(lf.surface_of(wall, 128), 128, 128, occluders=rays.RayScene(wall.triangles()))
     centre_hidden = wall.hidden(lf.texel_centres(points) + 1e-6 * points.face_normal)
     now_hidden = wall.hidden(points.position + 1e-6 * points.face_normal)
     rim = centre_hidden & points.crossed
     assert rim.sum() > 20 and not now_hidden[rim].any()
-
-
-def unsettled(surface, scene):
-    old = bakepoints.SETTLE
-    bakepoints.SETTLE = False
-    try:
-        return bakepoints.build(surface, 64, 64, occluders=scene)
-    finally:
-        bakepoints.SETTLE = old
 
 
 def test_buried_texels_fill_from_their_own_chart_not_black():

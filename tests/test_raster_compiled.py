@@ -11,7 +11,7 @@ import pytest
 from hhd_lightmapper.core import bakepoints, raster, rays
 from hhd_lightmapper.core.bakepoints import data as bakepoint_data
 from hhd_lightmapper.core.bakepoints import settling
-from scenekit import meshes
+from scenekit import bakepoint_reference, meshes
 from scenekit import raster_reference as ref
 
 
@@ -147,9 +147,9 @@ def assert_same_points(a, b):
             assert x == y, field.name
 
 
-@pytest.mark.parametrize("settle", [True, False])
-def test_compiled_bake_points_are_the_numpy_bake_points_bit_for_bit(settle, monkeypatch):
-    monkeypatch.setattr(bakepoints, "SETTLE", settle)
+def test_compiled_bake_points_are_the_numpy_bake_points_bit_for_bit(monkeypatch):
+    """The whole build, then the probes alone on its points and on the same points not settled
+    (scenekit/bakepoint_reference.py: bake points left inside the wall and the tray)."""
     surface, occluders = scene(np.random.default_rng(3))
     res = 96
     got = [bakepoints.build(surface, res, res, occluders=occluders, threads=t, chunk=1000) for t in (1, 2)]
@@ -160,16 +160,19 @@ def test_compiled_bake_points_are_the_numpy_bake_points_bit_for_bit(settle, monk
         use_reference(patch)
         want = bakepoints.build(surface, res, res, occluders=occluders, threads=2, chunk=1000)
     assert_same_points(want, got[0])
-    # the probes alone, on these points, with every probe direction count
-    probe = bakepoints.covers.shared_probe(occluders, got[0].offset, got[0].mesh.positions)
-    np.testing.assert_array_equal(
-        bakepoints.find_near_cover(got[0], probe, chunk=777), ref.find_near_cover(got[0], probe, chunk=777)
-    )
-    for probes in (3, 5, 12):
+    # the probes alone, on these points and on unsettled ones, with every probe direction count
+    unsettled = bakepoint_reference.unsettled(surface, res, res, occluders, threads=2, chunk=1000)
+    assert (unsettled.position != got[0].position).any(axis=1).sum() > 100
+    for points in (got[0], unsettled):
+        probe = bakepoints.covers.shared_probe(occluders, points.offset, points.mesh.positions)
         np.testing.assert_array_equal(
-            bakepoints.find_buried(got[0], occluders, probes, chunk=777),
-            ref.find_buried(got[0], occluders, probes, chunk=777),
+            bakepoints.find_near_cover(points, probe, chunk=777), ref.find_near_cover(points, probe, chunk=777)
         )
+        for probes in (3, 5, 12):
+            np.testing.assert_array_equal(
+                bakepoints.find_buried(points, occluders, probes, chunk=777),
+                ref.find_buried(points, occluders, probes, chunk=777),
+            )
 
 
 def test_texel_points_are_numpys_matmul_to_its_last_bits():

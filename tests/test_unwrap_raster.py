@@ -10,7 +10,7 @@ from hhd_lightmapper.core.bakepoints.covers import CoverProbe
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.scene import BakeScene
 from hhd_lightmapper.core.unwrap import charting, data, instance_packing, packing, worker_runs
-from scenekit import meshes
+from scenekit import bakepoint_reference, meshes
 
 
 # --- an independent, slow reference: clip one triangle against one texel in pure Python ---
@@ -233,7 +233,9 @@ def test_ray_offset_scales_with_the_scene(scale):
     assert world > 32 * 1.19e-7 * 1e4 * scale
 
 
-def floor_with(obstacle_v, obstacle_f, resolution=256):
+def floor_with(obstacle_v, obstacle_f, resolution=256, settled=True):
+    """Bake points of a 4 m floor with an obstacle (`settled` False: not settled,
+    scenekit/bakepoint_reference.py) and the RayScene of both."""
     floor_v, floor_f = meshes.plane(4.0)
     floor_v -= [2.0, 2.0, 0.0]
     res = unwrap.unwrap([unwrap.UnwrapMesh("floor", floor_v, floor_f)], unwrap.UnwrapSettings(resolution=resolution))
@@ -245,15 +247,17 @@ def floor_with(obstacle_v, obstacle_f, resolution=256):
         np.full((2, 3), 0.5),
     )
     scene = rays.RayScene(np.concatenate([floor_v[floor_f], obstacle_v[obstacle_f]]))
+    if not settled:
+        return bakepoint_reference.unsettled(surface, resolution, resolution, scene), scene
     return bakepoints.build(surface, resolution, resolution, occluders=scene), scene
 
 
-def test_thin_wall_pushed_into_the_floor_buries_the_texels_under_it(monkeypatch):
+def test_thin_wall_pushed_into_the_floor_buries_the_texels_under_it():
     """A 3 cm wall (≈ 2 texels) sunk 20 cm into the floor: the floor texels inside it see only
     its inner faces and are flagged; texels a few texels away on either side are not. That is
-    with their bake points left where they are (`bakepoints.SETTLE` off); settled, the bake
-    points move out of the wall onto its nearer side (`bakepoints.settle`), and none is left
-    inside it unflagged."""
+    with their bake points left where they are (not settled: scenekit/bakepoint_reference.py);
+    settled, the bake points move out of the wall onto its nearer side (`bakepoints.settle`),
+    and none is left inside it unflagged."""
     v, f = meshes.cube(1.0)
     v = v * [0.03, 2.0, 1.2] + [0.0, 0.0, 0.4]
     pts, _ = floor_with(v, f)
@@ -262,8 +266,7 @@ def test_thin_wall_pushed_into_the_floor_buries_the_texels_under_it(monkeypatch)
     inside = (np.abs(pts.position[:, 0]) < 0.015) & (np.abs(pts.position[:, 1]) < 1.0)
     assert under.sum() > 50 and not (inside & ~pts.buried).any()
     assert (np.abs(pts.position[under, 0]) > 0.015).mean() > 0.95
-    monkeypatch.setattr(bakepoints, "SETTLE", False)
-    pts, _ = floor_with(v, f)
+    pts, _ = floor_with(v, f, settled=False)
     x, y = np.abs(pts.position[:, 0]), np.abs(pts.position[:, 1])
     under = (x < 0.015) & (y < 0.9)
     away = (x > 0.015 + 3 * pts.texel_size) | (y > 1.0 + 3 * pts.texel_size)
@@ -271,14 +274,13 @@ def test_thin_wall_pushed_into_the_floor_buries_the_texels_under_it(monkeypatch)
     assert not pts.buried[away].any()
 
 
-def test_buried_probes_in_two_stages_flag_exactly_what_all_probes_flag(monkeypatch):
+def test_buried_probes_in_two_stages_flag_exactly_what_all_probes_flag():
     """find_buried skips the last probes of texels whose first ones hit no back face: the same
     flags as every probe from every texel, over texels open (no back-face hit) and buried
-    (bake points left inside the wall: `bakepoints.SETTLE` off)."""
-    monkeypatch.setattr(bakepoints, "SETTLE", False)
+    (bake points left inside the wall: not settled, scenekit/bakepoint_reference.py)."""
     v, f = meshes.cube(1.0)
     v = v * [0.03, 2.0, 1.2] + [0.0, 0.0, 0.4]
-    pts, scene = floor_with(v, f)
+    pts, scene = floor_with(v, f, settled=False)
     local = flags._probe_directions(flags.BURIED_PROBES)
     from hhd_lightmapper.core import sh
 

@@ -39,11 +39,6 @@ FOOTPRINT_TRIANGLES = 4
 #: texel's own triangle's: every sample is pushed off along the texel's face normal, which must
 #: also take it off that triangle's surface (a sharper fold inside one texel keeps its own part).
 FOOTPRINT_MIN_COS = 0.9
-#: Move bake points out from under back faces and keep every texel's samples on the side of
-#: any geometry crossing its footprint where its bake point lies (`settle`; the tracer drops
-#: samples hidden from the bake point). Off: the texel averages its whole footprint, as
-#: Cycles does, both sides of a wall standing on it included.
-SETTLE = True
 
 
 def build(
@@ -57,7 +52,10 @@ def build(
     albedo: bool = True,
 ) -> BakePoints:
     """Bake points of every covered texel. `occluders` (all geometry that casts shadows, the
-    receivers included) enables the buried-texel test; without it nothing is flagged.
+    receivers included) enables the probes: bake points move out of solids and keep every
+    texel's samples on their side of geometry crossing its footprint (`settle`: `crossed`; the
+    tracer drops samples hidden from the bake point), then the buried-texel test; without it
+    nothing is flagged or moved.
     `check()`, if given, is called between chunks of work (it raises to stop: a cancel).
     Per-texel quantities are computed `chunk` texels at a time, so the temporaries stay small
     next to the result (~170 bytes per texel). `threads`: workers of the probe passes (buried,
@@ -105,13 +103,12 @@ def build(
     _for_chunks(fill_chunk, n, chunk, check, threads)
     if occluders is not None:
         probe = covers.shared_probe(occluders, points.offset, mesh.positions)
-        if SETTLE:  # else `crossed` stays None: the tracer averages whole footprints
-            points.crossed = settle(points, occluders, probe, check=check, threads=threads)
+        points.crossed = settle(points, occluders, probe, check=check, threads=threads)
         points.buried = find_buried(points, occluders, check=check, threads=threads)
         points.near_cover = find_near_cover(points, probe, check=check, threads=threads)
-        if SETTLE:  # a bake point still under a coplanar face: the whole texel is hidden
-            rows = np.flatnonzero(points.near_cover & ~points.buried)
-            points.buried[rows] = probe.covered(points.origins(rows), points.face_normal[rows])
+        # a bake point still under a coplanar face: the whole texel is hidden
+        rows = np.flatnonzero(points.near_cover & ~points.buried)
+        points.buried[rows] = probe.covered(points.origins(rows), points.face_normal[rows])
     return points
 
 

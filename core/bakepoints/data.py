@@ -112,7 +112,7 @@ class BakePoints:
     by geometry, or the bake point stays under a coplanar face);
     near_cover (P,) bool (part of the texel may lie under a coplanar face: core.bakepoints.covers);
     crossed (P,) bool (geometry crosses the texel's footprint: `settle`; the tracer keeps only
-    the samples the bake point sees; None when not settled); offset: ray origin offset, scene units; texel_size (P,)
+    the samples the bake point sees; None when built without occluders); offset: ray origin offset, scene units; texel_size (P,)
     world size of a texel, metres; mesh: the receiving triangles `triangle` indexes (`SurfaceMesh`)."""
 
     width: int

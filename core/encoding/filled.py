@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import dilate as _dilate
+from ..stages import BandedImage
 
 
 @dataclass(eq=False)
@@ -85,10 +86,9 @@ def _span(indices: np.ndarray, start: int, stop: int) -> tuple[int, int]:
 
 
 @dataclass(frozen=True, eq=False)
-class FilledChannel:
-    """Channel `k` of a `FilledLayer` as an `(H, W)` image for `exr.write_file`: `[a:b]` gives
-    those rows (an ndarray), `[::-1]` the image with its rows reversed (EXR's top-down order),
-    `astype` to its own dtype is itself; `np.asarray` makes it whole (tests)."""
+class FilledChannel(BandedImage):
+    """Channel `k` of a `FilledLayer` as an `(H, W)` `BandedImage` for `exr.write_file`
+    (`flipped`: rows reversed)."""
 
     layer: FilledLayer
     k: int
@@ -103,39 +103,11 @@ class FilledChannel:
     def dtype(self) -> np.dtype:
         return self.layer.layer.dtype
 
-    @property
-    def ndim(self) -> int:
-        return 2
-
-    @property
-    def size(self) -> int:
-        return self.shape[0] * self.shape[1]
-
-    def __len__(self) -> int:
-        return self.shape[0]
-
-    def astype(self, dtype, copy: bool = True):
-        if np.dtype(dtype) == self.dtype and not copy:
-            return self
-        return np.asarray(self).astype(dtype)
-
-    def __getitem__(self, key) -> FilledChannel | np.ndarray:
-        if not isinstance(key, slice):
-            raise TypeError(f"a FilledChannel takes a slice of rows, not {key!r}")
-        if key == slice(None, None, -1):
-            return FilledChannel(self.layer, self.k, not self.flipped)
-        h = self.shape[0]
-        start, stop, step = key.indices(h)
-        if step != 1:
-            raise ValueError("a FilledChannel gives rows in order or reversed only")
-        stop = max(stop, start)
+    def _rows(self, a: int, b: int) -> np.ndarray:
         if not self.flipped:
-            return self.layer.band(start, stop)[:, :, self.k]
-        return self.layer.band(h - stop, h - start)[::-1, :, self.k]
-
-    def __array__(self, dtype=None, copy=None):
-        whole = np.ascontiguousarray(self[0 : self.shape[0]])
-        return whole if dtype is None else whole.astype(dtype, copy=False)
+            return self.layer.band(a, b)[:, :, self.k]
+        h = self.shape[0]
+        return self.layer.band(h - b, h - a)[::-1, :, self.k]
 
 
 def filled_channels(layer: np.ndarray, fill: _dilate.Fill, keep_black: bool) -> list[FilledChannel]:

@@ -47,23 +47,9 @@ from . import hemisphere_kernels, lights, shipping
 from .paths import Paths, TexelSamples, TraceScene, seed
 from .scheduler import UnitResult, WorkUnit
 
-#: Each texel's hemisphere directions from its own scrambled (0,2)-sequences, stratified
-#: across all its passes (`hemisphere_kernels.texel_hemisphere_rays`); False: the estimator until
-#: 2026-12-02, stratified within each pass only (`hemisphere_kernels.hemisphere_rays`, α ½;
-#: bench/estimator.py measures what this saves).
-STRATIFIED_DIRECTIONS = True
-#: Each texel's first tries of its sample origins from its own scrambled (0,2)-sequence,
-#: stratified across all its passes (`BakePoints.sample_origins`); False: within each pass.
-STRATIFIED_ORIGINS = True
-#: Each path's first bounce (its light samples and its new direction) from its texel's own
-#: sequences, stratified across all its passes (`paths.TexelSamples`); False: independent.
-STRATIFIED_FIRST_BOUNCE = True
 #: α, the uniform share of the hemisphere mixture α/(2π) + (1 − α)·cosθ/π the directions are
-#: drawn from (with STRATIFIED_DIRECTIONS; else ½).
+#: drawn from.
 UNIFORM_SHARE = 0.5
-#: The bake point's light samples from each texel's stratified sequence (`lights.light.TexelStream`);
-#: False: independent random numbers (bench/light_sampling.py measures what this saves).
-STRATIFIED_LIGHTS = True
 
 
 class TexelEstimator(shipping.Shipped):
@@ -110,34 +96,45 @@ class TexelEstimator(shipping.Shipped):
         # a bake of some receivers (core.incremental) draws what a full bake draws for those texels
         ids = np.ascontiguousarray(self.points.texel[idx], np.int64)
         normals = self.points.normal[idx]
-        if STRATIFIED_DIRECTIONS:  # (n·k, 3), (n·k,)
-            dirs, pdf = hemisphere_kernels.get().texel_hemisphere_rays(
-                normals, k, ids, unit.pass_index * k, unit.seed, UNIFORM_SHARE
-            )
-        else:
-            dirs, pdf = hemisphere_kernels.get().hemisphere_rays(normals, k, seed(rng))
+        dirs, pdf = self._directions(unit, ids, normals)  # (n·k, 3), (n·k,)
         texel = np.repeat(np.arange(len(idx)), k)
-        first = unit.pass_index * k if STRATIFIED_ORIGINS else None
-        origins = self.points.sample_origins(rng, idx, k, self.footprint, first, unit.seed)
+        origins = self._origins(rng, unit)
         uncovered = self._uncovered(paths, idx, texel, origins)
         crossed = self.points.crossed
         if crossed is not None:  # settled bake points: hidden samples are replaced
             origins = self._visible(paths, rng, idx, origins, k, crossed[idx], uncovered)
             uncovered = None
         normal = np.repeat(self.points.normal[idx], k, axis=0)  # the light samples' too (`_direct_sh`)
-        texels = None
-        if STRATIFIED_FIRST_BOUNCE:
-            texels = TexelSamples(ids, k, unit.pass_index * k, unit.seed)
-        radiance = paths.radiance(rng, origins, dirs, pdf, uncovered, normal, texels)  # (n·k, C)
-        project = (
-            hemisphere_kernels.get().project_halves
-            if STRATIFIED_DIRECTIONS
-            else hemisphere_kernels.get().project_hemisphere
-        )
-        estimate = project(dirs, radiance, pdf, normals, k)
-        stream = lights.light.TexelStream(ids, k, unit.pass_index * k, unit.seed) if STRATIFIED_LIGHTS else None
-        estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered, stream)
+        radiance = paths.radiance(rng, origins, dirs, pdf, uncovered, normal, self._first_bounce(unit, ids))  # (n·k, C)
+        estimate = hemisphere_kernels.get().project_halves(dirs, radiance, pdf, normals, k)
+        estimate = estimate + self._direct_sh(paths, rng, idx, origins, k, uncovered, self._light_stream(unit, ids))
         return UnitResult(estimate, paths.traced)
+
+    # Where a pass's numbers come from: each texel's own sequences, stratified across its passes
+    # (`unit.pass_index · k` is the pass's first sample). scenekit/estimator_reference.py draws
+    # them pass by pass instead, what bench/estimator.py measures this against.
+    def _directions(self, unit: WorkUnit, ids: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hemisphere directions `(n·k, 3)` of the unit's texels (atlas ids `ids` (n,), unit
+        normals (n, 3)) and their density per steradian `(n·k,)`: the mixture of UNIFORM_SHARE
+        from the texels' own (0,2)-sequences (`hemisphere_kernels.texel_hemisphere_rays`)."""
+        k = self.pass_samples
+        return hemisphere_kernels.get().texel_hemisphere_rays(
+            normals, k, ids, unit.pass_index * k, unit.seed, UNIFORM_SHARE
+        )
+
+    def _origins(self, rng: np.random.Generator, unit: WorkUnit) -> np.ndarray:
+        """Sample origins `(n·k, 3)` over the unit's texels' footprints (`BakePoints.sample_origins`),
+        their first tries from the texels' own (0,2)-sequences."""
+        k = self.pass_samples
+        return self.points.sample_origins(rng, unit.texels, k, self.footprint, unit.pass_index * k, unit.seed)
+
+    def _first_bounce(self, unit: WorkUnit, ids: np.ndarray) -> TexelSamples:
+        """Where the paths' first bounce (its light samples, its new direction) takes its numbers."""
+        return TexelSamples(ids, self.pass_samples, unit.pass_index * self.pass_samples, unit.seed)
+
+    def _light_stream(self, unit: WorkUnit, ids: np.ndarray) -> lights.light.Strata:
+        """Where the light samples at the bake point take their numbers (`_direct_sh`)."""
+        return lights.light.TexelStream(ids, self.pass_samples, unit.pass_index * self.pass_samples, unit.seed)
 
     def _visible(self, paths: Paths, rng, idx, origins, k, crossed, uncovered=None) -> np.ndarray:
         """`origins` (n·k, 3) with those hidden from their texel's bake point (a wall or a box
@@ -178,19 +175,20 @@ class TexelEstimator(shipping.Shipped):
         uncovered[rows] = ~covers.covered(origins[rows], self.points.face_normal[idx[texel[rows]]])
         return uncovered
 
-    def _direct_sh(self, paths: Paths, rng, idx, origins, k, uncovered=None, stream=None) -> np.ndarray:
+    def _direct_sh(self, paths: Paths, rng, idx, origins, k, uncovered, strata: lights.light.Strata) -> np.ndarray:
         """Next-event estimation at the bake point: one shadow ray per light sampled
         (`Paths.light_samples`: one of the point, spot and area lights) from each of the
-        pass's k origins (those `uncovered`, if given), projected to SH (len(idx), 9, C), each
+        pass's k origins (those `uncovered`, if not None), projected to SH (len(idx), 9, C), each
         light into its set's columns; light arriving from below n_v's horizon is left out.
-        Penumbrae average over the footprint."""
+        Penumbrae average over the footprint. `strata`: where the light samples take their
+        numbers (`_light_stream`)."""
         out = np.zeros((len(idx), 9, self.scene.channels))
         normal = np.repeat(self.points.normal[idx], k, axis=0)
 
         def mixture_pdf(w):
             return _mixture_pdf(np.einsum("ri,ri->r", w, normal))
 
-        samples = paths.light_samples(rng, origins, mixture_pdf, strata=1 if stream is None else stream, normals=normal)
+        samples = paths.light_samples(rng, origins, mixture_pdf, strata, normals=normal)
         for (dirs, value, dist), rows, c in samples:
             allowed = rows if uncovered is None else (uncovered if rows is None else uncovered & rows)
             weight, traced = paths.shadow(origins, dirs, dist, normal, 1.0 / k, cosine=False, allowed=allowed)
@@ -212,5 +210,4 @@ def _probed(points: BakePoints, idx=slice(None)) -> np.ndarray:
 
 def _mixture_pdf(cos):
     """Density per steradian of the hemisphere directions (`TexelEstimator.trace`) at cosθ."""
-    alpha = UNIFORM_SHARE if STRATIFIED_DIRECTIONS else 0.5
-    return np.where(cos > 0.0, alpha / (2.0 * np.pi) + (1.0 - alpha) * cos / np.pi, 0.0)
+    return np.where(cos > 0.0, UNIFORM_SHARE / (2.0 * np.pi) + (1.0 - UNIFORM_SHARE) * cos / np.pi, 0.0)

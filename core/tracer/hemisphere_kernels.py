@@ -26,39 +26,6 @@ _TWO_PI = 2.0 * math.pi
 sh_basis = sh.basis
 
 
-def hemisphere_rays(normals, k, seed):
-    """k directions per texel over the hemisphere of its unit normal (normals (n, 3)), in two
-    independent halves of k/4 uniform then k/4 cosine-weighted samples; each group of k/4
-    Latin-hypercube stratified in (u1, u2). Returns directions (n·k, 3) and the mixture pdf
-    per steradian (n·k,) = ½/(2π) + ½·cosθ/π (why: the tracer's module docstring)."""
-    state = np.uint64(seed)
-    n = normals.shape[0]
-    q = k // 4
-    dirs = np.empty((n * k, 3))
-    pdf = np.empty(n * k)
-    perm = np.empty(q, np.int64)
-    for t in range(n):
-        nx, ny, nz = normals[t, 0], normals[t, 1], normals[t, 2]
-        for g in range(4):
-            for i in range(q):  # a random permutation of 0..q-1
-                state, u = uniform(state)
-                j = min(int(u * (i + 1)), i)
-                perm[i] = perm[j]
-                perm[j] = i
-            for i in range(q):
-                s = t * k + g * q + i
-                state, u1 = uniform(state)
-                state, u2 = uniform(state)
-                u1 = (i + u1) / q
-                u2 = (perm[i] + u2) / q
-                z = u1 if g % 2 == 0 else math.sqrt(1.0 - u1)
-                r = math.sqrt(max(1.0 - z * z, 0.0))
-                phi = _TWO_PI * u2
-                dirs[s, 0], dirs[s, 1], dirs[s, 2] = local_to_world(nx, ny, nz, r * math.cos(phi), r * math.sin(phi), z)
-                pdf[s] = 0.25 * _INV_PI + 0.5 * z * _INV_PI
-    return dirs, pdf
-
-
 #: The first stream number of `texel_hemisphere_rays`' two halves (`stream_key`), apart from
 #: the dimensions `texel_sequence` draws for lights.
 _DIRECTION_STREAMS = 64
@@ -122,32 +89,18 @@ def replace_hidden(hidden, k, seed):
     return out
 
 
-def project_hemisphere(dirs, radiance, pdf, normals, k):
-    """Radiance SH (n, 9, C) of each texel's k samples (directions (n·k, 3), radiance (n·k, C):
-    C = 3 per light set, pdf (n·k,) in the group order of `hemisphere_rays`), with a constant
-    (per column) as control variate.
-
-    Plain estimate: Σ L Y / (k p) over all k samples (balance heuristic over the two
-    strategies: every coefficient, I_z's included, uses every sample). Each half subtracts a
-    constant β and adds back its exact integral β·∫Y over the hemisphere of the texel's normal
-    (normals (n, 3); ∫Y: band 0 2π·Y00, band 1 π·C1·n, band 2 zero, its basis functions being
-    traceless quadratic forms and ∫ ωωᵀ dω = (2π/3)·I over a hemisphere), with β the mean
-    radiance of the *other* half's cosine samples: independent of this half's samples, so the
-    estimate stays unbiased, and constant radiance is reproduced exactly (the furnace test)
-    while near-constant skies lose most of the pdf-shape noise (lower per-texel I_z noise than
-    taking I_z from the cosine half alone: README, "Speed vs accuracy")."""
-    return _project_control_variate(dirs, radiance, pdf, normals, k, k // 4, k // 4)
-
-
 def project_halves(dirs, radiance, pdf, normals, k):
-    """`project_hemisphere` for samples in two independent halves of k/2 (`texel_hemisphere_rays`):
-    each half subtracts β = the mean radiance of the *other* half and adds back β·∫Y."""
-    return _project_control_variate(dirs, radiance, pdf, normals, k, 0, k // 2)
+    """Radiance SH (n, 9, C) of each texel's k samples (directions (n·k, 3), radiance (n·k, C):
+    C = 3 per light set, pdf (n·k,)), in two independent halves of k/2 (`texel_hemisphere_rays`),
+    with a constant (per column) as control variate.
 
-
-def _project_control_variate(dirs, radiance, pdf, normals, k, offset, count):
-    """`project_hemisphere`'s estimator with each half's β the mean radiance of the other
-    half's samples offset .. offset + count − 1 (counted from that half's start)."""
+    Plain estimate: Σ L Y / (k p) over all k samples (every coefficient, I_z's included, uses
+    every sample). Each half subtracts a constant β and adds back its exact integral β·∫Y over
+    the hemisphere of the texel's normal (normals (n, 3); ∫Y: band 0 2π·Y00, band 1 π·C1·n,
+    band 2 zero, its basis functions being traceless quadratic forms and ∫ ωωᵀ dω = (2π/3)·I
+    over a hemisphere), with β the mean radiance of the *other* half: independent of this
+    half's samples, so the estimate stays unbiased, and constant radiance is reproduced exactly
+    (the furnace test) while near-constant skies lose most of the pdf-shape noise."""
     n = normals.shape[0]
     half = k // 2
     cols = radiance.shape[1]
@@ -160,11 +113,11 @@ def _project_control_variate(dirs, radiance, pdf, normals, k, offset, count):
         for c in range(cols):
             sa = 0.0
             sb = 0.0
-            for i in range(count):
-                sa += radiance[base + half + offset + i, c]  # half B: β for half A
-                sb += radiance[base + offset + i, c]  # half A: β for half B
-            beta[0, c] = sa / count
-            beta[1, c] = sb / count
+            for i in range(half):
+                sa += radiance[base + half + i, c]  # half B: β for half A
+                sb += radiance[base + i, c]  # half A: β for half B
+            beta[0, c] = sa / half
+            beta[1, c] = sb / half
         for j in range(k):
             s = base + j
             h = 0 if j < half else 1
@@ -203,16 +156,8 @@ def accumulate_grouped(dirs, values, weights, k, out):
 
 KERNELS = compiled.KernelSet(
     __name__,
-    kernels=(
-        "hemisphere_rays",
-        "texel_hemisphere_rays",
-        "replace_hidden",
-        "project_hemisphere",
-        "project_halves",
-        "accumulate_grouped",
-    ),
-    helpers=("_project_control_variate", "sh_basis"),
-    allocating=("_project_control_variate",),
+    kernels=("texel_hemisphere_rays", "replace_hidden", "project_halves", "accumulate_grouped"),
+    helpers=("sh_basis",),
     uses=(sampling.KERNELS,),
 )
 get = KERNELS.get

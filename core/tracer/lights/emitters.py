@@ -18,8 +18,8 @@ CLUSTERS = 32
 #: Split clusters of more than one emitting triangle again into at most FANOUT clusters each, down
 #: to single triangles (or MAX_LEAVES leaves): a light tree, descended at each shading point by
 #: the same weights one level at a time, so a scene with thousands of emitters picks the one
-#: beside the point, not a cluster's triangle by power alone (0: the top clusters alone,
-#: `tree.light_tree`).
+#: beside the point, not a cluster's triangle by power alone (`tree.light_tree`; ≤ 1: no tree,
+#: the top clusters alone).
 FANOUT = 8
 
 

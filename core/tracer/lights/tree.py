@@ -33,7 +33,8 @@ def light_tree(centroids: np.ndarray, top: int, fanout: int, most_leaves: int):
     """A tree of spatial clusters over points `centroids` (E, 3): at most `top` top clusters
     (`cluster_splits`), each cluster of more than one point split again into at most `fanout`
     (`cluster_splits` of its points), breadth first, until every leaf holds one point (or
-    coincident points) or there are `most_leaves` leaves; fanout 0: the top clusters alone.
+    coincident points) or there are `most_leaves` leaves; fanout ≤ 1 splits none: the top
+    clusters alone.
     Returns (leaf (E,) each point's leaf, child_first (N + 1,), child_count (N + 1,), parent
     (N,)) over N nodes numbered breadth first, so a node's children are consecutive (0 children:
     a leaf); entry N of the first two is the root above the top clusters, which parent N names."""
@@ -42,7 +43,7 @@ def light_tree(centroids: np.ndarray, top: int, fanout: int, most_leaves: int):
     members = [np.flatnonzero(ids == c) for c in range(k)]
     child_first, child_count, parent = [0] * k, [0] * k, [-1] * k  # the root's entry is appended last
     leaves, c = k, 0
-    while fanout and c < len(members) and leaves < most_leaves:
+    while c < len(members) and leaves < most_leaves:
         m = members[c]
         sub = cluster_splits(centroids[m], min(fanout, most_leaves - leaves + 1)) if len(m) > 1 else ids[:0]
         n = int(sub.max()) + 1 if len(sub) else 1
