@@ -106,6 +106,36 @@ def test_flip_scene_turns_the_winding_of_the_flipped_faces_only():
     assert inward.flip_scene(scene, np.zeros((0, 3, 3))) is scene
 
 
+def test_flip_scene_matches_faces_by_exact_corners_in_a_large_scene():
+    """The faces matched (narrowed by corner bounds first) are exactly those whose corner multiset
+    equals a flipped face's, against a plain set of sorted corner tuples: corners shuffled, -0.0
+    for 0.0, near misses (one coordinate a float step away, the same bounds from other corners)
+    and duplicates of a flipped face."""
+    from hhd_lightmapper.core.scene import BakeScene
+
+    rng = np.random.default_rng(7)
+    tris = rng.integers(-3, 4, size=(20000, 3, 3)).astype(np.float64) * 0.5
+    flipped = tris[rng.choice(len(tris), 40, replace=False)].copy()
+    near = flipped[:10].copy()
+    near[:, 0, 0] = np.nextafter(near[:, 0, 0], np.inf)  # one float step: not the same face
+    swapped = flipped[10:20].copy()  # the same per-axis bounds, other corners: not the same face
+    swapped[:, 0, 0], swapped[:, 1, 0] = flipped[10:20, 1, 0], flipped[10:20, 0, 0]
+    signed = np.where(flipped[20:30] == 0.0, -0.0, flipped[20:30])  # -0.0: the same face
+    extra = np.concatenate([near, swapped, signed, flipped[30:][:, [2, 0, 1]]])
+    scene = BakeScene(np.concatenate([tris, extra]), np.full((len(tris) + len(extra), 3), 0.5))
+    out = inward.flip_scene(scene, flipped[:, [1, 2, 0]])
+
+    def key(t):
+        return tuple(sorted(tuple(c + 0.0) for c in t))
+
+    wanted = {key(t) for t in flipped}
+    expected = np.array([key(t) in wanted for t in scene.triangles])
+    changed = ~np.all(out.triangles == scene.triangles, axis=(1, 2))
+    degenerate = np.all(scene.triangles[:, 1] == scene.triangles[:, 2], axis=1)  # swapping 1 and 2 changes nothing
+    assert np.array_equal(changed, expected & ~degenerate)
+    assert expected[len(tris) + 20 :].all() and not expected[len(tris) : len(tris) + 10].any()
+
+
 def test_a_room_lit_by_an_emitter_inside_or_its_own_glowing_panel_is_not_flagged():
     from hhd_lightmapper.core.scene import BakeScene
 

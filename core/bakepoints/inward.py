@@ -351,11 +351,7 @@ def flip_scene(scene, positions: np.ndarray):
     triangles = np.asarray(scene.triangles, np.float64)
     if len(positions) == 0 or len(triangles) == 0:
         return scene
-    ids = weld(np.concatenate([positions, triangles]))
-    ids.sort(axis=1)
-    _, key = np.unique(ids, axis=0, return_inverse=True)
-    key = key.reshape(-1)
-    rows = np.flatnonzero(np.isin(key[len(positions) :], key[: len(positions)]))
+    rows = _same_triangles(positions, triangles)
     if len(rows) == 0:
         return scene
     triangles = triangles.copy()
@@ -366,6 +362,31 @@ def flip_scene(scene, positions: np.ndarray):
         texture_uv[rows] = texture_uv[rows][:, [0, 2, 1]]
         changes["texture_uv"] = texture_uv
     return replace(scene, **changes)
+
+
+def _same_triangles(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Indices of the `triangles (T, 3, 3)` whose corners are exactly those of one of `positions
+    (F, 3, 3)` (in any order; 0.0 and -0.0 alike). The whole scene is narrowed first to the
+    triangles whose per-axis corner bounds are bit for bit some face's (bounds do not depend on
+    the corners' order, and equal corners give equal bounds); only those are welded and matched."""
+    candidates = np.flatnonzero(np.isin(_bounds_key(triangles), _bounds_key(positions)))
+    if len(candidates) == 0:
+        return candidates
+    ids = weld(np.concatenate([positions, triangles[candidates]]))
+    ids.sort(axis=1)
+    _, key = np.unique(ids, axis=0, return_inverse=True)
+    key = key.reshape(-1)
+    return candidates[np.isin(key[len(positions) :], key[: len(positions)])]
+
+
+def _bounds_key(triangles: np.ndarray) -> np.ndarray:
+    """A 64-bit hash (T,) of each triangle's per-axis min and max corner coordinates (-0.0 as 0.0)."""
+    t = triangles + 0.0
+    bits = np.concatenate([t.min(axis=1), t.max(axis=1)], axis=1).view(np.uint64)
+    key = np.zeros(len(t), np.uint64)
+    for k in range(bits.shape[1]):
+        key = (key ^ bits[:, k]) * np.uint64(0x100000001B3)
+    return key
 
 
 def count_texels(found: list[InwardObject], triangle: np.ndarray) -> None:
