@@ -163,8 +163,8 @@ def test_a_mesh_of_many_parts_is_charted_in_parallel_pieces(monkeypatch):
 @pytest.mark.parametrize("side_by_side", [False, True])
 def test_fitting_packs_the_same_charts_again_at_a_smaller_density(monkeypatch, side_by_side):
     """Charts that spill out of the atlas are packed again (xatlas charts once) at a density
-    shrunk by the share that spilled; then, packing being quick, between the best that fitted
-    and the smallest that spilled. In one child, or two densities at a time in parallel ones."""
+    shrunk by the share that spilled; then between the best that fitted and the smallest that
+    spilled. Two densities a round, in one child or in two parallel ones."""
     for module in (charting, packing):
         monkeypatch.setattr(module, "_cores", lambda: 2 if side_by_side else 1)
     monkeypatch.setattr(packing, "ONE_CHILD_TRIANGLES", 0)

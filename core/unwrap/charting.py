@@ -14,14 +14,15 @@ from .data import Charts, UnwrapMesh
 from .worker_runs import _cores, _run_worker
 
 #: Charting child processes run at once, never more than the cores this process may use. Each
-#: charts some of the meshes, or of the connected parts of a large one. xatlas has threads of
-#: its own, but they leave cores idle (small meshes, one mesh's last charts), and its Python
-#: binding holds the GIL, so threads of ours could not chart side by side: measured gains are
-#: in bench/results/unwrap.md.
+#: charts some of the meshes, or pieces of a large one. xatlas has threads of its own, but they
+#: leave cores idle (small meshes, one mesh's last charts), and its Python binding holds the GIL,
+#: so threads of ours could not chart side by side: measured gains are in bench/results/unwrap.md.
 CHART_PROCESSES = 4
 #: Charting work below this many triangles per process stays in fewer processes (starting one
 #: costs a Python start-up and the imports of numpy and xatlas; below it, xatlas's own threads
-#: did as well).
+#: did as well). A mesh with more triangles than this is charted in pieces of about this many
+#: (its connected parts gathered, `_connected_pieces`), each piece alone: the pieces depend on the
+#: mesh alone, not on the cores nor on the other meshes charted with it, so its charts do too.
 TRIANGLES_PER_PROCESS = 100_000
 #: Bytes of charts kept for re-unwrapping unchanged meshes (least recently used dropped first):
 #: 28 bytes or less per triangle, so several million triangles.
@@ -123,15 +124,16 @@ def _chart_uncached(meshes, stats, progress, cancel=None):
 def _chart_jobs(meshes):
     """Work for each charting child: [[(mesh index, triangle rows (t,) or None, vertices used
     (v,), triangles (t, 3) uint32 renumbered, polygons (t,) or None)]], balanced by triangles.
-    A mesh larger than one child's share is split between its connected parts (charts never
-    cross from one connected part to another, so this gives the same kind of charts)."""
+    A mesh larger than TRIANGLES_PER_PROCESS is split between its connected parts (charts never
+    cross from one connected part to another, so this gives the same kind of charts); how the
+    pieces are dealt to children plays no part in the charts (each piece is charted alone)."""
     total = sum(len(m.triangles) for m in meshes)
     n = max(1, min(CHART_PROCESSES, _cores(), -(-total // TRIANGLES_PER_PROCESS)))
-    share = total / n
     items = []
     for i, m in enumerate(meshes):
         tri = np.asarray(m.triangles, dtype=np.int64)
-        pieces = _connected_pieces(tri, len(m.positions), share) if n > 1 and len(tri) > share else [None]
+        large = len(tri) > TRIANGLES_PER_PROCESS
+        pieces = _connected_pieces(tri, len(m.positions), TRIANGLES_PER_PROCESS) if large else [None]
         for rows in pieces:
             items.append(_piece(i, m, tri, rows))
     bins: list[list] = [[] for _ in range(n)]

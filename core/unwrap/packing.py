@@ -16,9 +16,11 @@ from .worker_runs import _cores, _run_worker
 #: Packed atlases kept for re-unwrapping the same charts with the same settings: at most this
 #: many, and this many bytes of UVs (24 per triangle).
 PACK_CACHE_ENTRIES, PACK_CACHE_BYTES = 8, 128 << 20
-#: Fitting packs below this many triangles run in one child, one after another (starting a
-#: child costs more than such a pack); larger ones are packed two at a time in parallel children
-#: when there are two cores or more (`xatlas_packing.fit`).
+#: Fitting (`xatlas_packing.fit`) below this many triangles packs one density a round, in one
+#: child (starting a child costs more than such a pack; one a round needs the fewest packs);
+#: above, two a round, side by side in two children, or one after the other in one on one core.
+#: The triangles alone choose how many a round, so the densities packed, and the atlas, are the
+#: same on any machine.
 ONE_CHILD_TRIANGLES = 50_000
 
 
@@ -125,8 +127,9 @@ def _pack(meshes, charts, keys, resolution, density, padding, progress=None, can
 
 def _fit(meshes, charts, resolution, padding, progress=None, cancel=None):
     """Pack at the largest density found that fits one resolution² atlas (`xatlas_packing.fit`):
-    in one child when the charts are few or there is one core, else driven from here with two
-    densities packed side by side in parallel children each round."""
+    one density a round when the charts' meshes have ONE_CHILD_TRIANGLES or fewer, else two; in
+    one child when one a round or one core, else driven from here with the two packed side by
+    side in parallel children (the same densities, the same atlas)."""
     payload = [(c.chart, c.corner, c.uv) for c in charts]
     _, boxes = xatlas_packing.chart_boxes(payload)
     q, fill = 2 * padding + 2, min(xatlas_packing.FIRST_FILL)
@@ -138,21 +141,18 @@ def _fit(meshes, charts, resolution, padding, progress=None, cancel=None):
             "their own atlas"
         )
     triangles = sum(len(m.triangles) for m in meshes)
-    if _cores() < 2 or triangles <= ONE_CHILD_TRIANGLES:
-        job = {
-            "task": "fit",
-            "charts": payload,
-            "resolution": int(resolution),
-            "padding": int(padding),
-            "fills": (float(np.mean(xatlas_packing.FIRST_FILL)),),
-        }
+    fills = tuple(xatlas_packing.FIRST_FILL)
+    if triangles <= ONE_CHILD_TRIANGLES:
+        fills = (float(np.mean(fills)),)
+    if _cores() < 2 or len(fills) == 1:
+        job = {"task": "fit", "charts": payload, "resolution": int(resolution), "padding": int(padding), "fills": fills}
         result = _run_worker(job, [m.name for m in meshes], triangles, cancel)
     else:
 
         def pack_at(densities, units):
             return _pack_at(densities, charts, meshes, resolution, padding, units, cancel)
 
-        result = xatlas_packing.fit(pack_at, boxes, resolution, padding, xatlas_packing.FIRST_FILL, True, progress)
+        result = xatlas_packing.fit(pack_at, boxes, resolution, padding, fills, progress)
     if not result["fits"]:
         raise AtlasFull(
             f"could not fit the {len(boxes)} charts of {_names(meshes)} into one {resolution}² atlas "

@@ -6,18 +6,25 @@ in metres). No bpy, no package imports: the worker imports it from its own folde
 as a script; numpy and xatlas are imported inside the functions, after the worker has set up
 sys.path."""
 
-#: Fitting (`fit`): rounds before giving up on fitting the charts into the atlas.
+#: Fitting (`fit`): rounds before giving up on fitting the charts into the atlas. Every round
+#: packs as many densities as `fit` is given first fills (one or two, chosen by the charts' size:
+#: `packing._fit`), whatever runs them (side by side in two children, or one after the other in
+#: one): the densities tried depend on the charts, the resolution and the padding alone, never on
+#: the cores, the machine's load or the clock, so the same unwrap gives the same atlas anywhere.
 PACK_ROUNDS = 12
-#: First densities tried: those at which the charts' padded bounding boxes would cover these
-#: shares of the atlas (`box_density`); both side by side, or their mean alone.
+#: First densities tried when two are packed a round: those at which the charts' padded bounding
+#: boxes would cover these shares of the atlas (`box_density`); one a round: their mean.
 FIRST_FILL = (0.95, 0.75)
 #: After a round where every density spilled, the next packs at `_shrunk` of the smallest and,
-#: side by side, also at SECOND_TRY times that.
+#: two a round, also at SECOND_TRY times that.
 SHRINK_MARGIN, SHRINK_MIN, SECOND_TRY = 0.985, 0.98, 0.95
-#: Once a density fits, rounds quicker than REFINE_SECONDS are followed by up to REFINE_ROUNDS
-#: rounds at densities between it and the smallest that spilled (or REFINE_REACH times it),
-#: until those two are within REFINE_TOLERANCE of each other.
-REFINE_SECONDS, REFINE_ROUNDS, REFINE_REACH, REFINE_TOLERANCE = 3.0, 3, 1.15, 0.015
+#: Once a density fits, up to REFINE_ROUNDS rounds follow at densities between it and the
+#: smallest that spilled (or REFINE_REACH times it), until those two are within REFINE_TOLERANCE
+#: of each other. Always run, however long the packs take: the artist gets the densest atlas the
+#: search finds, the same on every run, for a few more packs (their cost:
+#: bench/results/unwrap.md). No clock is read: a time limit made a busy machine's atlas coarser
+#: than a quiet one's (issue 58).
+REFINE_ROUNDS, REFINE_REACH, REFINE_TOLERANCE = 3, 1.15, 0.015
 #: Pack input units per texel at the first density: large, so that no triangle with any area
 #: falls under xatlas's zero-area threshold (FLT_EPSILON in input units), which would drop it.
 PACK_UNITS_PER_TEXEL = 1024.0
@@ -48,28 +55,26 @@ def pack(charts, texels_per_metre, resolution, padding, units):
     return _result(atlas, inputs)
 
 
-def fit(pack_at, boxes, resolution, padding, fills, side_by_side, progress=None):
+def fit(pack_at, boxes, resolution, padding, fills, progress=None):
     """Search the largest density (texels per metre) at which the charts fit one resolution²
     atlas. pack_at(densities, units) packs the charts at each density (`pack`) and returns the
-    results; boxes (C, 2): the charts' bounding boxes in metres. Rounds: first at the densities
-    whose padded boxes fill `fills` of the atlas; while all spilled, at the smallest shrunk by
-    the share of its used area that spilled; once one fits, while rounds are quick, between it
-    and the smallest that spilled (see the constants above). side_by_side: two densities per
-    round after the first, else one. Returns the best fitting pack result plus
-    "texels_per_metre", "packs" and "tries" [(density, fitted)], or {"fits": False, "tries"}."""
-    import time
-
+    results in order (in parallel or not: the search does not depend on it); boxes (C, 2): the
+    charts' bounding boxes in metres. Rounds of len(fills) densities, largest first: first at
+    the densities whose padded boxes fill `fills` of the atlas; while all spilled, at the
+    smallest shrunk by the share of its used area that spilled; once one fits, evenly (in log
+    scale) between the best that fit and the smallest that spilled (see the constants above).
+    Returns the best fitting pack result plus "texels_per_metre", "packs" and "tries" [(density,
+    fitted)], or {"fits": False, "tries"}."""
     import numpy as np
 
+    n = len(fills)
     tries = [box_density(boxes, resolution, padding, fill) for fill in fills]
     units = tries[0] * PACK_UNITS_PER_TEXEL
     best, spilled, log, refined = None, np.inf, [], 0
     for round_ in range(PACK_ROUNDS + REFINE_ROUNDS):
         if progress:
             progress(min(round_ / 4, 0.9), f"xatlas: packing at {tries[0]:.4g} texels/m")
-        start = time.perf_counter()
         results = pack_at(tries, units)
-        seconds = time.perf_counter() - start
         log += [(float(t), bool(r["fits"])) for t, r in zip(tries, results)]
         for t, r in zip(tries, results):
             if r["fits"] and (best is None or t > best[0]):
@@ -80,12 +85,11 @@ def fit(pack_at, boxes, resolution, padding, fills, side_by_side, progress=None)
             if round_ + 1 >= PACK_ROUNDS:
                 break
             t = _shrunk(boxes, padding, tries[-1], results[-1]["spilled"])
-            tries = [t, t * SECOND_TRY] if side_by_side else [t]
+            tries = [t, t * SECOND_TRY][:n]
             continue
         upper = spilled if np.isfinite(spilled) else best[0] * REFINE_REACH
-        if upper <= best[0] * (1.0 + REFINE_TOLERANCE) or seconds > REFINE_SECONDS or refined >= REFINE_ROUNDS:
+        if upper <= best[0] * (1.0 + REFINE_TOLERANCE) or refined >= REFINE_ROUNDS:
             return dict(best[1], texels_per_metre=float(best[0]), packs=len(log), tries=log)
-        n = 2 if side_by_side else 1
         tries = [best[0] * (upper / best[0]) ** ((n - k) / (n + 1)) for k in range(n)]  # largest first
         refined += 1
     return {"fits": False, "tries": log}

@@ -491,7 +491,6 @@ def main():
             resolution,
             padding,
             job["fills"],
-            False,
         )
     elif job["task"] == "each":  # every mesh's charts alone, each into its own atlas (core.instances)
         t, padding, units = job["texels_per_metre"], job["padding"], job["units"]
