@@ -1,5 +1,5 @@
 """What lets a 4096² bake fit in 3 GB without changing a bit (issue 23, bench/memory.py): arrays
-whose pages go back to the system once spent (`stages.releasable_zeros`, `release_rows`), the SH imaged a part at a time as its compact copy goes
+whose pages go back to the system once spent (`memory.releasable_zeros`, `release_rows`), the SH imaged a part at a time as its compact copy goes
 (`TexelData.from_points`' `release_sh`) and the bake points a compact trace keeps
 (`BakePoints.for_files`). No Blender."""
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bakepoints, encoding, stages, tracer
+from hhd_lightmapper.core import bakepoints, encoding, memory, stages, tracer
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from scenekit import meshes
 
@@ -26,16 +26,40 @@ def resident_mb() -> float:
 @linux
 def test_spent_rows_go_back_and_the_rest_keep_their_values():
     rows = 1 << 21  # 216 MB of (rows, 9, 3) float32
-    a = stages.releasable_zeros((rows, 9, 3), np.float32)
+    a = memory.releasable_zeros((rows, 9, 3), np.float32)
     a[:] = np.arange(27, dtype=np.float32).reshape(9, 3) + 1.0
     kept = a[rows // 2 :].copy()
     before = resident_mb()
-    stages.release_rows(a, rows // 2)
+    memory.release_rows(a, rows // 2)
     assert before - resident_mb() > 0.9 * a.nbytes / 2 / 2**20
     np.testing.assert_array_equal(a[rows // 2 + 1 :], kept[1:])  # rows past the first partial page
     plain = np.ones((1000, 9, 3), np.float32)
-    stages.release_rows(plain, 1000)  # not a releasable array: left alone
+    memory.release_rows(plain, 1000)  # not a releasable array: left alone
     assert (plain == 1.0).all()
+
+
+def test_a_kept_copy_is_the_stages_to_spend_and_the_callers_stays():
+    """`memory.keep`: an array's copy (releasable: spending it gives its pages back), a hand-off
+    object with its arrays copied and its other fields shared; anything else is refused."""
+    a = np.arange(4096 * 27, dtype=np.float32).reshape(4096, 9, 3)
+    copy = memory.keep(a)
+    assert not np.shares_memory(copy, a) and copy.flags.c_contiguous
+    np.testing.assert_array_equal(copy, a)
+    memory.release_rows(copy, len(copy))
+    if sys.platform.startswith("linux"):
+        assert not copy.any()  # given back
+    assert a[1:].all()
+    window = stages.Window(0, 0, 8, 8, (16, 16))
+    data = encoding.TexelData(
+        np.ones((8, 8, 9, 3), np.float32), np.ones((8, 8, 3), np.float32), np.ones((8, 8)), window=window
+    )
+    kept = memory.keep(data)
+    assert kept.window is window and kept.sh_error is None
+    for name in ("sh", "normal", "coverage"):
+        assert not np.shares_memory(getattr(kept, name), getattr(data, name))
+        np.testing.assert_array_equal(getattr(kept, name), getattr(data, name))
+    with pytest.raises(TypeError):
+        memory.keep([a])
 
 
 def sheet_points(albedo=True):

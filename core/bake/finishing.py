@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import encoding, light_sets, post, stages, tracer
+from .. import encoding, light_sets, memory, post, tracer
 from .. import progress as meter
 from ..files import exr, lightmap_files
 from ..post.seams import geometry
@@ -214,13 +214,13 @@ def _finish_files(
     with encoding.raw_files(raw, fill) as images_of:
         out.raw(name, parent, images_of, *_tick_for(out, parts["raw"]))
     del images_of
-    stages.trim_heap()  # the writer's bands of rows (memory)
+    memory.trim_heap()  # the writer's bands of rows (memory)
     restore = functools.partial(_restore_sh, raw.sh, fill.valid, out, name, parent, raw.window)
     data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, in_place=True, restore=restore)
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
     del raw, restore  # `data` holds the SH now, denoised in place or as traced
     data = replace(data, noise=None)  # in the texels file already; the encoder does not read it
-    stages.trim_heap()  # what the post stages' threads freed (memory)
+    memory.trim_heap()  # what the post stages' threads freed (memory)
     parts["encode"].at(0.0, "encoding")
     encoded = encoding.encode_atlas(
         data,

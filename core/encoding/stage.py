@@ -24,7 +24,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import dilate as _dilate
-from ..stages import PlacedImage, Window, placed, releasable_zeros
+from ..memory import releasable_zeros
+from ..stages import PlacedImage, Window, placed
 from .filled import FilledChannel, filled_channels
 from .raw import NOISE_UNKNOWN, SH_FILE, TEXELS_FILE
 from .spec import DILATE_BURIED_BLACK, NO_FILL, Channel, Encoding, FileSpec

@@ -32,7 +32,8 @@ import numpy as np
 
 from .. import progress
 from ..encoding import EncodedAtlas, TexelData
-from ..stages import PlacedImage, Window, trim_heap
+from ..memory import trim_heap
+from ..stages import PlacedImage, Window
 
 if TYPE_CHECKING:
     from .seams.geometry import Seams

@@ -29,9 +29,10 @@ import numpy as np
 
 from ..bakepoints import BakePoints
 from ..errors import BakeCancelled, BakeError
+from ..memory import trim_heap
 from ..rays import RayScene
 from ..scene import BakeScene
-from ..stages import TracedAtlas, trim_heap
+from ..stages import TracedAtlas
 from . import scheduler
 from .hemisphere import TexelEstimator
 from .paths import RR_MAX_SURVIVAL, RR_REFERENCE, RR_START, RR_SURVIVAL_POWER, TraceScene

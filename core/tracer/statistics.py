@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..colour import LUMINANCE
-from ..stages import releasable_zeros
+from ..memory import releasable_zeros
 from . import statistics_kernels as _kernels
 from .settings import NOISE_FLOOR
 
