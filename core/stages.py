@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .colour import LUMINANCE
-from .memory import release_rows
 
 if TYPE_CHECKING:  # bakepoints imports the compiled kernels; the data types need no import at run time
     from .bakepoints import BakePoints
@@ -84,24 +83,6 @@ class TracedAtlas:
         known = dof >= NOISE_PASSES - 1
         nu = np.maximum(dof, NOISE_PASSES - 1.0)  # > 2 (the unknown texels' value is not used)
         return np.where(known, error * np.sqrt(nu / (nu - 2.0)), np.nan).astype(np.float32)
-
-    def release_sh(self) -> None:
-        """Drop `sh` and `sh_error` (they become empty `(0, 9, 3)` arrays) once imaged: a bake's
-        largest arrays, freed before the post stages unless another reference holds them."""
-        self.sh = np.zeros((0, 9, 3))
-        self.sh_error = np.zeros((0, 9, 3), np.float32)
-
-    def release_sh_rows(self, stop: int) -> None:
-        """The SH and standard error of texels 0..stop are imaged and needed no more (their
-        memory goes back to the system where the compact trace made them, `releasable_zeros`;
-        `release_sh` drops the rest): `TexelData.from_points`' `release_sh`, as it images them."""
-        release_rows(self.sh, stop)
-        release_rows(self.sh_error, stop)
-
-    def release_points(self) -> None:
-        """Drop `points` (None from then on) once the atlas's last image is made
-        (`bake.finishing.finish_atlas` with `release`): the bake points are as large as the traced SH."""
-        self.points = None  # type: ignore[assignment]
 
     def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TracedAtlas:
         """A copy carrying new SH (and standard error) for the same texels, without light sets."""

@@ -1,6 +1,6 @@
 """What lets a 4096² bake fit in 3 GB without changing a bit (issue 23, bench/memory.py): arrays
 whose pages go back to the system once spent (`memory.releasable_zeros`, `release_rows`), the SH imaged a part at a time as its compact copy goes
-(`TexelData.from_points`' `release_sh`) and the bake points a compact trace keeps
+(`TexelData.from_traced`) and the bake points a compact trace keeps
 (`BakePoints.for_files`). No Blender."""
 
 import sys
@@ -71,25 +71,27 @@ def sheet_points(albedo=True):
     return bakepoints.build(surface, 64, 64, albedo=albedo), scene
 
 
-def test_the_sh_imaged_a_part_at_a_time_is_the_sh_imaged_whole(monkeypatch):
-    """Parts of 97 rows, each released (for real, where the platform can) once imaged: no row
-    is released before it is imaged, so the image is the whole SH's."""
+def test_the_traced_atlas_imaged_a_part_at_a_time_is_the_traced_atlas_imaged_whole(monkeypatch):
+    """`TexelData.from_traced` (parts of 97 rows, each given back, for real where the platform
+    can, once imaged) gives the images `from_points` gives of the same SH, which it only reads;
+    the traced atlas is spent: its bake points and SH dropped, the SH's rows released as imaged."""
     points, scene = sheet_points()
     traced = tracer.bake(points, scene, tracer.BakeSettings(samples=4, pass_samples=4, bounces=0), compact=True)
-    whole = encoding.TexelData.from_points(traced.points, traced.sh.copy(), noise=traced.noise())
+    sh = traced.sh
+    whole = encoding.TexelData.from_points(traced.points, sh.copy(), noise=traced.noise())
     monkeypatch.setattr(encoding.stage, "IMAGE_ROWS", 97)
     released = []
-
-    def release(stop):
-        released.append(stop)
-        traced.release_sh_rows(stop)
-
-    parts = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise(), release_sh=release)
-    assert len(released) > 10 and released[-1] == len(traced.points.texel)
+    monkeypatch.setattr(
+        encoding.stage, "release_rows", lambda a, stop: (released.append(stop), memory.release_rows(a, stop))
+    )
+    parts = encoding.TexelData.from_traced(traced)
+    assert len(released) > 20 and released[-1] == len(points.texel)
+    assert released == sorted(released) and released[::2] == released[1::2]  # the SH's rows, then its error's
     for name in ("sh", "normal", "coverage", "noise"):
         assert getattr(parts, name).tobytes() == getattr(whole, name).tobytes(), name
+    assert traced.points is None and len(traced.sh) == 0 and len(traced.sh_error) == 0
     if sys.platform.startswith("linux"):  # given back: the spent rows read 0 now
-        assert not traced.sh[: released[-2] - 1024].any()
+        assert not sh[: released[-2] - 1024].any()
 
 
 def test_a_compact_trace_keeps_what_the_files_take_and_the_same_sh():

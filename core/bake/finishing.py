@@ -67,10 +67,10 @@ def _write(
     extra: dict,
     cancel=None,
 ) -> AtlasResult:
-    """The last stages of one atlas here (`finish_atlas`, releasing `traced`'s SH as a bake does),
-    its files staged in `staging`."""
+    """The last stages of one atlas here (`finish_atlas`, which spends `traced`), its files
+    staged in `staging`."""
     check = lambda: _check_cancel(cancel)  # noqa: E731
-    info = finish_atlas(atlas, traced, settings, t_points, extra, Staged(staging, out_dir), check, release=True)
+    info = finish_atlas(atlas, traced, settings, t_points, extra, Staged(staging, out_dir), check)
     return atlas_result(atlas, out_dir, info)
 
 
@@ -84,7 +84,6 @@ def finish_atlas(
     check: Callable[[], None] = lambda: None,
     *,
     recorded: tracer.BakeSettings | None = None,
-    release: bool = False,
 ) -> dict:
     """The last stages of one atlas: seams → image → raw files → post stages → encode, its files
     handed to `out` (`Staged` here; a farm worker keeps them to return, `core.farm`): `out.raw(name,
@@ -94,12 +93,14 @@ def finish_atlas(
     stitches (a re-encode may). With light sets, the same stages then run for each set's SH
     into its own atlas files (`light_sets.set_atlas_name`), listed in the atlas's sidecar.
     `check()` raises to cancel; `recorded`: the tracer settings the sidecar records (default
-    `settings.trace`; a farm worker computes with its own thread count). `release`: drop
-    `traced`'s SH and standard error once they are imaged (`TracedAtlas.release_sh`; the caller
-    no longer needs them, and they are the largest arrays of a bake), and without light sets its
-    bake points too (`TracedAtlas.release_points`: the sets' images need them later). Returns the
+    `settings.trace`; a farm worker computes with its own thread count). Returns the
     atlas's summary: texels, rays, seconds per stage, warnings, light sets. `check` may be a
     `core.progress.Tick` (a bake's): each stage gets its part, by `_set_costs`, and reports in it.
+
+    `traced` is spent (`core.memory`): its SH and standard error, the largest arrays of a bake,
+    go as they are imaged, its bake points once the last image is made (`TexelData.from_traced`);
+    its light sets' SH (`set_sh`, `set_sh_error`) is only read. A caller that needs `traced`
+    afterwards hands over a copy of its SH and standard error (`memory.keep`).
     """
     t = time.perf_counter()
     texels = len(traced.points.texel)
@@ -131,35 +132,19 @@ def finish_atlas(
     set_names = [light_sets.set_atlas_name(atlas.name, s) for s in traced.sets]
     if traced.sets:
         sidecar["light_sets"] = [{"name": s, "atlas": n} for s, n in zip(traced.sets, set_names)]
-    warnings = _finish_files(
-        out,
-        atlas.name,
-        "",
-        traced,
-        settings,
-        sidecar,
-        atlas_seams,
-        seconds,
-        check=set_parts[0],
-        release=release,
-        last=not traced.sets,
-    )
+    # each set's own TracedAtlas (sharing the bake points: they go once the last one is imaged)
+    sets = [traced.light_set(k) for k in range(len(traced.sets))]
+    warnings = _finish_files(out, atlas.name, "", traced, settings, sidecar, atlas_seams, seconds, check=set_parts[0])
     out.seams(atlas.name, atlas_seams)
     for k, (name, set_name) in enumerate(zip(traced.sets, set_names)):
         set_sidecar = {key: v for key, v in sidecar.items() if key not in ("light_sets", "timings_seconds")}
         set_sidecar["light_set"] = {"name": name, "of": atlas.name}
         set_parts[k + 1].name = f"'{set_name}'"
+        set_traced = sets.pop(0)
         warnings += _finish_files(
-            out,
-            set_name,
-            atlas.name,
-            traced.light_set(k),
-            settings,
-            set_sidecar,
-            atlas_seams,
-            seconds,
-            check=set_parts[k + 1],
+            out, set_name, atlas.name, set_traced, settings, set_sidecar, atlas_seams, seconds, check=set_parts[k + 1]
         )
+        del set_traced
     seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
     warnings = [f"atlas '{atlas.name}', {w}" for w in dict.fromkeys(warnings)]
     rays = traced.rays
@@ -177,15 +162,11 @@ def _finish_files(
     seconds: dict,
     *,
     check,
-    release: bool = False,
-    last: bool = False,
 ) -> list[str]:
     """Image → raw files (`out.raw`) → post stages → encode of one atlas's SH (the atlas's own, or
     one light set's), handed to `out.atlas`; adds the post stages' seconds to seconds["post"];
-    returns their warnings.
-    `release`: `traced.release_sh()` once imaged, and with `last` (no image of these bake points
-    follows) `traced.release_points()`. `check` may be a `core.progress.Tick`: split among the
-    stages by `_set_costs`, each named ("encode 'Lightmap'")."""
+    returns their warnings. `traced` is spent (`TexelData.from_traced`). `check` may be a
+    `core.progress.Tick`: split among the stages by `_set_costs`, each named ("encode 'Lightmap'")."""
     t = time.perf_counter()
     tick = ticker(check)
     costs = _set_costs(len(traced.points.texel), _window_texels_of(traced), settings)
@@ -197,17 +178,9 @@ def _finish_files(
     )
     parts["image"].at(0.0, "imaging the texels")
     # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH);
-    # the bake points go before the SH is imaged when nothing else needs them
-    raw = encoding.TexelData.from_points(
-        traced.points,
-        traced.sh,
-        noise=traced.noise(),
-        release=traced.release_points if release and last else None,
-        release_sh=traced.release_sh_rows if release else None,
-        crop=True,  # an almost empty atlas: the window of its texels (the files are the same)
-    )
-    if release:
-        traced.release_sh()
+    # an almost empty atlas: the window of its texels (the files are the same)
+    raw = encoding.TexelData.from_traced(traced, crop=True)
+    del traced
     # the raw files first, as traced: then the post stages may write into `raw`'s SH (memory)
     fill = raw.fill()
     parts["raw"].at(0.0, "raw files")

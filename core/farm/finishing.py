@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import memory
 from ..encoding import SH_FILE
 from ..tracer import shipping
 from ..tracer.scheduler import Outcome
@@ -144,9 +145,9 @@ def finish_task(payload: bytes, digest: str, code: str, meta: bytes, *results: d
     threads = _worker_threads()
     compute = replace(settings, denoiser_library=library, trace=replace(settings.trace, threads=threads))
     kept = _Kept()
-    summary = finish_atlas(  # released SH only where no fallback may need it
-        m["atlas"], traced, compute, m["t_points"], m["extra"], kept, recorded=settings.trace, release=not denoising
-    )
+    # `finish_atlas` spends the SH it is handed: the client's fallback (OIDN failing here) needs it
+    spent = replace(traced, sh=memory.keep(traced.sh), sh_error=memory.keep(traced.sh_error)) if denoising else traced
+    summary = finish_atlas(m["atlas"], spent, compute, m["t_points"], m["extra"], kept, recorded=settings.trace)
     if denoising and not all(args[3]["post"]["denoise"].get("applied") for kind, args in kept.calls if kind == "atlas"):
         return _unfinished(traced, t0, "OIDN failed here")
     return {"out": kept.calls, "summary": plain(summary), "seconds": time.perf_counter() - t0, "worker": _where()}

@@ -117,7 +117,7 @@ class Reduced:
     def __init__(self, normals: np.ndarray, channels: int, buried: np.ndarray, sets: bool):
         n = len(normals)
         self.normals, self.channels, self.buried, self.sets = normals, channels, buried, sets
-        # the atlas's SH and error freed a part at a time as they are imaged (`TracedAtlas.release_sh_rows`)
+        # the atlas's SH and error freed a part at a time as they are imaged (`TexelData.from_traced`)
         self.sh = releasable_zeros((n, 9, 3), np.float32)
         self.sh_error = releasable_zeros((n, 1, 3), np.float32)
         k = channels // 3
