@@ -234,10 +234,11 @@ def stitch_row(data, seams_, interior: Interior | None) -> dict:
     """Stitching `data` (TexelData) as the pipeline does (`core.post`: the SH, then the encoded
     layers): the seam metric of the SH and of the HHD file before and after (and after the SH
     stitch alone), the interior error of the SH and of the HHD file's I_z, and the time."""
+    from hhd_lightmapper.core import memory
     from hhd_lightmapper.core.post.seams import encoded_stitch, metrics, stitching
 
     t = time.perf_counter()
-    stitched, record = stitching.stitch(data, seams_)
+    stitched, record = stitching.stitch(memory.keep(data), seams_)
     sh_seconds = time.perf_counter() - t
     unstitched, sh_only = encode(data), encode(stitched)
     t = time.perf_counter()
@@ -295,7 +296,7 @@ def iz_image(encoded) -> np.ndarray:
 
 def measure_scene(name: str, args, denoiser) -> dict:
     import denoise as denoise_bench
-    from hhd_lightmapper.core import bake, encoding, tracer
+    from hhd_lightmapper.core import bake, encoding, memory, tracer
     from hhd_lightmapper.core.post.denoise import pages
     from hhd_lightmapper.core.post.seams import geometry
 
@@ -336,7 +337,7 @@ def measure_scene(name: str, args, denoiser) -> dict:
     )
     raw = encoding.TexelData.from_points(points, traced.sh)
     t = time.perf_counter()
-    denoised, _ = pages.denoise_texels(raw, denoiser)
+    denoised, _ = pages.denoise_texels(memory.keep(raw), denoiser)
     denoise_seconds = time.perf_counter() - t
     reference = encoding.TexelData.from_points(points, 0.5 * (halves[0] + halves[1]))
     rows = {}

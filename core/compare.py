@@ -146,10 +146,11 @@ class Reconstruction:
     specular: dict = field(default_factory=dict)
 
 
-def post_stages(data, pipeline, seams, check=None):
+def post_stages(data, pipeline, seams, check=None, raw_sh=None):
     """(`data` after the post stages of `pipeline`, their records): `reconstruct_model`'s input. `data`
-    is spent (the stages write into it); `check` as `post.apply` takes it (cancels a denoise)."""
-    return post.apply(data, pipeline, check=check, seams=seams, in_place=True)
+    is the stages' (they write into it); `check` and `raw_sh` (the raw SH file read back) as
+    `post.apply` takes them."""
+    return post.apply(data, pipeline, check=check, seams=seams, raw_sh=raw_sh)
 
 
 def reconstruct_model(model: str, data, records: dict, pipeline, seams, g: GBuffer, roughness=()) -> Reconstruction:

@@ -41,7 +41,7 @@ class Staged:
 
     def traced_sh(self, name: str, parent: str) -> np.ndarray:
         """The SH image `(H, W, 9, 3)` float32 of the raw SH file `raw` staged for `name`, read back
-        (a denoiser that failed half-way restores the traced SH from it)."""
+        (a denoiser that failed half-way puts the traced SH back from it: `post.apply`'s `raw_sh`)."""
         files = self._files(name, parent)
         return lightmap_files.read_sh(self.staging.staged(files.sh))
 
@@ -181,17 +181,17 @@ def _finish_files(
     # an almost empty atlas: the window of its texels (the files are the same)
     raw = encoding.TexelData.from_traced(traced, crop=True)
     del traced
-    # the raw files first, as traced: then the post stages may write into `raw`'s SH (memory)
+    # the raw files first, as traced: then `raw` is the post stages' (they write into its SH)
     fill = raw.fill()
     parts["raw"].at(0.0, "raw files")
     with encoding.raw_files(raw, fill) as images_of:
         out.raw(name, parent, images_of, *_tick_for(out, parts["raw"]))
     del images_of
     memory.trim_heap()  # the writer's bands of rows (memory)
-    restore = functools.partial(_restore_sh, raw.sh, fill.valid, out, name, parent, raw.window)
-    data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, in_place=True, restore=restore)
+    raw_sh = functools.partial(out.traced_sh, name, parent)  # a denoiser failing half-way reads it back
+    data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, raw_sh)
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
-    del raw, restore  # `data` holds the SH now, denoised in place or as traced
+    del raw  # the post stages': `data` holds the SH now, denoised in place or as traced
     data = replace(data, noise=None)  # in the texels file already; the encoder does not read it
     memory.trim_heap()  # what the post stages' threads freed (memory)
     parts["encode"].at(0.0, "encoding")
@@ -218,18 +218,6 @@ def _tick_for(out, tick: Tick) -> tuple:
     """The optional tick argument of `out.raw` / `out.atlas`: `Staged` writes and reports; other
     keepers of the files (a farm worker's) take none."""
     return (tick,) if isinstance(out, Staged) else ()
-
-
-def _restore_sh(sh: np.ndarray, valid: np.ndarray, out, name: str, parent: str, window=None) -> None:
-    """Put the traced SH of the baked texels (flat indices `valid`) back into `sh` `(H, W, 9, 3)`
-    from the raw SH file staged (or kept) in `out`: a denoiser that failed half-way through
-    writing it (the file's other texels are dilated; the denoiser writes baked texels only).
-    `window`: the rectangle of the atlas `sh` is (`TexelData.window`), None for the whole."""
-    h, w = sh.shape[:2]
-    traced = out.traced_sh(name, parent)
-    if window is not None:
-        traced = traced[window.y0 : window.y0 + window.h, window.x0 : window.x0 + window.w]
-    sh.reshape(h * w, -1)[valid] = np.ascontiguousarray(traced).reshape(h * w, -1)[valid]
 
 
 def _same_fill(fill, data: encoding.TexelData):
