@@ -224,10 +224,13 @@ class Interior:
 
 
 def encode(data):
-    """`data` encoded with the default encoder (the HHD file's images, no raw files)."""
+    """`data` encoded with the default encoder (the HHD file's images, no raw files); `data` kept
+    (`encode_atlas` takes the SH out of a TexelData of its own)."""
+    from dataclasses import replace
+
     from hhd_lightmapper.core import encoding
 
-    return encoding.encode_atlas(data, encoding.for_settings(encoding.EncoderSettings()), raw=False)
+    return encoding.encode_atlas(replace(data), encoding.for_settings(encoding.EncoderSettings()), raw=False)
 
 
 def stitch_row(data, seams_, interior: Interior | None) -> dict:
@@ -241,8 +244,9 @@ def stitch_row(data, seams_, interior: Interior | None) -> dict:
     stitched, record = stitching.stitch(memory.keep(data), seams_)
     sh_seconds = time.perf_counter() - t
     unstitched, sh_only = encode(data), encode(stitched)
+    spent = encode(stitched)  # the encoded stitch writes into the atlas it is handed: not `sh_only`
     t = time.perf_counter()
-    final, encoded_record = encoded_stitch.stitch_encoded(sh_only, seams_, stitched.coverage)
+    final, encoded_record = encoded_stitch.stitch_encoded(spent, seams_, stitched.coverage)
     encoded_seconds = time.perf_counter() - t
     t = time.perf_counter()
     sh_before = brief(metrics.seam_metric(data, seams_))

@@ -24,7 +24,7 @@ over the compared pixels, relative to the reference's mean luminance there.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -129,8 +129,6 @@ def bytes_per_texel(model: str, settings=None) -> int:
 
 
 def _settings(model: str, settings=None):
-    from dataclasses import replace
-
     base = settings if settings is not None else encoding.EncoderSettings()
     return replace(base, model=model)
 
@@ -157,7 +155,7 @@ def reconstruct_model(model: str, data, records: dict, pipeline, seams, g: GBuff
     """One model's reconstruction at `g`'s pixels from `post_stages`' output (not changed)."""
     settings = _settings(model, pipeline.encoder)
     enc = encoding.for_settings(settings)
-    encoded = encoding.encode_atlas(data, enc, raw=False)
+    encoded = encoding.encode_atlas(replace(data), enc, raw=False)  # it takes the SH out of a TexelData of its own
     encoded = post.stitch_encoded(encoded, data.coverage, pipeline, seams, dict(records))
     spec, images = encoded.files[encoded.encoding_file.key]
     layers = {ch.name: _layer(ch, images, g.uv) for ch in spec.channels if ch.applies(settings)}

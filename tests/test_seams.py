@@ -281,7 +281,7 @@ def test_stitched_gutter_texels_are_encoded_not_overwritten_by_dilation(sphere_c
     points = sphere_cylinder
     found = geometry.find_seams(points.mesh, RES, RES)
     out, _ = stitching.stitch(linear_data(points), found)
-    atlas = encoding.encode_atlas(out, encoding.for_settings(encoding.EncoderSettings()), raw=False)
+    atlas = encoding.encode_atlas(replace(out), encoding.for_settings(encoding.EncoderSettings()), raw=False)
     gutter = np.flatnonzero(out.extra_sources.reshape(-1))
     iz = np.stack([reads.encoded_images(atlas)[f"Iz.{c}"].reshape(-1) for c in "RGB"], -1)[gutter]
     expected = hhd.irradz(
@@ -316,7 +316,7 @@ def test_the_hhd_reader_is_the_preview_formula_at_texel_centres(sphere_cylinder)
     d·n_v ≥ MIN_COS, so the two floors on d·n_v do not differ)."""
     points = sphere_cylinder
     data = encoding.TexelData.from_points(points, np.abs(linear_sh(points.position)) * BAND_SCALE)
-    atlas = encoding.encode_atlas(data, encoding.for_settings(encoding.EncoderSettings()), raw=False)
+    atlas = encoding.encode_atlas(replace(data), encoding.for_settings(encoding.EncoderSettings()), raw=False)
     rows = np.random.default_rng(2).choice(len(points.texel), 500, replace=False)
     texel = points.texel[rows]
     xy = np.stack([texel % RES + 0.5, texel // RES + 0.5], 1)
@@ -380,7 +380,7 @@ def test_stitching_a_traced_sphere_and_cylinder_under_sun_and_sky():
     assert after["tilted"]["interior"] <= 1.01 * before["tilted"]["interior"]
     encoder = encoding.for_settings(encoding.EncoderSettings())
     hhd_before = metrics.seam_metric(encoding.encode_atlas(data, encoder, raw=False), found)
-    hhd_after = metrics.seam_metric(encoding.encode_atlas(out, encoder, raw=False), found)
+    hhd_after = metrics.seam_metric(encoding.encode_atlas(replace(out), encoder, raw=False), found)
     assert hhd_after["ratio"] <= 1.5 and hhd_after["tilted"]["ratio"] <= 1.5
     assert hhd_after["mean"] < hhd_before["mean"] / 2
     assert hhd_after["interior"] <= 1.01 * hhd_before["interior"]
@@ -438,7 +438,7 @@ def test_stitched_sh_stays_a_plausible_radiance(sphere_cylinder, monkeypatch):
     assert l0.min() >= 0.0 and iz.min() >= 0.0
     # the largest starting L0 (as the SH file shows it: gutter texels dilated) among the texels
     # each stitched texel's samples read; the bound allows BOUND_SLACK × the spread above it
-    base = data.fill().apply(data.sh).reshape(-1, 9, 3)[:, 0].astype(np.float64)
+    base = data.fill().apply(data.sh.copy()).reshape(-1, 9, 3)[:, 0].astype(np.float64)
     index = np.concatenate([reads.bilinear_taps(xy, RES, RES)[0] for xy in (found.a, found.b)], axis=1)
     row_max = base[index].max(axis=1)  # (S, 3)
     tied_max = np.zeros((RES * RES, 3))
@@ -470,7 +470,7 @@ def test_seams_into_buried_texels(monkeypatch):
     buried = np.flatnonzero((cover < 0).reshape(-1))
     moved = buried[(out.sh != data.sh).reshape(RES * RES, -1)[buried].any(axis=1)]
     assert len(moved) > 10 and out.extra_sources.reshape(-1)[moved].all()
-    atlas = encoding.encode_atlas(out, encoding.for_settings(encoding.EncoderSettings()), raw=False)
+    atlas = encoding.encode_atlas(replace(out), encoding.for_settings(encoding.EncoderSettings()), raw=False)
     iz = np.stack([reads.encoded_images(atlas)[f"Iz.{c}"].reshape(-1) for c in "RGB"], -1)[moved]
     x = out.sh.reshape(-1, 9, 3)[moved].astype(np.float64)
     n = out.normal.reshape(-1, 3)[moved].astype(np.float64)
@@ -505,7 +505,7 @@ def test_filled_rows_read_what_the_filled_copy_holds(keep_black):
     coverage[0:2, 65:68] = -1.0  # a chart all buried: black
     image = rng.normal(size=(h, w, 5)).astype(np.float32)
     fill = dilate.Fill(coverage > 0.0, 3, black=coverage < 0.0, chart=coverage != 0.0)
-    expected = fill.apply(image, keep_black=keep_black).reshape(h * w, 5)
+    expected = fill.apply(image.copy(), keep_black=keep_black).reshape(h * w, 5)
     rows = reads.FilledRows(image.reshape(h * w, 5), fill, (h, w), keep_black=keep_black)
     index = rng.integers(0, h * w, size=(300, 4))
     np.testing.assert_array_equal(rows[index].view(np.uint32), expected[index].view(np.uint32))

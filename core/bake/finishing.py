@@ -4,7 +4,6 @@ worker keeps them instead, `core.farm.finishing`). No bpy."""
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable
 from dataclasses import asdict, replace
@@ -188,7 +187,7 @@ def _finish_files(
         out.raw(name, parent, images_of, *_tick_for(out, parts["raw"]))
     del images_of
     memory.trim_heap()  # the writer's bands of rows (memory)
-    raw_sh = functools.partial(out.traced_sh, name, parent)  # a denoiser failing half-way reads it back
+    raw_sh = lambda: out.traced_sh(name, parent)  # a denoiser failing half-way reads it back
     data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, raw_sh)
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
     del raw  # the post stages': `data` holds the SH now, denoised in place or as traced
@@ -200,13 +199,12 @@ def _finish_files(
         encoding.for_settings(settings.encoder),
         raw=False,
         fill=_same_fill(fill, data),
-        spend=True,
         tick=parts["encode"],
         threads=settings.trace.threads,
     )
     parts["stitch encoded"].at(0.0)
     encoded = post.stitch_encoded(
-        encoded, data.coverage, settings, atlas_seams, sidecar["post"], parts["stitch encoded"], in_place=True
+        encoded, data.coverage, settings, atlas_seams, sidecar["post"], parts["stitch encoded"]
     )
     del data, fill
     parts["write"].at(0.0, "encoded files")

@@ -23,7 +23,7 @@ def _reencode_files(staging, files: lightmap_files.AtlasFiles, settings: Pipelin
     raw_sh = functools.partial(lightmap_files.read_sh, files.sh)
     data, sidecar["post"] = post.apply(data, settings, seams=atlas_seams, raw_sh=raw_sh)
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=False, threads=threads)
-    encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"], in_place=True)
+    encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"])
     del data
     lightmap_files.write_atlas(staging, files, encoded, sidecar)
     return post.warnings(sidecar["post"])

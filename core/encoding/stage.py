@@ -253,25 +253,27 @@ def encode_atlas(
     encoding: Encoding,
     raw: bool = True,
     fill: _dilate.Fill | None = None,
-    spend: bool = False,
     tick=None,
     threads: int = 0,
 ) -> EncodedAtlas:
     """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
     files' images of `data` (False: a bake that wrote them before its post stages, `raw_files`,
-    or a re-encode, which keeps the files it read). `fill`: `data.fill()`, if the caller has it. `spend` (only without `raw`): the caller no longer needs `data.sh`, which
-    is dropped once the texels are encoded, before the layers are filled (memory: the atlas's SH
-    is the largest image). `tick` (`core.progress.Tick`): progress and cancel per chunk of texels
+    or a re-encode, which keeps the files it read). `fill`: `data.fill()`, if the caller has it.
+    `data` is this stage's (`core.memory`): its SH is taken out of it (`encode_images`: an empty
+    `data.sh` afterwards), none of its arrays written. `tick` (`core.progress.Tick`): progress and cancel per chunk of texels
     encoded and per layer filled. `threads`: workers encoding chunks of texels (0 = every core,
     `parallel.resolve_threads`); the files do not depend on it."""
     h, w = data.atlas_shape
     fill = data.fill() if fill is None else fill
-    images, summary = encode_images(data, encoding, fill, spend=spend and not raw, tick=tick, threads=threads)
-    files = {encoding.file.key: (encoding.file, images)}
-    if raw:
+    raw_file_images = {}
+    if raw:  # first: the encoding takes the SH
         layers = data.layers()
-        for spec in (SH_FILE, TEXELS_FILE):
-            files[spec.key] = (spec, raw_images(spec, layers, fill, data=data))
+        raw_file_images = {
+            spec.key: (spec, raw_images(spec, layers, fill, data=data)) for spec in (SH_FILE, TEXELS_FILE)
+        }
+        del layers
+    images, summary = encode_images(data, encoding, fill, tick=tick, threads=threads)
+    files = {encoding.file.key: (encoding.file, images), **raw_file_images}
     stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.invalid)), **summary}
     return EncodedAtlas(w, h, files, encoding.file, dict(encoding.settings), stats)
 
@@ -292,10 +294,11 @@ def raw_files(
 
 
 def encode_images(
-    data: TexelData, encoding: Encoding, fill: _dilate.Fill, spend: bool = False, tick=None, threads: int = 0
+    data: TexelData, encoding: Encoding, fill: _dilate.Fill, tick=None, threads: int = 0
 ) -> tuple[dict, dict]:
     """The encoding's channel images `(H, W)` (filled, packed) and its summary statistics.
-    `spend`: drop `data.sh` once the texels are encoded (`encode_atlas`). With a window
+    `data.sh` is taken (an empty image afterwards) once the texels are encoded, before the
+    layers are filled (memory: the atlas's SH is its largest image). With a window
     (`TexelData.window`) the images are `stages.PlacedImage`s of the whole atlas. `tick`
     (`core.progress.Tick`): reported per ENCODE_CHUNK texels and per layer filled. The chunks
     are encoded on `threads` workers (0 = every core; numpy releases the GIL in the fit's array
@@ -329,9 +332,7 @@ def encode_images(
             while len(pending) > 2 * workers or (s == starts[-1] and pending):
                 done += _take(pending.popleft().result(), values, stats)
                 step(done)
-    if spend:
-        del sh
-        data.sh = np.zeros((0, 0) + data.sh.shape[2:], np.float32)
+    sh = data.sh = np.zeros((0, 0) + data.sh.shape[2:], np.float32)  # taken: the SH goes (memory)
     images = {}
     step = layers_part.counter(len(channels), lambda done, of: f"filling layer {done} of {of}")
     for k, ch in enumerate(channels):
@@ -364,7 +365,7 @@ def layer_images(
         if ch.pack is not None:
             outside = ch.pack(outside.reshape(1, -1))[0]
     if ch.fill != NO_FILL:
-        image = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK, in_place=True)
+        image = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
     if ch.pack is not None:  # ENCODE_CHUNK texels at a time: a pack's float64 temporaries stay small
         h, w = image.shape[:2]
         flat = image.reshape(h * w, -1)
@@ -404,7 +405,7 @@ def raw_images(
             elif lazy is not None:
                 filled = lazy[k]
             else:
-                filled = fill.apply(image, keep_black=keep_black)
+                filled = fill.apply(image.copy(), keep_black=keep_black)  # a view of `layers`
             if data is None or data.window is None:
                 out[name] = filled
             else:  # the background from the sources, which filling leaves as they are

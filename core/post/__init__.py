@@ -97,14 +97,13 @@ def stitch_encoded(
     seams: Seams | None,
     records: dict,
     check: Callable[[], None] | None = None,
-    in_place: bool = False,
 ) -> EncodedAtlas:
     """The stitch stage's second half, on the encoding's layers after `encoding.encode_atlas`:
     the encoding is not linear in the SH, so it leaves a small step along seams the SH stitch
     closed; `seams.encoded_stitch.stitch_encoded` closes it in the encoded layers. Runs only where the SH
     stitch ran (`records`, `apply`'s, says so) and adds its record as `records["stitch"]["encoded"]`.
-    `coverage` `(H, W)`: the atlas's (`TexelData.coverage`). `in_place`: the stitched texels are
-    written into `encoded`'s own images (a caller that keeps no unstitched copy)."""
+    `coverage` `(H, W)`: the atlas's (`TexelData.coverage`). `encoded` is this stage's
+    (`core.memory`): the stitched texels are written into its own images."""
     if not settings.stitch_seams or seams is None or not records.get("stitch", {}).get("applied"):
         return encoded
     if encoded.settings.get("model", "hhd") not in ENCODED_STITCH_MODELS:
@@ -113,9 +112,7 @@ def stitch_encoded(
     from .seams import encoded_stitch
 
     window, placed = _windowed(encoded)
-    out, record = encoded_stitch.stitch_encoded(
-        placed, seams, coverage, check, settings.trace.threads, window, in_place
-    )
+    out, record = encoded_stitch.stitch_encoded(placed, seams, coverage, check, settings.trace.threads, window)
     records["stitch"]["encoded"] = _finite(record)
     return out if window is None else _placed(out, encoded)
 
