@@ -1,15 +1,17 @@
 """Memory: who owns a bake's large arrays, and the plumbing that gives them back. No bpy.
 
 The convention: a stage owns what it is handed. It may write into the arrays it receives and
-drop them (a hand-off object's array taken out of it: `TexelData.sh` emptied), and its caller
+take them (a hand-off object's array dropped from it: `TexelData.sh` emptied), and its caller
 reads none of them afterwards; a caller that still needs its input hands over a copy (`keep`).
-Each stage's docstring says what it does with what it owns. A stage that only takes an array
-out of a hand-off object, writing into none of its arrays (`encoding.encode_atlas`), is kept
-from with a new object holding the same arrays (`dataclasses.replace(data)`): no copy.
+Each stage's docstring says what it does with what it owns: `TexelData.from_traced` gives the
+traced SH back as it images it, the post stages (`post.apply`) and the encoded stitch write
+into the images, `encoding.encode_atlas` takes the SH out of its TexelData (writing none of its
+arrays: a caller keeps them by handing over a new TexelData of the same arrays,
+`dataclasses.replace(data)`), `dilate.Fill.apply` fills the image it is handed.
 
-A stage that fails half-way leaves what it owned spent; where the bake goes on (a denoiser
-failing: the SH passes through undenoised), the stage is handed the way to read its input back
-(`post.apply`'s `traced_sh`, the raw SH file the caller wrote first).
+A stage failing half-way leaves what it owned spent. Where the bake goes on without it (the
+denoiser failing: the SH passes through undenoised), the caller hands the stage a way to read
+its input back instead of a copy (`post.apply`'s `raw_sh`: the raw SH file written first).
 
 The plumbing: arrays whose pages go back to the system while they are alive, a part at a time
 as a stage spends them (`releasable_zeros`, `release_rows`), and the C heap trimmed between

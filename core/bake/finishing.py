@@ -98,8 +98,9 @@ def finish_atlas(
 
     `traced` is spent (`core.memory`): its SH and standard error, the largest arrays of a bake,
     go as they are imaged, its bake points once the last image is made (`TexelData.from_traced`);
-    its light sets' SH (`set_sh`, `set_sh_error`) is only read. A caller that needs `traced`
-    afterwards hands over a copy of its SH and standard error (`memory.keep`).
+    its light sets' SH (`set_sh`, `set_sh_error`: plain memory, `tracer.statistics.Reduced`, which
+    `memory.release_rows` leaves alone) is only read. A caller that needs `traced` afterwards
+    hands over a copy of its SH and standard error (`memory.keep`).
     """
     t = time.perf_counter()
     texels = len(traced.points.texel)

@@ -121,6 +121,7 @@ class Reduced:
         self.sh = releasable_zeros((n, 9, 3), np.float32)
         self.sh_error = releasable_zeros((n, 1, 3), np.float32)
         k = channels // 3
+        # plain memory: the sets' SH is only read (`bake.finishing.finish_atlas`, a farm worker's fallback)
         self.set_sh = np.zeros((k, n, 9, 3), np.float32) if sets else None
         self.set_sh_error = np.zeros((k, n, 1, 3), np.float32) if sets else None
         self.passes = np.zeros(n, dtype=np.int32)  # the files' texel samples: 4 bytes are plenty
