@@ -4,6 +4,7 @@ whose pages go back to the system once spent (`memory.releasable_zeros`, `releas
 (`BakePoints.for_files`). No Blender."""
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -62,12 +63,17 @@ def test_a_kept_copy_is_the_stages_to_spend_and_the_callers_stays():
         memory.keep([a])
 
 
-def sheet_points(albedo=True):
+def sheet():
     v, f = meshes.plane(2.0)
     uv = (v[f][..., :2] + 1.0) / 2.2 + 0.02
     normals = np.tile([0, 0, 1.0], (len(f), 3, 1))
     surface = bakepoints.SurfaceTriangles(v[f], normals, uv, np.zeros(len(f), int), np.full((len(f), 3), 0.5))
     scene = BakeScene(v[f], np.full((len(f), 3), 0.5), lights=[SunLight(np.array([0.3, 0.2, 0.93]), np.ones(3))])
+    return surface, scene
+
+
+def sheet_points(albedo=True):
+    surface, scene = sheet()
     return bakepoints.build(surface, 64, 64, albedo=albedo), scene
 
 
@@ -107,3 +113,33 @@ def test_a_compact_trace_keeps_what_the_files_take_and_the_same_sh():
     for name in ("texel", "normal", "coverage", "buried", "object_index"):
         np.testing.assert_array_equal(getattr(kept, name), getattr(points, name))
     assert len(kept.position) == 0 and len(kept.face_normal) == 0 and len(kept.triangle) == 0
+
+
+@linux
+def test_finish_atlas_spends_the_traced_atlas_and_a_kept_copy_leaves_it_whole():
+    """`finish_atlas` owns the traced atlas: its SH (rows given back) and bake points are gone
+    afterwards. A farm worker that may hand the atlas back to the client (OIDN failing there)
+    hands over a copy of the SH and standard error (`memory.keep`): the atlas it keeps is
+    whole, and the files are the same."""
+    from hhd_lightmapper.core import bake
+    from hhd_lightmapper.core.bake import finishing
+    from hhd_lightmapper.core.farm.finishing import _Kept
+
+    surface, scene = sheet()
+    atlas = bake.AtlasInput("Lightmap", 64, 64, surface, ["sheet"])
+    settings = bake.PipelineSettings(trace=tracer.BakeSettings(samples=4, pass_samples=4, bounces=0, threads=1))
+    points = bake.points_of(atlas, None, 1)
+    traced = tracer.bake(points, scene, settings.trace, compact=True)
+    del points
+    sh, sh_error, points = traced.sh, traced.sh_error, traced.points
+    before = sh.copy(), sh_error.copy()
+    kept, spent = _Kept(), _Kept()
+    copy = replace(traced, sh=memory.keep(sh), sh_error=memory.keep(sh_error))
+    finishing.finish_atlas(atlas, copy, settings, 0.0, {}, kept)
+    assert copy.points is None and len(copy.sh) == 0  # the copy is spent
+    assert traced.points is points and traced.sh is sh
+    assert sh.tobytes() == before[0].tobytes() and sh_error.tobytes() == before[1].tobytes()
+    finishing.finish_atlas(atlas, traced, settings, 0.0, {}, spent)
+    assert traced.points is None and len(traced.sh) == 0 and len(traced.sh_error) == 0
+    assert before[0][:-100].any() and not sh[:-100].any()  # its rows given back
+    assert kept.traced_sh("Lightmap", "").tobytes() == spent.traced_sh("Lightmap", "").tobytes()

@@ -94,9 +94,9 @@ class _Kept:
 
     def traced_sh(self, name: str, parent: str) -> np.ndarray:
         """The SH image `(H, W, 9, 3)` of the raw SH file kept for `name` (as `bake.finishing.Staged`'s)."""
-        for method, (kept, _, images_of) in reversed(self.calls):
-            if method == "raw" and kept == name:
-                images = images_of[SH_FILE.key][1]
+        for method, args in reversed(self.calls):  # `seams` and `atlas` calls have other arguments
+            if method == "raw" and args[0] == name:
+                images = args[2][SH_FILE.key][1]
                 sh = np.stack([images[n] for n in SH_FILE.exr_names], axis=-1)
                 return sh.reshape(sh.shape[:2] + (9, 3))
         raise KeyError(f"no raw SH file kept for {name!r}")
