@@ -100,7 +100,7 @@ def _wrap_method(stages: Stages, cls: type, attr: str, name: str, after: str) ->
 def _mark_at(stages: Stages, owner, attr: str, name: str) -> None:
     """Start stage `name` when `owner.attr` (a method the pipeline looks up at call time) is
     called, without ending it there: unlike `_wrap`, no frame of ours holds the call's arguments,
-    which the callee may release (`TexelData.from_points` drops the bake points)."""
+    which the callee may spend (`TexelData.from_traced` drops the bake points)."""
     f = getattr(owner, attr)
 
     def marked(*args, **kwargs):

@@ -224,24 +224,29 @@ class Interior:
 
 
 def encode(data):
-    """`data` encoded with the default encoder (the HHD file's images, no raw files)."""
+    """`data` encoded with the default encoder (the HHD file's images, no raw files); `data` kept
+    (`encode_atlas` takes the SH out of a TexelData of its own)."""
+    from dataclasses import replace
+
     from hhd_lightmapper.core import encoding
 
-    return encoding.encode_atlas(data, encoding.for_settings(encoding.EncoderSettings()), raw=False)
+    return encoding.encode_atlas(replace(data), encoding.for_settings(encoding.EncoderSettings()), raw=False)
 
 
 def stitch_row(data, seams_, interior: Interior | None) -> dict:
     """Stitching `data` (TexelData) as the pipeline does (`core.post`: the SH, then the encoded
     layers): the seam metric of the SH and of the HHD file before and after (and after the SH
     stitch alone), the interior error of the SH and of the HHD file's I_z, and the time."""
+    from hhd_lightmapper.core import memory
     from hhd_lightmapper.core.post.seams import encoded_stitch, metrics, stitching
 
     t = time.perf_counter()
-    stitched, record = stitching.stitch(data, seams_)
+    stitched, record = stitching.stitch(memory.keep(data), seams_)
     sh_seconds = time.perf_counter() - t
     unstitched, sh_only = encode(data), encode(stitched)
+    spent = encode(stitched)  # the encoded stitch writes into the atlas it is handed: not `sh_only`
     t = time.perf_counter()
-    final, encoded_record = encoded_stitch.stitch_encoded(sh_only, seams_, stitched.coverage)
+    final, encoded_record = encoded_stitch.stitch_encoded(spent, seams_, stitched.coverage)
     encoded_seconds = time.perf_counter() - t
     t = time.perf_counter()
     sh_before = brief(metrics.seam_metric(data, seams_))
@@ -295,7 +300,7 @@ def iz_image(encoded) -> np.ndarray:
 
 def measure_scene(name: str, args, denoiser) -> dict:
     import denoise as denoise_bench
-    from hhd_lightmapper.core import bake, encoding, tracer
+    from hhd_lightmapper.core import bake, encoding, memory, tracer
     from hhd_lightmapper.core.post.denoise import pages
     from hhd_lightmapper.core.post.seams import geometry
 
@@ -336,7 +341,7 @@ def measure_scene(name: str, args, denoiser) -> dict:
     )
     raw = encoding.TexelData.from_points(points, traced.sh)
     t = time.perf_counter()
-    denoised, _ = pages.denoise_texels(raw, denoiser)
+    denoised, _ = pages.denoise_texels(memory.keep(raw), denoiser)
     denoise_seconds = time.perf_counter() - t
     reference = encoding.TexelData.from_points(points, 0.5 * (halves[0] + halves[1]))
     rows = {}

@@ -605,10 +605,11 @@ def encoder_rows(sc, base_bake, ref_sh, n_v, scale, errors) -> list[dict]:
 def warm_denoiser(scene, data) -> None:
     """Load OIDN (library, device, weights) for the bakes' thread count and run it once on `data`."""
     from hhd_lightmapper.bridge import denoiser, settings
+    from hhd_lightmapper.core import memory
     from hhd_lightmapper.core.post.denoise import filtering, pages
 
     threads = settings.scene_settings(scene).trace.threads
-    pages.denoise_texels(data, filtering.denoiser_for(denoiser.oidn_library(), threads))
+    pages.denoise_texels(memory.keep(data), filtering.denoiser_for(denoiser.oidn_library(), threads))
 
 
 def encoded_iz_mismatch(files, irradz: np.ndarray, baked: np.ndarray) -> float:

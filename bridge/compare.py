@@ -403,7 +403,8 @@ class Comparison:
                 self.references[key], self.halves[key] = 0.5 * (a + b), 0.5 * (a - b)
         data = lightmap_files.read_texel_data(atlas.files)
         seams = lightmap_files.read_seams(atlas.files, data.atlas_shape) if atlas.pipeline.stitch_seams else None
-        data, records = core_compare.post_stages(data, atlas.pipeline, seams, self.check)
+        raw_sh = partial(lightmap_files.read_sh, atlas.files.sh)  # read back if OIDN fails half-way
+        data, records = core_compare.post_stages(data, atlas.pipeline, seams, self.check, raw_sh)
         self._post = (data, records, seams)
         self.images.setdefault("reference", []).append((atlas.g, None))
 

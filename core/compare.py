@@ -24,7 +24,7 @@ over the compared pixels, relative to the reference's mean luminance there.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -129,8 +129,6 @@ def bytes_per_texel(model: str, settings=None) -> int:
 
 
 def _settings(model: str, settings=None):
-    from dataclasses import replace
-
     base = settings if settings is not None else encoding.EncoderSettings()
     return replace(base, model=model)
 
@@ -146,17 +144,18 @@ class Reconstruction:
     specular: dict = field(default_factory=dict)
 
 
-def post_stages(data, pipeline, seams, check=None):
+def post_stages(data, pipeline, seams, check=None, raw_sh=None):
     """(`data` after the post stages of `pipeline`, their records): `reconstruct_model`'s input. `data`
-    is spent (the stages write into it); `check` as `post.apply` takes it (cancels a denoise)."""
-    return post.apply(data, pipeline, check=check, seams=seams, in_place=True)
+    is the stages' (they write into it); `check` and `raw_sh` (the raw SH file read back) as
+    `post.apply` takes them."""
+    return post.apply(data, pipeline, check=check, seams=seams, raw_sh=raw_sh)
 
 
 def reconstruct_model(model: str, data, records: dict, pipeline, seams, g: GBuffer, roughness=()) -> Reconstruction:
     """One model's reconstruction at `g`'s pixels from `post_stages`' output (not changed)."""
     settings = _settings(model, pipeline.encoder)
     enc = encoding.for_settings(settings)
-    encoded = encoding.encode_atlas(data, enc, raw=False)
+    encoded = encoding.encode_atlas(replace(data), enc, raw=False)  # it takes the SH out of a TexelData of its own
     encoded = post.stitch_encoded(encoded, data.coverage, pipeline, seams, dict(records))
     spec, images = encoded.files[encoded.encoding_file.key]
     layers = {ch.name: _layer(ch, images, g.uv) for ch in spec.channels if ch.applies(settings)}

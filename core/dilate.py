@@ -177,18 +177,18 @@ class Fill:
         self.empty = np.flatnonzero(~valid.reshape(-1)).astype(dtype)
         self.source = source[self.empty].astype(dtype)  # -1: no source within `rings`
 
-    def apply(self, image: np.ndarray, keep_black: bool = False, in_place: bool = False) -> np.ndarray:
-        """Filled copy of `image` `(H, W, ...)` (same dtype): empty texels take their nearest
-        source's value, those out of reach the mean of all sources (0 if there are none).
-        `in_place`: fill `image` itself (a contiguous array) and return it (sources are never
-        written, so the result is the same)."""
+    def apply(self, image: np.ndarray, keep_black: bool = False) -> np.ndarray:
+        """`image` `(H, W, ...)` filled (same dtype): empty texels take their nearest source's
+        value, those out of reach the mean of all sources (0 if there are none); with
+        `keep_black`, the `black` texels 0. `image` is this call's (`core.memory`): a contiguous
+        one is filled where it is and returned (else a filled copy); its sources are never
+        written. A caller that keeps `image` hands over a copy (as `dilate` does)."""
         h, w = self.shape
-        flat = image.reshape((h * w,) + image.shape[2:])
-        out = flat if in_place else flat.copy()
+        out = image.reshape((h * w,) + image.shape[2:])
         reached = self.source >= 0
-        out[self.empty[reached]] = flat[self.source[reached]]
+        out[self.empty[reached]] = out[self.source[reached]]
         if not reached.all():
-            fill = flat[self.valid].mean(axis=0, dtype=np.float64) if len(self.valid) else 0.0
+            fill = out[self.valid].mean(axis=0, dtype=np.float64) if len(self.valid) else 0.0
             out[self.empty[~reached]] = fill
         if keep_black:
             out[self.black] = 0.0
@@ -198,4 +198,4 @@ class Fill:
 def dilate(image: np.ndarray, valid: np.ndarray, rings: int = 16) -> np.ndarray:
     """Copy of `image` `(H, W, ...)` with non-`valid` texels filled from the nearest valid one
     (within `rings`), the rest with the mean of the valid texels (0 if there are none)."""
-    return Fill(valid, rings).apply(image)
+    return Fill(valid, rings).apply(image.copy())

@@ -9,10 +9,6 @@ work on the texel images, so a re-encode from the raw SH file can run them too.
 
 from __future__ import annotations
 
-import ctypes
-import functools
-import mmap
-import sys
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -28,67 +24,6 @@ if TYPE_CHECKING:  # bakepoints imports the compiled kernels; the data types nee
 #: is too often a small fraction of the true error (tracer.settings.MIN_ADAPTIVE_PASSES has the figures);
 #: at least 4: `TracedAtlas.noise` widens the spread by √(ν / (ν − 2)), ν = passes − 1.
 NOISE_PASSES = 4
-
-
-def releasable_zeros(shape: tuple[int, ...], dtype) -> np.ndarray:
-    """np.zeros(shape, dtype), its memory a private anonymous mapping of its own where the
-    platform has one (POSIX), so that `release_rows` can give whole pages of it back to the
-    system while it is alive (np.zeros elsewhere: `release_rows` then does nothing). Pages are
-    resident only once written, as np.zeros'."""
-    nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
-    private, anonymous = getattr(mmap, "MAP_PRIVATE", None), getattr(mmap, "MAP_ANONYMOUS", None)
-    if nbytes < mmap.PAGESIZE or private is None or anonymous is None or not hasattr(mmap.mmap, "madvise"):
-        return np.zeros(shape, dtype)
-    memory = mmap.mmap(-1, nbytes, flags=private | anonymous, prot=mmap.PROT_READ | mmap.PROT_WRITE)
-    return np.frombuffer(memory, dtype, count=nbytes // np.dtype(dtype).itemsize).reshape(shape)
-
-
-def release_rows(a: np.ndarray, stop: int) -> None:
-    """Give the system back the pages that lie wholly within rows 0..stop of `a` (made by
-    `releasable_zeros`; anything else is left alone): those rows are spent, their values read
-    0 afterwards (or anything: they must not be read again). Memory only; the array keeps its shape."""
-    mapping = _mapping(a)
-    if mapping is None or stop <= 0 or a.size == 0:
-        return
-    memory, start = mapping
-    end = start + min(stop, len(a)) * (a.nbytes // len(a))
-    first = -(-start // mmap.PAGESIZE) * mmap.PAGESIZE
-    last = end // mmap.PAGESIZE * mmap.PAGESIZE
-    if last > first:
-        memory.madvise(mmap.MADV_DONTNEED, first, last - first)
-
-
-def trim_heap() -> None:
-    """Give the C heap's free memory back to the system (glibc's `malloc_trim(0)`; nothing where
-    the C library has none). Called between stages: the bake points' and the tracer's worker
-    threads free many arrays of a few MB into glibc's per-thread arenas, which keep them unless
-    trimmed (bench/results/memory.md), as Dask's workers trim theirs."""
-    trim = _malloc_trim()
-    if trim is not None:
-        trim(0)
-
-
-@functools.cache
-def _malloc_trim():
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        return ctypes.CDLL(None).malloc_trim
-    except (OSError, AttributeError):  # not glibc (musl has none)
-        return None
-
-
-def _mapping(a: np.ndarray) -> tuple[mmap.mmap, int] | None:
-    """The mapping of a C-contiguous array made by `releasable_zeros` (or a view of one) and the
-    offset of `a`'s first byte in it; None for any other array."""
-    memory, root = a.base, a
-    while isinstance(memory, np.ndarray):
-        root, memory = memory, memory.base
-    if isinstance(memory, memoryview):  # np.frombuffer's
-        memory = memory.obj
-    if not isinstance(memory, mmap.mmap) or not a.flags.c_contiguous:
-        return None
-    return memory, a.ctypes.data - root.ctypes.data
 
 
 @dataclass
@@ -148,24 +83,6 @@ class TracedAtlas:
         known = dof >= NOISE_PASSES - 1
         nu = np.maximum(dof, NOISE_PASSES - 1.0)  # > 2 (the unknown texels' value is not used)
         return np.where(known, error * np.sqrt(nu / (nu - 2.0)), np.nan).astype(np.float32)
-
-    def release_sh(self) -> None:
-        """Drop `sh` and `sh_error` (they become empty `(0, 9, 3)` arrays) once imaged: a bake's
-        largest arrays, freed before the post stages unless another reference holds them."""
-        self.sh = np.zeros((0, 9, 3))
-        self.sh_error = np.zeros((0, 9, 3), np.float32)
-
-    def release_sh_rows(self, stop: int) -> None:
-        """The SH and standard error of texels 0..stop are imaged and needed no more (their
-        memory goes back to the system where the compact trace made them, `releasable_zeros`;
-        `release_sh` drops the rest): `TexelData.from_points`' `release_sh`, as it images them."""
-        release_rows(self.sh, stop)
-        release_rows(self.sh_error, stop)
-
-    def release_points(self) -> None:
-        """Drop `points` (None from then on) once the atlas's last image is made
-        (`bake.finishing.finish_atlas` with `release`): the bake points are as large as the traced SH."""
-        self.points = None  # type: ignore[assignment]
 
     def with_sh(self, sh: np.ndarray, sh_error: np.ndarray | None = None) -> TracedAtlas:
         """A copy carrying new SH (and standard error) for the same texels, without light sets."""

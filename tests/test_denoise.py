@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, encoding, post, sh
+from hhd_lightmapper.core import bake, encoding, memory, post, sh
 from hhd_lightmapper.core.colour import LUMINANCE
 from hhd_lightmapper.core.files import exr, lightmap_files
 from hhd_lightmapper.core.post.denoise import fill, filtering, layout, noise_clamp, oidn
@@ -129,7 +129,7 @@ def test_a_dark_chart_beside_a_bright_one_is_denoised_as_if_alone(denoiser):  # 
     dark, bright = (slice(20, 100), slice(10, 60), 1.0), (slice(20, 100), slice(63, 120), 100.0)
     both = atlas_data([dark, bright])
     alone = atlas_data([dark])
-    out_both, report = denoise.denoise_texels(both, denoiser)
+    out_both, report = denoise.denoise_texels(memory.keep(both), denoiser)
     out_alone, _ = denoise.denoise_texels(alone, denoiser)
     region = (dark[0], dark[1])
     assert report.charts == 2 and report.pages == 2  # 100x apart: never in one page
@@ -157,7 +157,7 @@ def test_the_compressed_range_keeps_a_bright_strip_from_bleeding_into_the_dark_b
     beside = (slice(22, 26), slice(24, 96))
 
     def bleed() -> float:
-        out, _ = denoise.denoise_texels(data, denoiser)
+        out, _ = denoise.denoise_texels(memory.keep(data), denoiser)
         return float(iz(out)[beside].mean() / iz(data)[beside].mean() - 1.0)
 
     assert filtering.HDR_POWER < 1.0
@@ -210,7 +210,7 @@ def test_buried_and_empty_texels_are_neither_used_nor_changed(denoiser):  # noqa
     data = atlas_data([(slice(10, 60), slice(10, 60), 1.0)])
     data.coverage[30:35, 30:35] = -1.0  # buried: black in the files
     data.sh[30:35, 30:35] = 1e4  # would light its neighbours if the filter saw it
-    out, _ = denoise.denoise_texels(data, denoiser)
+    out, _ = denoise.denoise_texels(memory.keep(data), denoiser)
     np.testing.assert_array_equal(out.sh[30:35, 30:35], data.sh[30:35, 30:35])
     assert abs(iz(out)[25:40, 25:40][data.coverage[25:40, 25:40] > 0].mean() - 1.0) < 0.1
 
@@ -273,7 +273,7 @@ def test_heavy_tailed_noise_keeps_its_mean(denoiser):  # noqa: F811
     data = atlas_data([(slice(10, 110), slice(10, 110), 1.0)], noise=0.2)
     spikes = np.random.default_rng(9).random((100, 100)) < 0.02
     data.sh[10:110, 10:110][spikes] *= 40.0
-    out, _ = denoise.denoise_texels(data, denoiser)
+    out, _ = denoise.denoise_texels(memory.keep(data), denoiser)
     region = (slice(10, 110), slice(10, 110))
     assert abs(iz(out)[region].mean() / iz(data)[region].mean() - 1.0) < 1e-3
     assert iz(out)[region].std() < 0.25 * iz(data)[region].std()
@@ -289,8 +289,8 @@ def test_texels_every_pass_agreed_on_keep_their_traced_value(denoiser):  # noqa:
     sigma = 0.3 * np.sqrt(np.pi)  # standard error of L0's luminance: 30% of uniform radiance 1
     noise = np.where(data.coverage > 0, sigma, np.nan).astype(np.float32)
     noise[40:43, 10:90] = 0.0
-    free, _ = denoise.denoise_texels(data, denoiser)
-    clamped, _ = denoise.denoise_texels(replace(data, noise=noise), denoiser)
+    free, _ = denoise.denoise_texels(memory.keep(data), denoiser)
+    clamped, _ = denoise.denoise_texels(memory.keep(replace(data, noise=noise)), denoiser)
     assert iz(free)[40:43, 10:90].max() > 0.02  # the filter alone lights the shadow
     assert not clamped.sh[40:43, 10:90].any()
     rest = np.ones((128, 128), bool)
@@ -375,7 +375,7 @@ def test_a_page_denoised_in_bands_has_the_whole_pages_bits(denoiser, monkeypatch
     copy and in place. The atlas is the shortest that keeps all of it (its page 4 bands of 96
     rows; each band costs OIDN its core and 2 × 96 rows of context)."""
     data = banded_atlas(330)
-    whole, _ = denoise.denoise_texels(data, denoiser)
+    whole, _ = denoise.denoise_texels(memory.keep(data), denoiser)
     labels, n = denoise.label_charts(data.coverage != 0)
     width = max(p.shape[1] for p in denoise.layout(labels, n, np.ones(n)))
     monkeypatch.setattr(denoise, "BAND_TEXELS", band_rows * width)
@@ -383,24 +383,23 @@ def test_a_page_denoised_in_bands_has_the_whole_pages_bits(denoiser, monkeypatch
     assert denoise._band_rows((data.coverage.shape[0], width)) == band_rows
     within = []  # whether every texel of the page is within the fill's reach of a chart texel
     monkeypatch.setattr(denoise, "_within", lambda *a, real=denoise._within: within.append(real(*a)) or within[-1])
-    banded, _ = denoise.denoise_texels(data, denoiser)
+    work = memory.keep(data)
+    banded, _ = denoise.denoise_texels(work, denoiser)
     assert within == [False]  # the page mean of the fill is used
+    assert np.shares_memory(banded.sh, work.sh)  # denoised where it was read
     np.testing.assert_array_equal(banded.sh.view(np.uint32), whole.sh.view(np.uint32))
-    in_place, _ = denoise.denoise_texels(data, denoiser, in_place=True)
-    assert np.shares_memory(in_place.sh, data.sh)
-    np.testing.assert_array_equal(in_place.sh.view(np.uint32), whole.sh.view(np.uint32))
 
 
-def test_a_cancelled_denoise_in_place_restores_the_traced_sh(denoiser):  # noqa: F811
-    """Cancelled between two pages, the first written: the caller's `restore` puts the traced SH
-    back (a bake reads it from the raw SH file it wrote first)."""
+def test_a_cancelled_denoise_puts_the_traced_sh_back(denoiser):  # noqa: F811
+    """Cancelled between two pages, the first written: the SH is put back from the caller's
+    `raw_sh()` (a bake reads it from the raw SH file it wrote first)."""
     data = atlas_data([(slice(10, 40), slice(10, 40), 1.0), (slice(50, 90), slice(10, 60), 30.0)])
     traced = data.sh.copy()
     calls, restored = [], []
 
-    def restore():
+    def raw_sh():
         restored.append(bool((data.sh.view(np.uint32) != traced.view(np.uint32)).any()))
-        data.sh[...] = traced
+        return traced.copy()
 
     def check():
         calls.append(1)
@@ -408,7 +407,7 @@ def test_a_cancelled_denoise_in_place_restores_the_traced_sh(denoiser):  # noqa:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        denoise.denoise_texels(data, denoiser, check, in_place=True, restore=restore)
+        denoise.denoise_texels(data, denoiser, check, raw_sh)
     assert restored == [True]  # called once, after the first page was written
     np.testing.assert_array_equal(data.sh.view(np.uint32), traced.view(np.uint32))
 
@@ -437,8 +436,8 @@ def test_the_clamp_tightens_on_a_chart_smaller_than_small_chart(denoiser):  # no
     data = atlas_data([(*small, 1.0), (*large, 1.0)], noise=0.3)
     sigma = 0.3 * np.sqrt(np.pi)  # standard error of L0's luminance: 30% of uniform radiance 1
     noise = np.where(data.coverage > 0, sigma, np.nan).astype(np.float32)
-    free, _ = denoise.denoise_texels(data, denoiser)
-    clamped, _ = denoise.denoise_texels(replace(data, noise=noise), denoiser)
+    free, _ = denoise.denoise_texels(memory.keep(data), denoiser)
+    clamped, _ = denoise.denoise_texels(memory.keep(replace(data, noise=noise)), denoiser)
     bound = np.full(data.sh.shape, noise_clamp.NOISE_CLAMP * sigma)  # grey: each colour's share of L0 is 1
     shrink = np.sqrt(64 / noise_clamp.SMALL_CHART)
     assert shrink < 1.0
@@ -457,7 +456,7 @@ def test_the_clamp_tightens_within_edge_rings_of_a_charts_edge(denoiser):  # noq
     data = atlas_data([(*chart, 1.0)], noise=0.3)
     sigma = 0.3 * np.sqrt(np.pi)
     noise = np.where(data.coverage > 0, sigma, np.nan).astype(np.float32)
-    clamped, _ = denoise.denoise_texels(replace(data, noise=noise), denoiser)
+    clamped, _ = denoise.denoise_texels(memory.keep(replace(data, noise=noise)), denoiser)
     bound = noise_clamp.NOISE_CLAMP * sigma
     moved = np.abs(clamped.sh - data.sh).max(axis=(2, 3))
     r = noise_clamp.EDGE_RINGS

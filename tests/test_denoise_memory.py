@@ -1,5 +1,5 @@
-"""The denoiser's `in_place` (core/post/denoise/; issue 23: memory): the SH denoised in place with no copy of
-what it replaced, and the caller's `restore` on failure. Real OIDN (the fixtures of test_oidn.py:
+"""The denoiser owns its TexelData (core/post/denoise/; issue 23: memory): the SH denoised where it is read,
+with no copy of what it replaced, and put back from the caller's `raw_sh` on failure. Real OIDN (the fixtures of test_oidn.py:
 skipped with the reason when the library or the weights are absent); the filter's numerics are
 never replaced, only wrapped to fail."""
 
@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import encoding
+from hhd_lightmapper.core import encoding, memory
 from hhd_lightmapper.core.post.denoise import layout, oidn
 from hhd_lightmapper.core.post.denoise import pages as denoise
 from test_denoise import atlas_data, banded_atlas
@@ -21,22 +21,23 @@ def bits(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, np.float32).view(np.uint32)
 
 
-def copy_of(data: encoding.TexelData) -> encoding.TexelData:
-    return replace(data, sh=data.sh.copy())
-
-
 def band_width(data: encoding.TexelData) -> int:
     """Width of the widest page of `data` (BAND_TEXELS = rows × this gives bands of those rows)."""
     labels, n = layout.label_charts(data.coverage != 0)
     return max(p.shape[1] for p in layout.layout(labels, n, np.ones(n)))
 
 
-def reference_and_lean(data: encoding.TexelData, denoiser):  # noqa: F811
-    """The denoised SH in a copy (`in_place=False`, which never writes what it reads) and in
-    place (the bands read `sh` while the last pass writes into it), each on its own copy."""
-    reference, _ = denoise.denoise_texels(copy_of(data), denoiser)
-    lean_data = copy_of(data)
-    lean, report = denoise.denoise_texels(lean_data, denoiser, in_place=True)
+def reference_and_lean(data: encoding.TexelData, denoiser, monkeypatch):  # noqa: F811
+    """The denoised SH with every page whole (`BAND_TEXELS` unbounded: a page reads its texels
+    before it writes any) and with the pages `BAND_TEXELS` bands (the bands read `sh` while the
+    last pass writes into it), each on its own copy of `data`."""
+    band_texels = denoise.BAND_TEXELS
+    with monkeypatch.context() as whole:
+        whole.setattr(denoise, "BAND_TEXELS", 1 << 40)
+        reference, _ = denoise.denoise_texels(memory.keep(data), denoiser)
+    assert denoise.BAND_TEXELS == band_texels
+    lean_data = memory.keep(data)
+    lean, report = denoise.denoise_texels(lean_data, denoiser)
     assert np.shares_memory(lean.sh, lean_data.sh)
     return reference, lean, report
 
@@ -46,9 +47,9 @@ def reference_and_lean(data: encoding.TexelData, denoiser):  # noqa: F811
 # over several bands; 128: the top 114 rows of each band held back until the next is built.
 @pytest.mark.slow
 @pytest.mark.parametrize("band_rows", [48, 128])
-def test_a_banded_page_denoised_in_place_has_the_copys_bits(denoiser, monkeypatch, band_rows):  # noqa: F811
+def test_a_banded_page_denoised_in_place_has_the_whole_pages_bits(denoiser, monkeypatch, band_rows):  # noqa: F811
     """The tall L chart (the fill's page mean used), a black chart (-0), a buried patch, NaN and
-    Inf texels and the noise clamp: in place, every texel's bits are the copy's."""
+    Inf texels and the noise clamp: in bands, in place, every texel's bits are the whole page's."""
     data = banded_atlas()
     assert data.noise is not None and not np.isfinite(data.sh).all() and (data.coverage < 0).any()
     assert np.signbit(data.sh[100:120, 120:180]).all()  # the black chart's -0
@@ -56,7 +57,7 @@ def test_a_banded_page_denoised_in_place_has_the_copys_bits(denoiser, monkeypatc
     monkeypatch.setattr(denoise, "BAND_TEXELS", band_rows * width)
     monkeypatch.setattr(denoise, "SCALE_CHUNK", 1000)
     assert denoise._band_rows((data.coverage.shape[0], width)) == band_rows
-    reference, lean, report = reference_and_lean(data, denoiser)
+    reference, lean, report = reference_and_lean(data, denoiser, monkeypatch)
     np.testing.assert_array_equal(bits(lean.sh), bits(reference.sh))
     assert report.charts == 2 and report.pages == 1  # the L and the patch beside it; the black chart is left
     changed = (bits(lean.sh) != bits(data.sh)).any(axis=(2, 3))
@@ -64,9 +65,10 @@ def test_a_banded_page_denoised_in_place_has_the_copys_bits(denoiser, monkeypatc
 
 
 @pytest.mark.slow
-def test_a_multi_page_atlas_denoised_in_place_has_the_copys_bits(denoiser, monkeypatch):  # noqa: F811
+def test_a_multi_page_atlas_denoised_in_place_has_the_whole_pages_bits(denoiser, monkeypatch):  # noqa: F811
     """Pages of several brightness bands, small whole pages and a banded one, black and
-    non-finite texels, buried texels and the noise clamp."""
+    non-finite texels, buried texels and the noise clamp: the banded page's bits are its bits
+    denoised whole, the other pages' unchanged by it."""
     rng = np.random.default_rng(11)
     charts = [
         (slice(4, 250), slice(4, 30), 1.0),  # tall: its page goes in bands
@@ -98,7 +100,7 @@ def test_a_multi_page_atlas_denoised_in_place_has_the_copys_bits(denoiser, monke
     labels, n = layout.label_charts(data.coverage != 0)
     pages = layout.layout(labels, n, np.ones(n))
     assert sum(bool(denoise._band_rows(p.shape)) for p in pages) == 1
-    reference, lean, report = reference_and_lean(data, denoiser)
+    reference, lean, report = reference_and_lean(data, denoiser, monkeypatch)
     assert report.pages >= 5
     np.testing.assert_array_equal(bits(lean.sh), bits(reference.sh))
 
@@ -112,10 +114,10 @@ def test_no_page_sized_copy_of_the_traced_sh_is_held(denoiser, monkeypatch):  # 
     peaks = {}
     for band_texels in (1 << 40, 128 * band_width(data)):
         monkeypatch.setattr(denoise, "BAND_TEXELS", band_texels)
-        work = copy_of(data)
+        work = memory.keep(data)
         tracemalloc.start()
         try:
-            out, _ = denoise.denoise_texels(work, denoiser, in_place=True)
+            out, _ = denoise.denoise_texels(work, denoiser)
             peaks[band_texels] = tracemalloc.get_traced_memory()[1]
         finally:
             tracemalloc.stop()
@@ -146,26 +148,26 @@ class FailingDenoiser:
 # the banded page (5 bands of 128 rows) comes first; 3 directional calls a band: call 1 is band
 # 0's (nothing written), 4 band 1's (band 0's rows below band 1's reach, 0-13, written), 10 band 3's
 @pytest.mark.parametrize(("fail_at", "restored"), [(1, False), (4, True), (10, True)])
-def test_a_failure_after_a_write_calls_restore_and_before_it_does_not(denoiser, monkeypatch, fail_at, restored):  # noqa: F811
+def test_a_failure_after_a_write_reads_the_sh_back_and_before_it_does_not(denoiser, monkeypatch, fail_at, restored):  # noqa: F811
     data = banded_atlas()
     monkeypatch.setattr(denoise, "BAND_TEXELS", 128 * band_width(data))
     traced = data.sh.copy()
     failing = FailingDenoiser(denoiser, fail_at, data, traced)
     calls = []
 
-    def restore():
+    def raw_sh():
         calls.append(1)
-        data.sh[...] = traced  # the caller's copy (e.g. the raw SH file)
+        return traced.copy()  # the caller's copy (e.g. the raw SH file)
 
     with pytest.raises(oidn.DenoiserError, match="injected failure"):
-        denoise.denoise_texels(data, failing, in_place=True, restore=restore)  # type: ignore[arg-type]
+        denoise.denoise_texels(data, failing, raw_sh=raw_sh)  # type: ignore[arg-type]
     assert failing.written_when_failing is restored
     assert len(calls) == (1 if restored else 0)
     np.testing.assert_array_equal(bits(data.sh), bits(traced))
 
 
-def cancel(data: encoding.TexelData, denoiser, cancel_at: int, restore) -> None:  # noqa: F811
-    """In place, with `check` raising KeyboardInterrupt at its `cancel_at`-th call."""
+def cancel(data: encoding.TexelData, denoiser, cancel_at: int, raw_sh) -> None:  # noqa: F811
+    """`check` raising KeyboardInterrupt at its `cancel_at`-th call."""
     count = []
 
     def check():
@@ -174,14 +176,14 @@ def cancel(data: encoding.TexelData, denoiser, cancel_at: int, restore) -> None:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        denoise.denoise_texels(data, denoiser, check, in_place=True, restore=restore)
+        denoise.denoise_texels(data, denoiser, check, raw_sh)
 
 
 # the banded page first (5 bands of 128 rows): `check` runs once before it, then before bands 1-4
 # of each pass (the fill's page mean, L0 and I_z, the rest); 2: in the first pass; 9: the second
 # pass's last (nothing written yet); 10: before the last pass's band 1 (band 0's rows 0-13 written)
 @pytest.mark.parametrize(("cancel_at", "restored"), [(2, False), (9, False), (10, True)])
-def test_a_cancel_calls_restore_only_once_something_is_written(denoiser, monkeypatch, cancel_at, restored):  # noqa: F811
+def test_a_cancel_reads_the_sh_back_only_once_something_is_written(denoiser, monkeypatch, cancel_at, restored):  # noqa: F811
     data = banded_atlas()
     monkeypatch.setattr(denoise, "BAND_TEXELS", 128 * band_width(data))
     labels, n = layout.label_charts(data.coverage != 0)
@@ -189,19 +191,32 @@ def test_a_cancel_calls_restore_only_once_something_is_written(denoiser, monkeyp
     traced = data.sh.copy()
     calls = []
 
-    def restore():
+    def raw_sh():
         calls.append(1)
-        data.sh[...] = traced  # the caller's copy (e.g. the raw SH file)
+        return traced.copy()  # the caller's copy (e.g. the raw SH file)
 
-    cancel(data, denoiser, cancel_at, restore)
+    cancel(data, denoiser, cancel_at, raw_sh)
     assert len(calls) == (1 if restored else 0)
     np.testing.assert_array_equal(bits(data.sh), bits(traced))
 
 
-def test_without_restore_a_cancel_leaves_the_sh_partly_denoised(denoiser, monkeypatch):  # noqa: F811
+def test_without_raw_sh_a_cancel_leaves_the_sh_partly_denoised(denoiser, monkeypatch):  # noqa: F811
     data = banded_atlas()
     monkeypatch.setattr(denoise, "BAND_TEXELS", 128 * band_width(data))
     traced = data.sh.copy()
     cancel(data, denoiser, 10, None)
     changed = (bits(data.sh) != bits(traced)).any(axis=(2, 3))
     assert changed.any() and not changed.all()  # as documented
+
+
+@pytest.mark.parametrize(("fail_at", "written"), [(1, False), (4, True)])
+def test_without_raw_sh_a_failure_after_a_write_is_no_denoiser_error(denoiser, monkeypatch, fail_at, written):  # noqa: F811
+    """A DenoiserError lets the post stage pass the SH on undenoised: with the SH partly
+    denoised and nothing to read it back from, the failure leaves as a RuntimeError instead."""
+    data = banded_atlas()
+    monkeypatch.setattr(denoise, "BAND_TEXELS", 128 * band_width(data))
+    failing = FailingDenoiser(denoiser, fail_at, data, data.sh.copy())
+    with pytest.raises(RuntimeError if written else oidn.DenoiserError, match="injected failure") as raised:
+        denoise.denoise_texels(data, failing)  # type: ignore[arg-type]
+    assert failing.written_when_failing is written
+    assert isinstance(raised.value, oidn.DenoiserError) is not written

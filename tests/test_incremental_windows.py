@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bake, bakepoints, encoding, post
+from hhd_lightmapper.core import bake, bakepoints, encoding, memory, post
 from hhd_lightmapper.core.incremental import merge as core_merge
 from hhd_lightmapper.core.incremental import subset
 from hhd_lightmapper.core.post.seams import geometry as seams
@@ -40,16 +40,6 @@ def small_region(monkeypatch, halo=24, tile=32):
     monkeypatch.setattr(core_merge, "WINDOW_SHARE_MAX", 1.0)
 
 
-def copy(data):
-    return replace(
-        data,
-        sh=data.sh.copy(),
-        normal=data.normal.copy(),
-        coverage=data.coverage.copy(),
-        noise=None if data.noise is None else data.noise.copy(),
-    )
-
-
 def whole(data, settings, hit):
     """The merge's stages over the whole atlas, as `_merge_files` runs them."""
     out, records = post.apply(data, settings, seams=hit)
@@ -58,8 +48,8 @@ def whole(data, settings, hit):
 
 
 def on_region(data, settings, hit, mask):
-    part = copy(data)
-    result = core_merge._region_encode(part, part.fill(), settings, hit, mask, lambda: None)
+    part = memory.keep(data)
+    result = core_merge._region_encode(part, part.fill(), settings, hit, mask, lambda: None, None)
     assert not isinstance(result, str), result
     return result
 
@@ -87,7 +77,7 @@ def test_stitch_and_encode_on_the_region_give_the_whole_atlas_bits_on_the_touche
     _, _, data, mask, hit = atlas
     small_region(monkeypatch)
     settings = bake.PipelineSettings(trace=replace(bake.PipelineSettings().trace, threads=2))
-    full, records = whole(copy(data), settings, hit)
+    full, records = whole(memory.keep(data), settings, hit)
     part, part_records, merge = on_region(data, settings, hit, mask)
     assert merge["over"] == "region" and merge["share"] < 0.9 and merge["texels"] < 0.9 * RES * RES
     assert part_records["stitch"]["seams"] == records["stitch"]["seams"] == len(hit) > 0
@@ -107,8 +97,8 @@ def test_stitch_and_encode_on_the_region_give_the_whole_atlas_bits_on_the_touche
 def test_too_large_a_region_runs_the_whole_atlas_and_leaves_the_data(atlas, monkeypatch):
     _, _, data, mask, hit = atlas
     monkeypatch.setattr(core_merge, "WINDOW_SHARE_MAX", 0.0)
-    part = copy(data)
-    why = core_merge._region_encode(part, part.fill(), bake.PipelineSettings(), hit, mask, lambda: None)
+    part = memory.keep(data)
+    why = core_merge._region_encode(part, part.fill(), bake.PipelineSettings(), hit, mask, lambda: None, None)
     assert why.startswith("the region holds")
     for key in ("sh", "normal", "coverage", "noise"):
         np.testing.assert_array_equal(getattr(part, key), getattr(data, key))
@@ -120,7 +110,7 @@ def test_denoise_on_the_region_is_near_the_whole_atlas(atlas, monkeypatch, libra
     small_region(monkeypatch)
     trace = replace(bake.PipelineSettings().trace, threads=2)
     settings = bake.PipelineSettings(trace=trace, denoise=True, denoiser_library=str(library))
-    full, records = whole(copy(data), settings, hit)
+    full, records = whole(memory.keep(data), settings, hit)
     if not records["denoise"].get("applied"):
         pytest.skip(records["denoise"].get("warning", "not denoised"))
     part, _, _ = on_region(data, settings, hit, mask)

@@ -85,13 +85,13 @@ def test_buried_texels_fill_from_their_own_chart_not_black():
     sh[:, 10:, 0, 0] = 5.0  # B's value
     sh[coverage < 0] = 0.0
     data = encoding.TexelData(sh=sh, normal=np.zeros((h, w, 3), np.float32), coverage=coverage)
-    out = data.fill().apply(sh[..., 0, 0])
+    out = data.fill().apply(sh[..., 0, 0].copy())
     assert (out[coverage < 0] == 1.0).all()
     assert (out[coverage > 0] == sh[..., 0, 0][coverage > 0]).all()
     coverage[2:10, 2:8] = -1.0  # all of A buried: nothing to fill from
     data = encoding.TexelData(sh=sh, normal=data.normal, coverage=coverage)
     fill = data.fill()
-    assert (fill.apply(sh[..., 0, 0], keep_black=True)[2:10, 2:8] == 0).all() and len(fill.invalid) == 48
+    assert (fill.apply(sh[..., 0, 0].copy(), keep_black=True)[2:10, 2:8] == 0).all() and len(fill.invalid) == 48
 
 
 def test_the_back_of_a_surface_passes_light_on():

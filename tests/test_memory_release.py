@@ -1,15 +1,16 @@
 """What lets a 4096² bake fit in 3 GB without changing a bit (issue 23, bench/memory.py): arrays
-whose pages go back to the system once spent (`stages.releasable_zeros`, `release_rows`), the SH imaged a part at a time as its compact copy goes
-(`TexelData.from_points`' `release_sh`) and the bake points a compact trace keeps
+whose pages go back to the system once spent (`memory.releasable_zeros`, `release_rows`), the SH imaged a part at a time as its compact copy goes
+(`TexelData.from_traced`) and the bake points a compact trace keeps
 (`BakePoints.for_files`). No Blender."""
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bakepoints, encoding, stages, tracer
+from hhd_lightmapper.core import bakepoints, encoding, memory, stages, tracer
 from hhd_lightmapper.core.scene import BakeScene, SunLight
 from scenekit import meshes
 
@@ -26,46 +27,77 @@ def resident_mb() -> float:
 @linux
 def test_spent_rows_go_back_and_the_rest_keep_their_values():
     rows = 1 << 21  # 216 MB of (rows, 9, 3) float32
-    a = stages.releasable_zeros((rows, 9, 3), np.float32)
+    a = memory.releasable_zeros((rows, 9, 3), np.float32)
     a[:] = np.arange(27, dtype=np.float32).reshape(9, 3) + 1.0
     kept = a[rows // 2 :].copy()
     before = resident_mb()
-    stages.release_rows(a, rows // 2)
+    memory.release_rows(a, rows // 2)
     assert before - resident_mb() > 0.9 * a.nbytes / 2 / 2**20
     np.testing.assert_array_equal(a[rows // 2 + 1 :], kept[1:])  # rows past the first partial page
     plain = np.ones((1000, 9, 3), np.float32)
-    stages.release_rows(plain, 1000)  # not a releasable array: left alone
+    memory.release_rows(plain, 1000)  # not a releasable array: left alone
     assert (plain == 1.0).all()
 
 
-def sheet_points(albedo=True):
+def test_a_kept_copy_is_the_stages_to_spend_and_the_callers_stays():
+    """`memory.keep`: an array's copy (releasable: spending it gives its pages back), a hand-off
+    object with its arrays copied and its other fields shared; anything else is refused."""
+    a = np.arange(4096 * 27, dtype=np.float32).reshape(4096, 9, 3)
+    copy = memory.keep(a)
+    assert not np.shares_memory(copy, a) and copy.flags.c_contiguous
+    np.testing.assert_array_equal(copy, a)
+    memory.release_rows(copy, len(copy))
+    if sys.platform.startswith("linux"):
+        assert not copy.any()  # given back
+    assert a[1:].all()
+    window = stages.Window(0, 0, 8, 8, (16, 16))
+    data = encoding.TexelData(
+        np.ones((8, 8, 9, 3), np.float32), np.ones((8, 8, 3), np.float32), np.ones((8, 8)), window=window
+    )
+    kept = memory.keep(data)
+    assert kept.window is window and kept.sh_error is None
+    for name in ("sh", "normal", "coverage"):
+        assert not np.shares_memory(getattr(kept, name), getattr(data, name))
+        np.testing.assert_array_equal(getattr(kept, name), getattr(data, name))
+    with pytest.raises(TypeError):
+        memory.keep([a])
+
+
+def sheet():
     v, f = meshes.plane(2.0)
     uv = (v[f][..., :2] + 1.0) / 2.2 + 0.02
     normals = np.tile([0, 0, 1.0], (len(f), 3, 1))
     surface = bakepoints.SurfaceTriangles(v[f], normals, uv, np.zeros(len(f), int), np.full((len(f), 3), 0.5))
     scene = BakeScene(v[f], np.full((len(f), 3), 0.5), lights=[SunLight(np.array([0.3, 0.2, 0.93]), np.ones(3))])
+    return surface, scene
+
+
+def sheet_points(albedo=True):
+    surface, scene = sheet()
     return bakepoints.build(surface, 64, 64, albedo=albedo), scene
 
 
-def test_the_sh_imaged_a_part_at_a_time_is_the_sh_imaged_whole(monkeypatch):
-    """Parts of 97 rows, each released (for real, where the platform can) once imaged: no row
-    is released before it is imaged, so the image is the whole SH's."""
+def test_the_traced_atlas_imaged_a_part_at_a_time_is_the_traced_atlas_imaged_whole(monkeypatch):
+    """`TexelData.from_traced` (parts of 97 rows, each given back, for real where the platform
+    can, once imaged) gives the images `from_points` gives of the same SH, which it only reads;
+    the traced atlas is spent: its bake points and SH dropped, the SH's rows released as imaged."""
     points, scene = sheet_points()
     traced = tracer.bake(points, scene, tracer.BakeSettings(samples=4, pass_samples=4, bounces=0), compact=True)
-    whole = encoding.TexelData.from_points(traced.points, traced.sh.copy(), noise=traced.noise())
+    sh = traced.sh
+    whole = encoding.TexelData.from_points(traced.points, sh.copy(), noise=traced.noise())
     monkeypatch.setattr(encoding.stage, "IMAGE_ROWS", 97)
     released = []
-
-    def release(stop):
-        released.append(stop)
-        traced.release_sh_rows(stop)
-
-    parts = encoding.TexelData.from_points(traced.points, traced.sh, noise=traced.noise(), release_sh=release)
-    assert len(released) > 10 and released[-1] == len(traced.points.texel)
+    monkeypatch.setattr(
+        encoding.stage, "release_rows", lambda a, stop: (released.append(stop), memory.release_rows(a, stop))
+    )
+    parts = encoding.TexelData.from_traced(traced)
+    assert len(released) > 20 and released[-1] == len(points.texel)
+    assert released == sorted(released) and released[::2] == released[1::2]  # the SH's rows, then its error's
     for name in ("sh", "normal", "coverage", "noise"):
         assert getattr(parts, name).tobytes() == getattr(whole, name).tobytes(), name
+    assert traced.points is None and len(traced.sh) == 0 and len(traced.sh_error) == 0
     if sys.platform.startswith("linux"):  # given back: the spent rows read 0 now
-        assert not traced.sh[: released[-2] - 1024].any()
+        assert not sh[: released[-2] - 1024].any()
 
 
 def test_a_compact_trace_keeps_what_the_files_take_and_the_same_sh():
@@ -81,3 +113,33 @@ def test_a_compact_trace_keeps_what_the_files_take_and_the_same_sh():
     for name in ("texel", "normal", "coverage", "buried", "object_index"):
         np.testing.assert_array_equal(getattr(kept, name), getattr(points, name))
     assert len(kept.position) == 0 and len(kept.face_normal) == 0 and len(kept.triangle) == 0
+
+
+@linux
+def test_finish_atlas_spends_the_traced_atlas_and_a_kept_copy_leaves_it_whole():
+    """`finish_atlas` owns the traced atlas: its SH (rows given back) and bake points are gone
+    afterwards. A farm worker that may hand the atlas back to the client (OIDN failing there)
+    hands over a copy of the SH and standard error (`memory.keep`): the atlas it keeps is
+    whole, and the files are the same."""
+    from hhd_lightmapper.core import bake
+    from hhd_lightmapper.core.bake import finishing
+    from hhd_lightmapper.core.farm.finishing import _Kept
+
+    surface, scene = sheet()
+    atlas = bake.AtlasInput("Lightmap", 64, 64, surface, ["sheet"])
+    settings = bake.PipelineSettings(trace=tracer.BakeSettings(samples=4, pass_samples=4, bounces=0, threads=1))
+    points = bake.points_of(atlas, None, 1)
+    traced = tracer.bake(points, scene, settings.trace, compact=True)
+    del points
+    sh, sh_error, points = traced.sh, traced.sh_error, traced.points
+    before = sh.copy(), sh_error.copy()
+    kept, spent = _Kept(), _Kept()
+    copy = replace(traced, sh=memory.keep(sh), sh_error=memory.keep(sh_error))
+    finishing.finish_atlas(atlas, copy, settings, 0.0, {}, kept)
+    assert copy.points is None and len(copy.sh) == 0  # the copy is spent
+    assert traced.points is points and traced.sh is sh
+    assert sh.tobytes() == before[0].tobytes() and sh_error.tobytes() == before[1].tobytes()
+    finishing.finish_atlas(atlas, traced, settings, 0.0, {}, spent)
+    assert traced.points is None and len(traced.sh) == 0 and len(traced.sh_error) == 0
+    assert before[0][:-100].any() and not sh[:-100].any()  # its rows given back
+    assert kept.traced_sh("Lightmap", "").tobytes() == spent.traced_sh("Lightmap", "").tobytes()

@@ -53,7 +53,7 @@ def test_a_post_stage_receives_the_texel_images_and_its_output_is_what_gets_enco
         seen.append(data)
         return replace(data, sh=2.0 * data.sh), {"enabled": True, "factor": 2}
 
-    monkeypatch.setattr(post, "stages_for", lambda s, seams=None: [("double", double)])
+    monkeypatch.setattr(post, "stages_for", lambda s, seams=None, raw_sh=None: [("double", double)])
     bake.run([atlas], scene, settings, tmp_path / "doubled")
     (data,) = seen
     assert data.sh.shape == (RES, RES, 9, 3) and data.baked.sum() > 0.9 * RES * RES
@@ -80,7 +80,7 @@ def test_stitching_runs_after_denoising_on_the_seams_of_the_atlas_and_is_off_whe
     atlas = bake.AtlasInput("Lightmap", RES, RES, surface, ["floor"])
     seen = []
 
-    def stitch(data, pairs, check=None, threads=0, in_place=False):
+    def stitch(data, pairs, check=None, threads=0):
         seen.append(pairs)
         return data, {"seams": len(pairs)}
 
@@ -212,8 +212,8 @@ def test_a_denoiser_failing_half_way_gives_the_undenoised_bake(tmp_path, monkeyp
     (plain,) = bake.run([atlas], scene, bake.PipelineSettings(trace=trace), tmp_path / "plain")
     monkeypatch.setattr(pages, "BAND_TEXELS", 32 * RES)  # 16-row bands of the 260-row page, written 114 rows behind
     restored = []
-    real_restore = finishing._restore_sh
-    monkeypatch.setattr(finishing, "_restore_sh", lambda *a: (restored.append(1), real_restore(*a))[1])
+    read_back = finishing.Staged.traced_sh
+    monkeypatch.setattr(finishing.Staged, "traced_sh", lambda *a: (restored.append(1), read_back(*a))[1])
     real_for = filtering.denoiser_for
     monkeypatch.setattr(filtering, "denoiser_for", lambda lib, threads: FailingDenoiser(real_for(lib, threads), 37))
     settings = bake.PipelineSettings(trace=trace, denoise=True, denoiser_library=str(library))
@@ -222,3 +222,14 @@ def test_a_denoiser_failing_half_way_gives_the_undenoised_bake(tmp_path, monkeyp
     assert any("not denoised: injected failure" in w for w in failed.warnings)
     for path in ("hhd", "sh", "texels"):
         assert getattr(failed.files, path).read_bytes() == getattr(plain.files, path).read_bytes(), path
+    # a re-encode denoises the SH it read: it reads it back from the raw SH file (once to denoise, once back)
+    read = []
+    real_read = lightmap_files.read_sh
+    monkeypatch.setattr(lightmap_files, "read_sh", lambda path: (read.append(path), real_read(path))[1])
+    _, warnings = bake.reencode(
+        failed.files, encoding.EncoderSettings(), threads=2, denoise=True, denoiser_library=str(library)
+    )
+    assert read == [failed.files.sh] * 2 and any("not denoised: injected failure" in w for w in warnings)
+    assert exr.read(failed.files.hhd)[0].keys() == exr.read(plain.files.hhd)[0].keys()
+    for name, channel in exr.read(failed.files.hhd)[0].items():
+        assert channel.tobytes() == exr.read(plain.files.hhd)[0][name].tobytes(), name

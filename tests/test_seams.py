@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hhd_lightmapper.core import bakepoints, encoding, hhd, raster, rays, sh, tracer, unwrap
+from hhd_lightmapper.core import bakepoints, encoding, hhd, memory, raster, rays, sh, tracer, unwrap
 from hhd_lightmapper.core.errors import BakeCancelled
 from hhd_lightmapper.core.post.seams import encoded_stitch, geometry, metrics, reads, stitching
 from hhd_lightmapper.core.scene import BakeScene, SunLight
@@ -255,7 +255,7 @@ def test_stitching_closes_the_seams_of_a_linear_bake_and_touches_nothing_else(sp
     data = linear_data(points)
     found = geometry.find_seams(points.mesh, RES, RES)
     before = metrics.seam_metric(data, found)
-    out, record = stitching.stitch(data, found)
+    out, record = stitching.stitch(memory.keep(data), found)
     after = metrics.seam_metric(out, found)
     assert before["mean"] > 2e-4 and before["tilted"]["mean"] > 2e-4  # border texels sit off their centres
     assert after["mean"] < before["mean"] / 20 and after["tilted"]["mean"] < before["tilted"]["mean"] / 20
@@ -281,7 +281,7 @@ def test_stitched_gutter_texels_are_encoded_not_overwritten_by_dilation(sphere_c
     points = sphere_cylinder
     found = geometry.find_seams(points.mesh, RES, RES)
     out, _ = stitching.stitch(linear_data(points), found)
-    atlas = encoding.encode_atlas(out, encoding.for_settings(encoding.EncoderSettings()), raw=False)
+    atlas = encoding.encode_atlas(replace(out), encoding.for_settings(encoding.EncoderSettings()), raw=False)
     gutter = np.flatnonzero(out.extra_sources.reshape(-1))
     iz = np.stack([reads.encoded_images(atlas)[f"Iz.{c}"].reshape(-1) for c in "RGB"], -1)[gutter]
     expected = hhd.irradz(
@@ -298,7 +298,7 @@ def test_a_nan_texel_does_not_spread(sphere_cylinder):
     bad = index[0][np.argmax(weight[0] * (data.coverage.reshape(-1)[index[0]] > 0))]
     sh_bad = data.sh.copy()
     sh_bad.reshape(RES * RES, 9, 3)[bad, 0, 1] = np.nan
-    out, record = stitching.stitch(replace(data, sh=sh_bad), found)
+    out, record = stitching.stitch(memory.keep(replace(data, sh=sh_bad)), found)
     finite = np.isfinite(out.sh).reshape(RES * RES, -1).all(axis=1)
     assert not finite[bad] and finite.sum() == RES * RES - 1
     assert record["samples_dropped"] > 0
@@ -316,7 +316,7 @@ def test_the_hhd_reader_is_the_preview_formula_at_texel_centres(sphere_cylinder)
     d·n_v ≥ MIN_COS, so the two floors on d·n_v do not differ)."""
     points = sphere_cylinder
     data = encoding.TexelData.from_points(points, np.abs(linear_sh(points.position)) * BAND_SCALE)
-    atlas = encoding.encode_atlas(data, encoding.for_settings(encoding.EncoderSettings()), raw=False)
+    atlas = encoding.encode_atlas(replace(data), encoding.for_settings(encoding.EncoderSettings()), raw=False)
     rows = np.random.default_rng(2).choice(len(points.texel), 500, replace=False)
     texel = points.texel[rows]
     xy = np.stack([texel % RES + 0.5, texel // RES + 0.5], 1)
@@ -339,8 +339,8 @@ def test_no_seams_changes_nothing_and_the_solver_does_not_depend_on_its_thread_c
     points = sphere_cylinder
     data = linear_data(points)
     found = geometry.find_seams(points.mesh, RES, RES)
-    one, _ = stitching.stitch(data, found, threads=1)
-    two, _ = stitching.stitch(data, found, threads=2)
+    one, _ = stitching.stitch(memory.keep(data), found, threads=1)
+    two, _ = stitching.stitch(memory.keep(data), found, threads=2)
     np.testing.assert_array_equal(one.sh, two.sh)
 
 
@@ -372,7 +372,7 @@ def test_stitching_a_traced_sphere_and_cylinder_under_sun_and_sky():
     traced = tracer.bake(points, scene, tracer.BakeSettings(samples=64, bounces=1, seed=1))
     data = encoding.TexelData.from_points(points, traced.sh)
     found = geometry.find_seams(points.mesh, RES, RES)
-    out, record = stitching.stitch(data, found)
+    out, record = stitching.stitch(memory.keep(data), found)
     before, after = record["before"], record["after"]
     assert after["ratio"] <= 1.5 and after["tilted"]["ratio"] <= 1.5
     assert after["mean"] < before["mean"] / 5
@@ -380,7 +380,7 @@ def test_stitching_a_traced_sphere_and_cylinder_under_sun_and_sky():
     assert after["tilted"]["interior"] <= 1.01 * before["tilted"]["interior"]
     encoder = encoding.for_settings(encoding.EncoderSettings())
     hhd_before = metrics.seam_metric(encoding.encode_atlas(data, encoder, raw=False), found)
-    hhd_after = metrics.seam_metric(encoding.encode_atlas(out, encoder, raw=False), found)
+    hhd_after = metrics.seam_metric(encoding.encode_atlas(replace(out), encoder, raw=False), found)
     assert hhd_after["ratio"] <= 1.5 and hhd_after["tilted"]["ratio"] <= 1.5
     assert hhd_after["mean"] < hhd_before["mean"] / 2
     assert hhd_after["interior"] <= 1.01 * hhd_before["interior"]
@@ -425,10 +425,10 @@ def test_stitched_sh_stays_a_plausible_radiance(sphere_cylinder, monkeypatch):
     data = contrast_data(points)
     assert l0_and_iz(data, points.texel)[1].min() > 0.0
     found = geometry.find_seams(points.mesh, RES, RES)
-    out, record = stitching.stitch(data, found)
+    out, record = stitching.stitch(memory.keep(data), found)
     with monkeypatch.context() as m:
         m.setattr(stitching, "_bounded", lambda s, prior, delta, normal, dtype: (prior[s.texels] + delta, 0))
-        loose, _ = stitching.stitch(data, found)
+        loose, _ = stitching.stitch(memory.keep(data), found)
     changed = np.flatnonzero((loose.sh != data.sh).reshape(RES * RES, -1).any(axis=1))
     l0, iz = l0_and_iz(loose, changed)
     assert (l0 < 0).any(axis=1).sum() > 100 and (iz < 0).any(axis=1).sum() > 100  # what the bound prevents
@@ -438,7 +438,7 @@ def test_stitched_sh_stays_a_plausible_radiance(sphere_cylinder, monkeypatch):
     assert l0.min() >= 0.0 and iz.min() >= 0.0
     # the largest starting L0 (as the SH file shows it: gutter texels dilated) among the texels
     # each stitched texel's samples read; the bound allows BOUND_SLACK × the spread above it
-    base = data.fill().apply(data.sh).reshape(-1, 9, 3)[:, 0].astype(np.float64)
+    base = data.fill().apply(data.sh.copy()).reshape(-1, 9, 3)[:, 0].astype(np.float64)
     index = np.concatenate([reads.bilinear_taps(xy, RES, RES)[0] for xy in (found.a, found.b)], axis=1)
     row_max = base[index].max(axis=1)  # (S, 3)
     tied_max = np.zeros((RES * RES, 3))
@@ -463,14 +463,14 @@ def test_seams_into_buried_texels(monkeypatch):
     cover[band & (cover != 0)] = -1.0
     edge = replace(data, coverage=cover)
     before = metrics.seam_metric(edge, found)
-    out, record = stitching.stitch(edge, found)
+    out, record = stitching.stitch(memory.keep(edge), found)
     after = metrics.seam_metric(out, found)
     assert before["hidden"] == 0 and record["samples_hidden"] == 0
     assert after["mean"] < before["mean"] / 20
     buried = np.flatnonzero((cover < 0).reshape(-1))
     moved = buried[(out.sh != data.sh).reshape(RES * RES, -1)[buried].any(axis=1)]
     assert len(moved) > 10 and out.extra_sources.reshape(-1)[moved].all()
-    atlas = encoding.encode_atlas(out, encoding.for_settings(encoding.EncoderSettings()), raw=False)
+    atlas = encoding.encode_atlas(replace(out), encoding.for_settings(encoding.EncoderSettings()), raw=False)
     iz = np.stack([reads.encoded_images(atlas)[f"Iz.{c}"].reshape(-1) for c in "RGB"], -1)[moved]
     x = out.sh.reshape(-1, 9, 3)[moved].astype(np.float64)
     n = out.normal.reshape(-1, 3)[moved].astype(np.float64)
@@ -482,7 +482,7 @@ def test_seams_into_buried_texels(monkeypatch):
     whole[quad_b & (whole != 0)] = -1.0
     hidden = replace(data, coverage=whole)
     metric = metrics.seam_metric(hidden, found)
-    out, record = stitching.stitch(hidden, found)
+    out, record = stitching.stitch(memory.keep(hidden), found)
     assert metric["hidden"] == len(found) == record["samples_hidden"] and metric["samples"] == 0
     assert record["texels"] == 0
     np.testing.assert_array_equal(out.sh, hidden.sh)
@@ -505,7 +505,7 @@ def test_filled_rows_read_what_the_filled_copy_holds(keep_black):
     coverage[0:2, 65:68] = -1.0  # a chart all buried: black
     image = rng.normal(size=(h, w, 5)).astype(np.float32)
     fill = dilate.Fill(coverage > 0.0, 3, black=coverage < 0.0, chart=coverage != 0.0)
-    expected = fill.apply(image, keep_black=keep_black).reshape(h * w, 5)
+    expected = fill.apply(image.copy(), keep_black=keep_black).reshape(h * w, 5)
     rows = reads.FilledRows(image.reshape(h * w, 5), fill, (h, w), keep_black=keep_black)
     index = rng.integers(0, h * w, size=(300, 4))
     np.testing.assert_array_equal(rows[index].view(np.uint32), expected[index].view(np.uint32))

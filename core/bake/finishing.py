@@ -4,7 +4,6 @@ worker keeps them instead, `core.farm.finishing`). No bpy."""
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable
 from dataclasses import asdict, replace
@@ -12,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import encoding, light_sets, post, stages, tracer
+from .. import encoding, light_sets, memory, post, tracer
 from .. import progress as meter
 from ..files import exr, lightmap_files
 from ..post.seams import geometry
@@ -41,7 +40,7 @@ class Staged:
 
     def traced_sh(self, name: str, parent: str) -> np.ndarray:
         """The SH image `(H, W, 9, 3)` float32 of the raw SH file `raw` staged for `name`, read back
-        (a denoiser that failed half-way restores the traced SH from it)."""
+        (a denoiser that failed half-way puts the traced SH back from it: `post.apply`'s `raw_sh`)."""
         files = self._files(name, parent)
         return lightmap_files.read_sh(self.staging.staged(files.sh))
 
@@ -67,10 +66,10 @@ def _write(
     extra: dict,
     cancel=None,
 ) -> AtlasResult:
-    """The last stages of one atlas here (`finish_atlas`, releasing `traced`'s SH as a bake does),
-    its files staged in `staging`."""
+    """The last stages of one atlas here (`finish_atlas`, which spends `traced`), its files
+    staged in `staging`."""
     check = lambda: _check_cancel(cancel)  # noqa: E731
-    info = finish_atlas(atlas, traced, settings, t_points, extra, Staged(staging, out_dir), check, release=True)
+    info = finish_atlas(atlas, traced, settings, t_points, extra, Staged(staging, out_dir), check)
     return atlas_result(atlas, out_dir, info)
 
 
@@ -84,7 +83,6 @@ def finish_atlas(
     check: Callable[[], None] = lambda: None,
     *,
     recorded: tracer.BakeSettings | None = None,
-    release: bool = False,
 ) -> dict:
     """The last stages of one atlas: seams → image → raw files → post stages → encode, its files
     handed to `out` (`Staged` here; a farm worker keeps them to return, `core.farm`): `out.raw(name,
@@ -94,12 +92,15 @@ def finish_atlas(
     stitches (a re-encode may). With light sets, the same stages then run for each set's SH
     into its own atlas files (`light_sets.set_atlas_name`), listed in the atlas's sidecar.
     `check()` raises to cancel; `recorded`: the tracer settings the sidecar records (default
-    `settings.trace`; a farm worker computes with its own thread count). `release`: drop
-    `traced`'s SH and standard error once they are imaged (`TracedAtlas.release_sh`; the caller
-    no longer needs them, and they are the largest arrays of a bake), and without light sets its
-    bake points too (`TracedAtlas.release_points`: the sets' images need them later). Returns the
+    `settings.trace`; a farm worker computes with its own thread count). Returns the
     atlas's summary: texels, rays, seconds per stage, warnings, light sets. `check` may be a
     `core.progress.Tick` (a bake's): each stage gets its part, by `_set_costs`, and reports in it.
+
+    `traced` is spent (`core.memory`): its SH and standard error, the largest arrays of a bake,
+    go as they are imaged, its bake points once the last image is made (`TexelData.from_traced`);
+    its light sets' SH (`set_sh`, `set_sh_error`: plain memory, `tracer.statistics.Reduced`, which
+    `memory.release_rows` leaves alone) is only read. A caller that needs `traced` afterwards
+    hands over a copy of its SH and standard error (`memory.keep`).
     """
     t = time.perf_counter()
     texels = len(traced.points.texel)
@@ -131,35 +132,19 @@ def finish_atlas(
     set_names = [light_sets.set_atlas_name(atlas.name, s) for s in traced.sets]
     if traced.sets:
         sidecar["light_sets"] = [{"name": s, "atlas": n} for s, n in zip(traced.sets, set_names)]
-    warnings = _finish_files(
-        out,
-        atlas.name,
-        "",
-        traced,
-        settings,
-        sidecar,
-        atlas_seams,
-        seconds,
-        check=set_parts[0],
-        release=release,
-        last=not traced.sets,
-    )
+    # each set's own TracedAtlas (sharing the bake points: they go once the last one is imaged)
+    sets = [traced.light_set(k) for k in range(len(traced.sets))]
+    warnings = _finish_files(out, atlas.name, "", traced, settings, sidecar, atlas_seams, seconds, check=set_parts[0])
     out.seams(atlas.name, atlas_seams)
     for k, (name, set_name) in enumerate(zip(traced.sets, set_names)):
         set_sidecar = {key: v for key, v in sidecar.items() if key not in ("light_sets", "timings_seconds")}
         set_sidecar["light_set"] = {"name": name, "of": atlas.name}
         set_parts[k + 1].name = f"'{set_name}'"
+        set_traced = sets.pop(0)
         warnings += _finish_files(
-            out,
-            set_name,
-            atlas.name,
-            traced.light_set(k),
-            settings,
-            set_sidecar,
-            atlas_seams,
-            seconds,
-            check=set_parts[k + 1],
+            out, set_name, atlas.name, set_traced, settings, set_sidecar, atlas_seams, seconds, check=set_parts[k + 1]
         )
+        del set_traced
     seconds["encode_and_write"] = time.perf_counter() - t - seconds["post"]
     warnings = [f"atlas '{atlas.name}', {w}" for w in dict.fromkeys(warnings)]
     rays = traced.rays
@@ -177,15 +162,11 @@ def _finish_files(
     seconds: dict,
     *,
     check,
-    release: bool = False,
-    last: bool = False,
 ) -> list[str]:
     """Image → raw files (`out.raw`) → post stages → encode of one atlas's SH (the atlas's own, or
     one light set's), handed to `out.atlas`; adds the post stages' seconds to seconds["post"];
-    returns their warnings.
-    `release`: `traced.release_sh()` once imaged, and with `last` (no image of these bake points
-    follows) `traced.release_points()`. `check` may be a `core.progress.Tick`: split among the
-    stages by `_set_costs`, each named ("encode 'Lightmap'")."""
+    returns their warnings. `traced` is spent (`TexelData.from_traced`). `check` may be a
+    `core.progress.Tick`: split among the stages by `_set_costs`, each named ("encode 'Lightmap'")."""
     t = time.perf_counter()
     tick = ticker(check)
     costs = _set_costs(len(traced.points.texel), _window_texels_of(traced), settings)
@@ -197,43 +178,34 @@ def _finish_files(
     )
     parts["image"].at(0.0, "imaging the texels")
     # image (of the standard error only the luminance L0's, `noise`: the SH's is as large as the SH);
-    # the bake points go before the SH is imaged when nothing else needs them
-    raw = encoding.TexelData.from_points(
-        traced.points,
-        traced.sh,
-        noise=traced.noise(),
-        release=traced.release_points if release and last else None,
-        release_sh=traced.release_sh_rows if release else None,
-        crop=True,  # an almost empty atlas: the window of its texels (the files are the same)
-    )
-    if release:
-        traced.release_sh()
-    # the raw files first, as traced: then the post stages may write into `raw`'s SH (memory)
+    # an almost empty atlas: the window of its texels (the files are the same)
+    raw = encoding.TexelData.from_traced(traced, crop=True)
+    del traced
+    # the raw files first, as traced: then `raw` is the post stages' (they write into its SH)
     fill = raw.fill()
     parts["raw"].at(0.0, "raw files")
     with encoding.raw_files(raw, fill) as images_of:
         out.raw(name, parent, images_of, *_tick_for(out, parts["raw"]))
     del images_of
-    stages.trim_heap()  # the writer's bands of rows (memory)
-    restore = functools.partial(_restore_sh, raw.sh, fill.valid, out, name, parent, raw.window)
-    data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, in_place=True, restore=restore)
+    memory.trim_heap()  # the writer's bands of rows (memory)
+    raw_sh = lambda: out.traced_sh(name, parent)  # a denoiser failing half-way reads it back
+    data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, raw_sh)
     seconds["post"] = seconds.get("post", 0.0) + time.perf_counter() - t
-    del raw, restore  # `data` holds the SH now, denoised in place or as traced
+    del raw  # the post stages': `data` holds the SH now, denoised in place or as traced
     data = replace(data, noise=None)  # in the texels file already; the encoder does not read it
-    stages.trim_heap()  # what the post stages' threads freed (memory)
+    memory.trim_heap()  # what the post stages' threads freed (memory)
     parts["encode"].at(0.0, "encoding")
     encoded = encoding.encode_atlas(
         data,
         encoding.for_settings(settings.encoder),
         raw=False,
         fill=_same_fill(fill, data),
-        spend=True,
         tick=parts["encode"],
         threads=settings.trace.threads,
     )
     parts["stitch encoded"].at(0.0)
     encoded = post.stitch_encoded(
-        encoded, data.coverage, settings, atlas_seams, sidecar["post"], parts["stitch encoded"], in_place=True
+        encoded, data.coverage, settings, atlas_seams, sidecar["post"], parts["stitch encoded"]
     )
     del data, fill
     parts["write"].at(0.0, "encoded files")
@@ -245,18 +217,6 @@ def _tick_for(out, tick: Tick) -> tuple:
     """The optional tick argument of `out.raw` / `out.atlas`: `Staged` writes and reports; other
     keepers of the files (a farm worker's) take none."""
     return (tick,) if isinstance(out, Staged) else ()
-
-
-def _restore_sh(sh: np.ndarray, valid: np.ndarray, out, name: str, parent: str, window=None) -> None:
-    """Put the traced SH of the baked texels (flat indices `valid`) back into `sh` `(H, W, 9, 3)`
-    from the raw SH file staged (or kept) in `out`: a denoiser that failed half-way through
-    writing it (the file's other texels are dilated; the denoiser writes baked texels only).
-    `window`: the rectangle of the atlas `sh` is (`TexelData.window`), None for the whole."""
-    h, w = sh.shape[:2]
-    traced = out.traced_sh(name, parent)
-    if window is not None:
-        traced = traced[window.y0 : window.y0 + window.h, window.x0 : window.x0 + window.w]
-    sh.reshape(h * w, -1)[valid] = np.ascontiguousarray(traced).reshape(h * w, -1)[valid]
 
 
 def _same_fill(fill, data: encoding.TexelData):

@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import bakepoints, stages
+from .. import bakepoints, memory
 from ..bakepoints import BakePoints, inward
 from ..errors import BakeError, InwardFacesRefused
 from ..rays import RayScene
@@ -29,7 +29,7 @@ def points_of(atlas: AtlasInput, ray_scene: RayScene | None, threads: int = 0, c
         threads=threads,
         albedo=False,  # the tracer takes albedo from the scene's triangles
     )
-    stages.trim_heap()  # what the probe threads freed (memory)
+    memory.trim_heap()  # what the probe threads freed (memory)
     return check_points(atlas, points)
 
 

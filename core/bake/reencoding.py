@@ -5,22 +5,9 @@ from __future__ import annotations
 
 import functools
 
-import numpy as np
-
 from .. import encoding, post
 from ..files import lightmap_files
 from .data import PipelineSettings
-from .finishing import _restore_sh
-
-
-class _RawFiles:
-    """The raw files a re-encode read, as `_restore_sh` asks for the traced SH (`Staged.traced_sh`)."""
-
-    def __init__(self, files: lightmap_files.AtlasFiles):
-        self.files = files
-
-    def traced_sh(self, name: str, parent: str) -> np.ndarray:
-        return lightmap_files.read_sh(self.files.sh)
 
 
 def _reencode_files(staging, files: lightmap_files.AtlasFiles, settings: PipelineSettings, threads: int) -> list[str]:
@@ -31,12 +18,12 @@ def _reencode_files(staging, files: lightmap_files.AtlasFiles, settings: Pipelin
     sidecar["reencoded_from_sh"] = True
     sidecar["reencode_threads"] = threads
     atlas_seams = lightmap_files.read_seams(files, data.atlas_shape) if settings.stitch_seams else None
-    # the post stages write into the images read (memory: no second copy of the atlas's SH)
-    restore = functools.partial(_restore_sh, data.sh, np.flatnonzero(data.baked), _RawFiles(files), "", "", data.window)
-    data, sidecar["post"] = post.apply(data, settings, seams=atlas_seams, in_place=True, restore=restore)
-    del restore
+    # the post stages write into the images read (memory: no second copy of the atlas's SH), a
+    # denoiser failing half-way reading the SH back from the file
+    raw_sh = functools.partial(lightmap_files.read_sh, files.sh)
+    data, sidecar["post"] = post.apply(data, settings, seams=atlas_seams, raw_sh=raw_sh)
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=False, threads=threads)
-    encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"], in_place=True)
+    encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, sidecar["post"])
     del data
     lightmap_files.write_atlas(staging, files, encoded, sidecar)
     return post.warnings(sidecar["post"])

@@ -154,7 +154,7 @@ def _local_atlases(jobs: AtlasJobs, out: Staged, report, cancel) -> list[AtlasRe
         _, finish = _atlas_costs(n, area, settings, len(traced.sets))
         report.plan(finish - planned_finish)  # its light sets, known now
         finishing = report.span(finish, f"'{atlas.name}'")
-        info = finish_atlas(atlas, traced, settings, t_points, extras[i], out, finishing, release=True)
+        info = finish_atlas(atlas, traced, settings, t_points, extras[i], out, finishing)
         results.append(atlas_result(atlas, out.out_dir, info))
         del traced
         finishing.show(1.0, "written")
@@ -185,10 +185,8 @@ def _farm_atlases(farm, jobs: AtlasJobs, out: Staged, report, cancel) -> list[At
         t = time.perf_counter()
         if kind == "traced":  # no worker denoises as this process does: finish it here
             report.report(fraction(), f"'{atlas.name}': {_post_message(settings)} here (no farm worker has this OIDN)")
-            answer.points = points[i]  # the traced atlas itself, so that `release` frees its SH
-            info = finish_atlas(
-                atlas, answer, settings, t_points, extras[i], out, lambda: _check_cancel(cancel), release=True
-            )
+            answer.points = points[i]  # the traced atlas itself: `finish_atlas` spends it
+            info = finish_atlas(atlas, answer, settings, t_points, extras[i], out, lambda: _check_cancel(cancel))
         else:
             for method, args in answer["out"]:
                 getattr(out, method)(*args)

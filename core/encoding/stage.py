@@ -1,7 +1,7 @@
 """The encode stage: an atlas's texel images → the images of its files. No bpy.
 
 Input: `TexelData`, float32 images of the traced atlas (rows bottom-up, as Blender's), the same
-whether fresh from a bake (`TexelData.from_points`) or read back from the files, so encoding
+whether fresh from a bake (`TexelData.from_traced`) or read back from the files, so encoding
 either way gives identical files. Output: `EncodedAtlas`, per file the images of its EXR
 channels (still bottom-up and in the values' dtype; `lightmap_files` lays them out). Steps:
   1. the Encoding encodes the baked texels, ENCODE_CHUNK at a time (bounding its float64 copies);
@@ -15,7 +15,7 @@ time (memory: one channel's copy).
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -24,19 +24,21 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import dilate as _dilate
-from ..stages import PlacedImage, Window, placed, releasable_zeros
+from ..memory import releasable_zeros, release_rows
+from ..stages import PlacedImage, Window, placed
 from .filled import FilledChannel, filled_channels
 from .raw import NOISE_UNKNOWN, SH_FILE, TEXELS_FILE
 from .spec import DILATE_BURIED_BLACK, NO_FILL, Channel, Encoding, FileSpec
 
 if TYPE_CHECKING:
     from ..bakepoints import BakePoints
+    from ..stages import TracedAtlas
 
 #: Dilation reach in texels: enough for bilinear filtering down several mip levels; farther
 #: empty texels take the atlas mean.
 DILATE_RINGS = 16
 
-#: Rows of a compact SH imaged before they are released (`TexelData.from_points`' `release_sh`).
+#: Rows of a compact SH imaged before they are given back (`TexelData.from_traced`).
 IMAGE_ROWS = 1 << 18
 
 #: Texels encoded per Encoding.encode call: bounds the float64 copies an encoding makes.
@@ -52,7 +54,7 @@ WINDOW_MARGIN = DILATE_RINGS + 8
 def window_of(texel: np.ndarray, height: int, width: int) -> Window | None:
     """The rectangle of an atlas `height` × `width` holding its baked texels (flat indices `texel`)
     and WINDOW_MARGIN texels around them, clipped to the atlas: the images a bake's stages work
-    on (`TexelData.from_points(..., crop=True)`); None when it is the whole atlas. Outside it
+    on (`TexelData.from_traced(..., crop=True)`); None when it is the whole atlas. Outside it
     every texel is farther than the dilation reaches from any texel a stage writes, so every
     stage gives there what it gives the whole atlas (the mean fill, or nothing), and the files
     are the same."""
@@ -108,51 +110,58 @@ class TexelData:
         sh: np.ndarray,
         sh_error: np.ndarray | None = None,
         noise: np.ndarray | None = None,
-        release: Callable[[], None] | None = None,
-        release_sh: Callable[[int], None] | None = None,
         crop: bool = False,
     ) -> TexelData:
         """Images of per-point `sh` `(P, 9, 3)` (and optionally its standard error and the
-        `noise` (P,) of `TracedAtlas.noise`) at `points`; noise is NaN outside the charts.
-        `release()`, if given, is called before any image is made, once the normals and the
-        coverage are taken out of the bake points (as float32, the images' values): the caller
-        may drop the bake points there (as large as the SH image), this call keeps only their
-        texel indices. `release_sh(n)`, if given, is called as the SH is imaged, a part at a
-        time, once its first n rows are (`TracedAtlas.release_sh_rows`: the caller may free
-        them, so that the compact SH and its image are not both whole at once). `crop`: the images
-        are of the atlas's `window_of` its texels (the whole atlas where that is all of it)."""
-        texel, h, w = points.texel, points.height, points.width
-        window = window_of(texel, h, w) if crop else None
-        if window is not None:
-            texel, h, w = window.local(texel), window.h, window.w
-        coverage = np.where(points.buried, -1.0, points.coverage)
+        `noise` (P,) of `TracedAtlas.noise`) at `points`; noise is NaN outside the charts. Its
+        arguments are only read (a bake images its traced atlas with `from_traced`, which spends
+        it). `crop`: the images are of the atlas's `window_of` its texels (the whole atlas where
+        that is all of it)."""
+        texel, h, w, window = _placement(points, crop)
         if sh_error is None:
             error = None
         elif window is None:
             error = points.image(sh_error, dtype=np.float32)
         else:  # the window's image: `points.image`'s values, placed there
             error = _image_at(sh_error, texel, h, w)
-        normal = points.normal
-        if release is not None:  # float32 casts of what is left to image: the values the images take
-            coverage, normal = coverage.astype(np.float32), normal.astype(np.float32)
-            del points
-            release()
+        coverage = np.where(points.buried, -1.0, points.coverage)
+        return cls._imaged(texel, h, w, window, points.normal, coverage, sh, noise, error)
 
-        def image_of(values: np.ndarray, fill: float = 0.0) -> np.ndarray:  # as `BakePoints.image`
-            out = np.full((h * w,) + values.shape[1:], fill, np.float32)
-            out[texel] = values
-            return out.reshape((h, w) + values.shape[1:])
+    @classmethod
+    def from_traced(cls, traced: TracedAtlas, crop: bool = False) -> TexelData:
+        """The images of `traced` (`from_points` of its bake points, SH and `noise()`), which it
+        owns (`core.memory`) and spends: its bake points are dropped (`traced.points` None) once
+        their normals and coverage are taken, before any image is made (they are as large as the
+        SH image; another reference, a light set's `TracedAtlas.light_set`, keeps them); its SH
+        and standard error are given back a part at a time as the SH is imaged (IMAGE_ROWS rows,
+        `memory.release_rows`: the compact SH and its image are not both whole at once), then
+        dropped (empty arrays). `crop` as `from_points`'."""
+        points = traced.points
+        noise = traced.noise()
+        texel, h, w, window = _placement(points, crop)
+        # float32 casts of what is left to image: the values the images take
+        coverage = np.where(points.buried, -1.0, points.coverage).astype(np.float32)
+        normal = points.normal.astype(np.float32)
+        del points
+        traced.points = None  # type: ignore[assignment]
+        data = cls._imaged(texel, h, w, window, normal, coverage, traced.sh, noise, None, (traced.sh, traced.sh_error))
+        traced.sh = np.zeros((0, 9, 3))
+        traced.sh_error = np.zeros((0, 9, 3), np.float32)
+        return data
 
-        normal, coverage = image_of(normal), image_of(coverage)
-        noise = None if noise is None else image_of(noise, fill=np.nan)
+    @classmethod
+    def _imaged(cls, texel, h, w, window, normal, coverage, sh, noise, error, spent=()) -> TexelData:
+        """The TexelData of per-texel values at flat indices `texel` of `h` × `w` images (as
+        `BakePoints.image`), the SH imaged IMAGE_ROWS rows at a time, each part's rows of the
+        arrays `spent` given back once imaged (`memory.release_rows`)."""
+        normal, coverage = _image_at(normal, texel, h, w), _image_at(coverage, texel, h, w)
+        noise = None if noise is None else _image_at(noise, texel, h, w, fill=np.nan)
         # as `BakePoints.image`; its pages outside the charts can go back once written (`raw_files`)
         image = releasable_zeros((h * w,) + sh.shape[1:], np.float32)
-        if release_sh is None:
-            image[texel] = sh
-        else:  # a part at a time, each released once imaged
-            for s in range(0, len(texel), IMAGE_ROWS):
-                image[texel[s : s + IMAGE_ROWS]] = sh[s : s + IMAGE_ROWS]
-                release_sh(min(s + IMAGE_ROWS, len(texel)))
+        for s in range(0, len(texel), IMAGE_ROWS):
+            image[texel[s : s + IMAGE_ROWS]] = sh[s : s + IMAGE_ROWS]
+            for a in spent:
+                release_rows(a, min(s + IMAGE_ROWS, len(texel)))
         return cls(
             sh=image.reshape((h, w) + sh.shape[1:]),
             normal=normal,
@@ -197,6 +206,16 @@ class TexelData:
         return placed(image, self.window, value)
 
 
+def _placement(points: BakePoints, crop: bool) -> tuple[np.ndarray, int, int, Window | None]:
+    """(flat indices of `points`' texels in the images, the images' height and width, their
+    window: `window_of` with `crop`, None for the whole atlas)."""
+    texel, h, w = points.texel, points.height, points.width
+    window = window_of(texel, h, w) if crop else None
+    if window is not None:
+        texel, h, w = window.local(texel), window.h, window.w
+    return texel, h, w, window
+
+
 def _image_at(values: np.ndarray, texel: np.ndarray, h: int, w: int, fill: float = 0.0) -> np.ndarray:
     """`BakePoints.image` of `values` at flat indices `texel` of an `h` × `w` image, float32."""
     out = np.full((h * w,) + values.shape[1:], fill, np.float32)
@@ -234,25 +253,27 @@ def encode_atlas(
     encoding: Encoding,
     raw: bool = True,
     fill: _dilate.Fill | None = None,
-    spend: bool = False,
     tick=None,
     threads: int = 0,
 ) -> EncodedAtlas:
     """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
     files' images of `data` (False: a bake that wrote them before its post stages, `raw_files`,
-    or a re-encode, which keeps the files it read). `fill`: `data.fill()`, if the caller has it. `spend` (only without `raw`): the caller no longer needs `data.sh`, which
-    is dropped once the texels are encoded, before the layers are filled (memory: the atlas's SH
-    is the largest image). `tick` (`core.progress.Tick`): progress and cancel per chunk of texels
+    or a re-encode, which keeps the files it read). `fill`: `data.fill()`, if the caller has it.
+    `data` is this stage's (`core.memory`): its SH is taken out of it (`encode_images`: an empty
+    `data.sh` afterwards), none of its arrays written. `tick` (`core.progress.Tick`): progress and cancel per chunk of texels
     encoded and per layer filled. `threads`: workers encoding chunks of texels (0 = every core,
     `parallel.resolve_threads`); the files do not depend on it."""
     h, w = data.atlas_shape
     fill = data.fill() if fill is None else fill
-    images, summary = encode_images(data, encoding, fill, spend=spend and not raw, tick=tick, threads=threads)
-    files = {encoding.file.key: (encoding.file, images)}
-    if raw:
+    raw_file_images = {}
+    if raw:  # first: the encoding takes the SH
         layers = data.layers()
-        for spec in (SH_FILE, TEXELS_FILE):
-            files[spec.key] = (spec, raw_images(spec, layers, fill, data=data))
+        raw_file_images = {
+            spec.key: (spec, raw_images(spec, layers, fill, data=data)) for spec in (SH_FILE, TEXELS_FILE)
+        }
+        del layers
+    images, summary = encode_images(data, encoding, fill, tick=tick, threads=threads)
+    files = {encoding.file.key: (encoding.file, images), **raw_file_images}
     stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.invalid)), **summary}
     return EncodedAtlas(w, h, files, encoding.file, dict(encoding.settings), stats)
 
@@ -273,10 +294,11 @@ def raw_files(
 
 
 def encode_images(
-    data: TexelData, encoding: Encoding, fill: _dilate.Fill, spend: bool = False, tick=None, threads: int = 0
+    data: TexelData, encoding: Encoding, fill: _dilate.Fill, tick=None, threads: int = 0
 ) -> tuple[dict, dict]:
     """The encoding's channel images `(H, W)` (filled, packed) and its summary statistics.
-    `spend`: drop `data.sh` once the texels are encoded (`encode_atlas`). With a window
+    `data.sh` is taken (an empty image afterwards) once the texels are encoded, before the
+    layers are filled (memory: the atlas's SH is its largest image). With a window
     (`TexelData.window`) the images are `stages.PlacedImage`s of the whole atlas. `tick`
     (`core.progress.Tick`): reported per ENCODE_CHUNK texels and per layer filled. The chunks
     are encoded on `threads` workers (0 = every core; numpy releases the GIL in the fit's array
@@ -310,9 +332,7 @@ def encode_images(
             while len(pending) > 2 * workers or (s == starts[-1] and pending):
                 done += _take(pending.popleft().result(), values, stats)
                 step(done)
-    if spend:
-        del sh
-        data.sh = np.zeros((0, 0) + data.sh.shape[2:], np.float32)
+    sh = data.sh = np.zeros((0, 0) + data.sh.shape[2:], np.float32)  # taken: the SH goes (memory)
     images = {}
     step = layers_part.counter(len(channels), lambda done, of: f"filling layer {done} of {of}")
     for k, ch in enumerate(channels):
@@ -345,7 +365,7 @@ def layer_images(
         if ch.pack is not None:
             outside = ch.pack(outside.reshape(1, -1))[0]
     if ch.fill != NO_FILL:
-        image = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK, in_place=True)
+        image = fill.apply(image, keep_black=ch.fill == DILATE_BURIED_BLACK)
     if ch.pack is not None:  # ENCODE_CHUNK texels at a time: a pack's float64 temporaries stay small
         h, w = image.shape[:2]
         flat = image.reshape(h * w, -1)
@@ -385,7 +405,7 @@ def raw_images(
             elif lazy is not None:
                 filled = lazy[k]
             else:
-                filled = fill.apply(image, keep_black=keep_black)
+                filled = fill.apply(image.copy(), keep_black=keep_black)  # a view of `layers`
             if data is None or data.window is None:
                 out[name] = filled
             else:  # the background from the sources, which filling leaves as they are

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import memory
 from ..encoding import SH_FILE
 from ..tracer import shipping
 from ..tracer.scheduler import Outcome
@@ -93,9 +94,9 @@ class _Kept:
 
     def traced_sh(self, name: str, parent: str) -> np.ndarray:
         """The SH image `(H, W, 9, 3)` of the raw SH file kept for `name` (as `bake.finishing.Staged`'s)."""
-        for method, (kept, _, images_of) in reversed(self.calls):
-            if method == "raw" and kept == name:
-                images = images_of[SH_FILE.key][1]
+        for method, args in reversed(self.calls):  # `seams` and `atlas` calls have other arguments
+            if method == "raw" and args[0] == name:
+                images = args[2][SH_FILE.key][1]
                 sh = np.stack([images[n] for n in SH_FILE.exr_names], axis=-1)
                 return sh.reshape(sh.shape[:2] + (9, 3))
         raise KeyError(f"no raw SH file kept for {name!r}")
@@ -144,9 +145,9 @@ def finish_task(payload: bytes, digest: str, code: str, meta: bytes, *results: d
     threads = _worker_threads()
     compute = replace(settings, denoiser_library=library, trace=replace(settings.trace, threads=threads))
     kept = _Kept()
-    summary = finish_atlas(  # released SH only where no fallback may need it
-        m["atlas"], traced, compute, m["t_points"], m["extra"], kept, recorded=settings.trace, release=not denoising
-    )
+    # `finish_atlas` spends the SH it is handed: the client's fallback (OIDN failing here) needs it
+    spent = replace(traced, sh=memory.keep(traced.sh), sh_error=memory.keep(traced.sh_error)) if denoising else traced
+    summary = finish_atlas(m["atlas"], spent, compute, m["t_points"], m["extra"], kept, recorded=settings.trace)
     if denoising and not all(args[3]["post"]["denoise"].get("applied") for kind, args in kept.calls if kind == "atlas"):
         return _unfinished(traced, t0, "OIDN failed here")
     return {"out": kept.calls, "summary": plain(summary), "seconds": time.perf_counter() - t0, "worker": _where()}

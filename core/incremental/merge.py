@@ -4,6 +4,8 @@ bake's, then the raw files, the post stages and the encoder on the region of the
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .. import encoding, post
@@ -54,9 +56,11 @@ def _merge_files(staging, files, data, sidecar, settings, atlas_seams, mask, *, 
             tables[key] = _stage_merged(staging, files, spec, images, mask)
             check()
     doc = dict(sidecar)
-    region = _region_encode(data, fill, settings, atlas_seams, mask, check)
+    # the staged raw SH file holds `data`'s baked texels: a denoiser failing half-way reads them back
+    raw_sh = functools.partial(lightmap_files.read_sh, staging.staged(files.sh))
+    region = _region_encode(data, fill, settings, atlas_seams, mask, check, raw_sh)
     if isinstance(region, str):
-        data, records = post.apply(data, settings, seams=atlas_seams)
+        data, records = post.apply(data, settings, seams=atlas_seams, raw_sh=raw_sh)
         encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=False)
         encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, records)
         doc["stats"] = encoded.stats
@@ -104,7 +108,7 @@ def merge_region(held: np.ndarray, halo: int = WINDOW_HALO, tile: int = WINDOW_T
     return region
 
 
-def _region_encode(data, fill, settings, atlas_seams, mask, check):
+def _region_encode(data, fill, settings, atlas_seams, mask, check, raw_sh):
     """The post stages and encoder of `_merge_files` on `data` (the merged atlas; spent: its
     texels outside the region are emptied in place) with every texel outside `merge_region`
     empty (no chart, no value): their cost follows the region's charts and texels, not the
@@ -115,7 +119,7 @@ def _region_encode(data, fill, settings, atlas_seams, mask, check):
     the whole atlas's: bench/results/incremental_merge.md measures the difference. Returns (the
     EncodedAtlas, the post records, the sidecar's `incremental.merge`), or why the whole atlas
     must run instead (then `data` is untouched). The sidecar's stats stay the last full
-    encode's (the region's are in `incremental.merge`)."""
+    encode's (the region's are in `incremental.merge`). `raw_sh`: `post.apply`'s."""
     labels, n = label_charts(data.coverage != 0.0)  # the denoiser's charts
     reads = _fill_reads(fill)[mask.reshape(-1)]
     seeds = mask.copy()  # the touched texels and the texels they fill from (a buried texel's: far in its chart)
@@ -142,7 +146,7 @@ def _region_encode(data, fill, settings, atlas_seams, mask, check):
     if data.noise is not None:
         data.noise[outside] = np.nan
     check()
-    data, records = post.apply(data, settings, seams=atlas_seams)  # as the whole atlas's (`_merge_files`)
+    data, records = post.apply(data, settings, seams=atlas_seams, raw_sh=raw_sh)  # as the whole atlas's
     check()
     encoded = encoding.encode_atlas(data, encoding.for_settings(settings.encoder), raw=False)
     encoded = post.stitch_encoded(encoded, data.coverage, settings, atlas_seams, records)

@@ -32,7 +32,8 @@ import numpy as np
 
 from .. import progress
 from ..encoding import EncodedAtlas, TexelData
-from ..stages import PlacedImage, Window, trim_heap
+from ..memory import trim_heap
+from ..stages import PlacedImage, Window
 
 if TYPE_CHECKING:
     from .seams.geometry import Seams
@@ -41,22 +42,19 @@ if TYPE_CHECKING:
 PostStage = Callable[[TexelData, Callable[[], None]], tuple[TexelData, dict]]
 
 
-def denoise_stage(library: str, threads: int) -> PostStage:
+def denoise_stage(library: str, threads: int, raw_sh: Callable[[], np.ndarray] | None = None) -> PostStage:
     """Open Image Denoise's lightmap filter on the SH (`denoise.pages`), through the OIDN library at
     `library` ("" = none found). Where it cannot run (no library, no weights, OIDN failing) the
     SH passes through undenoised and the record says why: a bake never fails for its denoiser.
-    The stage takes `in_place=True, restore=...` too (`apply`'s): the SH is denoised into the
-    TexelData's own image and nothing of the traced SH is kept (memory: a bake has written its raw
-    files before); OIDN failing half-way calls `restore()` to put the traced SH back."""
+    The SH is denoised into the TexelData's own image, nothing of it kept (`apply`); OIDN
+    failing half-way puts it back from `raw_sh()` (`pages.denoise_texels`)."""
 
-    def denoise(
-        data: TexelData, check: Callable[[], None], in_place: bool = False, restore: Callable[[], None] | None = None
-    ) -> tuple[TexelData, dict]:
+    def denoise(data: TexelData, check: Callable[[], None]) -> tuple[TexelData, dict]:
         from .denoise import filtering, oidn, pages  # loads numpy-only code; the OIDN library loads on first use
 
         try:
             denoiser = filtering.denoiser_for(library, threads)
-            out, report = pages.denoise_texels(data, denoiser, check, in_place=in_place, restore=restore)
+            out, report = pages.denoise_texels(data, denoiser, check, raw_sh)
         except oidn.DenoiserError as e:
             return data, {"enabled": True, "applied": False, "warning": f"not denoised: {e}"}
         return out, {"enabled": True, "applied": True, "oidn_version": denoiser.version, **report.sidecar()}
@@ -72,15 +70,14 @@ def stitch_stage(seams: Seams | None, threads: int) -> PostStage:
     """Least-squares seam stitching of the SH (`seams.stitching.stitch`, on `threads` workers) along
     `seams`, the atlas's seam sample pairs. `None` (no seams file: an older bake) passes the SH
     through unstitched, with a warning in the record. Its second half runs after encoding
-    (`stitch_encoded`). The stage takes `in_place=True` too (`apply`'s): the stitched texels are
-    written into the TexelData's own images (no copy of the atlas's SH)."""
+    (`stitch_encoded`). The stitched texels are written into the TexelData's own images (`apply`)."""
 
-    def stitch(data: TexelData, check: Callable[[], None], in_place: bool = False) -> tuple[TexelData, dict]:
+    def stitch(data: TexelData, check: Callable[[], None]) -> tuple[TexelData, dict]:
         if seams is None:
             return data, {"enabled": True, "applied": False, "warning": NO_SEAMS}
         from .seams import stitching
 
-        out, record = stitching.stitch(data, seams, check, threads, in_place=in_place)
+        out, record = stitching.stitch(data, seams, check, threads)
         return out, _finite({"enabled": True, "applied": True, **record})
 
     return stitch
@@ -100,14 +97,13 @@ def stitch_encoded(
     seams: Seams | None,
     records: dict,
     check: Callable[[], None] | None = None,
-    in_place: bool = False,
 ) -> EncodedAtlas:
     """The stitch stage's second half, on the encoding's layers after `encoding.encode_atlas`:
     the encoding is not linear in the SH, so it leaves a small step along seams the SH stitch
     closed; `seams.encoded_stitch.stitch_encoded` closes it in the encoded layers. Runs only where the SH
     stitch ran (`records`, `apply`'s, says so) and adds its record as `records["stitch"]["encoded"]`.
-    `coverage` `(H, W)`: the atlas's (`TexelData.coverage`). `in_place`: the stitched texels are
-    written into `encoded`'s own images (a caller that keeps no unstitched copy)."""
+    `coverage` `(H, W)`: the atlas's (`TexelData.coverage`). `encoded` is this stage's
+    (`core.memory`): the stitched texels are written into its own images."""
     if not settings.stitch_seams or seams is None or not records.get("stitch", {}).get("applied"):
         return encoded
     if encoded.settings.get("model", "hhd") not in ENCODED_STITCH_MODELS:
@@ -116,9 +112,7 @@ def stitch_encoded(
     from .seams import encoded_stitch
 
     window, placed = _windowed(encoded)
-    out, record = encoded_stitch.stitch_encoded(
-        placed, seams, coverage, check, settings.trace.threads, window, in_place
-    )
+    out, record = encoded_stitch.stitch_encoded(placed, seams, coverage, check, settings.trace.threads, window)
     records["stitch"]["encoded"] = _finite(record)
     return out if window is None else _placed(out, encoded)
 
@@ -158,12 +152,15 @@ def _finite(record):
     return record
 
 
-def stages_for(settings, seams: Seams | None = None) -> list[tuple[str, PostStage]]:
+def stages_for(
+    settings, seams: Seams | None = None, raw_sh: Callable[[], np.ndarray] | None = None
+) -> list[tuple[str, PostStage]]:
     """The post stages `settings` (a `bake.PipelineSettings`) switch on, as (name, stage) in the
-    order they run; `seams`: the atlas's seams for the stitch stage (None: unknown)."""
+    order they run; `seams`: the atlas's seams for the stitch stage (None: unknown); `raw_sh`:
+    the denoise stage's (`apply`'s)."""
     stages = []
     if settings.denoise:
-        stages.append(("denoise", denoise_stage(settings.denoiser_library, settings.trace.threads)))
+        stages.append(("denoise", denoise_stage(settings.denoiser_library, settings.trace.threads, raw_sh)))
     if settings.stitch_seams:
         stages.append(("stitch", stitch_stage(seams, settings.trace.threads)))
     return stages
@@ -174,31 +171,29 @@ def apply(
     settings,
     check: Callable[[], None] | None = None,
     seams: Seams | None = None,
-    in_place: bool = False,
-    restore: Callable[[], None] | None = None,
+    raw_sh: Callable[[], np.ndarray] | None = None,
 ) -> tuple[TexelData, dict]:
     """`data` after every post stage of `settings`, in order, and the sidecar's `post` section:
     per stage its record ({"enabled": False} for the known stages that are off). `seams`: the
     atlas's seam sample pairs (`seams.geometry.Seams`; None: unknown, stitching is then skipped with
-    a warning). `in_place`: the denoiser and the stitch write into `data`'s images and keep
-    nothing of what they overwrote (a bake, whose raw files are written, or a re-encode, which
-    read them: `data` is spent), the denoiser calling `restore()` (which must put the traced SH
-    back into `data.sh`) if it fails half-way. `check` may be a
+    a warning). `check` may be a
     `core.progress.Tick`: each stage gets its part of it (by `progress.POST_COSTS`), named after
-    the stage ("denoise 'Lightmap'"), which a stage may report to (`Tick.at`) or just call."""
+    the stage ("denoise 'Lightmap'"), which a stage may report to (`Tick.at`) or just call.
+
+    `data` is the stages' (`core.memory`): the denoiser and the stitch write into its images
+    and keep nothing of what they overwrite (a caller that needs them afterwards hands over
+    `memory.keep(data)`). `raw_sh()`: `data.sh` as handed over, read back `(H, W, 9, 3)` (the
+    whole atlas's: the raw SH file a bake writes before its post stages, the one a re-encode
+    read): a denoiser failing half-way puts the SH back from it and the atlas goes on
+    undenoised; without it, that failure raises."""
     records = {"denoise": {"enabled": False}, "stitch": {"enabled": False}}
     tick = progress.ticker(check)
-    stages = stages_for(settings, seams)
+    stages = stages_for(settings, seams, raw_sh)
     names = [f"{name} {tick.name}".strip() for name, _ in stages]
     parts = tick.split([progress.POST_COSTS.get(name, progress.COST_DENOISE) for name, _ in stages], names)
     for part, (name, stage) in zip(parts, stages):
         part.at(0.0)
-        if in_place and name == "denoise":  # `denoise_stage`'s, which takes them
-            data, records[name] = stage(data, part, in_place=True, restore=restore)  # type: ignore[call-arg]
-        elif in_place and name == "stitch":  # `stitch_stage`'s
-            data, records[name] = stage(data, part, in_place=True)  # type: ignore[call-arg]
-        else:
-            data, records[name] = stage(data, part)
+        data, records[name] = stage(data, part)
         trim_heap()  # what the stage's threads freed, before the next one allocates (memory)
     return data, records
 

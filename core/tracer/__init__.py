@@ -29,9 +29,10 @@ import numpy as np
 
 from ..bakepoints import BakePoints
 from ..errors import BakeCancelled, BakeError
+from ..memory import trim_heap
 from ..rays import RayScene
 from ..scene import BakeScene
-from ..stages import TracedAtlas, trim_heap
+from ..stages import TracedAtlas
 from . import scheduler
 from .hemisphere import TexelEstimator
 from .paths import RR_MAX_SURVIVAL, RR_REFERENCE, RR_START, RR_SURVIVAL_POWER, TraceScene
@@ -90,7 +91,7 @@ def bake(
     files are the same either way. The TracedAtlas then holds the bake points as the files take
     them (`BakePoints.for_files`: 41 of their 139 bytes a texel, once the caller drops `points`),
     and its SH and standard error can be freed a part at a time as they are imaged
-    (`TracedAtlas.release_sh_rows`)."""
+    (`encoding.TexelData.from_traced`)."""
     if settings.pass_samples < 4 or settings.pass_samples % 4:
         raise BakeError(f"samples per pass must be a multiple of 4, got {settings.pass_samples}")
     if settings.noise_target < 0 or settings.time_budget < 0 or not np.isfinite(settings.noise_target):

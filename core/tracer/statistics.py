@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..colour import LUMINANCE
-from ..stages import releasable_zeros
+from ..memory import releasable_zeros
 from . import statistics_kernels as _kernels
 from .settings import NOISE_FLOOR
 
@@ -117,10 +117,11 @@ class Reduced:
     def __init__(self, normals: np.ndarray, channels: int, buried: np.ndarray, sets: bool):
         n = len(normals)
         self.normals, self.channels, self.buried, self.sets = normals, channels, buried, sets
-        # the atlas's SH and error freed a part at a time as they are imaged (`TracedAtlas.release_sh_rows`)
+        # the atlas's SH and error freed a part at a time as they are imaged (`TexelData.from_traced`)
         self.sh = releasable_zeros((n, 9, 3), np.float32)
         self.sh_error = releasable_zeros((n, 1, 3), np.float32)
         k = channels // 3
+        # plain memory: the sets' SH is only read (`bake.finishing.finish_atlas`, a farm worker's fallback)
         self.set_sh = np.zeros((k, n, 9, 3), np.float32) if sets else None
         self.set_sh_error = np.zeros((k, n, 1, 3), np.float32) if sets else None
         self.passes = np.zeros(n, dtype=np.int32)  # the files' texel samples: 4 bytes are plenty

@@ -57,7 +57,7 @@ def _smooth_fill(
         return image, kept, near
     filler = dilate.Fill(near, FILL_RINGS)
     if mean is None:
-        return _mirror(filler.apply(image, in_place=True), source), kept, near
+        return _mirror(filler.apply(image), source), kept, near
     # `Fill.apply` with the page's mean for the texels out of reach
     flat = image.reshape((-1, image.shape[2]))
     reached = filler.source >= 0

@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,7 +33,7 @@ from .filtering import (
 )
 from .layout import BAND_ALIGN, Page, _page_texels, label_charts, layout
 from .noise_clamp import ROWS_PER_STEP, _ChartNoise, _clamp_unwritten, _write
-from .oidn import Denoiser
+from .oidn import Denoiser, DenoiserError
 
 #: A page larger than this many texels per band goes through the filter in horizontal bands
 #: (`_denoise_banded`): each band's core rows (a multiple of BAND_ALIGN, about BAND_TEXELS
@@ -70,21 +70,22 @@ def denoise_texels(
     data: TexelData,
     denoiser: Denoiser,
     check: Callable[[], None] | None = None,
-    in_place: bool = False,
-    restore: Callable[[], None] | None = None,
+    raw_sh: Callable[[], np.ndarray] | None = None,
 ) -> tuple[TexelData, DenoiseReport]:
     """`data` with the SH of its baked texels denoised (the module's steps, the noise clamp
     where `data.noise` is known); everything else as it was. A baked texel with a non-finite coefficient is not
     used and gets the denoised value of its surroundings. `check()`, if given, runs between pages
     (it raises to cancel). Raises DenoiserError if OIDN fails.
 
-    `in_place` (memory, for a caller that has written the raw SH file already, as a bake has):
-    the denoised SH is written into `data.sh` itself, and nothing of the SH it replaces is kept
-    (no copy of the atlas's SH, nor of a page's: `_denoise_banded`). On an error or cancellation
-    after some texel was written, `restore()` is called (the caller's way to put the traced SH
-    back, e.g. from the raw file) before the exception leaves (an exception of `restore` itself
-    leaves instead, chained to the first); without `restore`, `data.sh` is then left partly
-    denoised. Before any texel is written, `restore` is not called."""
+    `data` is this stage's (`core.memory`): the denoised SH is written into `data.sh` itself, and
+    nothing of the SH it replaces is kept (no copy of the atlas's SH, nor of a page's:
+    `_denoise_banded`). On an error or cancellation after some texel was written, the SH of
+    the baked texels is put back from `raw_sh()`, the atlas's SH as handed over read back
+    `(H, W, 9, 3)` (the raw SH file a bake writes first), before the exception leaves (an
+    exception of `raw_sh` itself leaves instead, chained to the first). Without `raw_sh`,
+    `data.sh` is then left partly denoised, and a DenoiserError leaves as a RuntimeError (the
+    post stage lets the SH pass undenoised after a DenoiserError: not this SH). Before any
+    texel is written, nothing is read back."""
     t0 = time.perf_counter()
     h, w = data.coverage.shape
     labels, n = label_charts(data.coverage != 0.0)
@@ -102,8 +103,8 @@ def denoise_texels(
     normal = data.normal.reshape(h * w, 3)
     noise = None if data.noise is None else _ChartNoise(data.noise.reshape(h * w), labels, n)
     report = DenoiseReport()
-    out = sh if in_place else data.sh.copy().reshape(h * w, 9, 3)
-    written = np.zeros(h * w, bool)  # texels written (set before they are: `restore`)
+    out = sh  # written where it is read: a page reads its texels before writing them (`_denoise_banded`)
+    written = np.zeros(h * w, bool)  # texels written (set before they are: `raw_sh`)
     clamping = False
     tick = ticker(check)
     try:
@@ -139,13 +140,28 @@ def denoise_texels(
         if data.noise is not None:  # the clamp of the texels no page changed (traced + 0: as `clamp_to_noise`)
             clamping = True
             _clamp_unwritten(out.reshape(data.sh.shape), data.noise, written)
-    except BaseException:
-        if in_place and restore is not None and (clamping or written.any()):
-            restore()
+    except BaseException as e:
+        if clamping or written.any():
+            if raw_sh is not None:
+                _put_back(data, raw_sh())
+            elif isinstance(e, DenoiserError):
+                raise RuntimeError(f"the denoiser failed with the SH partly denoised ({e})") from e
         raise
     del written
     report.seconds = time.perf_counter() - t0
-    return replace(data, sh=out.reshape(data.sh.shape)), report
+    return data, report
+
+
+def _put_back(data: TexelData, sh: np.ndarray) -> None:
+    """The SH of `data`'s baked texels put back into `data.sh` from `sh` `(H, W, 9, 3)`, the
+    whole atlas's (its window's part where `data` has a window, `TexelData.window`): a denoise
+    failing half-way (the denoiser writes baked texels only)."""
+    window = data.window
+    if window is not None:
+        sh = sh[window.y0 : window.y0 + window.h, window.x0 : window.x0 + window.w]
+    h, w = data.sh.shape[:2]
+    baked = np.flatnonzero(data.baked)
+    data.sh.reshape(h * w, -1)[baked] = np.ascontiguousarray(sh).reshape(h * w, -1)[baked]
 
 
 def _denoise_page(

@@ -32,7 +32,6 @@ def stitch_encoded(
     check=None,
     threads: int = 0,
     window=None,
-    in_place: bool = False,
 ) -> tuple[EncodedAtlas, dict]:
     """Least-squares seam stitching of an HHD/AHD atlas's encoded layers, as the preview filters
     them: I_z, w_a and the octahedral direction (packed: the GPU interpolates the packed values),
@@ -47,9 +46,8 @@ def stitch_encoded(
     Returns the atlas with the encoding file's images replaced, and a record: enabled, texels
     (changed), iterations, seconds, and the HHD-read `seam_metric` before and after.
     `window` (`stages.Window`): the images and `coverage` are that rectangle of the atlas
-    `seams` are of (`TexelData.window`). `in_place`: the stitched texels are written into
-    `atlas`'s own images (a caller that does not keep the unstitched ones), after the "before"
-    measure; else into copies."""
+    `seams` are of (`TexelData.window`). `atlas` is this stage's (`core.memory`): the stitched
+    texels are written into its own images, after the "before" measure."""
     start = time.perf_counter()
     tick = ticker(check)
     atlas_seams, seams = seams, seams.within(window)
@@ -63,8 +61,7 @@ def stitch_encoded(
     directions = ["Direction.X", "Direction.Y"]
     h, w = images[names[0]].shape
     cover = np.asarray(coverage).reshape(-1)
-    # the stitched layers: written into the atlas's own images (`in_place`) or copies
-    out = dict(images) if in_place else {name: np.array(image, copy=True) for name, image in images.items()}
+    out = dict(images)  # the stitched layers: the atlas's own images, written into
     model = atlas.settings.get("model", "hhd")
     shown = ~reads_hidden(seams, hidden_texels(np.asarray(coverage)))
     visible = atlas_seams.select(shown)

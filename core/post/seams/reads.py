@@ -216,7 +216,7 @@ def reader_for(source) -> Reader:
     from ...encoding import EncodedAtlas, TexelData
 
     if isinstance(source, TexelData):
-        return sh_reader(source.fill().apply(source.sh, keep_black=True))
+        return sh_reader(source.fill().apply(source.sh.copy(), keep_black=True))
     if isinstance(source, EncodedAtlas):
         return hhd_reader(encoded_images(source), source.settings.get("model", "hhd"))
     if isinstance(source, Mapping):

@@ -27,14 +27,13 @@ BOUND_SLACK = 0.5
 IZ_MARGIN = 1e-4
 
 
-def stitch(
-    data: TexelData, seams: Seams, check=None, threads: int = 0, in_place: bool = False
-) -> tuple[TexelData, dict]:
+def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple[TexelData, dict]:
     """Least-squares seam stitching of `data`'s SH (the post stage's body; `check()` raises to
     cancel, called between solver iterations; `threads`: workers of the solver, 0 = every core,
-    `parallel.resolve_threads`; the result does not depend on it). `in_place`: the stitched
-    texels are written into `data.sh` and `data.normal` themselves (a caller whose `data` is
-    spent: no copy of the atlas's SH); they are written only after everything else is done.
+    `parallel.resolve_threads`; the result does not depend on it). `data` is this stage's
+    (`core.memory`): the stitched texels are written into `data.sh` and `data.normal`
+    themselves (no copy of the atlas's SH), only after everything else is done (a cancelled
+    stitch leaves them as they were).
 
     Unknowns: the texels the seam samples read, each starting from the value the SH file shows
     there (a gutter texel its dilated SH, a buried texel the SH it takes from its own chart).
@@ -110,10 +109,7 @@ def stitch(
     image.put(texels, new)  # the stitched SH, as the filled copy would read it
     rest.at(0.65, "measuring the seams")
     record["after"] = _brief(_metric(read, visible, worst=0))
-    # the images: written into `data`'s own (`in_place`: the caller's data is spent), else copies
-    sh = sh if in_place else sh.copy()
     normals = data.normal.reshape(h * w, 3)
-    normals = normals if in_place else normals.copy()
     gutter = outside.nonzero()[0]
     normals[texels[gutter]] = normal[gutter]
     sh[texels] = new
