@@ -53,7 +53,7 @@ def _probe_mode_changed(self, context):
 
 class HHDLightSet(bpy.types.PropertyGroup):
     """One light set of the last bake (`scene.hhd.light_sets`): `name` is the set's name in the
-    atlas sidecars' "light_sets" (a Light Group, or core.light_sets.DEFAULT), `weight` its RGB
+    atlas sidecars' "light_sets" (a Light Group, or core.scene.DEFAULT_LIGHT_SET), `weight` its RGB
     blend weight. The EEVEE live blend reads the weight by RNA path (`bridge.light_sets.weight_path`), so keyframes
     on it play back in the viewport and in renders."""
 

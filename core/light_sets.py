@@ -2,7 +2,8 @@
 No bpy.
 
 A light set is one of Blender's Light Groups (`Object.lightgroup` of lamps and emissive meshes,
-`World.lightgroup`); the emitters in no group form the set DEFAULT. A bake of a scene that uses
+`World.lightgroup`); the emitters in no group form the set `scene.DEFAULT_LIGHT_SET`
+(`scene.light_set_names`). A bake of a scene that uses
 light groups credits every contribution to its emitter's set inside the same paths (the tracer's
 `TraceScene.sets`), so K sets cost one bake's rays; the atlas's ordinary files hold the sum of the
 sets (the bake without sets, same seed) and each set is written as an ordinary atlas of its own,
@@ -25,28 +26,11 @@ import numpy as np
 from .errors import BakeError
 from .hhd import HHDParams, from_linear_sh, to_linear_sh
 
-#: The set of the emitters in no light group.
-DEFAULT = "Default"
-
 #: The largest blend weight: 1 is the set as baked; far larger weights only overflow the HHD
 #: file's numbers (1e300 made most texels infinite), so they are refused.
 MAX_WEIGHT = 1000.0
 
 _NAME = re.compile(r"[^A-Za-z0-9_\-]")
-
-
-def set_of(group: str) -> str:
-    """The light set of an emitter of light group `group` ("" = none: DEFAULT)."""
-    return group or DEFAULT
-
-
-def set_names(groups: Sequence[str]) -> tuple[str, ...]:
-    """The light sets of a bake whose emitting lights have these light `groups` (one entry per
-    emitter, "" = no group): () when no emitter is in a group (an ordinary bake, no set files),
-    else the sets in use sorted by name (DEFAULT among them if some emitter has no group)."""
-    if not any(groups):
-        return ()
-    return tuple(sorted({set_of(g) for g in groups}))
 
 
 def set_atlas_name(atlas: str, light_set: str) -> str:

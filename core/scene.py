@@ -12,11 +12,13 @@ Units follow Blender/Cycles (checked against Cycles' Diffuse bake in tests/test_
 
 Lights are plain data here; how each type is sampled lives in one place, `core.tracer.lights`.
 `group` (every light, and `BakeScene.emission_group` per emissive triangle) names the light group
-a light belongs to ("": the default set).
+a light belongs to ("": the default set); a bake's light sets are its emitters' groups
+(`light_set_names`; their files and blending: `core.light_sets`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -24,6 +26,23 @@ import numpy as np
 
 if TYPE_CHECKING:
     from .environment import EnvironmentMap
+
+#: The light set of the emitters in no light group.
+DEFAULT_LIGHT_SET = "Default"
+
+
+def light_set_of(group: str) -> str:
+    """The light set of an emitter of light group `group` ("" = none: DEFAULT_LIGHT_SET)."""
+    return group or DEFAULT_LIGHT_SET
+
+
+def light_set_names(groups: Sequence[str]) -> tuple[str, ...]:
+    """The light sets of a bake whose emitting lights have these light `groups` (one entry per
+    emitter, "" = no group): () when no emitter is in a group (an ordinary bake, no set files),
+    else the sets in use sorted by name (DEFAULT_LIGHT_SET among them if some emitter has none)."""
+    if not any(groups):
+        return ()
+    return tuple(sorted({light_set_of(g) for g in groups}))
 
 
 @dataclass

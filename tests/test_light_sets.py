@@ -7,7 +7,7 @@ import pytest
 from hhd_lightmapper.core import bake, bakepoints, encoding, light_sets, rays, tracer
 from hhd_lightmapper.core.errors import BakeError
 from hhd_lightmapper.core.files import exr, lightmap_files
-from hhd_lightmapper.core.scene import AreaLight, BakeScene, PointLight, SunLight
+from hhd_lightmapper.core.scene import AreaLight, BakeScene, PointLight, SunLight, light_set_names
 from scenekit import meshes
 
 
@@ -66,8 +66,8 @@ def test_sets_are_the_light_groups_in_use_and_ungrouped_emitters_form_the_defaul
     assert with_sets.sets == ("Default", "Glow", "Lamp", "Sun")
     assert with_sets.set_sh.shape == (4, *with_sets.sh.shape)
     assert without.sets == () and without.set_sh is None
-    assert light_sets.set_names(["", ""]) == ()
-    assert light_sets.set_names(["A", ""]) == ("A", "Default")
+    assert light_set_names(["", ""]) == ()
+    assert light_set_names(["A", ""]) == ("A", "Default")
 
 
 def test_the_sets_sum_to_the_bake_without_sets_of_the_same_seed(baked):

@@ -34,11 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import light_sets as _light_sets
 from .. import sampling
 from ..errors import BakeError
 from ..rays import RayScene, ray_offset
-from ..scene import BakeScene
+from ..scene import BakeScene, light_set_names, light_set_of
 from . import lights as _lights
 from . import path_kernels, shipping
 
@@ -87,7 +86,7 @@ class TraceScene:
         self.offset = max(min_offset, ray_offset(scene.triangles, self._rays.origin))
         self.lights = _lights.build(scene)
         groups = [light.group for light in self.lights] + ([scene.world_group] if scene.world is not None else [])
-        self.sets = _light_sets.set_names(groups) if light_sets else ()
+        self.sets = light_set_names(groups) if light_sets else ()
         self.channels = 3 * max(len(self.sets), 1)
         for light in self.lights:
             light.column = self.column(light.group)
@@ -99,7 +98,7 @@ class TraceScene:
 
     def column(self, group: str) -> int:
         """The first of the 3 radiance columns of the light set of light group `group`."""
-        return 3 * self.sets.index(_light_sets.set_of(group)) if self.sets else 0
+        return 3 * self.sets.index(light_set_of(group)) if self.sets else 0
 
     def per_column(self, rgb: np.ndarray) -> np.ndarray:
         """RGB rows (R, 3) repeated for every set's columns (R, channels): a path's throughput."""
