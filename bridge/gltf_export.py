@@ -32,6 +32,7 @@ import numpy as np
 
 from ..core import octahedral
 from ..core import sh as core_sh
+from ..core.encoding import hhd as hhd_spec
 from ..core.encoding import web_packing as wp
 from ..core.errors import BakeError
 from ..core.files import exr
@@ -169,16 +170,20 @@ class _Atlas:
 def _read_layers(files: AtlasFiles, shape) -> dict:
     """I_z (H, W, 3), w_a (H, W) or (H, W, 3), d in glTF frame (H, W, 3): file rows (top first)."""
     ch, _ = exr.read(files.hhd)
-    missing = [n for n in ("Iz.R", "Iz.G", "Iz.B", "Direction.X", "Direction.Y") if n not in ch]
+    missing = [n for n in hhd_spec.IZ.exr_names + hhd_spec.DIRECTION.exr_names if n not in ch]
     if missing:
         raise BakeError(f"{files.hhd} lacks {missing}: bake again")
-    iz = np.stack([ch[f"Iz.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
+    iz = np.stack([ch[n] for n in hhd_spec.IZ.exr_names], axis=-1).astype(np.float64)
     if iz.shape[:2] != tuple(shape):
         raise BakeError(
             f"{files.hhd} is {iz.shape[1]}×{iz.shape[0]}, its sidecar says {shape[1]}×{shape[0]}: bake again"
         )
-    wa = ch["Wa.V"].astype(np.float64) if "Wa.V" in ch else np.stack([ch[f"Wa.{c}"] for c in "RGB"], -1).astype(float)
-    e = np.stack([ch["Direction.X"], ch["Direction.Y"]], axis=-1).astype(np.float64).reshape(-1, 2)
+    (scalar,) = hhd_spec.WA.exr_names
+    if scalar in ch:
+        wa = ch[scalar].astype(np.float64)
+    else:
+        wa = np.stack([ch[n] for n in hhd_spec.WA_RGB.exr_names], -1).astype(np.float64)
+    e = np.stack([ch[n] for n in hhd_spec.DIRECTION.exr_names], axis=-1).astype(np.float64).reshape(-1, 2)
     d = octahedral.decode(e)
     return {"iz": iz, "wa": wa, "d": d.reshape(iz.shape)}
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from . import encoding, post
 from .colour import LUMINANCE
+from .encoding import hhd as hhd_spec
 from .encoding.hhd_specular import specular as hhd_specular
 from .encoding.registry import basis_of
 from .encoding.spec import FLOAT
@@ -181,11 +182,11 @@ def _layer(channel, images: dict, uv: np.ndarray) -> np.ndarray:
 def _reconstruction(model, settings, layers: dict, g: GBuffer, roughness) -> Reconstruction:
     size = bytes_per_texel(model, settings)
     if model in ("hhd", "ahd"):
-        wa = layers["Wa"]
+        wa = layers[hhd_spec.WA.name]
         p = HHDParams(
-            irradz=layers["Iz"],
+            irradz=layers[hhd_spec.IZ.name],
             ambient_weight=wa[:, 0] if wa.shape[1] == 1 else wa,
-            direction=layers["Direction"],
+            direction=layers[hhd_spec.DIRECTION.name],
             model=model,
             invalid=np.zeros(len(g.index), bool),
             clamped_irradz=np.zeros(len(g.index), bool),

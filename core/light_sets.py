@@ -155,6 +155,7 @@ def read_hhd(files, window=None) -> tuple[HHDParams, list[str]]:
     texels `(h·w,)` only, then one more: a texel outside it (every one there holds the same
     fill), the only part of the file read besides the window's ZIP blocks."""
     from . import octahedral
+    from .encoding import hhd as spec
     from .files import exr
 
     if window is None:
@@ -162,17 +163,18 @@ def read_hhd(files, window=None) -> tuple[HHDParams, list[str]]:
         stored = list(channels)
     else:
         stored = list(exr.shape_of(files.hhd)[1])
-    for name in ("Iz.R", "Iz.G", "Iz.B", "Direction.X", "Direction.Y"):
+    required = spec.IZ.exr_names + spec.DIRECTION.exr_names
+    for name in required:
         if name not in stored:
             raise BakeError(f"{files.hhd} is not an HHD lightmap (no channel {name!r}): encode with model 'hhd'")
-    wa_names: list[str] = [n for n in ("Wa.V", "Wa.R", "Wa.G", "Wa.B") if n in stored]
-    names = ["Iz.R", "Iz.G", "Iz.B", "Direction.X", "Direction.Y", *wa_names]
+    wa_names: list[str] = [n for n in spec.WA.exr_names + spec.WA_RGB.exr_names if n in stored]
+    names = [*required, *wa_names]
     if window is not None:
         channels = _window_and_one(files.hhd, names, window)
     if not wa_names or len({channels[n].shape for n in names}) != 1:
         raise BakeError(f"{files.hhd} is damaged (its channels are missing or differ in size): bake again")
-    iz = np.stack([exr.from_exr_rows(channels[f"Iz.{c}"]) for c in "RGB"], axis=-1).astype(np.float64)
-    oct_xy = np.stack([exr.from_exr_rows(channels[f"Direction.{c}"]) for c in "XY"], axis=-1)
+    iz = np.stack([exr.from_exr_rows(channels[n]) for n in spec.IZ.exr_names], axis=-1).astype(np.float64)
+    oct_xy = np.stack([exr.from_exr_rows(channels[n]) for n in spec.DIRECTION.exr_names], axis=-1)
     wa = np.stack([exr.from_exr_rows(channels[n]) for n in wa_names], axis=-1).astype(np.float64)
     n = iz.shape[0] * iz.shape[1]
     params = HHDParams(
@@ -229,7 +231,7 @@ def write_hhd(
     storage types), its preview images and `sidecar`. `window`: `p` is of its texels and one
     outside it (`read_hhd`'s), written as the whole atlas's (`stages.PlacedImage`)."""
     from . import octahedral
-    from .encoding import HHD_FILE
+    from .encoding import hhd as hhd_spec
     from .files import exr, lightmap_files
     from .stages import placed
 
@@ -240,11 +242,11 @@ def write_hhd(
             return values.reshape(h, w)
         return placed(values[:-1].reshape(h, w), window, values[-1])
 
-    images = {f"Iz.{c}": image(p.irradz[:, k]) for k, c in enumerate("RGB")}
+    images = {n: image(p.irradz[:, k]) for k, n in enumerate(hhd_spec.IZ.exr_names)}
     images.update({name: image(p.ambient_weight) for name in wa_names})
     oct_xy = octahedral.encode(p.direction)
-    images.update({f"Direction.{c}": image(oct_xy[:, k]) for k, c in enumerate("XY")})
-    spec = HHD_FILE.for_settings(_Ambient("luminance" if wa_names == ["Wa.V"] else "rgb"))
+    images.update({n: image(oct_xy[:, k]) for k, n in enumerate(hhd_spec.DIRECTION.exr_names)})
+    spec = hhd_spec.FILE.for_settings(_Ambient("luminance" if wa_names == hhd_spec.WA.exr_names else "rgb"))
     channels = lightmap_files.exr_channels(spec, images)
     attributes = {"hhdFormat": lightmap_files.FORMAT, "hhdFormatVersion": lightmap_files.FORMAT_VERSION}
     exr.write_file(staging.stage(files.hhd), channels, {**attributes, "hhdAtlas": files.name})

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ... import parallel
+from ...encoding import hhd as hhd_spec
 from ...progress import ticker
 from .geometry import Seams
 from .metrics import _brief, _metric, _placed
@@ -57,8 +58,9 @@ def stitch_encoded(
         return atlas, {**record0, "seconds": time.perf_counter() - start}
     key = atlas.encoding_file.key
     spec, images = atlas.files[key]
-    names = [n for n in ("Iz.R", "Iz.G", "Iz.B", "Wa.V", "Wa.R", "Wa.G", "Wa.B") if n in images]
-    directions = ["Direction.X", "Direction.Y"]
+    weights = hhd_spec.WA.exr_names + hhd_spec.WA_RGB.exr_names
+    names = [n for n in hhd_spec.IZ.exr_names + weights if n in images]
+    directions = hhd_spec.DIRECTION.exr_names
     h, w = images[names[0]].shape
     cover = np.asarray(coverage).reshape(-1)
     out = dict(images)  # the stitched layers: the atlas's own images, written into
@@ -82,7 +84,7 @@ def stitch_encoded(
         new = prior[system.texels] + delta
         at = np.divmod(system.texels, w)  # (row, column): the images may be strided views
         for i, n in enumerate(layer):
-            low, high = (-1.0, 1.0) if n in directions else (0.0, 1.0 if n.startswith("Wa.") else np.inf)
+            low, high = (-1.0, 1.0) if n in directions else (0.0, 1.0 if n in weights else np.inf)
             values = np.clip(new[:, i], low, high).astype(out[n].dtype)
             changed[system.texels] |= values != out[n][at]
             out[n][at] = values

@@ -146,11 +146,12 @@ def hhd_reader(images: Mapping[str, np.ndarray], model: str = "hhd") -> Reader:
     renormalised after (filtering the encoded pair across the map's fold turns it: docs/format.md,
     "Filtering the direction"), d·n_v floored at core.hhd.MIN_COS,
     I = I_z [w_a (1 + n·n_v)/2 + (1 − w_a) max(n·d, 0)/(d·n_v)] (AHD: w_a + …)."""
+    from ...encoding import hhd as spec
     from ...hhd import MIN_COS
 
-    wa_names = [k for k in ("Wa.R", "Wa.G", "Wa.B") if k in images] or ["Wa.V"]
-    plain = _Stacked([images[k] for k in ["Iz.R", "Iz.G", "Iz.B", *wa_names]])
-    packed = _Stacked([images["Direction.X"], images["Direction.Y"]], np.float64)
+    wa_names = [k for k in spec.WA_RGB.exr_names if k in images] or spec.WA.exr_names
+    plain = _Stacked([images[k] for k in [*spec.IZ.exr_names, *wa_names]])
+    packed = _Stacked([images[k] for k in spec.DIRECTION.exr_names], np.float64)
     # the layers at the texels a read takes (memory: no image of all the atlas's decoded layers)
     layers = _Stacked(
         [],
