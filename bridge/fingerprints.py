@@ -179,9 +179,8 @@ def _mesh_arrays(mesh) -> list[np.ndarray]:
     return [co, corners, starts, mats, normals]
 
 
-def _bounds(mesh, matrix: np.ndarray) -> list | None:
-    co = np.empty(len(mesh.vertices) * 3, np.float32)
-    mesh.vertices.foreach_get("co", co)
+def _bounds(co: np.ndarray, matrix: np.ndarray) -> list | None:
+    """The world-space box [min, max] of a mesh's flat vertex coordinates `co` under `matrix`."""
     if not len(co):
         return None
     world = co.reshape(-1, 3).astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
@@ -225,9 +224,10 @@ def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_la
             mesh = obj.to_mesh()
             try:
                 mats = [material_digest(slot.material, materials) for slot in obj.material_slots]
+                arrays = _mesh_arrays(mesh)
                 entry = {
-                    "hash": digest(matrix, *_mesh_arrays(mesh), mats, str(getattr(obj, "lightgroup", ""))),
-                    "bounds": _bounds(mesh, matrix),
+                    "hash": digest(matrix, *arrays, mats, str(getattr(obj, "lightgroup", ""))),
+                    "bounds": _bounds(arrays[0], matrix),
                     "emits": any(_emits(slot.material) for slot in obj.material_slots),
                 }
                 if key in receivers:

@@ -1,6 +1,8 @@
 """Reading Blender meshes into numpy and writing lightmap UV layers back (the bpy boundary).
 
-Reads use foreach_get into preallocated arrays. Unwrapping reads each object's own mesh
+Reads use foreach_get into preallocated arrays of the property's own type (float32 for
+coordinates, normals and UVs: `read_floats`), Blender's fast path; into another type it
+converts item by item. Unwrapping reads each object's own mesh
 (obj.data, before modifiers): the UV layer written there flows through the modifier stack, so
 the bake, which reads the evaluated mesh, sees UVs for subdivided/modified geometry too.
 """
@@ -16,6 +18,14 @@ from .collection_instances import Member
 from .materials import TextureCache
 
 MAX_UV_LAYERS = 8  # Blender's limit per mesh
+
+
+def read_floats(collection, attr: str, count: int) -> np.ndarray:
+    """(count,) float64: the float32 RNA property `attr` of every item of `collection`
+    (flattened), read through foreach_get's fast path and widened exactly."""
+    out = np.empty(count, np.float32)
+    collection.foreach_get(attr, out)
+    return out.astype(np.float64)
 
 
 def target_meshes(objects) -> list:
@@ -102,14 +112,12 @@ def read_unwrap_mesh(obj, instance_of: str | None = None) -> tuple[UnwrapMesh, n
     n_tri, n_vert = len(mesh.loop_triangles), len(mesh.vertices)
     if n_tri == 0:
         raise BakeError(f"'{obj.name}' has no faces to unwrap")
-    co = np.zeros(n_vert * 3, dtype=np.float64)
-    mesh.vertices.foreach_get("co", co)
+    co = read_floats(mesh.vertices, "co", n_vert * 3)
     tri = np.zeros(n_tri * 3, dtype=np.int64)
     mesh.loop_triangles.foreach_get("vertices", tri)
     loops = np.zeros(n_tri * 3, dtype=np.int64)
     mesh.loop_triangles.foreach_get("loops", loops)
-    polygons = np.zeros(n_tri, dtype=np.int64)
-    mesh.loop_triangles.foreach_get("polygon_index", polygons)
+    polygons = triangle_polygons(mesh, n_tri)
     m = np.array(obj.matrix_world, dtype=np.float64)
     world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
     tri, loops = tri.reshape(-1, 3), loops.reshape(-1, 3)
@@ -200,10 +208,8 @@ def read_triangles(mesh, matrix_world):
     mesh.loop_triangles.foreach_get("loops", loops)
     verts = np.zeros(n_tri * 3, np.int64)
     mesh.loop_triangles.foreach_get("vertices", verts)
-    mat_index = np.zeros(n_tri, np.int64)
-    mesh.loop_triangles.foreach_get("material_index", mat_index)
-    co = np.zeros(len(mesh.vertices) * 3)
-    mesh.vertices.foreach_get("co", co)
+    mat_index = polygon_materials(mesh)[triangle_polygons(mesh, n_tri)]
+    co = read_floats(mesh.vertices, "co", len(mesh.vertices) * 3)
     m = np.array(matrix_world, dtype=np.float64)
     world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
     verts, loops = verts.reshape(-1, 3), loops.reshape(-1, 3)
@@ -238,8 +244,7 @@ def read_shape(obj, depsgraph):
 def world_corner_normals(mesh, matrix_world) -> np.ndarray:
     """(loops, 3) the mesh's corner normals (smooth/flat/custom as Blender shades them) in world
     space, through the normal matrix (a mirrored object's normals stay outward), unit length."""
-    normals = np.zeros(len(mesh.loops) * 3)
-    mesh.corner_normals.foreach_get("vector", normals)
+    normals = read_floats(mesh.corner_normals, "vector", len(mesh.loops) * 3)
     n_world = normals.reshape(-1, 3) @ normal_matrix(matrix_world).T
     n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
     return n_world
@@ -258,9 +263,16 @@ def normal_matrix(matrix_world) -> np.ndarray:
 
 def triangle_polygons(mesh, count: int) -> np.ndarray:
     """(count,) int64: the polygon of each of the mesh's `count` loop triangles."""
-    polygon = np.zeros(count, np.int64)
-    mesh.loop_triangles.foreach_get("polygon_index", polygon)
-    return polygon
+    polygon = np.empty(count, np.int32)
+    mesh.loop_triangle_polygons.foreach_get("value", polygon)  # a flat array; loop_triangles' is per item
+    return polygon.astype(np.int64)
+
+
+def polygon_materials(mesh) -> np.ndarray:
+    """(polygons,) int64: each polygon's material index."""
+    index = np.empty(len(mesh.polygons), np.int32)
+    mesh.polygons.foreach_get("material_index", index)
+    return index.astype(np.int64)
 
 
 def no_faces_warning(name: str) -> str:
@@ -292,8 +304,7 @@ def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None =
                 continue
             positions, loops, mat_index = tris
             n_world = world_corner_normals(mesh, evaluated.matrix_world)
-            uv = np.zeros(len(mesh.loops) * 2)
-            mesh.uv_layers[uv_layer].data.foreach_get("uv", uv)
+            uv = read_floats(mesh.uv_layers[uv_layer].data, "uv", len(mesh.loops) * 2)
             rect = np.array(lightmap_rect(obj))  # an instance's rectangle in the atlas
             uv = (uv.reshape(-1, 2) * rect[:2] + rect[2:]).ravel()
             albedo, tex_index, tex_uv = triangle_albedo(evaluated, mesh, loops, mat_index, cache, notes)
