@@ -12,6 +12,7 @@ the tracer through `covers.shared_probe`, not through them).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 import numpy as np
 
@@ -136,23 +137,26 @@ class BakePoints:
     #: the texel's own triangle, as before)
     others: np.ndarray | None = None
 
+    #: The per-texel arrays only tracing reads (emptied by `for_files`).
+    TRACING_ONLY: ClassVar[tuple[str, ...]] = (
+        "position",
+        "face_normal",
+        "albedo",
+        "texel_size",
+        "triangle",
+        "near_cover",
+        "crossed",
+        "others",
+    )
+
     def for_files(self) -> BakePoints:
         """These bake points as an atlas's files take them once it is traced (`tracer.bake(...,
         compact=True)`): texel, normal, coverage, buried, object_index, mesh and the sizes, the
         same arrays (no copy); the arrays only tracing reads (position, face normal, albedo,
         texel size, triangle, near cover, crossed, others) empty (no rows). Memory: 41 bytes a
         texel of the 139 of `build`'s (115 without albedo), once the caller drops the full ones."""
-        return replace(
-            self,
-            position=_none_of(self.position),
-            face_normal=_none_of(self.face_normal),
-            albedo=None if self.albedo is None else _none_of(self.albedo),
-            texel_size=_none_of(self.texel_size),
-            triangle=_none_of(self.triangle),
-            near_cover=_none_of(self.near_cover),
-            crossed=None if self.crossed is None else _none_of(self.crossed),
-            others=None if self.others is None else _none_of(self.others),
-        )
+        emptied = {name: getattr(self, name) for name in self.TRACING_ONLY}
+        return replace(self, **{name: None if a is None else _none_of(a) for name, a in emptied.items()})
 
     def origins(self, rows=slice(None)) -> np.ndarray:
         """Ray origins `(P, 3)` (of the texels `rows`, if given): positions pushed off the

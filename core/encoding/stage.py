@@ -311,7 +311,9 @@ def encode_images(
     baked = fill.valid
     sh, normal = data.sh.reshape(h * w, 9, -1), data.normal.reshape(h * w, 3)
     channels = encoding.file.channels
-    values = {ch.name: np.zeros((h * w, ch.value_width), np.float32) for ch in channels}
+    # the baked texels' values only (their order in `baked`): the SH image and dense value
+    # images are never both whole at once (memory); placed in the images once the SH is taken
+    values = {ch.name: np.zeros((len(baked), ch.value_width), np.float32) for ch in channels}
     stats: list[dict] = []
     # the fill and packing of a layer: about a fifth of encoding its texels (per atlas texel, not baked)
     texels_part, layers_part = ticker(tick).split([len(baked), 0.2 * h * w * len(channels)])
@@ -320,7 +322,7 @@ def encode_images(
 
     def encoded(s: int):
         rows = baked[s : s + ENCODE_CHUNK]
-        return rows, encoding.encode(sh[rows], normal[rows])
+        return slice(s, s + len(rows)), encoding.encode(sh[rows], normal[rows])
 
     workers = min(resolve_threads(threads), len(starts))
     with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
@@ -336,19 +338,22 @@ def encode_images(
     images = {}
     step = layers_part.counter(len(channels), lambda done, of: f"filling layer {done} of {of}")
     for k, ch in enumerate(channels):
-        images.update(layer_images(ch, values.pop(ch.name).reshape(h, w, ch.value_width), fill, data.window))
+        image = np.zeros((h * w, ch.value_width), np.float32)
+        image[baked] = values.pop(ch.name)
+        images.update(layer_images(ch, image.reshape(h, w, ch.value_width), fill, data.window))
+        del image
         step(k + 1)
     return images, encoding.summary(stats, len(baked))
 
 
 def _take(result, values: dict, stats: list) -> int:
-    """One encoded chunk (`encode_images`' `encoded`) into the value images, in chunk order; its
-    texel count."""
+    """One encoded chunk (`encode_images`' `encoded`: its texels' slice of the baked texels and
+    their values) into the baked texels' values, in chunk order; its texel count."""
     rows, out = result
     for name, v in out.values.items():
         values[name][rows] = v
     stats.append(out.stats)
-    return len(rows)
+    return rows.stop - rows.start
 
 
 def layer_images(
