@@ -54,14 +54,20 @@ def _grow(index, h, w, rings, through, use_through):  # pragma: no cover - compi
     _NEIGHBOURS order that had one before ring r. Work: the texels reached and their neighbours."""
     n = h * w
     dy, dx = _DY, _DX
-    front = np.empty(n, np.int64)
+    size = 0
+    for t in range(n):
+        if index[t] >= 0:
+            size += 1
+    # a ring queues only texels without a source, each once: its front is never larger than
+    # them, nor the first front than the sources (memory: index-sized buffers, not n int64s)
+    front = np.empty(max(size, n - size), index.dtype)
     size = 0
     for t in range(n):
         if index[t] >= 0:
             front[size] = t
             size += 1
-    queued = np.empty(n, np.int64)
-    value = np.empty(n, index.dtype)
+    queued = np.empty(max(n - size, 1), index.dtype)
+    value = np.empty(max(n - size, 1), index.dtype)
     for _ in range(rings):
         if size == 0 or size == n:
             break
