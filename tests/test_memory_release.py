@@ -165,6 +165,8 @@ def test_a_spending_trace_gives_the_bake_points_rows_back_behind_its_chunks_and_
     assert n > 4 * 128 and released == sorted(released) and released[-1] == n
     assert len(released) == arrays * -(-n // 128)  # each array, behind each chunk
     assert len(kept.position) == n  # a trace that does not spend them leaves them alone
+    for name in bakepoints.BakePoints.TRACING_ONLY:  # what the files' bake points leave out
+        assert getattr(traced.points, name) is None or len(getattr(traced.points, name)) == 0, name
     if sys.platform.startswith("linux"):
         assert not spent.position[: n - 256].any() and not spent.face_normal[: n - 256].any()
 
@@ -206,3 +208,35 @@ def test_the_encoder_holds_the_baked_texels_values_only_while_the_sh_is_whole():
         tracemalloc.stop()
     assert extra and max(extra) < h * w * 3 * 4  # one (H, W, 3) float32 layer
     assert data.sh.size == 0 and set(images) >= {"Iz.R", "Iz.G", "Iz.B"}
+
+
+def test_an_encoder_releasing_the_sh_gives_it_back_behind_its_chunks_and_the_same_images(monkeypatch):
+    """`encode_atlas(..., release_sh=True)` (as a bake encodes): the SH's rows are given back in
+    order behind the chunks encoded, up to every texel (for real where the platform can: a kept
+    reference to the SH reads 0 there), and the images are those of an encoder that keeps it."""
+    h, w = 64, 64
+    coverage = np.zeros((h, w), np.float32)
+    coverage[4:60:2, 3:61] = 1.0
+    baked = coverage > 0
+    sh = np.zeros((h, w, 9, 3), np.float32)
+    sh[baked] = np.random.default_rng(2).uniform(0.1, 1.0, (int(baked.sum()), 9, 3))
+    sh[baked, 0] += 2.0
+    normal = np.zeros((h, w, 3), np.float32)
+    normal[..., 2] = 1.0
+    data = memory.keep(encoding.TexelData(sh=sh, normal=normal, coverage=coverage))
+    encoder = encoding.for_settings(encoding.EncoderSettings())
+    monkeypatch.setattr(encoding.stage, "ENCODE_CHUNK", 128)
+    kept = encoding.encode_atlas(replace(data), encoder, raw=False, threads=1)
+    assert data.sh.shape == sh.shape  # a TexelData of the same arrays keeps them
+    released = []
+    monkeypatch.setattr(
+        encoding.stage, "release_rows", lambda a, stop: (released.append(stop), memory.release_rows(a, stop))
+    )
+    the_sh = data.sh
+    spent = encoding.encode_atlas(replace(data), encoder, raw=False, threads=1, release_sh=True)
+    assert len(released) > 8 and released == sorted(released) and released[-1] == h * w
+    images, reference = spent.files[encoder.file.key][1], kept.files[encoder.file.key][1]
+    for name in reference:
+        np.testing.assert_array_equal(images[name], reference[name])
+    if sys.platform.startswith("linux"):
+        assert not the_sh[: h // 2].any()  # pages wholly behind the chunks: given back

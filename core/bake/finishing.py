@@ -201,6 +201,7 @@ def _finish_files(
         raw=False,
         tick=parts["encode"],
         threads=settings.trace.threads,
+        release_sh=True,  # `data` is spent: nothing reads its SH after the encoder (memory)
     )
     parts["stitch encoded"].at(0.0)
     encoded = post.stitch_encoded(

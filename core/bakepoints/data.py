@@ -137,7 +137,7 @@ class BakePoints:
     #: the texel's own triangle, as before)
     others: np.ndarray | None = None
 
-    #: The per-texel arrays only tracing reads (emptied by `for_files`).
+    #: The per-texel arrays only tracing reads (those `for_files` empties).
     TRACING_ONLY: ClassVar[tuple[str, ...]] = (
         "position",
         "face_normal",
@@ -155,8 +155,17 @@ class BakePoints:
         same arrays (no copy); the arrays only tracing reads (position, face normal, albedo,
         texel size, triangle, near cover, crossed, others) empty (no rows). Memory: 41 bytes a
         texel of the 139 of `build`'s (115 without albedo), once the caller drops the full ones."""
-        emptied = {name: getattr(self, name) for name in self.TRACING_ONLY}
-        return replace(self, **{name: None if a is None else _none_of(a) for name, a in emptied.items()})
+        return replace(
+            self,
+            position=_none_of(self.position),
+            face_normal=_none_of(self.face_normal),
+            albedo=None if self.albedo is None else _none_of(self.albedo),
+            texel_size=_none_of(self.texel_size),
+            triangle=_none_of(self.triangle),
+            near_cover=_none_of(self.near_cover),
+            crossed=None if self.crossed is None else _none_of(self.crossed),
+            others=None if self.others is None else _none_of(self.others),
+        )
 
     def origins(self, rows=slice(None)) -> np.ndarray:
         """Ray origins `(P, 3)` (of the texels `rows`, if given): positions pushed off the
