@@ -54,14 +54,20 @@ def _grow(index, h, w, rings, through, use_through):  # pragma: no cover - compi
     _NEIGHBOURS order that had one before ring r. Work: the texels reached and their neighbours."""
     n = h * w
     dy, dx = _DY, _DX
-    front = np.empty(n, np.int64)
+    size = 0
+    for t in range(n):
+        if index[t] >= 0:
+            size += 1
+    # a ring queues only texels without a source, each once: its front is never larger than
+    # them, nor the first front than the sources (memory: index-sized buffers, not n int64s)
+    front = np.empty(max(size, n - size), index.dtype)
     size = 0
     for t in range(n):
         if index[t] >= 0:
             front[size] = t
             size += 1
-    queued = np.empty(n, np.int64)
-    value = np.empty(n, index.dtype)
+    queued = np.empty(max(n - size, 1), index.dtype)
+    value = np.empty(max(n - size, 1), index.dtype)
     for _ in range(rings):
         if size == 0 or size == n:
             break
@@ -143,6 +149,21 @@ def _shifted(h: int, w: int, dy: int, dx: int) -> tuple[tuple[slice, slice], tup
     return to, of
 
 
+#: Texels whose flat indices `_flat_indices` finds at once (bounds its int64 temporaries).
+INDEX_BLOCK = 1 << 20
+
+
+def _flat_indices(mask: np.ndarray, dtype, where: bool = True) -> np.ndarray:
+    """`np.flatnonzero(mask == where)` as `dtype`, INDEX_BLOCK texels at a time: no int64 list
+    of them all on the way (memory)."""
+    flat = mask.reshape(-1)
+    parts = []
+    for start in range(0, len(flat), INDEX_BLOCK):
+        block = flat[start : start + INDEX_BLOCK].astype(bool, copy=False)
+        parts.append((np.flatnonzero(block if where else ~block) + start).astype(dtype))
+    return np.concatenate(parts) if parts else np.zeros(0, dtype)
+
+
 class Fill:
     """The dilation of one `(H, W)` mask of source texels, found once and applied to any number
     of images or single channels (each costs one gather). `black` `(H, W)` bool, optional:
@@ -158,8 +179,8 @@ class Fill:
     ):
         self.shape = valid.shape
         dtype = np.int32 if valid.size < 2**31 else np.int64
-        self.valid = np.flatnonzero(valid).astype(dtype)
-        self.invalid = np.flatnonzero(black).astype(dtype) if black is not None else np.zeros(0, dtype)
+        self.valid = _flat_indices(valid, dtype)
+        self.invalid = _flat_indices(black, dtype) if black is not None else np.zeros(0, dtype)
         self.black = self.invalid
         if chart is not None and len(self.invalid):
             # seeded by the chart's own sources only: a source outside the charts (a stitched
@@ -172,9 +193,10 @@ class Fill:
             via[via] = filled[source[via]]
             source[via] = inside[source[via]]  # an invalid texel's own source, a valid one
             self.black = self.invalid[~filled[self.invalid]]
+            del inside, filled, via  # before the lists below are made (memory)
         else:
             source = _nearest(valid, rings).reshape(-1)
-        self.empty = np.flatnonzero(~valid.reshape(-1)).astype(dtype)
+        self.empty = _flat_indices(valid, dtype, where=False)
         self.source = source[self.empty].astype(dtype)  # -1: no source within `rings`
 
     def apply(self, image: np.ndarray, keep_black: bool = False) -> np.ndarray:

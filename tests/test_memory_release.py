@@ -143,3 +143,100 @@ def test_finish_atlas_spends_the_traced_atlas_and_a_kept_copy_leaves_it_whole():
     assert traced.points is None and len(traced.sh) == 0 and len(traced.sh_error) == 0
     assert before[0][:-100].any() and not sh[:-100].any()  # its rows given back
     assert kept.traced_sh("Lightmap", "").tobytes() == spent.traced_sh("Lightmap", "").tobytes()
+
+
+def test_a_spending_trace_gives_the_bake_points_rows_back_behind_its_chunks_and_the_same_sh(monkeypatch):
+    """`tracer.bake(..., compact=True, spend_points=True)` (as a bake runs): the same SH as a
+    trace that keeps its bake points, the tracing-only arrays given back a chunk at a time, in
+    order, up to every texel (for real where the platform can: their rows read 0 then)."""
+    from hhd_lightmapper.core.tracer import scheduler
+
+    settings = tracer.BakeSettings(samples=8, pass_samples=4, bounces=1, seed=2, chunk_texels=128)
+    kept, scene = sheet_points()
+    spent, _ = sheet_points()
+    reference = tracer.bake(kept, scene, settings, compact=True)
+    released = []
+    monkeypatch.setattr(
+        scheduler, "release_rows", lambda a, stop: (released.append(stop), memory.release_rows(a, stop))
+    )
+    traced = tracer.bake(spent, scene, settings, compact=True, spend_points=True)
+    np.testing.assert_array_equal(traced.sh, reference.sh)
+    n, arrays = len(spent.texel), len([a for a in bakepoints.BakePoints.TRACING_ONLY if getattr(spent, a) is not None])
+    assert n > 4 * 128 and released == sorted(released) and released[-1] == n
+    assert len(released) == arrays * -(-n // 128)  # each array, behind each chunk
+    assert len(kept.position) == n  # a trace that does not spend them leaves them alone
+    for name in bakepoints.BakePoints.TRACING_ONLY:  # what the files' bake points leave out
+        assert getattr(traced.points, name) is None or len(getattr(traced.points, name)) == 0, name
+    if sys.platform.startswith("linux"):
+        assert not spent.position[: n - 256].any() and not spent.face_normal[: n - 256].any()
+
+
+def test_the_encoder_holds_the_baked_texels_values_only_while_the_sh_is_whole():
+    """`encode_images` keeps the encoding's values of the baked texels only (placed in the layer
+    images once the SH is taken): on an atlas with one texel in 16 baked, what it has allocated
+    when a chunk is encoded, beyond the chunk's own SH and normals, is less than one layer's image."""
+    import tracemalloc
+
+    h, w = 128, 128
+    coverage = np.zeros((h, w), np.float32)
+    coverage[::4, ::4] = 1.0
+    baked = coverage > 0
+    sh = np.zeros((h, w, 9, 3), np.float32)
+    sh[baked, 0] = np.random.default_rng(1).uniform(0.5, 1.0, (int(baked.sum()), 3))
+    normal = np.zeros((h, w, 3), np.float32)
+    normal[..., 2] = 1.0
+    data = encoding.TexelData(sh=sh, normal=normal, coverage=coverage)
+    real = encoding.for_settings(encoding.EncoderSettings())
+    fill = data.fill()
+    extra = []
+
+    class Watched:
+        file = real.file
+
+        def encode(self, sh_rows, normals):
+            extra.append(tracemalloc.get_traced_memory()[0] - start - sh_rows.nbytes - normals.nbytes)
+            return real.encode(sh_rows, normals)
+
+        def summary(self, stats, texels):
+            return real.summary(stats, texels)
+
+    tracemalloc.start()
+    start = tracemalloc.get_traced_memory()[0]
+    try:
+        images, _ = encoding.stage.encode_images(data, Watched(), fill, threads=1)
+    finally:
+        tracemalloc.stop()
+    assert extra and max(extra) < h * w * 3 * 4  # one (H, W, 3) float32 layer
+    assert data.sh.size == 0 and set(images) >= {"Iz.R", "Iz.G", "Iz.B"}
+
+
+def test_an_encoder_releasing_the_sh_gives_it_back_behind_its_chunks_and_the_same_images(monkeypatch):
+    """`encode_atlas(..., release_sh=True)` (as a bake encodes): the SH's rows are given back in
+    order behind the chunks encoded, up to every texel (for real where the platform can: a kept
+    reference to the SH reads 0 there), and the images are those of an encoder that keeps it."""
+    h, w = 64, 64
+    coverage = np.zeros((h, w), np.float32)
+    coverage[4:60:2, 3:61] = 1.0
+    baked = coverage > 0
+    sh = np.zeros((h, w, 9, 3), np.float32)
+    sh[baked] = np.random.default_rng(2).uniform(0.1, 1.0, (int(baked.sum()), 9, 3))
+    sh[baked, 0] += 2.0
+    normal = np.zeros((h, w, 3), np.float32)
+    normal[..., 2] = 1.0
+    data = memory.keep(encoding.TexelData(sh=sh, normal=normal, coverage=coverage))
+    encoder = encoding.for_settings(encoding.EncoderSettings())
+    monkeypatch.setattr(encoding.stage, "ENCODE_CHUNK", 128)
+    kept = encoding.encode_atlas(replace(data), encoder, raw=False, threads=1)
+    assert data.sh.shape == sh.shape  # a TexelData of the same arrays keeps them
+    released = []
+    monkeypatch.setattr(
+        encoding.stage, "release_rows", lambda a, stop: (released.append(stop), memory.release_rows(a, stop))
+    )
+    the_sh = data.sh
+    spent = encoding.encode_atlas(replace(data), encoder, raw=False, threads=1, release_sh=True)
+    assert len(released) > 8 and released == sorted(released) and released[-1] == h * w
+    images, reference = spent.files[encoder.file.key][1], kept.files[encoder.file.key][1]
+    for name in reference:
+        np.testing.assert_array_equal(images[name], reference[name])
+    if sys.platform.startswith("linux"):
+        assert not the_sh[: h // 2].any()  # pages wholly behind the chunks: given back

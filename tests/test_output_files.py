@@ -198,3 +198,20 @@ def test_the_direction_preview_holds_the_unit_vector_and_old_previews_are_upgrad
     exr.write(files.preview_image("dir"), {**old, "B": np.zeros_like(old["R"])})  # as written before
     assert upgrade_direction(files) and not upgrade_direction(files)
     assert exr.read(files.preview_image("dir"))[0]["B"].tobytes() == preview["B"].tobytes()
+
+
+def test_a_fills_index_lists_are_found_in_blocks_as_whole(monkeypatch):
+    """`dilate.Fill`'s flat index lists (sources, invalid, empty texels and their sources), made
+    INDEX_BLOCK texels at a time (memory), are those of the whole mask at once."""
+    rng = np.random.default_rng(5)
+    valid = rng.random((37, 53)) < 0.3
+    black = ~valid & (rng.random((37, 53)) < 0.1)
+    chart = valid | black | (rng.random((37, 53)) < 0.2)
+    whole = dilate.Fill(valid, 4, black=black, chart=chart)
+    monkeypatch.setattr(dilate, "INDEX_BLOCK", 64)  # 31 blocks, the last one partial
+    blocks = dilate.Fill(valid, 4, black=black, chart=chart)
+    for name in ("valid", "invalid", "black", "empty", "source"):
+        np.testing.assert_array_equal(getattr(blocks, name), getattr(whole, name))
+        assert getattr(blocks, name).dtype == np.int32, name
+    np.testing.assert_array_equal(blocks.valid, np.flatnonzero(valid))
+    np.testing.assert_array_equal(blocks.empty, np.flatnonzero(~valid))

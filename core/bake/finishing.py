@@ -186,7 +186,7 @@ def _finish_files(
     parts["raw"].at(0.0, "raw files")
     with encoding.raw_files(raw, fill) as images_of:
         out.raw(name, parent, images_of, *_tick_for(out, parts["raw"]))
-    del images_of
+    del images_of, fill  # the encoder finds its own (memory: a stitch makes another meanwhile)
     memory.trim_heap()  # the writer's bands of rows (memory)
     raw_sh = lambda: out.traced_sh(name, parent)  # a denoiser failing half-way reads it back
     data, sidecar["post"] = post.apply(raw, settings, parts["post"], atlas_seams, raw_sh)
@@ -199,15 +199,15 @@ def _finish_files(
         data,
         encoding.for_settings(settings.encoder),
         raw=False,
-        fill=_same_fill(fill, data),
         tick=parts["encode"],
         threads=settings.trace.threads,
+        release_sh=True,  # `data` is spent: nothing reads its SH after the encoder (memory)
     )
     parts["stitch encoded"].at(0.0)
     encoded = post.stitch_encoded(
         encoded, data.coverage, settings, atlas_seams, sidecar["post"], parts["stitch encoded"]
     )
-    del data, fill
+    del data
     parts["write"].at(0.0, "encoded files")
     out.atlas(name, parent, encoded, sidecar, *_tick_for(out, parts["write"]))  # write (here) or keep (a farm worker)
     return post.warnings(sidecar["post"])
@@ -217,9 +217,3 @@ def _tick_for(out, tick: Tick) -> tuple:
     """The optional tick argument of `out.raw` / `out.atlas`: `Staged` writes and reports; other
     keepers of the files (a farm worker's) take none."""
     return (tick,) if isinstance(out, Staged) else ()
-
-
-def _same_fill(fill, data: encoding.TexelData):
-    """`fill` (the traced atlas's) if it is `data`'s too: no post stage gave texels outside the charts
-    a value of their own (seam stitching's `extra_sources`), else None (the encoder finds `data`'s)."""
-    return fill if data.extra_sources is None else None

@@ -147,7 +147,17 @@ def _local_atlases(jobs: AtlasJobs, out: Staged, report, cancel) -> list[AtlasRe
         report.left += _trace_cost(n, trace) - planned_trace  # its share of a time budget is known now
         tracing = report.span(_trace_cost(n, trace), f"'{atlas.name}'")
         # compact: the SH the files take (float32) and L0's standard error, streamed chunk by chunk
-        traced = tracer.bake(pts, scene, trace, progress=tracing.show, cancel=cancel, ray_scene=ray_scene, compact=True)
+        # spend_points: the bake points' tracing arrays go behind the chunks traced (memory)
+        traced = tracer.bake(
+            pts,
+            scene,
+            trace,
+            progress=tracing.show,
+            cancel=cancel,
+            ray_scene=ray_scene,
+            compact=True,
+            spend_points=True,
+        )
         del pts
         done_texels += n
         _check_cancel(cancel)

@@ -12,6 +12,7 @@ the tracer through `covers.shared_probe`, not through them).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 import numpy as np
 
@@ -135,6 +136,18 @@ class BakePoints:
     #: overlap first (-1: none), whose parts of the footprint its samples cover too (None: only
     #: the texel's own triangle, as before)
     others: np.ndarray | None = None
+
+    #: The per-texel arrays only tracing reads (those `for_files` empties).
+    TRACING_ONLY: ClassVar[tuple[str, ...]] = (
+        "position",
+        "face_normal",
+        "albedo",
+        "texel_size",
+        "triangle",
+        "near_cover",
+        "crossed",
+        "others",
+    )
 
     def for_files(self) -> BakePoints:
         """These bake points as an atlas's files take them once it is traced (`tracer.bake(...,

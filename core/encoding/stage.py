@@ -255,6 +255,7 @@ def encode_atlas(
     fill: _dilate.Fill | None = None,
     tick=None,
     threads: int = 0,
+    release_sh: bool = False,
 ) -> EncodedAtlas:
     """Encode `data` with `encoding` and fill its layers; with `raw`, also the SH and texels
     files' images of `data` (False: a bake that wrote them before its post stages, `raw_files`,
@@ -262,7 +263,9 @@ def encode_atlas(
     `data` is this stage's (`core.memory`): its SH is taken out of it (`encode_images`: an empty
     `data.sh` afterwards), none of its arrays written. `tick` (`core.progress.Tick`): progress and cancel per chunk of texels
     encoded and per layer filled. `threads`: workers encoding chunks of texels (0 = every core,
-    `parallel.resolve_threads`); the files do not depend on it."""
+    `parallel.resolve_threads`); the files do not depend on it. `release_sh`: the SH's own
+    memory is spent too, given back behind the chunks encoded (`encode_images`): the caller
+    holds no other TexelData of the same SH (a bake, which reads it no more)."""
     h, w = data.atlas_shape
     fill = data.fill() if fill is None else fill
     raw_file_images = {}
@@ -272,7 +275,7 @@ def encode_atlas(
             spec.key: (spec, raw_images(spec, layers, fill, data=data)) for spec in (SH_FILE, TEXELS_FILE)
         }
         del layers
-    images, summary = encode_images(data, encoding, fill, tick=tick, threads=threads)
+    images, summary = encode_images(data, encoding, fill, tick=tick, threads=threads, release_sh=release_sh)
     files = {encoding.file.key: (encoding.file, images), **raw_file_images}
     stats = {"texels_baked": int(len(fill.valid)), "texels_buried": int(len(fill.invalid)), **summary}
     return EncodedAtlas(w, h, files, encoding.file, dict(encoding.settings), stats)
@@ -294,7 +297,7 @@ def raw_files(
 
 
 def encode_images(
-    data: TexelData, encoding: Encoding, fill: _dilate.Fill, tick=None, threads: int = 0
+    data: TexelData, encoding: Encoding, fill: _dilate.Fill, tick=None, threads: int = 0, release_sh: bool = False
 ) -> tuple[dict, dict]:
     """The encoding's channel images `(H, W)` (filled, packed) and its summary statistics.
     `data.sh` is taken (an empty image afterwards) once the texels are encoded, before the
@@ -303,7 +306,10 @@ def encode_images(
     (`core.progress.Tick`): reported per ENCODE_CHUNK texels and per layer filled. The chunks
     are encoded on `threads` workers (0 = every core; numpy releases the GIL in the fit's array
     operations), each chunk as it would be alone, and written in order: the same images and
-    statistics whatever the thread count."""
+    statistics whatever the thread count. `release_sh`: the SH image's rows (texels) before the
+    first baked texel of the chunks still to encode are given back as each chunk is written
+    (`memory.release_rows`: the SH image and the encoded values are not both whole at once);
+    they read 0 afterwards, in any TexelData of that SH."""
     from ..parallel import resolve_threads
     from ..progress import ticker
 
@@ -311,7 +317,9 @@ def encode_images(
     baked = fill.valid
     sh, normal = data.sh.reshape(h * w, 9, -1), data.normal.reshape(h * w, 3)
     channels = encoding.file.channels
-    values = {ch.name: np.zeros((h * w, ch.value_width), np.float32) for ch in channels}
+    # the baked texels' values only (their order in `baked`): the SH image and dense value
+    # images are never both whole at once (memory); placed in the images once the SH is taken
+    values = {ch.name: np.zeros((len(baked), ch.value_width), np.float32) for ch in channels}
     stats: list[dict] = []
     # the fill and packing of a layer: about a fifth of encoding its texels (per atlas texel, not baked)
     texels_part, layers_part = ticker(tick).split([len(baked), 0.2 * h * w * len(channels)])
@@ -320,7 +328,7 @@ def encode_images(
 
     def encoded(s: int):
         rows = baked[s : s + ENCODE_CHUNK]
-        return rows, encoding.encode(sh[rows], normal[rows])
+        return slice(s, s + len(rows)), encoding.encode(sh[rows], normal[rows])
 
     workers = min(resolve_threads(threads), len(starts))
     with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
@@ -331,24 +339,29 @@ def encode_images(
             pending.append(pool.submit(encoded, s))
             while len(pending) > 2 * workers or (s == starts[-1] and pending):
                 done += _take(pending.popleft().result(), values, stats)
+                if release_sh:  # the chunks still to encode read texels baked[done] on (sorted)
+                    release_rows(sh, int(baked[done]) if done < len(baked) else len(sh))
                 step(done)
     sh = data.sh = np.zeros((0, 0) + data.sh.shape[2:], np.float32)  # taken: the SH goes (memory)
     images = {}
     step = layers_part.counter(len(channels), lambda done, of: f"filling layer {done} of {of}")
     for k, ch in enumerate(channels):
-        images.update(layer_images(ch, values.pop(ch.name).reshape(h, w, ch.value_width), fill, data.window))
+        image = np.zeros((h * w, ch.value_width), np.float32)
+        image[baked] = values.pop(ch.name)
+        images.update(layer_images(ch, image.reshape(h, w, ch.value_width), fill, data.window))
+        del image
         step(k + 1)
     return images, encoding.summary(stats, len(baked))
 
 
 def _take(result, values: dict, stats: list) -> int:
-    """One encoded chunk (`encode_images`' `encoded`) into the value images, in chunk order; its
-    texel count."""
+    """One encoded chunk (`encode_images`' `encoded`: its texels' slice of the baked texels and
+    their values) into the baked texels' values, in chunk order; its texel count."""
     rows, out = result
     for name, v in out.values.items():
         values[name][rows] = v
     stats.append(out.stats)
-    return len(rows)
+    return rows.stop - rows.start
 
 
 def layer_images(

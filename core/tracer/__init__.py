@@ -29,7 +29,7 @@ import numpy as np
 
 from ..bakepoints import BakePoints
 from ..errors import BakeCancelled, BakeError
-from ..memory import trim_heap
+from ..memory import keep, trim_heap
 from ..rays import RayScene
 from ..scene import BakeScene
 from ..stages import TracedAtlas
@@ -72,6 +72,7 @@ def bake(
     executor: Executor | None = None,
     runner: Callable[..., scheduler.Outcome] | None = None,
     compact: bool = False,
+    spend_points: bool = False,
 ) -> TracedAtlas:
     """Trace every bake point; progressive passes of `pass_samples` each, each pass over the
     texels still converging (all of them unless `settings.noise_target` is set).
@@ -91,7 +92,13 @@ def bake(
     files are the same either way. The TracedAtlas then holds the bake points as the files take
     them (`BakePoints.for_files`: 41 of their 139 bytes a texel, once the caller drops `points`),
     and its SH and standard error can be freed a part at a time as they are imaged
-    (`encoding.TexelData.from_traced`)."""
+    (`encoding.TexelData.from_traced`).
+
+    `spend_points` (with `compact`, streamed): `points` is this call's (`core.memory`): the
+    arrays only tracing reads (`BakePoints.TRACING_ONLY`) are moved into memory given back a
+    chunk of texels at a time as each chunk is traced (`memory.release_rows`), so the bake
+    points and the reduced SH are not both whole at once; the caller reads none of `points`
+    afterwards (the TracedAtlas holds what the files take). The same SH either way."""
     if settings.pass_samples < 4 or settings.pass_samples % 4:
         raise BakeError(f"samples per pass must be a multiple of 4, got {settings.pass_samples}")
     if settings.noise_target < 0 or settings.time_budget < 0 or not np.isfinite(settings.noise_target):
@@ -101,8 +108,10 @@ def bake(
     estimator = texel_estimator(points, scene, settings, ray_scene)
     channels, sets = estimator.scene.channels, estimator.scene.sets
     if compact and runner is None and scheduler.streams(settings):
+        spent = _releasable(points) if spend_points else ()
         reduced = Reduced(points.normal, channels, points.buried, bool(sets))
-        outcome = scheduler.run_streamed(estimator, reduced, settings, start, progress, cancel, executor)
+        outcome = scheduler.run_streamed(estimator, reduced, settings, start, progress, cancel, executor, spent)
+        del spent
         trim_heap()  # what the tracer's threads freed (memory)
         return traced_atlas(points.for_files(), sets, reduced, settings, outcome, time.perf_counter() - start)
     stats = Statistics(len(points.texel), points.normal, channels)
@@ -113,6 +122,22 @@ def bake(
         del stats
         return traced_atlas(points.for_files(), sets, reduced, settings, outcome, time.perf_counter() - start)
     return traced_atlas(points, sets, stats, settings, outcome, time.perf_counter() - start)
+
+
+def _releasable(points: BakePoints) -> tuple[np.ndarray, ...]:
+    """The arrays of `points` only tracing reads (`BakePoints.TRACING_ONLY`), each moved into
+    `memory.releasable_zeros` memory (a copy set in its place, one at a time: the original goes
+    unless another reference holds it), per texel row: what a streamed trace may give back
+    behind its finished chunks."""
+    out = []
+    for name in BakePoints.TRACING_ONLY:
+        a = getattr(points, name)
+        if a is None or not len(a):
+            continue
+        setattr(points, name, keep(a))
+        del a
+        out.append(getattr(points, name))
+    return tuple(out)
 
 
 def traced_atlas(

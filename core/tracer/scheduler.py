@@ -45,6 +45,7 @@ from typing import Protocol
 import numpy as np
 
 from ..errors import BakeCancelled
+from ..memory import release_rows
 from .settings import MIN_ADAPTIVE_PASSES, BakeSettings
 from .statistics import Reduced, Statistics
 
@@ -156,9 +157,10 @@ class _Run:
                     return "noise_target"
         return "samples"
 
-    def streamed(self, pool: Executor, reduced: Reduced) -> str:
+    def streamed(self, pool: Executor, reduced: Reduced, spent: tuple[np.ndarray, ...] = ()) -> str:
         """Every pass of chunk 0, then of chunk 1, …, each chunk's statistics reduced into
-        `reduced` once its last pass is added (`run_streamed`)."""
+        `reduced` once its last pass is added, the rows of `spent` up to it then given back
+        (`run_streamed`)."""
         settings = self.settings
         n = len(reduced.passes)
         max_passes = settings.passes
@@ -182,6 +184,8 @@ class _Run:
             if unit.pass_index == max_passes - 1:  # the chunk is finished
                 reduced.take(first, stats)
                 del current["stats"]
+                for a in spent:  # the units queued ahead are of later chunks: rows ≥ end
+                    release_rows(a, end)
 
         def on_unit(done, of):
             if self.progress:
@@ -274,17 +278,20 @@ def run_streamed(
     progress: Callable[[float, str], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     executor: Executor | None = None,
+    spent: tuple[np.ndarray, ...] = (),
 ) -> Outcome:
     """`run` for settings that `streams`, into `reduced` (`statistics.Reduced`, of every texel)
     instead of whole-atlas running statistics: every pass of chunk 0, then of chunk 1, and so on
     (the same units, added in another order), each chunk reduced as soon as its last pass is in.
     A texel's statistics depend only on its own estimates in pass order (`statistics_kernels.add_pass`), so
-    the numbers are `run`'s, while full statistics exist for one chunk at a time."""
+    the numbers are `run`'s, while full statistics exist for one chunk at a time. `spent`: per-texel
+    arrays (`memory.releasable_zeros`') whose rows of every finished chunk are given back
+    (`memory.release_rows`: no later unit reads them; `tracer.bake`'s `spend_points`)."""
     if not streams(settings):
         raise ValueError("a noise target or a time budget needs every pass over the atlas in turn: use `run`")
     state = _Run(estimator, None, settings, start, progress, cancel)
     with _pool(executor, settings.threads) as pool:
-        stopped_by = state.streamed(pool, reduced)
+        stopped_by = state.streamed(pool, reduced, spent)
     return Outcome(stopped_by, state.rays)
 
 
