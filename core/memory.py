@@ -9,6 +9,12 @@ into the images, `encoding.encode_atlas` takes the SH out of its TexelData (writ
 arrays: a caller keeps them by handing over a new TexelData of the same arrays,
 `dataclasses.replace(data)`), `dilate.Fill.apply` fills the image it is handed.
 
+Two stages also give back, while they run, memory their caller would otherwise hold to their end,
+when it says nothing else reads it: `tracer.bake(spend_points=True)` the bake points' tracing-only
+arrays behind each traced chunk (a bake's runner, which drops them after), and
+`encoding.encode_atlas(release_sh=True)` the SH image behind each encoded chunk (a bake's
+finishing, whose TexelData is spent; a re-encode or a test keeps its SH and passes neither).
+
 A stage failing half-way leaves what it owned spent. Where the bake goes on without it (the
 denoiser failing: the SH passes through undenoised), the caller hands the stage a way to read
 its input back instead of a copy (`post.apply`'s `raw_sh`: the raw SH file written first).
