@@ -2,9 +2,9 @@
 #   make demo   - create .venv (Python 3.13, bpy 5.3.0) with the pinned packages, bake the
 #                 embedded demo into out/demo/ and export it to out/demo/demo.glb (docs/gltf.md)
 #   make test   - the test suite against the newest and the oldest supported Blender, side by
-#                 side: every test on bpy 5.3.0 in .venv (Python 3.13), and on bpy 4.2 LTS in
-#                 .venv-4.2 (Python 3.11) every test that touches Blender plus the fast core
-#                 tests (SUITE_OLD_MARKERS; markers in pyproject.toml). Each suite builds its
+#                 side: every test that touches Blender on both, bpy 5.3.0 in .venv (Python 3.13)
+#                 and bpy 4.2 LTS in .venv-4.2 (Python 3.11); the core tests on one or both
+#                 (SUITE_NEW_MARKERS, SUITE_OLD_MARKERS; markers in pyproject.toml). Each suite builds its
 #                 platform's zip and installs it into an isolated Blender user directory first.
 #                 Fails if either fails; the suites' times go to out/test-times/. This is what
 #                 .ci/run calls (after `make check` and `make package`).
@@ -25,8 +25,11 @@ PY_OLD     := $(VENV_OLD)/bin/python
 PYTEST_ARGS ?=
 # pytest's own report of the slowest tests, in every suite `make test` runs
 PYTEST_REPORT := --durations=25
-# bpy 4.2 LTS: what touches Blender, plus the core tests that are not heavy (those run on 5.3)
-SUITE_OLD_MARKERS := bpy or not (statistical or farm or slow)
+# Every bpy test runs on both Blenders. The core tests need no Blender: the fast ones run on both
+# interpreters, the heavy ones on one each, so that the two suites, run side by side, end
+# together: `slow` on 5.3 (Python 3.13, numpy 2), `statistical` and `farm` on 4.2 (3.11, numpy 1.26).
+SUITE_NEW_MARKERS := bpy or slow or not (statistical or farm)
+SUITE_OLD_MARKERS := bpy or not slow
 
 .PHONY: setup setup-4.2 setup-check check demo demo-web test test-new test-old test-core test-fast test-deps web-deps package oidn-weights bench clean
 
@@ -86,8 +89,8 @@ test: setup setup-4.2 test-deps web-deps
 	echo "== bpy 4.2 LTS (Python 3.11), in the background: $(PY_OLD) -m pytest -m \"$(SUITE_OLD_MARKERS)\""; \
 	( $(PY_OLD) -m pytest -q -m "$(SUITE_OLD_MARKERS)" $(PYTEST_REPORT) $(PYTEST_ARGS) \
 	  > out/test-times/bpy-4.2.log 2>&1; echo $$? > out/test-times/bpy-4.2.status ) & old=$$!; \
-	echo "== bpy 5.3.0 (Python 3.13): $(PY) -m pytest"; \
-	$(PY) -m pytest -q $(PYTEST_REPORT) $(PYTEST_ARGS) || status=1; \
+	echo "== bpy 5.3.0 (Python 3.13): $(PY) -m pytest -m \"$(SUITE_NEW_MARKERS)\""; \
+	$(PY) -m pytest -q -m "$(SUITE_NEW_MARKERS)" $(PYTEST_REPORT) $(PYTEST_ARGS) || status=1; \
 	echo "== bpy 5.3.0 suite: $$(( $$(date +%s) - start )) s"; \
 	wait $$old; cat out/test-times/bpy-4.2.log; \
 	test "$$(cat out/test-times/bpy-4.2.status)" = 0 || status=1; \
@@ -111,7 +114,7 @@ web/node_modules/.package-lock.json: web/package-lock.json web/package.json
 	fi
 
 test-new: setup
-	$(PY) -m pytest -q $(PYTEST_ARGS)
+	$(PY) -m pytest -q -m "$(SUITE_NEW_MARKERS)" $(PYTEST_ARGS)
 
 test-old: setup-4.2
 	$(PY_OLD) -m pytest -q -m "$(SUITE_OLD_MARKERS)" $(PYTEST_ARGS)
