@@ -52,11 +52,15 @@ def blend(rows, index: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """The bilinear reads of `bilinear_taps` (`index (S, 4)`, `weight (S, 4)`) from texel rows
     `rows (T, ...)` (an array or `FilledRows`/`_Stacked`, `[index]` -> `(S, ...)`) -> `(S, ...)`
     float64: the four taps weighted and added in tap order (whatever `rows` holds the texels,
-    the same values)."""
-    tail = rows.shape[1:]
+    the same values). Into buffers made once (an array's rows gathered into one): no new
+    pages for every tap's temporaries."""
+    tail, shape = rows.shape[1:], (-1,) + (1,) * len(rows.shape[1:])
     out = np.zeros((len(index),) + tail)
+    product = np.empty(out.shape)
+    taken = np.empty((len(index),) + tail, rows.dtype) if isinstance(rows, np.ndarray) else None
     for k in range(4):
-        out += weight[:, k].reshape((-1,) + (1,) * len(tail)) * rows[index[:, k]]
+        tap = rows[index[:, k]] if taken is None else np.take(rows, index[:, k], axis=0, out=taken)
+        out += np.multiply(weight[:, k].reshape(shape), tap, out=product)
     return out
 
 
