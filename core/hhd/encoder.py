@@ -14,8 +14,10 @@ from .fit import prepare
 from .lobes import MIN_COS, HHDParams, ambient_lobe
 from .search import GOLDEN_ITERATIONS, optimal_linear_angles, search_phi, search_theta
 
-#: Texels per chunk: small enough that the fit's (N,) temporaries stay in cache.
-CHUNK = 8192
+#: Texels per chunk: the fit's (N,) temporaries stay small, and its numpy calls few enough that
+#: the encoder's workers (`encoding.stage.encode_images`: chunk-parallel threads) do not queue on
+#: the GIL between them. Every step is per texel, so the values do not depend on it.
+CHUNK = 32768
 
 
 def check_shapes(sh, n_v) -> None:
