@@ -34,22 +34,23 @@ import psutil
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
-#: (module, function, label): the stages, outermost first (a stage inside another is indented).
+#: (modules, function, label): the stages, outermost first (a stage inside another is indented).
+#: A function is wrapped in every module (of `modules`, "|"-separated) that looks it up by name.
 WRAPPED = [
-    ("lightmap_files", "read_texel_data", "read raw files"),
-    ("lightmap_files", "read_seams", "read seams"),
+    ("files.lightmap_files", "read_texel_data", "read raw files"),
+    ("files.lightmap_files", "read_seams", "read seams"),
     ("post", "apply", "post stages"),
-    ("denoise", "denoise_texels", "denoise"),
-    ("seams", "stitch", "stitch SH"),
+    ("post.denoise.pages", "denoise_texels", "denoise"),
+    ("post.seams.stitching", "stitch", "stitch SH"),
     ("encoding", "encode_atlas", "encode"),
     ("encoding.stage", "encode_images", "encode texels + fill layers"),
     ("encoding.TexelData", "fill", "dilation (TexelData.fill)"),
-    ("seams", "stitch_encoded", "stitch encoded layers"),
-    ("seams", "hidden_texels", "hidden texels"),
-    ("seams", "_metric", "seam metric"),
-    ("seams", "_solve", "CG solve"),
-    ("lightmap_files", "write_atlas", "write"),
-    ("lightmap_files", "stage_preview", "preview images"),
+    ("post.seams.encoded_stitch", "stitch_encoded", "stitch encoded layers"),
+    ("post.seams.encoded_stitch", "hidden_texels", "hidden texels"),
+    ("post.seams.stitching|post.seams.encoded_stitch", "_metric", "seam metric"),
+    ("post.seams.stitching|post.seams.encoded_stitch", "_solve", "CG solve"),
+    ("files.lightmap_files", "write_atlas", "write"),
+    ("files.lightmap_files", "stage_preview", "preview images"),
 ]
 
 
@@ -123,10 +124,11 @@ def run(folder: Path, atlas: str, scratch: Path, keep: Path | None = None) -> di
     work = scratch / "lightmaps"
     shutil.copytree(folder, work)
     meter = Meter()
-    for module, name, label in WRAPPED:
-        owner = _owner(module)
-        if hasattr(owner, name):
-            meter.wrap(owner, name, label)
+    for modules, name, label in WRAPPED:
+        for module in modules.split("|"):
+            owner = _owner(module)
+            if hasattr(owner, name):
+                meter.wrap(owner, name, label)
     files = lightmap_files.AtlasFiles(work, atlas)
     encoder = EncoderSettings(**json.loads(files.sidecar.read_text())["encoder"])
     load = os.getloadavg()[0]

@@ -243,7 +243,10 @@ def _rgb(channels: list[np.ndarray]) -> dict:
     """R, G, B of a preview image, float32 so nothing clips: one channel repeated, or up to
     three with the missing ones zero. An almost empty atlas's images (`stages.PlacedImage`) stay
     as small."""
-    channels = list(channels) * 3 if len(channels) == 1 else list(channels)
+    if len(channels) == 1:  # one array for the three: converted once (memory)
+        image = channels[0].astype(np.float32, copy=False)
+        return dict.fromkeys("RGB", image)
+    channels = list(channels)
     zero = channels[0].zeros() if hasattr(channels[0], "zeros") else np.zeros_like(channels[0])
     channels += [zero] * (3 - len(channels))
     return {c: a.astype(np.float32, copy=False) for c, a in zip("RGB", channels)}

@@ -14,8 +14,10 @@ from .fit import prepare
 from .lobes import MIN_COS, HHDParams, ambient_lobe
 from .search import GOLDEN_ITERATIONS, optimal_linear_angles, search_phi, search_theta
 
-#: Texels per chunk: small enough that the fit's (N,) temporaries stay in cache.
-CHUNK = 8192
+#: Texels per chunk: the fit's (N,) temporaries stay small, and its numpy calls few enough that
+#: the encoder's workers (`encoding.stage.encode_images`: chunk-parallel threads) do not queue on
+#: the GIL between them. Every step is per texel, so the values do not depend on it.
+CHUNK = 32768
 
 
 def check_shapes(sh, n_v) -> None:
@@ -111,12 +113,14 @@ def encode_chunk(world_sh, n, invalid, *, searched, phi_search, theta_max, itera
     """encode() on one chunk of sanitised texels -> (I_z, w_a, d_world, clamped, invalid)."""
     fit, frames, local, iz, clamped, lum_fit = prepare(world_sh, n, **prepare_options)
     theta, phi = optimal_linear_angles(local, lum_fit, theta_max)
+    at = fit.at_phi(phi)  # the products at φ: made once for the θ search and the final fit
     if searched:
         if phi_search:
             theta, phi = search_phi(fit, phi, theta, theta_max, iterations)
+            at = fit.at_phi(phi)
         else:
-            theta, _ = search_theta(fit, phi, theta, theta_max, iterations)
-    _, w = fit.evaluate(theta, phi)
+            theta, _ = search_theta(fit, phi, theta, theta_max, iterations, at=at)
+    _, w = at.evaluate(theta)
     # Where the fit is all ambient (w = 1 up to rounding) the direction is irrelevant: store
     # n_v, which keeps the direction texture smooth for filtering.
     all_ambient = (w >= 1.0 - 1e-9).all(axis=1)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fit import Fit
+from .fit import Fit, FitAtPhi
 
 SCAN_STEPS = 9  # θ samples of the coarse scan, end points included
 GOLDEN_ITERATIONS = 14  # bracket 2θ_max/8 · 0.618^14 ≈ 5e-4 rad
@@ -45,12 +45,18 @@ def golden(f, lo: np.ndarray, hi: np.ndarray, iterations: int):
 
 
 def search_theta(
-    fit: Fit, phi: np.ndarray, theta_start: np.ndarray, theta_max: float, iterations: int = GOLDEN_ITERATIONS
+    fit: Fit,
+    phi: np.ndarray,
+    theta_start: np.ndarray,
+    theta_max: float,
+    iterations: int = GOLDEN_ITERATIONS,
+    at: FitAtPhi | None = None,
 ):
     """Best θ at fixed φ: coarse scan of [0, θ_max], golden-section in the best bracket, and the
-    starting θ (the optimal linear one) as a candidate. Returns (θ, objective), each `(N,)`."""
+    starting θ (the optimal linear one) as a candidate. Returns (θ, objective), each `(N,)`.
+    `at`: `fit.at_phi(phi)`, if the caller has it."""
     n = len(phi)
-    at = fit.at_phi(phi)
+    at = fit.at_phi(phi) if at is None else at
     grid = np.linspace(0.0, theta_max, SCAN_STEPS)
     scan = np.stack([at.evaluate(np.full(n, t))[0] for t in grid], axis=1)  # (N, S)
     k = np.argmin(scan, axis=1)

@@ -14,7 +14,7 @@ from ... import parallel
 from ...encoding import hhd as hhd_spec
 from ...progress import ticker
 from .geometry import Seams
-from .metrics import _brief, _metric, _placed
+from .metrics import _brief, _metric
 from .reads import _Stacked, bilinear, hhd_reader, hidden_texels, reads_hidden
 from .solve import _solve, _system
 
@@ -53,7 +53,7 @@ def stitch_encoded(
     tick = ticker(check)
     atlas_seams, seams = seams, seams.within(window)
     if len(seams) == 0:  # nothing to stitch: the same atlas and record, without the image copies
-        nothing = _brief(_metric(lambda xy: None, seams))  # type: ignore[arg-type, return-value]
+        nothing = _brief(_metric(lambda xy: None, seams))  # type: ignore[arg-type]
         record0 = {"enabled": True, "texels": 0, "iterations": 0, "before": nothing, "after": dict(nothing)}
         return atlas, {**record0, "seconds": time.perf_counter() - start}
     key = atlas.encoding_file.key
@@ -69,7 +69,7 @@ def stitch_encoded(
     visible = atlas_seams.select(shown)
     measure, *solves, after = tick.split([0.1, 0.4, 0.4, 0.1])
     measure.at(0.0, "measuring the seams")
-    before = _metric(_placed(hhd_reader(images, model), window), visible, worst=0)
+    before = _metric(hhd_reader(images, model).placed(window), visible, worst=0)
     packed = _Stacked([images[n] for n in directions], np.float64)
     gap = np.abs(bilinear(packed, seams.a) - bilinear(packed, seams.b)).max(axis=1)
     iterations, changed = 0, np.zeros(h * w, bool)
@@ -96,7 +96,7 @@ def stitch_encoded(
         "texels": int(np.count_nonzero(changed)),
         "iterations": iterations,
         "before": _brief(before),
-        "after": _brief(_metric(_placed(hhd_reader(out, model), window), visible, worst=0)),
+        "after": _brief(_metric(hhd_reader(out, model).placed(window), visible, worst=0)),
         "seconds": time.perf_counter() - start,
     }
     return replace(atlas, files=files), record

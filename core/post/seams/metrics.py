@@ -11,7 +11,7 @@ import numpy as np
 from ... import parallel
 from ...colour import LUMINANCE
 from .geometry import Seams, _unit
-from .reads import Reader, hidden_texels, reader_for, reads_hidden
+from .reads import Reader, blend, hidden_texels, reader_for, reads_hidden
 
 #: Relative errors divide by max(mean luminance of the two reads, REL_FLOOR × the mean over all
 #: samples): near-black samples, whose relative noise nobody can see, do not dominate.
@@ -73,29 +73,24 @@ def _metric(read: Reader, seams: Seams, worst: int = 10, tilt: float = TILT) -> 
     return out
 
 
-def _placed(read: Reader, window) -> Reader:
-    """`read` (of a window's images, `stages.Window`) reading at atlas positions: the window's
-    corner taken off each point once it is made (exactly: whole texels), so the reads are those
-    of the whole atlas's images. `read` itself without a window."""
-    if window is None:
-        return read
-    corner = np.array([window.x0, window.y0], np.float64)
-    return lambda xy: read(xy - corner)
-
-
 def _luminances(read: Reader, seams: Seams, normals: list[np.ndarray]) -> list[dict]:
     """The luminance of the irradiance the metric reads, per shading normal of `normals` (each
     `(S, 3)`; n_v is the seams' normal), by place: 'a', 'b' (the seam) and (side, offset)
-    inward: `[{place: (S,)}]`, one dict per normal. Each place is read once and evaluated at
-    every normal; the places are read on every core (`parallel.resolve_threads`: numpy's
-    gathers let go of the GIL), each worker holding one place's filtered texels at a time."""
+    inward: `[{place: (S,)}]`, one dict per normal. The texels the places' bilinear reads take
+    are gathered once (`_texels`: places overlap, and a texel's value may cost a look-up, as
+    `FilledRows`'), then each place is read from them (`reads.blend`: the values `read(xy)`
+    gives) and evaluated at every normal; the places are read on every core
+    (`parallel.resolve_threads`: numpy's gathers let go of the GIL), each worker holding one
+    place's filtered texels at a time."""
     places: list[tuple[Any, np.ndarray]] = [("a", seams.a), ("b", seams.b)]
     for side, xy, inward in (("a", seams.a, seams.inward_a), ("b", seams.b, seams.inward_b)):
         for offset in sorted(set(INTERIOR + EDGE_STEP)):
             places.append(((side, offset), xy + offset * inward))
+    index, rows = _texels(read, [xy for _, xy in places])
 
     def evaluate(xy: np.ndarray) -> list[np.ndarray]:
-        at = read(xy)
+        taps, weight = read.taps(xy)
+        at = read.shade(blend(rows, np.searchsorted(index, taps), weight))
         return [at(seams.normal, n) @ LUMINANCE for n in normals]
 
     with ThreadPoolExecutor(max_workers=min(parallel.resolve_threads(0), len(places))) as pool:
@@ -105,6 +100,18 @@ def _luminances(read: Reader, seams: Seams, normals: list[np.ndarray]) -> list[d
         for lum, value in zip(out, values):
             lum[key] = value
     return out
+
+
+def _texels(read: Reader, points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The texels the bilinear reads of `read` at each of `points` (`(S, 2)` each) take: their
+    flat indices `(T,)` sorted, unique, and their rows `read.texels[index]` `(T, ...)`."""
+    h, w = read.grid
+    taken = np.zeros(h * w, bool)
+    for xy in points:
+        taken[read.taps(xy)[0]] = True
+    index = np.flatnonzero(taken)
+    del taken
+    return index, read.texels[index]
 
 
 def _errors(lum: dict, seams: Seams):

@@ -6,7 +6,7 @@ hidden texels a seam sample must not read. No bpy."""
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -44,18 +44,41 @@ def bilinear(image, xy: np.ndarray) -> np.ndarray:
     """GPU bilinear read of `image (H, W, ...)` (an array, or `FilledRows` of one) at texel-unit
     points `xy (S, 2)` -> `(S, ...)` float64 (texel centres at i + ½, clamp to edge; see
     `bilinear_taps`)."""
-    flat: Any
-    if isinstance(image, (FilledRows, _Stacked)):
-        (h, w), flat, tail = image.grid, image, image.shape[1:]
-    else:
-        h, w = image.shape[:2]
-        tail = image.shape[2:]
-        flat = np.asarray(image).reshape((h * w,) + tail)
-    index, weight = bilinear_taps(xy, w, h)
+    (h, w), flat = _grid(image), _flat(image)
+    return blend(flat, *bilinear_taps(xy, w, h))
+
+
+def blend(rows, index: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The bilinear reads of `bilinear_taps` (`index (S, 4)`, `weight (S, 4)`) from texel rows
+    `rows (T, ...)` (an array or `FilledRows`/`_Stacked`, `[index]` -> `(S, ...)`) -> `(S, ...)`
+    float64: the four taps weighted and added in tap order (whatever `rows` holds the texels,
+    the same values). Into buffers made once (an array's rows gathered into one): no new
+    pages for every tap's temporaries."""
+    tail, shape = rows.shape[1:], (-1,) + (1,) * len(rows.shape[1:])
     out = np.zeros((len(index),) + tail)
+    product = np.empty(out.shape)
+    taken = np.empty((len(index),) + tail, rows.dtype) if isinstance(rows, np.ndarray) else None
     for k in range(4):
-        out += weight[:, k].reshape((-1,) + (1,) * len(tail)) * flat[index[:, k]]
+        tap = rows[index[:, k]] if taken is None else np.take(rows, index[:, k], axis=0, out=taken)
+        out += np.multiply(weight[:, k].reshape(shape), tap, out=product)
     return out
+
+
+def _grid(image) -> tuple[int, int]:
+    """(H, W) of an image `(H, W, ...)` or of `FilledRows`/`_Stacked` rows."""
+    if isinstance(image, (FilledRows, _Stacked)):
+        return image.grid  # type: ignore[return-value]
+    h, w = image.shape[:2]
+    return h, w
+
+
+def _flat(image):
+    """`image`'s texels as rows `(H·W, ...)` (`[index]` gathers them): `FilledRows`/`_Stacked`
+    themselves, an array reshaped (a view where it can be)."""
+    if isinstance(image, (FilledRows, _Stacked)):
+        return image
+    h, w = image.shape[:2]
+    return np.asarray(image).reshape((h * w,) + image.shape[2:])
 
 
 class FilledRows:
@@ -119,11 +142,38 @@ class FilledRows:
         self._put_values = np.asarray(values, self.dtype).reshape((len(index),) + self.flat.shape[1:])[order]
 
 
-#: A way of reading a lightmap: points `xy (S, 2)` (texel units) -> a function of the unit vertex
-#: normal `n_v (S, 3)` and shading normal `n (S, 3)` there giving irradiance `(S, 3)`
-#: (docs/conventions.md#irradiance-units). The filtered texels are read once per set of points, the
-#: normals applied after.
-Reader = Callable[[np.ndarray], Callable[[np.ndarray, np.ndarray], np.ndarray]]
+class Reader:
+    """A way of reading a lightmap as the preview does: called with points `xy (S, 2)` (texel
+    units of the atlas) it gives a function of the unit vertex normal `n_v (S, 3)` and shading
+    normal `n (S, 3)` there giving irradiance `(S, 3)` (docs/conventions.md#irradiance-units); the
+    filtered texels are read once per set of points, the normals applied after.
+
+    In two steps, which a caller reading many sets of points can take itself (`seams.metrics`:
+    each texel gathered once): `texels` the image's texel rows (`[flat index]` -> per texel
+    values, float, of the `grid` (H, W)), read bilinearly (`blend` of `bilinear_taps` at
+    `xy − corner`: the images may be a window of the atlas, `stages.Window`), then
+    `shade(filtered (S, ...))` -> the function of (n_v, n)."""
+
+    def __init__(self, texels, shade: Callable, corner: tuple[int, int] = (0, 0)):
+        self.texels, self.shade, self.corner = _flat(texels), shade, corner
+        self.grid: tuple[int, int] = _grid(texels)
+
+    def __call__(self, xy: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        return self.shade(blend(self.texels, *self.taps(xy)))
+
+    def taps(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`bilinear_taps` of atlas points `xy (S, 2)` on the images (flat indices `(S, 4)`, weights)."""
+        h, w = self.grid
+        if self.corner != (0, 0):
+            xy = xy - np.array(self.corner, np.float64)  # exactly: whole texels
+        return bilinear_taps(xy, w, h)
+
+    def placed(self, window) -> Reader:
+        """This reader of a window's images (`stages.Window`) reading at atlas positions (the
+        window's corner taken off each point); itself without a window."""
+        if window is None:
+            return self
+        return Reader(self.texels, self.shade, (int(window.x0), int(window.y0)))
 
 
 def sh_reader(sh_image: np.ndarray | FilledRows) -> Reader:
@@ -132,11 +182,11 @@ def sh_reader(sh_image: np.ndarray | FilledRows) -> Reader:
     preview does: bilinear SH, bands × 1, 2/3, 1/4, evaluated at n."""
     from ... import sh as _sh
 
-    def read(xy):
-        irradiance_sh = _sh.convolve_cosine(bilinear(sh_image, xy))
+    def shade(radiance_sh):
+        irradiance_sh = _sh.convolve_cosine(radiance_sh)
         return lambda n_v, n: np.einsum("sk,skc->sc", _sh.evaluate(n), irradiance_sh)
 
-    return read
+    return Reader(sh_image, shade)
 
 
 def hhd_reader(images: Mapping[str, np.ndarray], model: str = "hhd") -> Reader:
@@ -161,8 +211,7 @@ def hhd_reader(images: Mapping[str, np.ndarray], model: str = "hhd") -> Reader:
     )
     hhd = model.lower() == "hhd"
 
-    def read(xy):
-        values = bilinear(layers, xy)
+    def shade(values):
         iz, wa, d = values[:, :3], values[:, 3:-3], values[:, -3:]
         d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-30)
 
@@ -175,7 +224,7 @@ def hhd_reader(images: Mapping[str, np.ndarray], model: str = "hhd") -> Reader:
 
         return at
 
-    return read
+    return Reader(layers, shade)
 
 
 def _decoded(packed: np.ndarray) -> np.ndarray:

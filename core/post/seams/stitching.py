@@ -12,7 +12,7 @@ import numpy as np
 from ... import parallel
 from ...progress import ticker
 from .geometry import Seams, _unit
-from .metrics import _brief, _metric, _placed
+from .metrics import _brief, _metric
 from .reads import FilledRows, reads_hidden, sh_reader
 from .solve import _groups, _solve, _System, _system
 
@@ -103,7 +103,7 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
     # reads changes, up to gutter texels of thin charts whose nearest source moved).
     visible = atlas_seams.select(shown)
     image = FilledRows(data.sh.reshape(h * w, 9, -1), fill, (h, w), keep_black=True)
-    read = _placed(sh_reader(image), data.window)
+    read = sh_reader(image).placed(data.window)
     rest.at(0.3, "measuring the seams")
     record["before"] = _brief(_metric(read, visible, worst=0))
     image.put(texels, new)  # the stitched SH, as the filled copy would read it
