@@ -81,6 +81,17 @@ def release_rows(a: np.ndarray, stop: int) -> None:
         memory.madvise(mmap.MADV_DONTNEED, first, last - first)
 
 
+def row_blocks(n: int, size: int) -> list[slice]:
+    """Rows 0..n as consecutive blocks of nearly equal length, at most `size` (≥ 1) each, for a
+    stage to work through a block at a time where its values are each row's own (the same
+    whatever the block). No block is shorter than half of `size` unless all `n` rows are: numpy
+    takes other paths for very few rows (a matrix product of one row is a dot product, whose
+    rounding may differ)."""
+    count = max(1, -(-n // size))
+    bounds = [n * k // count for k in range(count + 1)]
+    return [slice(a, b) for a, b in zip(bounds, bounds[1:])]
+
+
 def trim_heap() -> None:
     """Give the C heap's free memory back to the system (glibc's `malloc_trim(0)`; nothing where
     the C library has none). Called between stages: the bake points' and the tracer's worker
