@@ -202,6 +202,10 @@ class BakeSession:
                 core_bake.AtlasInput(name, width, height, surface, [o.name for o in members], instance_records(members))
             )
         self.warnings += list(dict.fromkeys(notes))
+        # what `describe` and the sidecars say of the inputs, which `run` hands over (memory)
+        self.occluder_triangles = int(len(self.scene.triangles))
+        self.atlas_count = len(self.atlases)
+        self.atlas_objects = [o for a in self.atlases for o in a.objects]
         # what the lighting depends on, for Bake Changed and the stale report (core.incremental)
         self.fingerprints = fingerprints.scene_fingerprints(context, groups, settings.uv_layer)
         self.pack = settings.pack_images
@@ -210,9 +214,9 @@ class BakeSession:
         self.results: list[core_bake.AtlasResult] = []
 
     def describe(self) -> str:
-        n_occ = len(self.scene.triangles)
+        n_occ = self.occluder_triangles
         return (
-            f"{len(self.receivers)} receiver(s) in {len(self.atlases)} atlas(es)"
+            f"{len(self.receivers)} receiver(s) in {self.atlas_count} atlas(es)"
             f"{_probes_text(self.probe_grids)}; {n_occ} occluder triangles; "
             f"{_samples_text(self.settings.trace)}, {self.settings.trace.bounces} bounces, "
             f"{'denoise' if self.settings.denoise else 'no denoise'}, "
@@ -235,15 +239,18 @@ class BakeSession:
     def _run(self, progress, cancel, farm) -> list[core_bake.AtlasResult]:
         extra = {
             "blend_file": self.blend,
-            "receivers": [o for a in self.atlases for o in a.objects],
-            "occluder_triangles": int(len(self.scene.triangles)),
+            "receivers": self.atlas_objects,
+            "occluder_triangles": self.occluder_triangles,
             "notes": self.warnings,
             "fingerprints": self.fingerprints.to_json(),
-            "baked": dict.fromkeys((o for a in self.atlases for o in a.objects), self.fingerprints.to_json()["time"]),
+            "baked": dict.fromkeys(self.atlas_objects, self.fingerprints.to_json()["time"]),
         }
+        # the atlases and the scene are handed over, no reference kept here nor in this frame
+        # (the call takes its arguments' references): `core.bake.run` lets go of them as soon as
+        # the bake no longer reads them, the scene before the last atlas's finishing (memory)
         self.results = core_bake.run(
-            self.atlases,
-            self.scene,
+            self._hand_over("atlases"),
+            self._hand_over("scene"),
             self.settings,
             self.out_dir,
             progress=progress,
@@ -253,6 +260,15 @@ class BakeSession:
             farm=farm,
         )
         return self.results
+
+    def _hand_over(self, name: str):
+        """The session's `name` input (atlases, scene), the session keeping no reference to it:
+        a session runs once (`run`)."""
+        value = getattr(self, name)
+        if value is None:
+            raise RuntimeError(f"this bake session has run already: its {name} were handed over")
+        setattr(self, name, None)
+        return value
 
     def finish(self) -> str:
         """Load the written images into the .blend; returns a one-line summary (the bake's

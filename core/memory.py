@@ -15,13 +15,22 @@ arrays behind each traced chunk (a bake's runner, which drops them after), and
 `encoding.encode_atlas(release_sh=True)` the SH image behind each encoded chunk (a bake's
 finishing, whose TexelData is spent; a re-encode or a test keeps its SH and passes neither).
 
+A bake lets go of its inputs as it goes (`bake.run`): the atlases' surfaces once the bake points
+are built, the scene and its Embree scene once the last atlas is traced, before its finishing
+(unless probe volumes follow); its caller hands them over keeping no reference
+(`bridge.bake_session.BakeSession.run`). Within a stage, what is per texel or per sample is
+worked through in blocks (`row_blocks`) where a whole-array temporary would be atlas-sized or
+as large as the seams (the stitch's metric and bound).
+
 A stage failing half-way leaves what it owned spent. Where the bake goes on without it (the
 denoiser failing: the SH passes through undenoised), the caller hands the stage a way to read
 its input back instead of a copy (`post.apply`'s `raw_sh`: the raw SH file written first).
 
 The plumbing: arrays whose pages go back to the system while they are alive, a part at a time
-as a stage spends them (`releasable_zeros`, `release_rows`), and the C heap trimmed between
-stages (`trim_heap`). Within a stage, plain `del` drops what it no longer needs.
+as a stage spends them (`releasable_zeros`, `release_rows`; an image zero outside the charts
+is one too, its empty pages never resident), blocks of rows (`row_blocks`), and the C heap
+trimmed between stages and between a stage's steps whose threads free much (`trim_heap`).
+Within a stage, plain `del` drops what it no longer needs.
 """
 
 from __future__ import annotations
@@ -79,6 +88,17 @@ def release_rows(a: np.ndarray, stop: int) -> None:
     last = end // mmap.PAGESIZE * mmap.PAGESIZE
     if last > first:
         memory.madvise(mmap.MADV_DONTNEED, first, last - first)
+
+
+def row_blocks(n: int, size: int) -> list[slice]:
+    """Rows 0..n as consecutive blocks of nearly equal length, at most `size` (≥ 1) each, for a
+    stage to work through a block at a time where its values are each row's own (the same
+    whatever the block). No block is shorter than half of `size` unless all `n` rows are: numpy
+    takes other paths for very few rows (a matrix product of one row is a dot product, whose
+    rounding may differ)."""
+    count = max(1, -(-n // size))
+    bounds = [n * k // count for k in range(count + 1)]
+    return [slice(a, b) for a, b in zip(bounds, bounds[1:])]
 
 
 def trim_heap() -> None:

@@ -344,6 +344,31 @@ def test_no_seams_changes_nothing_and_the_solver_does_not_depend_on_its_thread_c
     np.testing.assert_array_equal(one.sh, two.sh)
 
 
+def test_the_stitch_in_blocks_is_the_stitch_in_one_block(sphere_cylinder, monkeypatch):
+    """The metric's reads and the bound work through samples and texels in blocks (memory,
+    `memory.row_blocks`): blocks of a few dozen give the bits and the record one block gives."""
+    data = linear_data(sphere_cylinder)
+    found = geometry.find_seams(sphere_cylinder.mesh, RES, RES)
+    whole, whole_record = stitching.stitch(memory.keep(data), found)
+    monkeypatch.setattr(metrics, "READ_SAMPLES", 48)
+    monkeypatch.setattr(stitching, "BOUND_ROWS", 40)
+    assert len(found) > 10 * metrics.READ_SAMPLES and whole_record["texels"] > 10 * stitching.BOUND_ROWS
+    blocks, blocks_record = stitching.stitch(memory.keep(data), found)
+    np.testing.assert_array_equal(blocks.sh, whole.sh)
+    np.testing.assert_array_equal(blocks.extra_sources, whole.extra_sources)
+    whole_record.pop("seconds"), blocks_record.pop("seconds")
+    assert blocks_record == whole_record
+
+
+def test_row_blocks_cover_the_rows_in_order_none_much_shorter_than_the_others():
+    for n, size in ((0, 8), (1, 8), (7, 8), (8, 8), (9, 8), (1000, 48), (1 << 16, 1 << 14)):
+        blocks = memory.row_blocks(n, size)
+        assert blocks[0].start == 0 and blocks[-1].stop == n
+        assert all(a.stop == b.start for a, b in zip(blocks, blocks[1:]))
+        lengths = [b.stop - b.start for b in blocks]
+        assert max(lengths) <= size and (n < size or min(lengths) >= size // 2)
+
+
 def test_stitching_can_be_cancelled_between_solver_iterations(sphere_cylinder):
     calls = []
 

@@ -117,6 +117,47 @@ def test_cancel_leaves_the_blend_and_the_previous_files_unchanged(baked_scene):
     assert {p: p.read_bytes() for p in (folder / "lightmaps").rglob("*") if p.is_file()} == files
 
 
+def test_a_bake_lets_go_of_its_scene_before_the_last_atlas_is_finished(baked_scene, monkeypatch):
+    """The session hands its scene and atlases over to `core.bake.run`, which lets go of what the
+    bake no longer reads (memory): the atlases' surfaces once the bake points are built, the
+    scene and its Embree scene once the last atlas is traced, before its finishing. The session
+    runs once."""
+    import weakref
+
+    import bpy
+
+    from hhd_lightmapper.bridge import bake_session
+    from hhd_lightmapper.core import bake
+
+    scene, receivers, folder = baked_scene
+    kit.select(receivers)
+    session = bake_session.BakeSession(bpy.context)
+    refs = {"scene": weakref.ref(session.scene)}
+    refs.update({f"surface of {a.name}": weakref.ref(a.surface) for a in session.atlases})
+    make = bake.ray_scene_of
+
+    def ray_scene_of(s):
+        out = make(s)
+        refs["Embree scene"] = weakref.ref(out)
+        return out
+
+    monkeypatch.setattr(bake, "ray_scene_of", ray_scene_of)
+    alive = {}  # per progress message, what is still alive
+
+    def progress(fraction, message):
+        alive.setdefault(message, {name for name, ref in refs.items() if ref() is not None})
+
+    session.run(progress=progress)
+    tracing = [names for message, names in alive.items() if "chunk" in message]
+    finishing = [names for message, names in alive.items() if "seams" in message or "imaging" in message]
+    assert tracing and finishing
+    assert all(names == {"scene", "Embree scene"} for names in tracing), tracing
+    assert all(not names for names in finishing), finishing
+    assert (folder / "lightmaps" / "Lightmap.json").is_file()
+    with pytest.raises(RuntimeError, match="has run already"):
+        session.run()
+
+
 def run_cli_process(blend, *args, env=None, **kw):
     return subprocess.run(
         [sys.executable, "-m", "hhd_lightmapper.cli", str(blend), *args],

@@ -28,7 +28,7 @@ from pathlib import Path
 
 from .. import parallel, probes, tracer
 from .. import progress as meter
-from ..bakepoints import SurfaceTriangles, inward
+from ..bakepoints import BakePoints, SurfaceTriangles, inward
 from ..encoding import EncoderSettings
 from ..errors import BakeError
 from ..files import exr, lightmap_files
@@ -97,7 +97,14 @@ def run(
     from the texels it works on (`_atlas_costs`), and reports within it (per tracer chunk,
     denoiser band, stitch iteration, encode chunk, band of written rows), its name in the
     message; the fraction never goes back and is 1.0 only once the files are committed. A
-    cancel is honoured at the same grain."""
+    cancel is honoured at the same grain.
+
+    Memory (`core.memory`): `atlases` and `scene` are only read, and this function lets go of its
+    own references to them, and to what it makes of them (the Embree scene, the inward-turned
+    copies), as soon as what is left of the bake no longer reads them: each atlas's surface once
+    every bake point is built, the scene and the Embree scene once the last atlas is traced,
+    before its finishing (unless probe volumes follow). A caller that hands them over without
+    keeping a reference (`bridge.bake_session.BakeSession.run`) lets that memory go then."""
     if not atlases and not probe_grids:
         raise BakeError("nothing to bake: no target objects")
     runner = runners.runner_for(farm)
@@ -108,24 +115,24 @@ def run(
     t0 = time.perf_counter()
     atlases, found, scene = check_inward(atlases, scene, settings.inward_faces)
     ray_scene = ray_scene_of(scene)
-    points = []
     # until the bake points are known, half of each atlas's texels is a guess of its baked texels
     guess = [a.width * a.height // 2 for a in atlases]
     report.plan(sum(meter.COST_POINTS * n + sum(_atlas_costs(n, 2 * n, settings)) for n in guess))
     report.plan(_probes_cost(probe_grids or [], settings.trace))
     build = runner.bake_points(atlases, scene, ray_scene, settings.trace.threads, cancel)
-    for i, atlas in enumerate(atlases):
-        tick = report.span(meter.COST_POINTS * guess[i])
-        _check_cancel(cancel)
-        points.append(build[i]())
-        inward.count_texels(found[i], points[-1].triangle)
-        tick.show(1.0, f"bake points of '{atlas.name}': {len(points[-1].texel)} texels")
+    points = _built_points(atlases, build, found, guess, report, cancel)
     t_points = time.perf_counter() - t0
+    # the surfaces were the bake points' (memory: nothing after them reads a surface)
+    atlases = [atlas.without_surface() for atlas in atlases]
     # what is left, from the texels now known
     report.left = sum(sum(_atlas_costs(len(p.texel), _window_texels(a, p), settings)) for a, p in zip(atlases, points))
     report.plan(_probes_cost(probe_grids or [], settings.trace))
     extras = [_inward_sidecar(extra_sidecar or {}, f, settings.inward_faces) for f in found]
     jobs = runners.AtlasJobs(atlases, points, scene, ray_scene, settings, t_points, extras)
+    # from here the jobs hold the scene and its RayScene, and let go of them once every atlas is
+    # traced (`AtlasJobs.traced_all`); this function keeps the scene only for the probe volumes
+    probe_scene = scene if probe_grids else None
+    del scene, ray_scene
     runner.start(jobs, out_dir)  # a farm's tracing of every atlas starts now; `atlases` collects them in turn
     with exr.Staging() as staging:
         results = runner.atlases(jobs, Staged(staging, Path(out_dir)), report, cancel)
@@ -133,12 +140,27 @@ def run(
             result.inward = [item.message(settings.inward_faces) for item in items]
             result.warnings[:0] = result.inward
         if probe_grids:
-            results.extend(_bake_probes(staging, probe_grids, scene, settings, Path(out_dir), report, cancel))
+            assert probe_scene is not None
+            results.extend(_bake_probes(staging, probe_grids, probe_scene, settings, Path(out_dir), report, cancel))
         _check_cancel(cancel)
         staging.commit()
     runner.finished()
     report.finish(f"baked {_counted(len(atlases), 'atlas', 'atlases')}")
     return results
+
+
+def _built_points(atlases, build: list, found, guess: list[int], report: Progress, cancel) -> list[BakePoints]:
+    """Each atlas's bake points, in turn (`build`: the runner's functions, `AtlasRunner.bake_points`,
+    each let go of once called: it holds its atlas's surface), their texels counted in its
+    inward faces' records (`found`); `guess`: its planned texels."""
+    points = []
+    for i, atlas in enumerate(atlases):
+        tick = report.span(meter.COST_POINTS * guess[i])
+        _check_cancel(cancel)
+        points.append(build.pop(0)())
+        inward.count_texels(found[i], points[-1].triangle)
+        tick.show(1.0, f"bake points of '{atlas.name}': {len(points[-1].texel)} texels")
+    return points
 
 
 def _counted(n: int, one: str, many: str) -> str:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import cast
 
 from .. import tracer
 from ..bakepoints import SurfaceTriangles, inward
@@ -19,7 +20,9 @@ class AtlasInput:
     """One atlas to bake: its name (file stem), size in texels, the receiving triangles and the
     names of the objects they belong to (`surface.object_index` indexes `objects`); instances:
     {object name: {"mesh", "scale", "offset"}} of the objects that share their mesh's lightmap
-    UVs (`core.unwrap.instances`; the surface's UVs are already atlas UVs), recorded in the sidecar."""
+    UVs (`core.unwrap.instances`; the surface's UVs are already atlas UVs), recorded in the sidecar.
+    Only the bake points read the surface: past them a bake's jobs carry its atlases without it
+    (`without_surface`: memory), as a farm's finishing task does."""
 
     name: str
     width: int
@@ -27,6 +30,10 @@ class AtlasInput:
     surface: SurfaceTriangles
     objects: list[str]
     instances: dict = field(default_factory=dict)
+
+    def without_surface(self) -> AtlasInput:
+        """This atlas with its surface None, for what follows its bake points (nothing reads it)."""
+        return replace(self, surface=cast(SurfaceTriangles, None))
 
 
 @dataclass(frozen=True)

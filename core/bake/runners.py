@@ -25,21 +25,34 @@ from .points import check_points, points_of
 _STAGES = (0.08, 0.84, 0.08)
 
 
-@dataclass(frozen=True)
+@dataclass
 class AtlasJobs:
     """What every atlas's job of one bake shares, as `run` hands it to its runner: the atlases
-    (their inward faces turned round, `points.check_inward`), their bake points (each set to None
-    once its atlas no longer needs it: memory), the scene to trace and its RayScene (None without
-    geometry), the settings (threads resolved), the seconds the bake points took, and per atlas
-    the sidecar's extra keys."""
+    (their inward faces turned round, `points.check_inward`; without their surfaces, which only
+    the bake points read), their bake points (each set to None once its atlas no longer needs
+    it: memory), the scene to trace and its RayScene (None without geometry; both None once
+    every atlas is traced, `traced_all`), the settings (threads resolved), the seconds the bake
+    points took, and per atlas the sidecar's extra keys."""
 
     atlases: list[AtlasInput]
     points: list  # of BakePoints, None once dropped
-    scene: BakeScene
+    scene: BakeScene | None
     ray_scene: RayScene | None
     settings: PipelineSettings
     t_points: float
     extras: list[dict]
+
+    def traced_all(self) -> None:
+        """Every atlas is traced: the jobs let go of the scene and its RayScene, which nothing
+        after the trace reads (memory: the Embree scene and the scene's triangles; a bake with
+        probe volumes keeps its own reference to the scene for them, `run`)."""
+        self.scene = self.ray_scene = None
+
+    def scene_to_trace(self) -> BakeScene:
+        """The scene, while some atlas is still to trace (`traced_all` lets go of it)."""
+        if self.scene is None:
+            raise RuntimeError("every atlas of this bake is traced: its scene was let go")
+        return self.scene
 
 
 class AtlasRunner(Protocol):
@@ -112,7 +125,7 @@ class FarmRunner:
 
     def start(self, jobs: AtlasJobs, out_dir) -> None:
         """Every atlas's tracing starts now; `atlases` collects them in turn."""
-        settings, scene, ray_scene = jobs.settings, jobs.scene, jobs.ray_scene
+        settings, scene, ray_scene = jobs.settings, jobs.scene_to_trace(), jobs.ray_scene
         for atlas, pts in zip(jobs.atlases, jobs.points):
             self.farm.submit(
                 atlas.name, out_dir, tracer.texel_estimator(pts, scene, settings.trace, ray_scene), settings.trace
@@ -133,8 +146,11 @@ def _checked(atlas: AtlasInput, wait: Callable[[], BakePoints]) -> BakePoints:
 
 def _local_atlases(jobs: AtlasJobs, out: Staged, report, cancel) -> list[AtlasResult]:
     """Every atlas here, one after the other: trace, then `finish_atlas`, its files staged into
-    `out` as soon as it is traced (its SH lives on only as float32 images)."""
-    atlases, points, scene, ray_scene = jobs.atlases, jobs.points, jobs.scene, jobs.ray_scene
+    `out` as soon as it is traced (its SH lives on only as float32 images). The last atlas is
+    finished without the scene (`AtlasJobs.traced_all`)."""
+    # the scene and its RayScene are read from `jobs` (no reference of this function's): they go
+    # once the last atlas is traced, before its finishing (`AtlasJobs.traced_all`)
+    atlases, points = jobs.atlases, jobs.points
     settings, t_points, extras = jobs.settings, jobs.t_points, jobs.extras
     total_texels = sum(len(p.texel) for p in points)
     results, done_texels = [], 0
@@ -150,15 +166,17 @@ def _local_atlases(jobs: AtlasJobs, out: Staged, report, cancel) -> list[AtlasRe
         # spend_points: the bake points' tracing arrays go behind the chunks traced (memory)
         traced = tracer.bake(
             pts,
-            scene,
+            jobs.scene_to_trace(),
             trace,
             progress=tracing.show,
             cancel=cancel,
-            ray_scene=ray_scene,
+            ray_scene=jobs.ray_scene,
             compact=True,
             spend_points=True,
         )
         del pts
+        if i == len(atlases) - 1:
+            jobs.traced_all()
         done_texels += n
         _check_cancel(cancel)
         _, finish = _atlas_costs(n, area, settings, len(traced.sets))
@@ -177,7 +195,7 @@ def _farm_atlases(farm, jobs: AtlasJobs, out: Staged, report, cancel) -> list[At
     encoding on a worker, `farm.finish`), staging the files of every finished one into `out` as
     it comes back. An atlas the workers cannot denoise as this process would comes back traced
     and is finished here (`finish_atlas`)."""
-    atlases, points, scene, ray_scene = jobs.atlases, jobs.points, jobs.scene, jobs.ray_scene
+    atlases, points, scene, ray_scene = jobs.atlases, jobs.points, jobs.scene_to_trace(), jobs.ray_scene
     settings, t_points, extras = jobs.settings, jobs.t_points, jobs.extras
     total = sum(len(p.texel) for p in points)
     results: list = [None] * len(atlases)

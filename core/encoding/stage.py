@@ -218,7 +218,10 @@ def _placement(points: BakePoints, crop: bool) -> tuple[np.ndarray, int, int, Wi
 
 def _image_at(values: np.ndarray, texel: np.ndarray, h: int, w: int, fill: float = 0.0) -> np.ndarray:
     """`BakePoints.image` of `values` at flat indices `texel` of an `h` × `w` image, float32."""
-    out = np.full((h * w,) + values.shape[1:], fill, np.float32)
+    if fill == 0.0 and not np.signbit(fill):  # pages outside the charts never written: not resident (memory)
+        out = releasable_zeros((h * w,) + values.shape[1:], np.float32)
+    else:
+        out = np.full((h * w,) + values.shape[1:], fill, np.float32)
     out[texel] = values
     return out.reshape((h, w) + values.shape[1:])
 

@@ -178,12 +178,12 @@ def _denoise_page(
 ) -> None:
     """One page denoised whole, its chart texels written into `out` `(H·W, 9, 3)` (clamped to
     the noise if `noise` (`_ChartNoise`) is given) and marked in `written` (H·W,) first. It reads a copy
-    of the page's texels' SH (`out` may be `sh`), no larger than one band of a banded page,
-    whose window is taller than this page."""
+    of the page's texels' SH (`out` may be `sh`: the noise clamp reads each chunk's traced SH
+    there before writing it), no larger than one band of a banded page, whose window is taller
+    than this page."""
     rows, cols, atlas_index = _page_texels(page, labels)
-    traced = sh[atlas_index]
     ok = finite[atlas_index]
-    chart_sh = np.where(ok[:, None, None], traced, np.float32(0.0))
+    chart_sh = np.where(ok[:, None, None], sh[atlas_index], np.float32(0.0))
     values = np.zeros(page.shape + (9, 3), np.float32)
     values[rows, cols] = chart_sh
     normals = np.zeros(page.shape + (3,), np.float32)
@@ -200,7 +200,9 @@ def _denoise_page(
     clean = _denoise_features(features, unit_normals, source, denoiser, scales, (rows, cols))
     del features, unit_normals, source
     written[atlas_index] = True
-    _write(out, atlas_index, clean, traced, noise)
+    # the traced SH the noise clamp needs read from `sh` as each chunk is written (memory: no copy
+    # of the page's SH kept through the filter; nothing wrote these texels since they were read)
+    _write(out, atlas_index, clean, sh, noise, gather=True)
 
 
 def _band_rows(shape: tuple[int, int]) -> int:

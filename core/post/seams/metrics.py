@@ -3,6 +3,7 @@ the texel-to-texel step inside the charts (`seam_metric`; `_metric` on a `Reader
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -10,6 +11,7 @@ import numpy as np
 
 from ... import parallel
 from ...colour import LUMINANCE
+from ...memory import row_blocks
 from .geometry import Seams, _unit
 from .reads import Reader, blend, hidden_texels, reader_for, reads_hidden
 
@@ -23,6 +25,9 @@ TILT = np.radians(30.0)
 #: border between reads at EDGE_STEP.
 INTERIOR = (1.5, 2.5)
 EDGE_STEP = (0.5, 1.5)
+#: Seam samples a worker reads at once (`_luminances`; memory: a read holds each sample's filtered
+#: texels, float64, a few times over: ~1 kB a sample).
+READ_SAMPLES = 1 << 14
 
 
 def seam_metric(source, seams: Seams, worst: int = 10, tilt: float = TILT, coverage: np.ndarray | None = None) -> dict:
@@ -61,15 +66,27 @@ def _metric(read: Reader, seams: Seams, worst: int = 10, tilt: float = TILT) -> 
     across = _unit(np.cross(n, t))
     tilted = [_unit(np.cos(tilt) * n + sign * np.sin(tilt) * v) for v in (t, across) for sign in (1.0, -1.0)]
     lum = _luminances(read, seams, [n, *tilted])
-    seam_err, seam_w, inner, edge, valid = _errors(lum[0], seams)
+    seam_err, seam_w, inner, edge, valid = _errors(lum.pop(0), seams)
     out: dict = {"samples": len(seams), "edges": seams.edges, "invalid": int(np.count_nonzero(~valid))}
     out.update(_summary(seam_err, seam_w, inner, edge))
     out["worst_edges"] = _worst_edges(seams, seam_err, seam_w, valid, worst)
-    parts = [_errors(at_normal, seams) for at_normal in lum[1:]]
-    pooled = [np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])]
-    inner_t = tuple(np.concatenate([p[2][k] for p in parts]) for k in range(2))
-    edge_t = tuple(np.concatenate([p[3][k] for p in parts]) for k in range(2))
-    out["tilted"] = _summary(pooled[0], pooled[1], inner_t, edge_t)
+    del seam_err, seam_w, inner, edge
+    # the tilted normals' errors pooled: (seam errors, weights, interior's, edge step's) as columns,
+    # each normal's luminances dropped once its errors are taken, each column once joined (memory)
+    columns: list[list[np.ndarray]] = [[] for _ in range(6)]
+    while lum:
+        err, w, inner_n, edge_n, _ = _errors(lum.pop(0), seams)
+        for column, part in zip(columns, (err, w, *inner_n, *edge_n)):
+            column.append(part)
+    pooled = [_joined(column) for column in columns]
+    out["tilted"] = _summary(pooled[0], pooled[1], (pooled[2], pooled[3]), (pooled[4], pooled[5]))
+    return out
+
+
+def _joined(parts: list[np.ndarray]) -> np.ndarray:
+    """`np.concatenate(parts)`, emptying the list `parts` (its arrays go once joined: memory)."""
+    out = np.concatenate(parts)
+    parts.clear()
     return out
 
 
@@ -79,30 +96,42 @@ def _luminances(read: Reader, seams: Seams, normals: list[np.ndarray]) -> list[d
     inward: `[{place: (S,)}]`, one dict per normal. The texels the places' bilinear reads take
     are gathered once (`_texels`: places overlap, and a texel's value may cost a look-up, as
     `FilledRows`'), then each place is read from them (`reads.blend`: the values `read(xy)`
-    gives) and evaluated at every normal; the places are read on every core
-    (`parallel.resolve_threads`: numpy's gathers let go of the GIL), each worker holding one
-    place's filtered texels at a time."""
-    places: list[tuple[Any, np.ndarray]] = [("a", seams.a), ("b", seams.b)]
+    gives) and evaluated at every normal, in blocks of at most READ_SAMPLES samples
+    (`memory.row_blocks`: a sample's values are its own, whatever block it is read in); the
+    blocks are read on every core (`parallel.resolve_threads`: numpy's gathers let go of the
+    GIL), each worker holding one block's filtered texels at a time."""
+    places: list[tuple[Any, np.ndarray, float, np.ndarray | None]] = [
+        ("a", seams.a, 0.0, None),
+        ("b", seams.b, 0.0, None),
+    ]
     for side, xy, inward in (("a", seams.a, seams.inward_a), ("b", seams.b, seams.inward_b)):
         for offset in sorted(set(INTERIOR + EDGE_STEP)):
-            places.append(((side, offset), xy + offset * inward))
-    index, rows = _texels(read, [xy for _, xy in places])
+            places.append(((side, offset), xy, offset, inward))
+    index, texels = _texels(read, (_points(place, slice(None)) for place in places))
+    out: list[dict] = [{key: np.empty(len(seams)) for key, *_ in places} for _ in normals]
 
-    def evaluate(xy: np.ndarray) -> list[np.ndarray]:
-        taps, weight = read.taps(xy)
-        at = read.shade(blend(rows, np.searchsorted(index, taps), weight))
-        return [at(seams.normal, n) @ LUMINANCE for n in normals]
+    def evaluate(job: tuple[Any, np.ndarray, float, np.ndarray | None, slice]) -> None:
+        key, xy, offset, inward, rows = job
+        taps, weight = read.taps(_points((key, xy, offset, inward), rows))
+        at = read.shade(blend(texels, np.searchsorted(index, taps), weight))
+        for lum, n in zip(out, normals):
+            lum[key][rows] = at(seams.normal[rows], n[rows]) @ LUMINANCE
 
-    with ThreadPoolExecutor(max_workers=min(parallel.resolve_threads(0), len(places))) as pool:
-        read_places = list(pool.map(evaluate, [xy for _, xy in places]))  # in place order
-    out: list[dict] = [{} for _ in normals]
-    for (key, _), values in zip(places, read_places):
-        for lum, value in zip(out, values):
-            lum[key] = value
+    jobs = [(*place, rows) for place in places for rows in row_blocks(len(seams), READ_SAMPLES)]
+    with ThreadPoolExecutor(max_workers=min(parallel.resolve_threads(0), len(jobs))) as pool:
+        list(pool.map(evaluate, jobs))  # each block written into its rows
     return out
 
 
-def _texels(read: Reader, points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+def _points(place: tuple[Any, np.ndarray, float, np.ndarray | None], rows: slice) -> np.ndarray:
+    """The points `(R, 2)` (texel units) of a `_luminances` place (key, seam points, offset,
+    inward directions or None) at the samples `rows`: the seam's own, or `offset` texels inward
+    (per sample: a block's are the whole's rows)."""
+    _, xy, offset, inward = place
+    return xy[rows] if inward is None else xy[rows] + offset * inward[rows]
+
+
+def _texels(read: Reader, points: Iterable[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """The texels the bilinear reads of `read` at each of `points` (`(S, 2)` each) take: their
     flat indices `(T,)` sorted, unique, and their rows `read.texels[index]` `(T, ...)`."""
     h, w = read.grid

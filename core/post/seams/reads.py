@@ -117,7 +117,10 @@ class FilledRows:
         index = np.asarray(index)
         flat_index = index.reshape(-1).astype(np.int64, copy=False)
         empty, source = self.fill.empty, self.fill.source
-        pos = np.minimum(np.searchsorted(empty, flat_index), max(len(empty) - 1, 0))
+        # searched in the fill's own index type (int32 below 2³¹ texels): a search of int64 keys
+        # would cast all of `empty` first, an atlas-wide copy per read
+        key = flat_index.astype(empty.dtype, copy=False)
+        pos = np.minimum(np.searchsorted(empty, key), max(len(empty) - 1, 0))
         is_empty = (empty[pos] == flat_index) if len(empty) else np.zeros(len(flat_index), bool)
         src = flat_index.copy()
         src[is_empty] = source[pos[is_empty]]
@@ -127,7 +130,7 @@ class FilledRows:
             out[far] = self._source_mean()
         if self.keep_black and len(self.fill.black):
             black = self.fill.black
-            at = np.minimum(np.searchsorted(black, flat_index), len(black) - 1)
+            at = np.minimum(np.searchsorted(black, flat_index.astype(black.dtype, copy=False)), len(black) - 1)
             out[black[at] == flat_index] = 0.0
         if len(self._put_index):
             at = np.minimum(np.searchsorted(self._put_index, flat_index), len(self._put_index) - 1)

@@ -77,9 +77,9 @@ def _system(seams: Seams, coverage: np.ndarray, prior, use: np.ndarray | None = 
     index, coeff, span = index[good], coeff[good], seams.span[good]
     free = coeff != 0.0  # a zero weight reads nothing
     texels = np.unique(index[free])
-    lookup = np.full(len(coverage), -1, np.int64)
-    lookup[texels] = np.arange(len(texels))
-    taps = np.where(coeff != 0.0, lookup[index], -1)
+    # each read texel's unknown: its place among the sorted `texels` (no atlas-wide lookup: memory)
+    taps = np.where(free, np.searchsorted(texels, index), -1)
+    del free
     fixed = taps < 0
     constant = np.zeros((prior.shape[1], len(index)))
     some = np.flatnonzero(fixed.any(axis=1))  # rows with a tap of weight 0
@@ -142,13 +142,20 @@ def _solve(s: _System, prior, check=None, threads: int = 1) -> tuple[np.ndarray,
     equations (AᵀΛA + M) δ = −AᵀΛ(A x0 + c), solved by Jacobi-preconditioned CG from δ = 0,
     each channel on its own (the channels vectorised, split over `threads` workers). Returns δ
     and the most iterations a channel took. `check`: cancels (and, a `core.progress.Tick`,
-    reports how far the residuals are towards the tolerance) every few iterations."""
+    reports how far the residuals are towards the tolerance) every few iterations. `s` is
+    spent in part (`core.memory`): its `constant` is read into the right-hand side, then emptied."""
     n, c = len(s.texels), prior.shape[1]
     if n == 0:
         return np.zeros((0, c)), 0
     tick = ticker(check)
     x0 = np.ascontiguousarray(prior[s.texels].T, dtype=np.float64)
-    b = -_apply_at(s, (_apply_a(s, x0) + s.constant) * s.seam_weight)
+    residual = _apply_a(s, x0)  # the solve starts from δ = 0: x0 is not needed past the right-hand side
+    del x0
+    residual += s.constant
+    s.constant = np.zeros((c, 0))  # spent (memory: as large as the rows' differences)
+    residual *= s.seam_weight
+    b = -_apply_at(s, residual)
+    del residual
     parts = np.array_split(np.arange(c), max(1, min(threads, c)))
     if len(parts) == 1:
         x, iterations = _cg(s, b, tick, _on_step(tick, n, [(0.0, 0)], 0))

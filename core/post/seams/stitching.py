@@ -10,11 +10,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ... import parallel
+from ...memory import row_blocks, trim_heap
 from ...progress import ticker
 from .geometry import Seams, _unit
 from .metrics import _brief, _metric
 from .reads import FilledRows, reads_hidden, sh_reader
-from .solve import _groups, _solve, _System, _system
+from .solve import SYSTEM_ROWS, _groups, _solve, _System, _system
 
 if TYPE_CHECKING:
     from ...encoding import TexelData
@@ -25,6 +26,8 @@ BOUND_SLACK = 0.5
 #: A stitched texel's I_z that rounding takes below 0 is lifted to this fraction of the size of
 #: its L0 and band 1 (`_bounded`): far above float32 rounding, so it is ≥ 0 as stored.
 IZ_MARGIN = 1e-4
+#: Unknowns `_bounded` works on at once (memory: ~1.5 kB each, float64, a few times over).
+BOUND_ROWS = 1 << 15
 
 
 def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple[TexelData, dict]:
@@ -77,6 +80,7 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
     setup, solving, rest = tick.split([0.15, 0.7, 0.15])
     setup.at(0.0, f"setting up {len(seams)} seam samples")
     system = _system(seams, coverage, prior, shown)
+    trim_heap()  # the set-up's temporaries, before the solver's threads allocate (memory)
     delta, iterations = _solve(system, prior, solving, parallel.resolve_threads(threads))
     rest.at(0.0, "bounding the stitched texels")
     texels = system.texels
@@ -99,6 +103,8 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
         "samples_hidden": int(np.count_nonzero(~shown)),
         "texels_bounded": bounded,
     }
+    del system
+    trim_heap()  # the system and what the solver's threads freed, before the metric's reads (memory)
     # As the SH file will read (the stitched texels are sources; no other texel the metric
     # reads changes, up to gutter texels of thin charts whose nearest source moved).
     visible = atlas_seams.select(shown)
@@ -136,36 +142,57 @@ def _bounded(s: _System, prior, delta: np.ndarray, normal: np.ndarray, dtype=np.
     and I_z on their own leaves bands 2 moved without them: it opens the seams far more). An
     I_z that rounding to `dtype` takes below 0 (or a starting one below 0, which t = 0 cannot
     mend) is lifted to IZ_MARGIN × (|L0| + |band 1|) by the smallest change of the SH that
-    does (band 1 along its gradient), so it is ≥ 0 as stored."""
-    from ...hhd import irradz
-
+    does (band 1 along its gradient), so it is ≥ 0 as stored. Each texel's values are its own but for the range of the
+    texels it is tied to: worked out BOUND_ROWS texels at a time (memory), the same values."""
     n, c = len(s.texels), prior.shape[1] // 9
     if n == 0:
         return np.zeros((0, prior.shape[1]), dtype), 0
-    x0 = prior[s.texels].astype(np.float64).reshape(n, 9, c)
-    step = delta.reshape(n, 9, c)
     nrm = _unit(np.asarray(normal, np.float64))
-
-    def quantities(x):  # (N, 2, C): L0 and I_z per colour channel
-        return np.stack([x[:, 0], irradz(x, nrm)], 1)
-
-    q0 = quantities(x0)
+    blocks = row_blocks(n, BOUND_ROWS)
+    q0 = np.concatenate([_quantities(_start(prior, s.texels[rows], c), nrm[rows]) for rows in blocks])
     lo, hi = _tied_range(s, q0.reshape(n, -1))
     lo, hi = np.minimum(lo.reshape(q0.shape), q0), np.maximum(hi.reshape(q0.shape), q0)
     slack = BOUND_SLACK * (hi - lo)
     lo = np.maximum(lo - slack, 0.0)
     hi = np.maximum(hi + slack, lo)
-    q1 = quantities(x0 + step)
+    out, held = np.empty((n, prior.shape[1]), dtype), 0
+    for rows in blocks:
+        x0, step = _start(prior, s.texels[rows], c), delta[rows].reshape(-1, 9, c)
+        out[rows], k = _bounded_rows(x0, step, nrm[rows], q0[rows], lo[rows], hi[rows], dtype)
+        held += k
+    return out, held
+
+
+def _start(prior, texels: np.ndarray, c: int) -> np.ndarray:
+    """The starting SH `(n, 9, C)` float64 of `texels` in `prior` (an array or `FilledRows`)."""
+    return prior[texels].astype(np.float64).reshape(len(texels), 9, c)
+
+
+def _quantities(x: np.ndarray, nrm: np.ndarray) -> np.ndarray:
+    """`(n, 2, C)`: L0 and I_z at the unit normals `nrm (n, 3)` per colour channel of SH `x (n, 9, C)`."""
+    from ...hhd import irradz
+
+    return np.stack([x[:, 0], irradz(x, nrm)], 1)
+
+
+def _bounded_rows(x0, step, nrm, q0, lo, hi, dtype) -> tuple[np.ndarray, int]:
+    """`_bounded` of some texels: starting SH `x0 (n, 9, C)`, its change `step`, unit normals
+    `nrm (n, 3)`, starting quantities `q0 (n, 2, C)` (`_quantities`) and their allowed range
+    [lo, hi]; the bounded SH `(n, 9·C)` in `dtype` and how many texels it held back."""
+    from ...hhd import irradz
+
+    n = len(x0)
+    q1 = _quantities(x0 + step, nrm)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(q1 > hi, (hi - q0) / (q1 - q0), np.where(q1 < lo, (lo - q0) / (q1 - q0), 1.0))
-    t = np.clip(np.nan_to_num(t, nan=0.0), 0.0, 1.0).min(axis=1)  # (N, C)
+    t = np.clip(np.nan_to_num(t, nan=0.0), 0.0, 1.0).min(axis=1)  # (n, C)
     x = x0 + t[:, None, :] * step
     x[:, 0] = np.maximum(x[:, 0], 0.0)
     x = x.astype(dtype).astype(np.float64)  # as stored: the lift below sees its rounding
-    grad = irradz(np.broadcast_to(np.eye(9), (n, 9, 9)), nrm)  # (N, 9): dI_z / d coefficient
+    grad = irradz(np.broadcast_to(np.eye(9), (n, 9, 9)), nrm)  # (n, 9): dI_z / d coefficient
     gg = np.einsum("nk,nk->n", grad, grad)[:, None]
-    iz = irradz(x, nrm)  # (N, C)
-    scale = x[:, 0] + np.linalg.norm(x[:, 1:4], axis=1)  # (N, C): the size of L0 and band 1
+    iz = irradz(x, nrm)  # (n, C)
+    scale = x[:, 0] + np.linalg.norm(x[:, 1:4], axis=1)  # (n, C): the size of L0 and band 1
     short = np.where(iz < 0.0, IZ_MARGIN * scale - iz, 0.0)
     x += grad[:, :, None] * np.where(gg > 0.0, short / np.where(gg > 0.0, gg, 1.0), 0.0)[:, None, :]
     held = (t < 1.0).any(axis=1) | (short > 0.0).any(axis=1) | (x0[:, 0] + step[:, 0] < 0.0).any(axis=1)
@@ -175,10 +202,14 @@ def _bounded(s: _System, prior, delta: np.ndarray, normal: np.ndarray, dtype=np.
 def _tied_range(s: _System, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per unknown, the smallest and largest `q (N, K)` (at their starting values) among the
     texels read by the samples that take it, `(N, K)` each."""
-    live = (s.coeff != 0.0)[:, :, None]  # (8, R, 1); fixed taps have coefficient 0
-    values = q[s.taps]  # (8, R, K)
-    row_lo = np.where(live, values, np.inf).min(axis=0)  # (R, K)
-    row_hi = np.where(live, values, -np.inf).max(axis=0)
+    rows = s.taps.shape[1]
+    row_lo, row_hi = np.empty((rows, q.shape[1])), np.empty((rows, q.shape[1]))  # (R, K)
+    for start in range(0, rows, SYSTEM_ROWS):  # a block of rows at a time (memory: 8 taps × K a row)
+        block = slice(start, start + SYSTEM_ROWS)
+        live = (s.coeff[:, block] != 0.0)[:, :, None]  # (8, r, 1); fixed taps have coefficient 0
+        values = q[s.taps[:, block]]  # (8, r, K)
+        row_lo[block] = np.where(live, values, np.inf).min(axis=0)
+        row_hi[block] = np.where(live, values, -np.inf).max(axis=0)
     lo, hi = np.full(q.shape, np.inf), np.full(q.shape, -np.inf)
     if len(s.starts):
         lo[s.owner] = np.minimum.reduceat(row_lo[s.entry_row], s.starts, axis=0)
