@@ -22,6 +22,7 @@ def unwrap(context, args, settings) -> str:
     core unwrap)."""
     from ..bridge import bake_session
     from ..core.console import ConsoleProgress, interrupt_as_cancel
+    from ..core.progress import with_eta
     from ..operators import unwrap as unwrapping
 
     objects = bake_session.target_objects(context, args.objects, settings)
@@ -32,7 +33,7 @@ def unwrap(context, args, settings) -> str:
     progress = ConsoleProgress()
     try:
         with interrupt_as_cancel() as cancel:
-            result = unwrapping.compute(job, progress, cancel)
+            result = unwrapping.compute(job, with_eta(progress), cancel)
     finally:
         progress.close()
     summary, warnings = unwrapping.write_objects(job, settings, result)

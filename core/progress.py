@@ -109,6 +109,19 @@ class Progress:
                 self.callback(1.0, f"{message} in {format_seconds(time.perf_counter() - self.start)}")
 
 
+def with_eta(callback: Callable[[float, str], None]) -> Callable[[float, str], None]:
+    """`callback(fraction, message)` of a job outside a bake's `Progress` (an unwrap) with the
+    ETA that `Progress.report` adds: from the time since the first call, once past 2%."""
+    start = time.perf_counter()
+
+    def report(fraction: float, message: str) -> None:
+        elapsed = time.perf_counter() - start
+        eta = elapsed / fraction * (1.0 - fraction) if 0.02 < fraction < 1.0 else None
+        callback(fraction, f"{message}, ETA {format_seconds(eta)}" if eta is not None else message)
+
+    return report
+
+
 def format_seconds(s: float) -> str:
     return f"{s:.0f} s" if s < 90 else f"{s / 60:.1f} min"
 

@@ -16,6 +16,7 @@ from ..bridge import collection_instances, mesh_data
 from ..core import unwrap as core_unwrap
 from ..core.console import ConsoleProgress
 from ..core.errors import BakeCancelled, BakeError
+from ..core.progress import with_eta
 from ..core.unwrap.data import padding_for_mips
 from . import modal_work
 
@@ -52,7 +53,10 @@ class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
         try:
             objects = collection_instances.receivers(context.selected_objects)
             outcome = unwrap_objects(
-                objects, settings, self.make_single_user, console or (lambda f, _msg: wm.progress_update(int(100 * f)))
+                objects,
+                settings,
+                self.make_single_user,
+                with_eta(console) if console else (lambda f, _msg: wm.progress_update(int(100 * f))),
             )
         except BakeError as exc:
             outcome = exc
@@ -86,7 +90,7 @@ class HHD_OT_unwrap(modal_work.ModalWork, bpy.types.Operator):
         except BakeError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
-        return self._start_work(context, lambda progress, cancel: compute(self._job, progress, cancel))
+        return self._start_work(context, lambda progress, cancel: compute(self._job, with_eta(progress), cancel))
 
     def _work_done(self, context, result, error):
         if error is not None and not isinstance(error, BakeError):

@@ -128,6 +128,23 @@ def test_half_or_float_is_chosen_per_layer_and_never_clips(tmp_path):
     assert channels["Wa.V"].dtype == np.float16 and np.isfinite(channels["Iz.R"]).all()
 
 
+@pytest.mark.parametrize("scale", [1.0, 1e6])
+def test_preview_images_hold_the_files_values_in_the_files_storage_type(tmp_path, scale):
+    """Each preview channel is its layer's file channel, value for value and stored as the file
+    stores it: half layers as half (a float32 copy held the same values at twice the bytes), a
+    layer too bright for half as float32 (scale 1e6: I_z)."""
+    data = texel_data()
+    data.sh *= np.float32(scale)
+    files = write(tmp_path, data)
+    channels, _ = exr.read(files.hhd)
+    for key, names in (("iz", [f"Iz.{c}" for c in "RGB"]), ("wa", ["Wa.V"] * 3)):
+        rgb, _ = exr.read(files.preview_image(key))
+        for c, name in zip("RGB", names):
+            assert rgb[c].dtype == channels[name].dtype, (scale, key, c)
+            assert rgb[c].tobytes() == channels[name].tobytes(), (scale, key, c)
+    assert channels["Iz.R"].dtype == (np.float16 if scale == 1.0 else np.float32)
+
+
 def test_preview_modes_sample_layers_whose_images_the_writer_stages(tmp_path):
     files = write(tmp_path, texel_data())
     assert not any(files.preview_image(layer.preview).exists() for layer in raw.SH_LAYERS)  # on demand

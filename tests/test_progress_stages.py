@@ -179,3 +179,20 @@ def test_shares_follow_the_remaining_work_and_never_go_back():
     assert seen == sorted(seen) and seen[-1] == progress.LAST
     report.finish("done")
     assert seen[-1] == 1.0
+
+
+def test_an_unwrap_reports_its_eta_as_a_bake_does(monkeypatch):
+    """`progress.with_eta`: the fractions pass through unchanged; past 2% the message ends with
+    the ETA from the time since the first report (here 10 s for the first quarter: 30 s left);
+    none before 2% nor at 100%."""
+    clock = iter([100.0, 100.0, 110.0, 130.0])
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: next(clock))
+    calls = []
+    report = progress.with_eta(lambda f, m: calls.append((f, m)))
+    for f, m in ((0.01, "xatlas: charting"), (0.25, "xatlas: charted 1 of 4 parts"), (1.0, "xatlas: done")):
+        report(f, m)
+    assert calls == [
+        (0.01, "xatlas: charting"),
+        (0.25, "xatlas: charted 1 of 4 parts, ETA 30 s"),
+        (1.0, "xatlas: done"),
+    ]

@@ -5,6 +5,7 @@ EXIT_CANCELLED leaving the .blend unchanged."""
 
 import importlib
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -159,6 +160,7 @@ def test_operator_prints_progress_headless_and_a_cancel_changes_no_uv(sphere_sce
     assert bpy.ops.hhd.unwrap() == {'FINISHED'}
     out = capfd.readouterr().out
     assert "%] xatlas: charting" in out and "[100.0%] xatlas: done" in out
+    assert re.search(r"%\] xatlas: (charted|packing)[^\n]*, ETA \d", out)  # as a bake's lines
     obj.rotation_euler.z = 0.3  # the same mesh rotated: charted again, not cached
     bpy.context.view_layer.update()
     before = uv_bytes()

@@ -240,16 +240,21 @@ def _rows_done(tick: Tick, what: str):
 
 
 def _rgb(channels: list[np.ndarray]) -> dict:
-    """R, G, B of a preview image, float32 so nothing clips: one channel repeated, or up to
-    three with the missing ones zero. An almost empty atlas's images (`stages.PlacedImage`) stay
-    as small."""
-    if len(channels) == 1:  # one array for the three: converted once (memory)
-        image = channels[0].astype(np.float32, copy=False)
-        return dict.fromkeys("RGB", image)
-    channels = list(channels)
+    """R, G, B of a preview image, each stored as its file channel is (half or float: the values
+    the file holds, and half the bytes to compress for a half layer): one channel repeated, or up
+    to three with the missing ones zero. An almost empty atlas's images (`stages.PlacedImage`)
+    stay as small."""
+    if len(channels) == 1:  # one array for the three (memory)
+        return dict.fromkeys("RGB", _stored(channels[0]))
+    channels = [_stored(a) for a in channels]
     zero = channels[0].zeros() if hasattr(channels[0], "zeros") else np.zeros_like(channels[0])
     channels += [zero] * (3 - len(channels))
-    return {c: a.astype(np.float32, copy=False) for c, a in zip("RGB", channels)}
+    return dict(zip("RGB", channels))
+
+
+def _stored(image):
+    """`image` as an EXR channel: float16 and float32 as they are, any other float as float32."""
+    return image if image.dtype in (np.float16, np.float32) else image.astype(np.float32, copy=False)
 
 
 def stage_preview(staging: exr.Staging, files: AtlasFiles, spec: FileSpec, channels: dict, tick=None) -> None:
