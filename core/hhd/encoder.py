@@ -12,7 +12,7 @@ import numpy as np
 from .. import gram as _gram
 from .fit import prepare
 from .lobes import MIN_COS, HHDParams, ambient_lobe
-from .search import GOLDEN_ITERATIONS, optimal_linear_angles, search_phi, search_theta
+from .search import GOLDEN_ITERATIONS, optimal_linear_angles, search_phi, search_theta_fit
 
 #: Texels per chunk: the fit's (N,) temporaries stay small, and its numpy calls few enough that
 #: the encoder's workers (`encoding.stage.encode_images`: chunk-parallel threads) do not queue on
@@ -38,7 +38,7 @@ def sanitise(sh: np.ndarray, n_v: np.ndarray):
         sh = sh[..., None]
     with np.errstate(invalid="ignore", over="ignore"):
         length = np.linalg.norm(n_v, axis=1)
-    invalid = ~np.isfinite(sh).reshape(len(sh), -1).all(axis=1) | ~np.isfinite(length) | (length < 1e-12)
+    invalid = ~np.isfinite(sh).all(axis=(1, 2)) | ~np.isfinite(length) | (length < 1e-12)
     if invalid.any():
         sh = sh.copy()
         sh[invalid] = 0.0
@@ -118,9 +118,11 @@ def encode_chunk(world_sh, n, invalid, *, searched, phi_search, theta_max, itera
         if phi_search:
             theta, phi = search_phi(fit, phi, theta, theta_max, iterations)
             at = fit.at_phi(phi)
+            _, w = at.evaluate(theta)
         else:
-            theta, _ = search_theta(fit, phi, theta, theta_max, iterations, at=at)
-    _, w = at.evaluate(theta)
+            theta, _, w = search_theta_fit(fit, phi, theta, theta_max, iterations, at=at)
+    else:
+        _, w = at.evaluate(theta)
     # Where the fit is all ambient (w = 1 up to rounding) the direction is irrelevant: store
     # n_v, which keeps the direction texture smooth for filtering.
     all_ambient = (w >= 1.0 - 1e-9).all(axis=1)

@@ -103,8 +103,11 @@ class FitAtPhi:
             w = b / (iz * np.maximum(q, 1e-300))
         w = np.clip(np.where(fit.black | ~np.isfinite(w), 1.0, w), 0.0, 1.0)
         izw = iz * w
-        err = izw * (izw * q - 2.0 * b) + c
-        return np.maximum(err, 0.0) @ fit.weights, w
+        err = np.maximum(izw * (izw * q - 2.0 * b) + c, 0.0)
+        objective = np.zeros(len(err))
+        for k, weight in enumerate(fit.weights):  # channel by channel, in order (as search_kernels)
+            objective = objective + err[:, k] * weight
+        return objective, w
 
 
 def prepare(world_sh, n, *, a, g, luminance, hemisphere_sampled):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import search_kernels
 from .fit import Fit, FitAtPhi
 
 SCAN_STEPS = 9  # θ samples of the coarse scan, end points included
@@ -55,20 +56,50 @@ def search_theta(
     """Best θ at fixed φ: coarse scan of [0, θ_max], golden-section in the best bracket, and the
     starting θ (the optimal linear one) as a candidate. Returns (θ, objective), each `(N,)`.
     `at`: `fit.at_phi(phi)`, if the caller has it."""
+    theta, err, _ = search_theta_fit(fit, phi, theta_start, theta_max, iterations, at)
+    return theta, err
+
+
+def search_theta_fit(
+    fit: Fit,
+    phi: np.ndarray,
+    theta_start: np.ndarray,
+    theta_max: float,
+    iterations: int = GOLDEN_ITERATIONS,
+    at: FitAtPhi | None = None,
+):
+    """`search_theta`, and the fit's w `(N, K)` at the θ it returns (`FitAtPhi.evaluate`'s), per
+    texel in the compiled kernel (`search_kernels`: the bits of the vectorised `golden` over
+    `FitAtPhi.evaluate`)."""
     n = len(phi)
     at = fit.at_phi(phi) if at is None else at
-    grid = np.linspace(0.0, theta_max, SCAN_STEPS)
-    scan = np.stack([at.evaluate(np.full(n, t))[0] for t in grid], axis=1)  # (N, S)
-    k = np.argmin(scan, axis=1)
-    step = grid[1] - grid[0]
-    lo = np.clip(grid[k] - step, 0.0, theta_max)
-    hi = np.clip(grid[k] + step, 0.0, theta_max)
-    theta, err = golden(lambda t: at.evaluate(t)[0], lo, hi, iterations)
-    candidates = np.stack([theta, grid[k], theta_start], axis=1)
-    errors = np.stack([err, scan[np.arange(n), k], at.evaluate(theta_start)[0]], axis=1)
-    best = np.argmin(errors, axis=1)
-    rows = np.arange(n)
-    return candidates[rows, best], errors[rows, best]
+    theta, err = np.empty(n), np.empty(n)
+    w = np.empty((n, fit.iz.shape[1]))
+    if n:
+        grid = np.linspace(0.0, theta_max, SCAN_STEPS)
+        search_kernels.get().search_theta(
+            *_kernel_arrays(at), grid, np.ascontiguousarray(theta_start, np.float64), float(theta_max),
+            int(iterations), float(_INV_PHI), theta, err, w,
+        )  # fmt: skip
+    return theta, err, w
+
+
+def _kernel_arrays(at: FitAtPhi) -> tuple:
+    """`FitAtPhi`'s products and `Fit`'s per-texel arrays as the kernel takes them (float64,
+    contiguous; a product that is one number for every texel broadcast): hg `(6, K, N)`, ag
+    `(6, N)`, pair_f `(P, 2)`, pair_coef `(P, N)`, aga, iz, gat, tgt, black `(N, K)`, weights `(K,)`."""
+    fit = at.fit
+    n = len(fit.iz)
+    per_texel = lambda v: np.broadcast_to(np.asarray(v, np.float64), (n,))  # noqa: E731
+    hg = np.stack([np.broadcast_to(np.asarray(h, np.float64), fit.iz.shape[::-1]) for h in at.hg])
+    ag = np.stack([per_texel(a) for a in at.ag])
+    pair_f = np.array([key for key, _ in at.pairs], np.int64).reshape(-1, 2)
+    pair_coef = np.stack([per_texel(c) for _, c in at.pairs]) if at.pairs else np.zeros((0, n))
+    c = np.ascontiguousarray
+    return (
+        hg, ag, pair_f, pair_coef, float(fit.aga), c(fit.iz, np.float64), c(fit.gat, np.float64),
+        c(fit.tgt, np.float64), c(fit.black), c(fit.weights, np.float64),
+    )  # fmt: skip
 
 
 def search_phi(fit: Fit, phi0: np.ndarray, theta0: np.ndarray, theta_max: float, iterations: int = GOLDEN_ITERATIONS):
