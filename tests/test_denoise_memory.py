@@ -144,10 +144,6 @@ class FailingDenoiser:
                 raise oidn.DenoiserError("injected failure")
         return self.real.denoise(image, directional=directional, input_scale=input_scale)
 
-    def denoise_all(self, calls):
-        """The real one's calls one at a time, in order (the failure lands on the same call)."""
-        return [self.denoise(image, **options) for image, options in calls]
-
 
 # the banded page (5 bands of 128 rows) comes first; 3 directional calls a band: call 1 is band
 # 0's (nothing written), 4 band 1's (band 0's rows below band 1's reach, 0-13, written), 10 band 3's

@@ -166,21 +166,3 @@ def test_shipped_weights_match_their_pins():
     for mode in oidn.WEIGHTS:
         if (oidn.WEIGHTS_DIR / oidn.WEIGHTS[mode][0]).is_file():
             assert len(oidn.load_weights(mode)) == oidn.WEIGHTS_BYTES
-
-
-@pytest.mark.parametrize("count", [1, 2, 3, 5])
-def test_calls_side_by_side_give_the_one_by_one_arrays(denoiser, count):
-    """`denoise_all`: the calls run side by side, each on a device of its own with fewer threads
-    (OIDN's output does not depend on its thread count), give `denoise`'s arrays, in order."""
-    rng = np.random.default_rng(count)
-    calls = []
-    for k in range(count):
-        shape = (40 + 8 * k, 56 - 4 * k, 3 if k % 3 else 2)
-        if k % 2:
-            calls.append((rng.uniform(-0.5, 0.5, shape).astype(np.float32), {"directional": True, "input_scale": 1.0}))
-        else:
-            calls.append(((rng.random(shape) ** 3 * 4).astype(np.float32), {"input_scale": 0.5 + k}))
-    together = denoiser.denoise_all(calls)
-    alone = [denoiser.denoise(image, **options) for image, options in calls]
-    assert len(together) == count
-    assert all(a.tobytes() == b.tobytes() and a.shape == b.shape for a, b in zip(together, alone))

@@ -200,10 +200,6 @@ class FailingDenoiser:
                 raise oidn.DenoiserError("injected failure")
         return self.real.denoise(image, directional=directional, input_scale=input_scale)
 
-    def denoise_all(self, calls):
-        """The real one's calls one at a time, in order (the failure lands on the same call)."""
-        return [self.denoise(image, **options) for image, options in calls]
-
 
 @pytest.mark.slow
 def test_a_denoiser_failing_half_way_gives_the_undenoised_bake(tmp_path, monkeypatch, library, denoiser):  # noqa: F811

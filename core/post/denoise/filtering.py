@@ -84,7 +84,8 @@ def _denoise_features(
     the denoised L0 (module docstring). Returns `(h, w, 9, 3)` float32, or `(T, 9, 3)` at the
     texels `at` (rows, columns) only."""
     features = _smooth_fill(features, source)[0]
-    l0, iz = _hdr([features[..., 0:3], features[..., 3:6]], source, scales, denoiser)
+    l0 = _hdr(features[..., 0:3], source, scales[0], denoiser)
+    iz = _hdr(features[..., 3:6], source, scales[1], denoiser)
     l0_lum = l0 @ LUMINANCE
     ratios = _ratios(features[..., DIRECTIONAL], l0_lum)
     del features
@@ -115,7 +116,8 @@ def _assemble(
     `(T, 9, 3)` (memory: no SH image), WRITE_CHUNK at a time. What follows the filter is per
     texel, so they have the bits the whole image gives them."""
     # the rest in luminance over luminance L0 (one direction for all colours, as HHD keeps), scaled by each colour's L0
-    across, band2 = _directional(ratios, l0_lum, (BAND1_BOUND, BAND2_BOUND), denoiser, core)
+    across = _directional(ratios[0], l0_lum, BAND1_BOUND, denoiser, core)
+    band2 = _directional(ratios[1], l0_lum, BAND2_BOUND, denoiser, core)
     if core is not None:
         l0, iz, l0_lum = l0[core], iz[core], l0_lum[core]
     across -= n * np.einsum("hwa,hwa->hw", n, across)[..., None]
@@ -148,38 +150,25 @@ def _sh_of(
     return out
 
 
-def _hdr(
-    colours: list[np.ndarray], source: np.ndarray, scales: tuple[float, ...], denoiser: Denoiser
-) -> list[np.ndarray]:
-    """HDR colour images `(h, w, 3)` denoised (inputScale `scales`, one each; side by side:
-    `Denoiser.denoise_all`), ≥ 0, then scaled per channel so each one's sum over the chart texels
-    `source` is its input's (clamped to ×[1/ENERGY_CLAMP, ENERGY_CLAMP]): at a few samples per
-    texel the noise is heavy-tailed and the filter takes the rare bright samples for outliers,
-    darkening the page; the sum over a page of texels is an unbiased estimate with little noise
-    of its own."""
-    out = _hdr_filtered_all(colours, scales, denoiser)
-    for k, colour in enumerate(colours):
-        before = colour[source].sum(axis=0, dtype=np.float64)
-        after = out[k][source].sum(axis=0, dtype=np.float64)
-        out[k] = out[k] * _energy_ratio(before, after)
-    return out
+def _hdr(colour: np.ndarray, source: np.ndarray, scale: float, denoiser: Denoiser) -> np.ndarray:
+    """An HDR colour image `(h, w, 3)` denoised (inputScale `scale`), ≥ 0, then scaled per channel
+    so its sum over the chart texels `source` is the input's (clamped to ×[1/ENERGY_CLAMP,
+    ENERGY_CLAMP]): at a few samples per texel the noise is heavy-tailed and the filter takes the
+    rare bright samples for outliers, darkening the page; the sum over a page of texels is an
+    unbiased estimate with little noise of its own."""
+    out = _hdr_filtered(colour, scale, denoiser)
+    before = colour[source].sum(axis=0, dtype=np.float64)
+    after = out[source].sum(axis=0, dtype=np.float64)
+    return out * _energy_ratio(before, after)
 
 
 def _hdr_filtered(colour: np.ndarray, scale: float, denoiser: Denoiser) -> np.ndarray:
     """`_hdr`'s filter, before its energy correction: the colour `(h, w, 3)` (≥ 0) raised to
     HDR_POWER, denoised (inputScale `scale`: `_compressed_scale`'s), ≥ 0, raised back. float32,
     finite (at most float32's largest value)."""
-    return _hdr_filtered_all([colour], (scale,), denoiser)[0]
-
-
-def _hdr_filtered_all(colours: list[np.ndarray], scales: tuple[float, ...], denoiser: Denoiser) -> list[np.ndarray]:
-    """`_hdr_filtered` of each colour with its scale, the filters side by side."""
-    calls = [(_compressed(c).astype(np.float32), {"input_scale": s}) for c, s in zip(colours, scales)]
-    out = []
-    for filtered in denoiser.denoise_all(calls):
-        back = np.power(np.maximum(filtered, 0.0), 1.0 / HDR_POWER, dtype=np.float64)
-        out.append(np.minimum(back, np.finfo(np.float32).max).astype(np.float32))
-    return out
+    out = np.maximum(denoiser.denoise(_compressed(colour).astype(np.float32), input_scale=scale), 0.0)
+    back = np.power(out, 1.0 / HDR_POWER, dtype=np.float64)
+    return np.minimum(back, np.finfo(np.float32).max).astype(np.float32)
 
 
 def _compressed_scale(colour: np.ndarray) -> float:
@@ -221,31 +210,22 @@ def _ratio(coefficients: np.ndarray, l0: np.ndarray, bound: float) -> np.ndarray
 
 
 def _directional(
-    ratios: tuple[np.ndarray, ...],
-    l0: np.ndarray,
-    bounds: tuple[float, ...],
-    denoiser: Denoiser,
-    core: slice | None = None,
-) -> list[np.ndarray]:
-    """Luminance coefficients, as their `_ratio`s `(h, w, m)` (one per bound), denoised in OIDN's
-    directional mode three at a time (the filters side by side: `Denoiser.denoise_all`), and
-    scaled back by L0 `(h, w)` and their bound; `core`: only these rows are scaled back and
-    returned."""
-    calls = [
-        (ratio[..., k : k + 3], {"directional": True, "input_scale": 1.0})
-        for ratio in ratios
-        for k in range(0, ratio.shape[-1], 3)
-    ]
-    filtered = iter(denoiser.denoise_all(calls))
+    ratio: np.ndarray, l0: np.ndarray, bound: float, denoiser: Denoiser, core: slice | None = None
+) -> np.ndarray:
+    """Luminance coefficients, as their `_ratio` `(h, w, m)`, denoised in OIDN's directional
+    mode, three at a time, and scaled back by L0 `(h, w)` and `bound`; `core`: only these rows
+    are scaled back and returned."""
+    to_unit = DIRECTIONAL_RANGE / bound
+    clean = np.concatenate(
+        [
+            denoiser.denoise(ratio[..., k : k + 3], directional=True, input_scale=1.0)
+            for k in range(0, ratio.shape[-1], 3)
+        ],
+        axis=-1,
+    )
     if core is not None:
-        l0 = l0[core]
-    out = []
-    for ratio, bound in zip(ratios, bounds):
-        clean = np.concatenate([next(filtered) for _ in range(0, ratio.shape[-1], 3)], axis=-1)
-        if core is not None:
-            clean = clean[core]
-        out.append(clean / (DIRECTIONAL_RANGE / bound) * l0[..., None])
-    return out
+        clean, l0 = clean[core], l0[core]
+    return clean / to_unit * l0[..., None]
 
 
 #: One Denoiser per (library, threads) for the process: the device and weights load once.

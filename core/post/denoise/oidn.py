@@ -27,11 +27,9 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import math
-import os
 import sys
 import threading
 from collections.abc import Iterable
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -103,15 +101,6 @@ def load_weights(mode: str, weights_dir: Path = WEIGHTS_DIR) -> bytes:
     return data
 
 
-def _machine_threads() -> int:
-    """CPUs this process may run on (`core.parallel.machine_threads`'s rule: this module also
-    loads on its own, without the package, in tools/fetch_oidn_weights.py)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
-
-
 def _bind(lib: ctypes.CDLL) -> None:
     """Declare the signatures (oidn.h, OIDN 2.x) of the functions we call."""
     p, s, c = ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p
@@ -168,8 +157,6 @@ class Denoiser:
         )
         self.version = f"{major}.{minor}.{patch}"
         self.library = Path(library)
-        self.threads, self._weights_dir = int(threads), weights_dir
-        self._sides: dict[int, list[Denoiser]] = {}  # `denoise_all`'s devices by thread count
 
     def _check(self, what: str, unavailable: bool = False) -> None:
         """Raise OIDN's first pending error (and clear it); device may be NULL (global errors)."""
@@ -180,39 +167,9 @@ class Denoiser:
             raise (DenoiserUnavailable if unavailable else DenoiserError)(f"Open Image Denoise, {what}: {text}")
 
     def close(self) -> None:
-        for side in getattr(self, "_sides", {}).values():
-            for device in side:
-                device.close()
         if getattr(self, "_device", None):
             self._lib.oidnReleaseDevice(self._device)
             self._device = None
-
-    def denoise_all(self, calls: list[tuple[np.ndarray, dict]]) -> list[np.ndarray]:
-        """`denoise(image, **options)` of each `(image, options)` in `calls`, in order: the same
-        arrays, as OIDN's output does not depend on its thread count. The cores (`threads`, 0:
-        every core) run up to one call each side by side, each call on a device of its own with
-        cores // calls-at-once threads: one device's threads wait for each other at every
-        layer of the network, separate calls do not (bench/results/post_stages_cuts.md)."""
-        cores = self.threads or _machine_threads()
-        out: list[np.ndarray] = []
-        while len(out) < len(calls):
-            group = calls[len(out) : len(out) + cores]
-            if len(group) == 1:
-                image, options = group[0]
-                out.append(self.denoise(image, **options))
-                continue
-            devices = self._side(cores // len(group), len(group))
-            with ThreadPoolExecutor(max_workers=len(group)) as pool:
-                futures = [pool.submit(d.denoise, image, **options) for d, (image, options) in zip(devices, group)]
-                out += [f.result() for f in futures]
-        return out
-
-    def _side(self, threads: int, count: int) -> list[Denoiser]:
-        """`count` devices of `threads` threads each for `denoise_all`, made once."""
-        side = self._sides.setdefault(threads, [])
-        while len(side) < count:
-            side.append(Denoiser(self.library, threads=threads, weights_dir=self._weights_dir))
-        return side[:count]
 
     def __del__(self) -> None:
         self.close()
