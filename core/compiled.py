@@ -14,6 +14,10 @@ then it compiles the `kernels` and returns them by name. The options are the tra
 compiles), numpy's error model (a division by zero gives inf or NaN, as numpy does); helpers that
 make no array are compiled without reference counting (`_nrt=False`: otherwise every per-sample
 call counts each array it is passed up and down, atomically); `allocating` names those that do.
+Helpers named in `inline` are inlined into their callers by numba (`inline="always"`, before
+LLVM sees them): otherwise each is a call LLVM cannot inline, passing every array argument
+field by field, and in a per-sample loop those calls cost more than small helpers' arithmetic.
+Inlining changes no arithmetic (the same operations in the same order; no fast-math).
 
 numba's disk cache checks only the source file of the function it compiled: after editing a
 helper another module's kernels call, delete that module's cache (`__pycache__/*.nbi`, `*.nbc`).
@@ -35,7 +39,7 @@ _lock = threading.RLock()
 class KernelSet:
     """The numba kernels of `module` (its __name__): `kernels` entry points, `helpers` they call
     (compiled first), `allocating` the helpers that make arrays, `uses` the sets whose helpers
-    this module imports."""
+    this module imports, `inline` the helpers inlined into their callers."""
 
     def __init__(
         self,
@@ -44,9 +48,10 @@ class KernelSet:
         helpers: tuple[str, ...] = (),
         allocating: tuple[str, ...] = (),
         uses: tuple[KernelSet, ...] = (),
+        inline: tuple[str, ...] = (),
     ):
         self.module, self.kernels, self.helpers = module, kernels, helpers
-        self.allocating, self.uses = allocating, uses
+        self.allocating, self.uses, self.inline = allocating, uses, inline
         self._compiled: SimpleNamespace | None = None
 
     def get(self) -> SimpleNamespace:
@@ -63,6 +68,7 @@ class KernelSet:
         numba = deps.require("numba")
         jit = numba.njit(nogil=True, cache=True, error_model="numpy")
         borrow = numba.njit(nogil=True, cache=True, error_model="numpy", _nrt=False)
+        inlined = numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
         module = vars(sys.modules[self.module])
         for name, value in list(module.items()):  # helpers of other sets, imported by name
             if id(value) in _COMPILED and _COMPILED[id(value)][0] is value:
@@ -70,7 +76,8 @@ class KernelSet:
         for name in self.helpers:
             plain = module[name]
             if id(plain) not in _COMPILED:  # a helper two sets bind (e.g. sh.basis) compiles once
-                _COMPILED[id(plain)] = (plain, (jit if name in self.allocating else borrow)(plain))
+                how = inlined if name in self.inline else jit if name in self.allocating else borrow
+                _COMPILED[id(plain)] = (plain, how(plain))
             module[name] = _COMPILED[id(plain)][1]
         out = {}
         for name in self.kernels:

@@ -175,6 +175,27 @@ def test_the_light_tree_splits_the_top_clusters_down_to_single_triangles(monkeyp
     assert (flat.child_count[:-1] == 0).all() and flat.child_count[-1] == len(flat.parent) <= lights.emitters.CLUSTERS
 
 
+def test_a_nodes_share_of_its_siblings_power_sums_them_one_at_a_time():
+    """`sibling_shares`, which the kernels read instead of summing per sample: each node's power
+    over its siblings' summed power, the sum taken one node at a time in index order, as the
+    per-sample loop took it (numpy's pairwise sum differs in the last bits at some nodes, and
+    a bake's samples would with it)."""
+    tris, emission = lamp_grid(12)
+    emission[1:] *= np.random.default_rng(3).uniform(0.01, 100.0, (len(tris) - 1, 1))  # unequal powers
+    light = lights.emitters.EmissiveTriangles(tris, emission)
+    power, first, count = light.cluster_power, light.child_first, light.child_count
+    share = lights.emitters.sibling_shares(power, first, count)
+    pairwise_differs = False
+    for node in range(len(count)):
+        siblings = slice(first[node], first[node] + count[node])
+        total = 0.0
+        for p in power[siblings]:
+            total += float(p)
+        np.testing.assert_array_equal(share[siblings], power[siblings] / total)
+        pairwise_differs |= count[node] > 0 and np.sum(power[siblings]) != total
+    assert pairwise_differs  # (the order matters for these powers)
+
+
 def test_among_many_lamps_the_tree_gives_the_one_overhead_several_times_the_samples(monkeypatch):
     """A point 20 cm under one of 144 small lamps, which brings most of its light: the flat
     clusters (about 5 lamps each, a triangle by power within) give that lamp a few percent of the

@@ -94,7 +94,7 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
     row at a time): a leaf of the light tree by `u[0]` (`_pick_leaf`, with normals (R, 3) or
     no rows), the triangle of the leaf by `u[1]` (the first of its rows of `key` above leaf +
     u), then, if its solid angle from x lies in window (lo, hi), a direction in it by u[2], u[3]
-    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (10,
+    (`_spherical_direction`), else a uniform point on it. u (4, R); emitters: (clusters (11,
     K): the tree's K nodes, rows as `_cluster_weights` takes them; key (E,), order (E,),
     first (K,), last (K,): each leaf's rows of key; each triangle's bounding sphere (T, 4):
     centre, radius; child_first, child_count (K + 1,), parent (K,): `lights.tree.light_tree`).
@@ -330,11 +330,12 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, fi
     its row 8) weighs its emitted luminance (row 7) times the solid angle the triangle subtends
     from x instead of power over distance²: beside a lamp's quad, the triangle the point sits by
     subtends far more than its twin, which power over distance² cannot tell apart (the horizon
-    factor is kept). clusters (10, K): rows centre x, y, z, radius², radius, power, the lone
+    factor is kept). clusters (11, K): rows centre x, y, z, radius², radius, power, the lone
     triangle's id in triangles (T, 3, 3) (−1: several), its luminance, the near distance², the
-    distance² from which the tree below is descended by power alone (`_pick_leaf`).
+    distance² from which the tree below is descended by power alone (`_pick_leaf`), its share of
+    its siblings' summed power (`lights.emitters.sibling_shares`).
     Element-wise and branch-free, so the first loops vectorise (bit for bit the scalar
-    arithmetic; without fast-math, which would reassociate the sum and make its last bits
+    arithmetic; `_max`, as numba's `max` does not let them; without fast-math, which would reassociate the sum and make its last bits
     depend on the arrays' alignment: a seed would no longer reproduce a bake bit for bit
     across processes). Scalars and three arrays: a call's cost grows with its arguments.
     With d the distance, r the radius and a = normal · (centre − x): the normal lies inside
@@ -349,16 +350,16 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, fi
             r2 = clusters[3, c]
             a = nx * dx + ny * dy + nz * dz
             h2 = d2 - r2
-            edge = a * math.sqrt(max(h2, 0.0)) + math.sqrt(max(d2 - a * a, 0.0)) * clusters[4, c]  # × d2
+            edge = a * math.sqrt(_max(h2, 0.0)) + math.sqrt(_max(d2 - a * a, 0.0)) * clusters[4, c]  # × d2
             outside = (h2 > 0.0) & ((a < 0.0) | (a * a < h2))
-            d2s = max(d2, 1e-300)
-            w[c] = clusters[5, c] * (max(edge, 0.0) if outside else d2s) / (max(d2, r2) * d2s)
+            d2s = _max(d2, 1e-300)
+            w[c] = clusters[5, c] * (_max(edge, 0.0) if outside else d2s) / (_max(d2, r2) * d2s)
     else:
         for c in range(first, end):
             dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
             d2 = dx * dx + dy * dy + dz * dz
             near += d2 < clusters[8, c]
-            w[c] = clusters[5, c] / max(d2, clusters[3, c])
+            w[c] = clusters[5, c] / _max(d2, clusters[3, c])
     for c in range(first, end if near else first):  # lone triangles near x: by solid angle
         if clusters[6, c] < 0.0 or w[c] <= 0.0:
             continue
@@ -374,13 +375,18 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, fi
     return total
 
 
+def _max(a, b):
+    """max(a, b) as numba's builtin gives it (b where b > a, else a: a NaN or a tie keeps a), in
+    a form LLVM vectorises: a loop calling the builtin stays scalar."""
+    return b if b > a else a
+
+
 def _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, first, end, share):
-    """(scale, mix, power) of the choice among the light tree nodes first .. end − 1 (siblings)
-    at (px, py, pz): node c is picked with probability scale·w[c] + mix·clusters[5, c] / power
-    (`_cluster_weights` into w, `_cluster_chances`; power: the siblings' summed power)."""
+    """(scale, mix) of the choice among the light tree nodes first .. end − 1 (siblings) at
+    (px, py, pz): node c is picked with probability scale·w[c] + mix·clusters[10, c] (its share
+    of the siblings' power; `_cluster_weights` into w, `_cluster_chances`)."""
     total = _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, first, end)
-    scale, mix = _cluster_chances(total, share)
-    return scale, mix, _power_of(clusters, first, end)
+    return _cluster_chances(total, share)
 
 
 def _pick_leaf(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_first, child_count, u, share):
@@ -388,7 +394,7 @@ def _pick_leaf(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_fi
     (N + 1,), the last entry the root) picked at (px, py, pz) by the uniform number u, one level
     at a time among a node's children (`_child_chance`), u rescaled to the picked child's
     interval for the next level; below a node the point lies far from (distance² at least its
-    clusters[9]), by power alone (`_power_of`): its leaves' weights would differ little.
+    clusters[9]), by power alone (clusters[10]): its leaves' weights would differ little.
     chance: the product of the levels' probabilities."""
     node = child_first.shape[0] - 1
     chance = 1.0
@@ -399,30 +405,22 @@ def _pick_leaf(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_fi
             node = a
             continue
         if far:
-            scale, mix, power = 0.0, 1.0, _power_of(clusters, a, end)
+            scale, mix = 0.0, 1.0
         else:
-            scale, mix, power = _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share)
+            scale, mix = _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share)
         pick, below, acc = end - 1, 0.0, 0.0
         for c in range(a, end):
             below = acc
-            acc += (scale * w[c] if scale > 0.0 else 0.0) + mix * (clusters[5, c] / power)
+            acc += (scale * w[c] if scale > 0.0 else 0.0) + mix * clusters[10, c]
             if u < acc:
                 pick = c
                 break
-        p = (scale * w[pick] if scale > 0.0 else 0.0) + mix * (clusters[5, pick] / power)
+        p = (scale * w[pick] if scale > 0.0 else 0.0) + mix * clusters[10, pick]
         chance *= p
         u = min(max((u - below) / p, 0.0), _BELOW_ONE) if p > 0.0 else 0.0
         node = pick
-        far = far or _far_from(px, py, pz, clusters, node)
+        far = far or (child_count[node] > 0 and _far_from(px, py, pz, clusters, node))  # (a leaf ends)
     return node, chance
-
-
-def _power_of(clusters, first, end):
-    """The summed power of the light tree nodes first .. end − 1."""
-    power = 0.0
-    for c in range(first, end):
-        power += clusters[5, c]
-    return power
 
 
 def _far_from(px, py, pz, clusters, c):
@@ -452,14 +450,12 @@ def _leaf_chance(
         a, end = child_first[node], child_first[node] + child_count[node]
         if end - a > 1:
             if far:
-                chance *= clusters[5, c] / _power_of(clusters, a, end)
+                chance *= clusters[10, c]
             else:
-                scale, mix, power = _child_chance(
-                    px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share
-                )
-                chance *= scale * w[c] + mix * (clusters[5, c] / power)
+                scale, mix = _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share)
+                chance *= scale * w[c] + mix * clusters[10, c]
         node = c
-        far = far or _far_from(px, py, pz, clusters, node)
+        far = far or (j > 0 and _far_from(px, py, pz, clusters, node))  # (the leaf ends)
     return chance
 
 
@@ -551,26 +547,29 @@ def _cluster_chances(total, share):
     return (1.0 - share) / total, share
 
 
+_HELPERS = (
+    "_solid_angle",
+    "_cluster_weights",
+    "_max",
+    "_normal",
+    "_cluster_chances",
+    "_far_from",
+    "_child_chance",
+    "_pick_leaf",
+    "_leaf_chance",
+    "_horizon_bound",
+    "_unit3",
+    "_spherical",
+    "_spherical_direction",
+    "_emitter_density",
+    "_surely_small",
+    "_spherical_rectangle",
+)
+#: every helper inlined: they run per sample, and a call costs more than most of them
 KERNELS = compiled.KernelSet(
     __name__,
     kernels=("sample_emitters", "sample_area_light", "choose_lights", "emitter_pdf"),
-    helpers=(
-        "_solid_angle",
-        "_cluster_weights",
-        "_normal",
-        "_cluster_chances",
-        "_power_of",
-        "_far_from",
-        "_child_chance",
-        "_pick_leaf",
-        "_leaf_chance",
-        "_horizon_bound",
-        "_unit3",
-        "_spherical",
-        "_spherical_direction",
-        "_emitter_density",
-        "_surely_small",
-        "_spherical_rectangle",
-    ),
+    helpers=_HELPERS,
+    inline=_HELPERS,
 )
 get = KERNELS.get

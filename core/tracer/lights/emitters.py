@@ -217,13 +217,16 @@ class EmissiveTriangles(Light):
         return dirs, dist, self.emission[pick], pdf
 
     def _emitters(self) -> tuple:
-        """The cluster arrays the kernels take (`light_kernels.sample_emitters`)."""
-        radius2 = self.radius2
-        rows = [self.centre.T, radius2, np.sqrt(radius2), self.cluster_power, self.lone, self.luminance]
-        rows += [NEAR_RADII**2 * radius2, DESCEND_RADII**2 * radius2]
-        clusters = np.ascontiguousarray(np.vstack(rows), np.float64)
-        tree = (self.child_first, self.child_count, self.parent)
-        return (clusters, self.key, self.order, self.first, self.last, self.bound, *tree)
+        """The cluster arrays the kernels take (`light_kernels.sample_emitters`), made once."""
+        if getattr(self, "_kernel_arrays", None) is None:
+            radius2 = self.radius2
+            rows = [self.centre.T, radius2, np.sqrt(radius2), self.cluster_power, self.lone, self.luminance]
+            rows += [NEAR_RADII**2 * radius2, DESCEND_RADII**2 * radius2]
+            rows += [sibling_shares(self.cluster_power, self.child_first, self.child_count)]
+            clusters = np.ascontiguousarray(np.vstack(rows), np.float64)
+            tree = (self.child_first, self.child_count, self.parent)
+            self._kernel_arrays = (clusters, self.key, self.order, self.first, self.last, self.bound, *tree)
+        return self._kernel_arrays
 
     def pdf(self, d, t=None, prim=None, origins=None, normals=None) -> np.ndarray:
         """Density per steradian of sampling, from `origins` (R, 3) with `normals` (R, 3) or
@@ -260,6 +263,22 @@ class EmissiveTriangles(Light):
     def power(self) -> float:
         """Both sides of a Lambertian emitter: 2π · Σ area × emitted luminance."""
         return float(2.0 * np.pi * (self.area * np.maximum(self.emission @ LUMINANCE, 0.0)).sum())
+
+
+def sibling_shares(power: np.ndarray, child_first: np.ndarray, child_count: np.ndarray) -> np.ndarray:
+    """(N,): each light tree node's power over the summed power of its siblings (its parent's
+    children, `light_tree`'s links), the sum taken one node at a time in index order, as a
+    kernel's loop would: the kernels read these shares instead of summing and dividing per
+    sample, the same numbers to the bit."""
+    share = np.ones(len(power))
+    for node in range(len(child_count)):
+        a, m = int(child_first[node]), int(child_count[node])
+        total = 0.0
+        for c in range(a, a + m):
+            total += float(power[c])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            share[a : a + m] = power[a : a + m] / total
+    return share
 
 
 #: Solid angles (sr) within which an emitting triangle is sampled by a uniform direction in it
