@@ -47,9 +47,9 @@ def search_theta(
 ):
     """`search.search_theta` (module docstring): the chosen θ `theta_out (N,)`, its objective
     `err_out (N,)` and the fit's w there `w_out (N, K)`. BLOCK texels at a time go through each
-    step of the search together, each step a loop over the block (as numpy's over the chunk),
-    which the compiler turns into vector instructions: a texel's steps depend on one another,
-    the block's texels do not."""
+    step of the search together, each step a loop over the block (as numpy's over the chunk): a
+    texel's steps depend on one another, the block's texels do not, so the processor overlaps
+    their work (one texel at a time, each evaluation is a single chain of dependent operations)."""
     n_k = iz.shape[1]
     state = np.zeros((9, BLOCK))
     theta, obj, e_best, lo, hi, x1, x2, f1, f2 = state  # per texel of the block
