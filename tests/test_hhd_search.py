@@ -57,7 +57,7 @@ def test_the_compiled_search_gives_the_vectorised_searchs_bits(model, gram, lumi
     )
     start, phi = search.optimal_linear_angles(local, lum_fit, THETA_MAX)
     at = fit.at_phi(phi)
-    theta, err, w = search.search_theta_fit(fit, phi, start, THETA_MAX, at=at)
+    theta, err, w = search.search_theta(fit, phi, start, THETA_MAX, at=at)
     ref_theta, ref_w = reference_search_theta(at, start)
     assert theta.tobytes() == ref_theta.tobytes()
     assert w.tobytes() == ref_w.tobytes()
@@ -72,7 +72,7 @@ def test_the_search_takes_no_texel():
         luminance=True, hemisphere_sampled=True,
     )  # fmt: skip
     start, phi = search.optimal_linear_angles(local, lum_fit, THETA_MAX)
-    theta, err, w = search.search_theta_fit(fit, phi, start, THETA_MAX)
+    theta, err, w = search.search_theta(fit, phi, start, THETA_MAX)
     assert theta.shape == err.shape == (0,) and w.shape == (0, 1)
     p = encoder.encode(np.zeros((0, 9, 3)), np.zeros((0, 3)))
     assert p.irradz.shape == (0, 3) and p.ambient_weight.shape == (0,) and p.direction.shape == (0, 3)

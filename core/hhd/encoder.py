@@ -12,7 +12,7 @@ import numpy as np
 from .. import gram as _gram
 from .fit import prepare
 from .lobes import MIN_COS, HHDParams, ambient_lobe
-from .search import GOLDEN_ITERATIONS, optimal_linear_angles, search_phi, search_theta_fit
+from .search import GOLDEN_ITERATIONS, optimal_linear_angles, search_phi, search_theta
 
 #: Texels per chunk: the fit's (N,) temporaries stay small, and its numpy calls few enough that
 #: the encoder's workers (`encoding.stage.encode_images`: chunk-parallel threads) do not queue on
@@ -120,7 +120,7 @@ def encode_chunk(world_sh, n, invalid, *, searched, phi_search, theta_max, itera
             at = fit.at_phi(phi)
             _, w = at.evaluate(theta)
         else:
-            theta, _, w = search_theta_fit(fit, phi, theta, theta_max, iterations, at=at)
+            theta, _, w = search_theta(fit, phi, theta, theta_max, iterations, at=at)
     else:
         _, w = at.evaluate(theta)
     # Where the fit is all ambient (w = 1 up to rounding) the direction is irrelevant: store

@@ -54,23 +54,10 @@ def search_theta(
     at: FitAtPhi | None = None,
 ):
     """Best θ at fixed φ: coarse scan of [0, θ_max], golden-section in the best bracket, and the
-    starting θ (the optimal linear one) as a candidate. Returns (θ, objective), each `(N,)`.
-    `at`: `fit.at_phi(phi)`, if the caller has it."""
-    theta, err, _ = search_theta_fit(fit, phi, theta_start, theta_max, iterations, at)
-    return theta, err
-
-
-def search_theta_fit(
-    fit: Fit,
-    phi: np.ndarray,
-    theta_start: np.ndarray,
-    theta_max: float,
-    iterations: int = GOLDEN_ITERATIONS,
-    at: FitAtPhi | None = None,
-):
-    """`search_theta`, and the fit's w `(N, K)` at the θ it returns (`FitAtPhi.evaluate`'s), per
-    texel in the compiled kernel (`search_kernels`: the bits of the vectorised `golden` over
-    `FitAtPhi.evaluate`)."""
+    starting θ (the optimal linear one) as a candidate. Returns (θ, objective) `(N,)` and the
+    fit's w `(N, K)` there (`FitAtPhi.evaluate`'s). `at`: `fit.at_phi(phi)`, if the caller has
+    it. Per texel in the compiled kernel (`search_kernels`: the bits of the vectorised `golden`
+    over `FitAtPhi.evaluate`)."""
     n = len(phi)
     at = fit.at_phi(phi) if at is None else at
     theta, err = np.empty(n), np.empty(n)
@@ -118,7 +105,7 @@ def search_phi(fit: Fit, phi0: np.ndarray, theta0: np.ndarray, theta_max: float,
         phi_best_scan + half,
         PHI_GOLDEN_ITERATIONS,
     )
-    theta, err = search_theta(fit, phi, theta0, theta_max, iterations)
+    theta, err, _ = search_theta(fit, phi, theta0, theta_max, iterations)
     scan_theta = np.stack([r[0] for r in results], axis=1)[np.arange(n), k]
     better_scan = errs[np.arange(n), k] < err
     return np.where(better_scan, scan_theta, theta), np.where(better_scan, phi_best_scan, phi)
