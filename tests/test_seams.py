@@ -277,6 +277,29 @@ def test_stitching_closes_the_seams_of_a_linear_bake_and_touches_nothing_else(sp
     np.testing.assert_allclose(np.linalg.norm(out.normal.reshape(-1, 3)[gutter], axis=1), 1.0, rtol=1e-6)
 
 
+def test_the_records_measure_an_even_subset_of_the_samples_past_the_limit(sphere_cylinder, monkeypatch):
+    found = geometry.find_seams(sphere_cylinder.mesh, RES, RES)
+    count = len(found)
+    assert count > 40
+    assert metrics.recorded(found, count) is found
+    limit = count // 3
+    subset = metrics.recorded(found, limit)
+    # sample i · S // limit: the first kept, none more than ⌈S / limit⌉ apart, the same fields
+    kept = np.flatnonzero(np.isin(np.arange(count), np.arange(limit) * count // limit))
+    assert len(subset) == limit == len(kept) and kept[0] == 0 and np.diff(kept).max() <= -(-count // limit)
+    np.testing.assert_array_equal(subset.a, found.a[kept])
+    np.testing.assert_array_equal(subset.edge, found.edge[kept])
+    # the stitch records that many samples, and the stitched SH does not depend on it
+    data = linear_data(sphere_cylinder)
+    whole, record = stitching.stitch(memory.keep(data), found)
+    monkeypatch.setattr(metrics, "RECORD_SAMPLES", limit)
+    part, part_record = stitching.stitch(memory.keep(data), found)
+    np.testing.assert_array_equal(part.sh, whole.sh)
+    assert record["before"]["samples"] == record["after"]["samples"] > limit
+    assert part_record["before"]["samples"] == part_record["after"]["samples"] == limit
+    assert part_record["before"]["mean"] == pytest.approx(record["before"]["mean"], rel=0.25)
+
+
 def test_stitched_gutter_texels_are_encoded_not_overwritten_by_dilation(sphere_cylinder):
     points = sphere_cylinder
     found = geometry.find_seams(points.mesh, RES, RES)

@@ -14,7 +14,7 @@ from ... import parallel
 from ...encoding import hhd as hhd_spec
 from ...progress import ticker
 from .geometry import Seams
-from .metrics import _brief, _metric
+from .metrics import _brief, _metric, recorded
 from .reads import _Stacked, bilinear, hhd_reader, hidden_texels, reads_hidden
 from .solve import _solve, _system
 
@@ -66,7 +66,7 @@ def stitch_encoded(
     out = dict(images)  # the stitched layers: the atlas's own images, written into
     model = atlas.settings.get("model", "hhd")
     shown = ~reads_hidden(seams, hidden_texels(np.asarray(coverage)))
-    visible = atlas_seams.select(shown)
+    visible = recorded(atlas_seams.select(shown))
     measure, *solves, after = tick.split([0.1, 0.4, 0.4, 0.1])
     measure.at(0.0, "measuring the seams")
     before = _metric(hhd_reader(images, model).placed(window), visible, worst=0)

@@ -28,6 +28,11 @@ EDGE_STEP = (0.5, 1.5)
 #: Seam samples a worker reads at once (`_luminances`; memory: a read holds each sample's filtered
 #: texels, float64, a few times over: ~1 kB a sample).
 READ_SAMPLES = 1 << 14
+#: Seam samples the stitch stages' records measure at most (`recorded`): their before and after
+#: metrics are statistics of the samples (means, a 95th percentile), which an even subset of
+#: this size gives to within a few per cent of every sample's (bench/results/seam_metric_subset.md)
+#: at a fraction of the reads. `seam_metric` (benches, tests) reads every sample.
+RECORD_SAMPLES = 1 << 16
 
 
 def seam_metric(source, seams: Seams, worst: int = 10, tilt: float = TILT, coverage: np.ndarray | None = None) -> dict:
@@ -202,6 +207,24 @@ def _weighted_quantile(x: np.ndarray, w: np.ndarray, q: float) -> float:
     return float(x[order][min(int(np.searchsorted(cum, q * cum[-1])), len(x) - 1)])
 
 
+def recorded(seams: Seams, limit: int | None = None) -> Seams:
+    """The samples a stitch stage's record measures: all of `seams` up to `limit` of them
+    (default RECORD_SAMPLES), else `limit` spread evenly over them (sample i · S // limit: the
+    samples run edge by edge, so every part of the atlas keeps its share)."""
+    limit = RECORD_SAMPLES if limit is None else limit
+    count = len(seams)
+    if count <= limit:
+        return seams
+    keep = np.zeros(count, bool)
+    keep[np.arange(limit, dtype=np.int64) * count // limit] = True
+    return seams.select(keep)
+
+
 def _brief(metric: dict) -> dict:
+    """A stitch record's summary of a `_metric`: its statistics (of `samples` seam samples read)."""
     keys = ("mean", "p95", "interior", "edge_step", "ratio")
-    return {**{k: metric[k] for k in keys}, "tilted": {k: metric["tilted"][k] for k in keys}}
+    return {
+        **{k: metric[k] for k in keys},
+        "samples": metric["samples"],
+        "tilted": {k: metric["tilted"][k] for k in keys},
+    }

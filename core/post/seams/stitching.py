@@ -13,7 +13,7 @@ from ... import parallel
 from ...memory import row_blocks, trim_heap
 from ...progress import ticker
 from .geometry import Seams, _unit
-from .metrics import _brief, _metric
+from .metrics import _brief, _metric, recorded
 from .reads import FilledRows, reads_hidden, sh_reader
 from .solve import SYSTEM_ROWS, _groups, _solve, _System, _system
 
@@ -107,7 +107,7 @@ def stitch(data: TexelData, seams: Seams, check=None, threads: int = 0) -> tuple
     trim_heap()  # the system and what the solver's threads freed, before the metric's reads (memory)
     # As the SH file will read (the stitched texels are sources; no other texel the metric
     # reads changes, up to gutter texels of thin charts whose nearest source moved).
-    visible = atlas_seams.select(shown)
+    visible = recorded(atlas_seams.select(shown))
     image = FilledRows(data.sh.reshape(h * w, 9, -1), fill, (h, w), keep_black=True)
     read = sh_reader(image).placed(data.window)
     rest.at(0.3, "measuring the seams")
