@@ -1,9 +1,12 @@
-"""Writing EXRs a band of scanlines at a time from views (`exr.write_file`) gives the bytes of the
-OpenEXR binding's whole-image writer, and the raw SH file's channels filled a band of rows at a
-time (`encoding.filled`) are the filled copies' values, and a layer packed in
-chunks is the layer packed whole: the encode and write stages' memory cuts
-(bench/results/memory.md). No Blender."""
+"""Writing EXRs a band of scanlines at a time from views, compressed on several threads
+(`exr.write_file`, `zip_exr`), gives files the OpenEXR binding reads back to the very channel
+values, with the header of the binding's whole-image writer byte for byte; and the raw SH file's
+channels filled a band of rows at a time (`encoding.filled`) are the filled copies' values, and
+a layer packed in chunks is the layer packed whole: the encode and write stages' memory cuts
+(bench/results/memory.md). No Blender (tests/test_exr_write_blender.py: Blender's reader)."""
 
+import struct
+import zlib
 from dataclasses import replace
 
 import numpy as np
@@ -20,20 +23,51 @@ from hhd_lightmapper.core.encoding import (
     raw_files,
 )
 from hhd_lightmapper.core.encoding.stage import DILATE_RINGS, raw_images
-from hhd_lightmapper.core.files import exr
+from hhd_lightmapper.core.files import exr, sparse_exr, zip_exr
 
 
-def whole_image_bytes(tmp_path, channels: dict, attributes: dict) -> bytes:
-    """What `exr.write_file` wrote before it wrote in bands: `OpenEXR.File(...).write`."""
+def binding_file(tmp_path, channels: dict, attributes: dict) -> bytes:
+    """The OpenEXR binding's whole-image writer's file (`OpenEXR.File(...).write`, ZIP), what
+    `exr.write_file` wrote before it compressed the blocks itself."""
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     header.update({k: str(v) for k, v in attributes.items()})
-    path = tmp_path / "whole.exr"
+    path = tmp_path / "binding.exr"
     OpenEXR.File(header, {k: np.ascontiguousarray(v) for k, v in channels.items()}).write(str(path))
     return path.read_bytes()
 
 
-@pytest.mark.parametrize("shape", [(1, 1), (5, 3), (64, 7), (203, 131)])
-def test_band_writes_of_views_are_the_whole_image_writers_bytes(tmp_path, shape):
+def blocks(data: bytes, height: int) -> tuple[bytes, list[tuple[int, bytes]]]:
+    """A scanline ZIP file's magic, version and header, and its blocks (y, stored bytes) in the
+    offset table's order."""
+    head, stored = sparse_exr._parse(data, -(-height // 16))
+    at = len(head)
+    offsets = struct.unpack_from(f"<{len(stored)}Q", data, at)
+    return head, [(struct.unpack_from("<i", data, o)[0], b) for o, b in zip(offsets, stored)]
+
+
+def assert_as_the_binding_writes(tmp_path, channels: dict, attributes: dict, threads: int) -> bytes:
+    """`exr.write_file`'s file: the binding reads back every channel bit for bit (dtype too),
+    its header is the binding's writer's byte for byte, its blocks in order of y; returns it."""
+    path = tmp_path / f"ours{threads}.exr"
+    exr.write_file(path, channels, attributes, threads=threads)
+    read, header = exr.read(path)
+    assert read.keys() == channels.keys()
+    for name, data in channels.items():
+        assert read[name].dtype == data.dtype, name
+        assert read[name].tobytes() == np.ascontiguousarray(data).tobytes(), name
+    reference = binding_file(tmp_path, channels, attributes)
+    h = next(iter(channels.values())).shape[0]
+    ours, theirs = blocks(path.read_bytes(), h), blocks(reference, h)
+    assert ours[0] == theirs[0]  # magic, version, every attribute and the channel list
+    assert [y for y, _ in ours[1]] == [y for y, _ in theirs[1]] == list(range(0, h, 16))
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (5, 3), (37, 1), (64, 7), (203, 131)])
+def test_band_writes_of_views_read_back_as_the_binding_writes_them(tmp_path, shape):
+    """Float32 and half channels (strided, rows reversed), heights that are and are not a
+    multiple of the 16-line block, width 1, a 1×1 image; attributes of any text; on 1 and on 3
+    threads the same bytes."""
     rng = np.random.default_rng(shape[0])
     h, w = shape
     sh = rng.normal(size=(h, w, 9, 3)).astype(np.float32) * 1e3
@@ -41,12 +75,97 @@ def test_band_writes_of_views_are_the_whole_image_writers_bytes(tmp_path, shape)
     channels = {f"SH{k}.{c}": sh[::-1, :, k, i] for k in (0, 4) for i, c in enumerate("RGB")}  # strided, reversed
     channels["Wa.V"] = rng.random((h, w)).astype(np.float16)
     attributes = {"hhdFormat": "hhd-lightmap", "hhdFormatVersion": 3, "hhdAtlas": "Lightmap.Sun ü"}
-    path = tmp_path / "bands.exr"
-    exr.write_file(path, channels, attributes)
-    assert path.read_bytes() == whole_image_bytes(tmp_path, channels, attributes)
-    read, header = exr.read(path)
-    assert all(np.array_equal(read[k], v) for k, v in channels.items())
+    one = assert_as_the_binding_writes(tmp_path, channels, attributes, threads=1)
+    assert assert_as_the_binding_writes(tmp_path, channels, attributes, threads=3) == one
+    _, header = exr.read(tmp_path / "ours1.exr")
     assert header["hhdAtlas"] == "Lightmap.Sun ü"
+
+
+def extremes(dtype, size: int, rng) -> np.ndarray:
+    """`size` values of `dtype` with its extremes: the largest, the smallest normal and
+    subnormal, ±0, both signs, and ordinary values."""
+    info = np.finfo(dtype)
+    special = np.array(
+        [info.max, -info.max, info.tiny, info.smallest_subnormal, -info.smallest_subnormal, 0.0, -0.0, 1.0], dtype
+    )
+    values = rng.normal(size=size).astype(dtype)
+    values[: min(size, special.size)] = special[:size]
+    return rng.permutation(values)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (17, 1), (40, 33)])
+def test_extreme_values_random_bits_and_zeros_read_back_bit_for_bit(tmp_path, shape):
+    """Huge and tiny values; blocks of random bits (they do not deflate: stored raw, as OpenEXR
+    stores them); an all-zero channel; long names (the version's long-names flag)."""
+    rng = np.random.default_rng(7)
+    h, w = shape
+    bits = rng.integers(0, 2**32, size=(h, w), dtype=np.uint32)
+    bits[(bits >> 23 & 0xFF) == 0xFF] &= ~np.uint32(1 << 30)  # no NaN or infinity
+    half_bits = rng.integers(0, 2**16, size=(h, w), dtype=np.uint16)
+    half_bits[(half_bits >> 10 & 0x1F) == 0x1F] &= ~np.uint16(1 << 14)
+    channels = {
+        "big.F": extremes(np.float32, h * w, rng).reshape(h, w),
+        "big.H": extremes(np.float16, h * w, rng).reshape(h, w),
+        "noise.F": bits.view(np.float32),
+        "noise.H": half_bits.view(np.float16),
+        "zero.F": np.zeros((h, w), np.float32),
+        "a channel name longer than 31 bytes.V": np.zeros((h, w), np.float16),
+    }
+    data = assert_as_the_binding_writes(tmp_path, channels, {"note": "x" * 300}, threads=2)
+    assert struct.unpack_from("<i", data, 4)[0] == 2 | 0x400
+    noise = {k: channels[k] for k in ("noise.F", "noise.H")}
+    data = assert_as_the_binding_writes(tmp_path, noise, {}, threads=2)
+    assert all(len(b) == min(16, h - y) * w * 6 for y, b in blocks(data, h)[1])  # stored raw
+    zeros = {"zero.F": channels["zero.F"]}
+    data = assert_as_the_binding_writes(tmp_path, zeros, {}, threads=2)
+    deflated = [len(b) < min(16, h - y) * w * 4 for y, b in blocks(data, h)[1]]
+    assert all(deflated) if w * h >= 40 * 33 else deflated[-1] is False  # a few bytes do not deflate smaller
+
+
+def test_a_block_is_the_reordered_predicted_deflated_lines():
+    """`zip_exr.compress_block` against OpenEXR's ZIP block as its specification states it: the
+    lines' bytes (channels in order, line by line), even bytes then odd ones, each byte but the
+    first minus its predecessor plus 128, zlib-deflated; inflated and undone here, the lines."""
+    rng = np.random.default_rng(3)
+    lines = [np.ascontiguousarray(rng.integers(0, 4, size=(13, 21)).astype(t) / 4) for t in ("<f4", "<f2", "<f4")]
+    stored = zip_exr.compress_block(lines, 6)
+    raw = b"".join(a[r].tobytes() for r in range(13) for a in lines)
+    assert len(stored) < len(raw)
+    d = np.frombuffer(zlib.decompress(stored), np.uint8).astype(np.int64)
+    t = np.cumsum(np.concatenate([d[:1], d[1:] - 128])) % 256  # undo the predictor
+    half = (t.size + 1) // 2
+    back = np.empty(t.size, np.uint8)
+    back[0::2], back[1::2] = t[:half], t[half:]
+    assert back.tobytes() == raw
+
+
+def test_a_cancel_or_a_non_finite_band_stops_a_threaded_write(tmp_path):
+    """`rows_done` raising (a cancel) and a NaN in a later band: raised from the write, on
+    several threads too, after the bands before it were handed over."""
+    image = np.ones((300, 20), np.float32)
+    done = []
+
+    def cancel(rows, of):
+        done.append(rows)
+        if rows >= 128:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        exr.write_file(tmp_path / "c.exr", {"V.V": image}, rows_done=cancel, threads=2)
+    assert done == [64, 128]
+    image[200, 3] = np.nan
+    with pytest.raises(exr.NonFiniteValue, match="'V.V'"):
+        exr.write_file(tmp_path / "n.exr", {"V.V": image}, threads=2)
+
+
+def test_attribute_names_the_writer_sets_and_bad_names_are_refused(tmp_path):
+    image = {"V.V": np.zeros((2, 2), np.float32)}
+    with pytest.raises(ValueError, match="sets itself"):
+        exr.write_file(tmp_path / "a.exr", image, {"compression": "none"})
+    with pytest.raises(ValueError, match="null byte"):
+        exr.write_file(tmp_path / "a.exr", {"V\0.V": image["V.V"]})
+    with pytest.raises(ValueError, match="one size"):
+        exr.write_file(tmp_path / "a.exr", {"V.V": np.zeros((0, 2), np.float32)})
 
 
 def test_band_writes_refuse_other_dtypes_and_mixed_sizes(tmp_path):

@@ -31,8 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import deps
+from .. import deps, parallel
 from ..errors import BakeError
+from . import zip_exr
 
 
 def to_exr_rows(image: np.ndarray, copy: bool = True) -> np.ndarray:
@@ -117,18 +118,24 @@ def _check_finite(path, name: str, data: np.ndarray) -> None:
 
 
 def set_threads(threads: int) -> None:
-    """Compress and decompress with `threads` workers (≥ 1; 1 = on the calling thread). Sets the
-    OpenEXR binding's process-wide pool, shared by every EXR read and write in this process (not
-    Blender's own OpenEXR). ZIP blocks are compressed independently, so the bytes written do not
-    depend on it."""
+    """Compress and decompress with `threads` workers (≥ 1; 1 = on the calling thread), in this
+    process from now on: `write_file`'s ZIP blocks (its pool, when not given `threads`) and the
+    OpenEXR binding's process-wide pool, which its reads use (not Blender's own OpenEXR). ZIP
+    blocks are compressed independently, so the bytes written do not depend on it."""
+    global _write_threads
+    _write_threads = max(1, threads)
     openexr = deps.require("OpenEXR")
     count = threads if threads > 1 else 0  # 0: OpenEXR's single-threaded mode
     if openexr.global_thread_count() != count:
         openexr.set_global_thread_count(count)
 
 
-#: Scanlines handed to OpenEXR per call when writing (a multiple of ZIP's 16-line blocks): the
-#: memory a write adds is this many rows of every channel, whatever the image size.
+#: `write_file`'s compression threads when not given any (`set_threads`; every core until then).
+_write_threads = parallel.machine_threads()
+
+#: Scanlines read per band when writing (a multiple of ZIP's 16-line blocks): the memory a write
+#: adds is about two bands of rows of every channel (one read, one being compressed) and their
+#: compressed blocks, whatever the image size.
 WRITE_ROWS = 64
 
 
@@ -137,53 +144,52 @@ def write_file(
     channels: dict[str, np.ndarray],
     attributes: dict | None = None,
     rows_done: Callable[[int, int], None] | None = None,
+    threads: int | None = None,
 ) -> None:
     """Write one scanline EXR (ZIP compression) directly to `path`. Channel arrays are
     `(height, width)` float16 (HALF) or float32 (FLOAT), any strides (views of larger arrays,
-    rows reversed: nothing is copied whole), every value finite (else NonFiniteValue naming the
-    file and channel, raised before that band is written: no file holds NaN or infinity);
-    `attributes` are string header fields.
+    rows reversed, `stages.PlacedImage`, `encoding.filled` images: nothing is copied whole),
+    every value finite (else NonFiniteValue naming the file and channel, raised before that
+    band is written: no file holds NaN or infinity); `attributes` are string header fields.
 
-    Written WRITE_ROWS scanlines at a time through the binding's scanline writer
-    (`OpenEXR.OutputFile`), so the file never exists whole in memory a second time; its bytes
-    are those of the binding's whole-image writer (`OpenEXR.File(header, pixels).write`, which
-    wants every channel contiguous at once): the same header attributes, the same ZIP blocks
-    (tests/test_exr_write.py compares them). An almost empty atlas's images
-    (`stages.PlacedImage`) compress their window's blocks only (`sparse_exr`), the same bytes.
-    `rows_done(done, of)`, if given, is called after each band of rows (progress; it may raise
-    to cancel: the file is then left half-written, as a staged temporary is)."""
+    Read WRITE_ROWS scanlines at a time and compressed on `threads` threads (default: the count
+    `set_threads` set) by `zip_exr`, which lays the file out as OpenEXR's writer does: the same
+    header, byte for byte, and blocks any reader decompresses to the same pixels
+    (tests/test_exr_write.py). An almost empty atlas's images (`stages.PlacedImage`) compress
+    their window's blocks only (`sparse_exr`), the same bytes. `rows_done(done, of)`, if given,
+    is called after each band of rows is handed to the compressors (progress; it may raise to
+    cancel: the file is then left half-written, as a staged temporary is)."""
     from . import sparse_exr
 
     window_rows = sparse_exr.placed_rows(channels)
     if window_rows is not None:
         return sparse_exr.write(path, channels, attributes, window_rows, write_file, rows_done)
-    openexr = deps.require("OpenEXR")
-    import Imath  # the OpenEXR wheel's own module of header types
-
-    types = {np.dtype(np.float16): Imath.PixelType.HALF, np.dtype(np.float32): Imath.PixelType.FLOAT}
     shapes = {np.shape(data) for data in channels.values()}
     for name, data in channels.items():
-        if data.dtype not in types:
+        if data.dtype not in zip_exr.PIXEL_TYPES:
             raise TypeError(f"EXR channel {name!r}: store float16 or float32, not {data.dtype}")
-    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2 or 0 in next(iter(shapes)):
         raise ValueError(f"EXR channels must be (height, width) images of one size, got {sorted(shapes)}")
     height, width = next(iter(shapes))
-    header = openexr.Header(width, height)
-    header["compression"] = Imath.Compression(Imath.Compression.ZIP_COMPRESSION)
-    header["channels"] = {name: Imath.Channel(Imath.PixelType(types[data.dtype])) for name, data in channels.items()}
-    header["type"] = b"scanlineimage"  # as the whole-image writer records it
-    header.update({k: str(v).encode("utf-8") for k, v in (attributes or {}).items()})
-    out = openexr.OutputFile(str(path), header)
-    try:
+    names = sorted(channels, key=lambda n: n.encode("utf-8"))  # the header's order
+    head = zip_exr.header(
+        {n: channels[n].dtype for n in names}, width, height, {k: str(v) for k, v in (attributes or {}).items()}
+    )
+
+    def bands():
         for start in range(0, height, WRITE_ROWS):
             band = slice(start, min(start + WRITE_ROWS, height))
-            for name, data in channels.items():  # band by band: no image-sized mask
-                _check_finite(path, name, data[band])
-            out.writePixels({name: data[band].tobytes() for name, data in channels.items()}, band.stop - start)
+            lines = []
+            for name in names:  # band by band: no image-sized mask
+                data = channels[name]
+                rows = np.ascontiguousarray(data[band], dtype=data.dtype.newbyteorder("<"))
+                _check_finite(path, name, rows)
+                lines.append(rows)
+            yield lines
             if rows_done is not None:
                 rows_done(band.stop, height)
-    finally:
-        out.close()
+
+    zip_exr.write(path, head, height, zip_exr.compressed_blocks(bands(), threads or _write_threads))
 
 
 def write(path, channels: dict[str, np.ndarray], attributes: dict | None = None) -> None:

@@ -3,9 +3,9 @@
 An almost empty atlas's images are `stages.PlacedImage`s: one value outside the window of its
 texels. `exr.write_file` would compress every 16-row ZIP block of the whole atlas, most of them
 the same rows of that one value, over and over (minutes for an 8192² SH file and its previews).
-`write` asks OpenEXR (through `exr.write_file`, so with the same header, compression and bytes
-per block) for the blocks that hold the window, as a file of those rows, and for one block of
-the background; then it lays out the whole file: the first file's header with the atlas's data
+`write` asks `exr.write_file` (so with the same header, compression and bytes per block) for
+the blocks that hold the window, as a file of those rows, and for one block of the background;
+then it lays out the whole file: the first file's header with the atlas's data
 and display windows, the offset table, and per block of the atlas its compressed bytes, the
 window's or the background's. A block's bytes depend on its pixels only (ZIP compresses each
 block on its own), so the file is byte for byte the one `exr.write_file` writes from the whole
@@ -28,7 +28,7 @@ import numpy as np
 from ..stages import PlacedImage
 from . import exr
 
-#: Scanlines per ZIP block (OpenEXR's ZIP_COMPRESSION, what `exr.write_file` writes).
+#: Scanlines per ZIP block (OpenEXR's ZIP_COMPRESSION, what `exr.write_file` writes: `zip_exr`).
 BLOCK_ROWS = 16
 _MAGIC = b"\x76\x2f\x31\x01"
 
