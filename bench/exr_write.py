@@ -9,8 +9,8 @@ Reads a bake's EXRs (`<atlas>_sh.exr`, `<atlas>_hhd.exr` and the previews in
   fed WRITE_ROWS scanlines per `writePixels` call, its pool at 2 threads (as a bake sets it);
 * `zip_exr` at 1 and 2 threads and `zip_exr.ZIP_LEVEL` (`exr.write_file`);
 
-interleaved, `--repeats` times each, and then `zip_exr` at 2 threads with each zlib level
-1 … 6 once (`zip_exr.ZIP_LEVEL` set for the write). Per write: wall seconds, CPU seconds of the process (every thread), the file's
+interleaved, `--repeats` times each, and then `zip_exr` at 2 threads with each level of its
+deflate (`zip_exr.DEFLATER`: ISA-L 0 … 3, or zlib 1 … 6) once (`zip_exr.ZIP_LEVEL` set for the write). Per write: wall seconds, CPU seconds of the process (every thread), the file's
 size, and the 1-minute load average before it. The first `zip_exr` file of each input is read
 back and its channels compared bit for bit with the input's. Writes bench/results/exr_write.json
 and .md (ratios against the binding's median in the same run).
@@ -36,7 +36,8 @@ import numpy as np
 
 from hhd_lightmapper.core.files import exr, zip_exr
 
-LEVELS = range(1, 7)
+#: The levels swept for each block compressor `zip_exr` may use (`zip_exr.DEFLATER`).
+LEVELS = {"isal": range(4), "zlib": range(1, 7)}[zip_exr.DEFLATER]
 
 
 def binding_write(path: Path, channels: dict[str, np.ndarray]) -> None:
@@ -183,9 +184,10 @@ def report(docs: list[dict], load: tuple[float, float]) -> list[str]:
     lines = [
         "# EXR writing off one core (issue 58)",
         "",
-        "`python bench/exr_write.py /tmp/big/lightmaps`: the bedroom's 4096² Production bake's files, each written "
+        "`python bench/exr_write.py /tmp/big/lightmaps`: the files of a 4096² bake of the bedroom (4 samples), each written "
         "again by the OpenEXR 3.5.3 binding's scanline writer (`OutputFile.writePixels`, its pool at 2 threads: "
-        "what `exr.write_file` was) and by `zip_exr` (what it is now) at 1 and 2 threads, interleaved; medians of "
+        f"what `exr.write_file` was) and by `zip_exr` (what it is now; deflate: {zip_exr.DEFLATER}, level {zip_exr.ZIP_LEVEL}) "
+        "at 1 and 2 threads, interleaved; medians of "
         f"the repeats. 2 cores shared with other jobs: load average {load[0]:.2f} → {load[1]:.2f} over the run "
         "(each row's own in the JSON). CPU s: the process's, every thread. Ratios: against the binding in the same "
         "run. Values: the `zip_exr` file read back by the binding gives every channel bit for bit.",
@@ -205,7 +207,7 @@ def report(docs: list[dict], load: tuple[float, float]) -> list[str]:
             )
     lines += [
         "",
-        "zlib levels (`zip_exr` at 2 threads, one write each; OpenEXR's own default is libdeflate's level 4):",
+        f"{zip_exr.DEFLATER} levels (`zip_exr` at 2 threads, one write each; OpenEXR's own default is libdeflate's level 4):",
         "",
         "| file | level | wall s | CPU s | MB | MB / binding | CPU / binding |",
         "|---|---|---|---|---|---|---|",
@@ -240,6 +242,7 @@ def main() -> int:
     doc = {
         "folder": str(args.folder),
         "cores": os.cpu_count(),
+        "deflater": zip_exr.DEFLATER,
         "level": zip_exr.ZIP_LEVEL,
         "load": loads,
         "files": docs,
@@ -254,7 +257,7 @@ def alternatives_report(args) -> int:
     doc = alternatives(source)
     out = args.out.with_name(args.out.name + "_alternatives")
     out.with_suffix(".json").write_text(json.dumps(doc, indent=1) + "\n")
-    zlib3 = next(r for r in doc["rows"] if r["library"] == "zlib" and r["level"] == zip_exr.ZIP_LEVEL)
+    zlib3 = next(r for r in doc["rows"] if r["library"] == "zlib" and r["level"] == 3)
     lines = [
         "# EXR writing: deflate libraries on the raw SH file's blocks (issue 58)",
         "",

@@ -128,7 +128,7 @@ def test_a_block_is_the_reordered_predicted_deflated_lines():
     first minus its predecessor plus 128, zlib-deflated; inflated and undone here, the lines."""
     rng = np.random.default_rng(3)
     lines = [np.ascontiguousarray(rng.integers(0, 4, size=(13, 21)).astype(t) / 4) for t in ("<f4", "<f2", "<f4")]
-    stored = zip_exr.compress_block(lines, 6)
+    stored = zip_exr.compress_block(lines, zip_exr.ZIP_LEVEL)
     raw = b"".join(a[r].tobytes() for r in range(13) for a in lines)
     assert len(stored) < len(raw)
     d = np.frombuffer(zlib.decompress(stored), np.uint8).astype(np.int64)
@@ -137,6 +137,23 @@ def test_a_block_is_the_reordered_predicted_deflated_lines():
     back = np.empty(t.size, np.uint8)
     back[0::2], back[1::2] = t[:half], t[half:]
     assert back.tobytes() == raw
+
+
+@pytest.mark.parametrize("deflater", ["bundled", "zlib"])
+def test_either_deflate_writes_what_the_binding_reads_back(tmp_path, monkeypatch, deflater):
+    """The bundled ISA-L deflate (the `isal` wheel, installed in both test environments) and
+    Python's zlib, which `zip_exr` falls back to without it: each file reads back bit for bit."""
+    assert zip_exr.DEFLATER == "isal"
+    if deflater == "zlib":
+        monkeypatch.setattr(zip_exr, "deflate", zlib.compress)
+        monkeypatch.setattr(zip_exr, "ZIP_LEVEL", 3)
+    rng = np.random.default_rng(5)
+    smooth = np.cumsum(rng.normal(size=(70, 33)), axis=1).astype(np.float32)
+    channels = {"A.R": smooth, "A.G": smooth[::-1].astype(np.float16), "B.V": np.zeros((70, 33), np.float32)}
+    exr.write_file(tmp_path / "d.exr", channels, threads=2)
+    back, _ = exr.read(tmp_path / "d.exr")
+    for name, image in channels.items():
+        assert back[name].dtype == image.dtype and back[name].tobytes() == np.ascontiguousarray(image).tobytes()
 
 
 def test_a_cancel_or_a_non_finite_band_stops_a_threaded_write(tmp_path):

@@ -36,7 +36,7 @@ def test_manifest_declares_licence_permissions_and_platform_wheels():
             by_platform.setdefault(plat, set()).add(Path(w).name.split("-")[0])
     assert set(by_platform) == set(m["platforms"])
     for plat, packages in by_platform.items():
-        assert packages == {"embreex", "xatlas", "openexr", "numba", "llvmlite", *DASK}, plat
+        assert packages == {"embreex", "xatlas", "openexr", "isal", "numba", "llvmlite", *DASK}, plat
     # every version-specific compiled package for both Pythons Blender ships: 3.11 (4.2-5.0) and
     # 3.13 (5.1+); pure-Python (none) and stable-ABI (abi3) wheels serve both (tests/test_install.py
     # runs Blender's own filter over them)

@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 TRY = ROOT / "tools" / "try_install.py"
 ENVS = {"5.3": ROOT / ".venv", "4.2": ROOT / ".venv-4.2"}
 #: What the zip's wheels must provide and a bpy-only environment must lack.
-BUNDLED = ("embreex", "xatlas", "OpenEXR", "numba", "llvmlite", "dask", "distributed")
+BUNDLED = ("embreex", "xatlas", "OpenEXR", "isal", "numba", "llvmlite", "dask", "distributed")
 
 
 def bpy_version() -> str:

@@ -3,8 +3,9 @@ threads. No bpy.
 
 OpenEXR's own writer (the Python binding's `OutputFile.writePixels`) compresses on one core
 whatever its thread pool, and holds the GIL while it does. Here each 16-line block is packed and
-predicted with numpy and deflated with `zlib.compress` (both let go of the GIL) on a pool of
-threads, and the file is laid out as OpenEXR lays it out (openexr.com, "OpenEXR File Layout"):
+predicted with numpy and deflated (`deflate`: ISA-L's deflate from the bundled `isal` wheel, or
+Python's zlib where it is missing) on a pool of threads, and the file is laid out as OpenEXR
+lays it out (openexr.com, "OpenEXR File Layout"):
 
 * the magic number and version (2; the long-names flag when a name has 32 bytes or more),
 * the header: attributes `name\\0 type\\0 int32 size, value`, sorted by name as OpenEXR sorts
@@ -20,23 +21,37 @@ its difference from the previous one plus 128 (mod 256), and deflates the result
 header (OpenEXRCore's internal_zip.c, `internal_zip_deconstruct_bytes` / `apply_zip_impl`). A
 block whose deflated bytes are not fewer than its raw bytes is stored raw; every reader
 (OpenEXR, tinyexr, FFmpeg) takes a block whose size is the raw size as stored raw. Deflating
-with zlib instead of OpenEXR's libdeflate gives other bytes that inflate to the same data.
+with ISA-L or zlib instead of OpenEXR's libdeflate gives other bytes that inflate to the same
+data (a zlib stream either way: any inflater reads it).
 """
 
 from __future__ import annotations
 
 import struct
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 
 #: Scanlines per ZIP block (OpenEXR's ZIP_COMPRESSION).
 BLOCK_ROWS = 16
-#: zlib level of the blocks (OpenEXR's default is 4, through libdeflate): the choice and its
-#: sizes and seconds are in bench/results/exr_write.md.
-ZIP_LEVEL = 3
+
+
+def _deflater() -> tuple[Callable[[Any, int], bytes], int, str]:
+    """The block compressor, its level and its name: ISA-L's zlib stream (`isal.isal_zlib`, level 2
+    of its 0-3) where the wheel is installed, else Python's zlib at level 3 (OpenEXR's default is
+    libdeflate's 4). The choices, their sizes and seconds: bench/results/exr_write.md."""
+    try:
+        from isal import isal_zlib
+    except ImportError:
+        return zlib.compress, 3, "zlib"
+    return isal_zlib.compress, 2, "isal"
+
+
+#: `compress_block`'s deflate, its level, and which it is ("isal" or "zlib").
+deflate, ZIP_LEVEL, DEFLATER = _deflater()
 MAGIC = b"\x76\x2f\x31\x01"
 _VERSION = 2
 _LONG_NAMES = 0x400
@@ -116,10 +131,10 @@ def predicted(lines: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def compress_block(lines: list[np.ndarray], level: int) -> bytes:
-    """One ZIP block's stored bytes (`predicted`'s, deflated at zlib `level`), or its raw bytes
-    if deflating does not shrink them."""
+    """One ZIP block's stored bytes (`predicted`'s, deflated by `deflate` at `level`), or its raw
+    bytes if deflating does not shrink them."""
     raw, d = predicted(lines)
-    packed = zlib.compress(d, level)
+    packed = deflate(d, level)
     return packed if len(packed) < raw.size else raw.tobytes()
 
 
