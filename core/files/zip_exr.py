@@ -59,7 +59,8 @@ _LONG_NAMES = 0x400
 _MAX_NAME = 255
 #: OpenEXR's pixel type of each stored dtype (its `PixelType` numbers).
 PIXEL_TYPES = {np.dtype(np.float16): 1, np.dtype(np.float32): 2}
-#: The attributes every scanline file's header has (`standard_attributes`): other names are refused.
+#: The attributes the writer sets itself in every scanline file's header (OpenEXR's `standard_attributes`):
+#: `header` refuses them as extra attributes.
 STANDARD = (
     "channels",
     "compression",
