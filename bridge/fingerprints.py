@@ -19,6 +19,7 @@ import numpy as np
 from .. import blender_compat
 from ..core.incremental.fingerprints import Fingerprints, digest, layout_digest
 from . import collection_instances
+from .mesh_data import corner_vertices, polygon_materials
 
 #: RNA property types hashed by value (pointers and collections are walked where they matter).
 _PLAIN = {"BOOLEAN", "INT", "FLOAT", "ENUM", "STRING"}
@@ -168,12 +169,10 @@ def material_digest(material, cache: dict) -> str:
 def _mesh_arrays(mesh) -> list[np.ndarray]:
     co = np.empty(len(mesh.vertices) * 3, np.float32)
     mesh.vertices.foreach_get("co", co)
-    corners = np.empty(len(mesh.loops), np.int32)
-    mesh.loops.foreach_get("vertex_index", corners)
+    corners = corner_vertices(mesh)
     starts = np.empty(len(mesh.polygons), np.int32)
     mesh.polygons.foreach_get("loop_start", starts)
-    mats = np.empty(len(mesh.polygons), np.int32)
-    mesh.polygons.foreach_get("material_index", mats)
+    mats = polygon_materials(mesh).astype(np.int32)
     normals = np.empty(len(mesh.loops) * 3, np.float32)
     mesh.corner_normals.foreach_get("vector", normals)
     return [co, corners, starts, mats, normals]
@@ -262,6 +261,4 @@ def _uv_digest(mesh, uv_layer: str) -> str:
         return ""
     uvs = np.empty(len(mesh.loops) * 2, np.float32)
     mesh.uv_layers[uv_layer].data.foreach_get("uv", uvs)
-    corners = np.empty(len(mesh.loops), np.int32)
-    mesh.loops.foreach_get("vertex_index", corners)
-    return digest(uvs, corners)
+    return digest(uvs, corner_vertices(mesh))

@@ -113,10 +113,8 @@ def read_unwrap_mesh(obj, instance_of: str | None = None) -> tuple[UnwrapMesh, n
     if n_tri == 0:
         raise BakeError(f"'{obj.name}' has no faces to unwrap")
     co = read_floats(mesh.vertices, "co", n_vert * 3)
-    tri = np.zeros(n_tri * 3, dtype=np.int64)
-    mesh.loop_triangles.foreach_get("vertices", tri)
-    loops = np.zeros(n_tri * 3, dtype=np.int64)
-    mesh.loop_triangles.foreach_get("loops", loops)
+    loops = triangle_corners(mesh, n_tri)
+    tri = corner_vertices(mesh)[loops].astype(np.int64)
     polygons = triangle_polygons(mesh, n_tri)
     m = np.array(obj.matrix_world, dtype=np.float64)
     world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
@@ -204,10 +202,8 @@ def read_triangles(mesh, matrix_world):
     n_tri = len(mesh.loop_triangles)
     if n_tri == 0:
         return None
-    loops = np.zeros(n_tri * 3, np.int64)
-    mesh.loop_triangles.foreach_get("loops", loops)
-    verts = np.zeros(n_tri * 3, np.int64)
-    mesh.loop_triangles.foreach_get("vertices", verts)
+    loops = triangle_corners(mesh, n_tri)
+    verts = corner_vertices(mesh)[loops]
     mat_index = polygon_materials(mesh)[triangle_polygons(mesh, n_tri)]
     co = read_floats(mesh.vertices, "co", len(mesh.vertices) * 3)
     m = np.array(matrix_world, dtype=np.float64)
@@ -268,11 +264,43 @@ def triangle_polygons(mesh, count: int) -> np.ndarray:
     return polygon.astype(np.int64)
 
 
+def triangle_corners(mesh, count: int) -> np.ndarray:
+    """(count · 3,) int64: the corners (loop indices) of the mesh's `count` loop triangles, flat."""
+    loops = np.empty(count * 3, np.int64)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    return loops
+
+
+def corner_vertices(mesh) -> np.ndarray:
+    """(loops,) int32: each corner's vertex (a triangle's vertices are its corners':
+    `corner_vertices(mesh)[loops]`). Read from the mesh's own array, its `.corner_vert`
+    attribute, in one copy; `loops`' vertex_index (the fallback) goes through RNA item by item."""
+    out = np.empty(len(mesh.loops), np.int32)
+    attribute = _attribute(mesh, ".corner_vert", 'CORNER')
+    if attribute is not None:
+        attribute.data.foreach_get("value", out)
+    else:
+        mesh.loops.foreach_get("vertex_index", out)
+    return out
+
+
 def polygon_materials(mesh) -> np.ndarray:
-    """(polygons,) int64: each polygon's material index."""
-    index = np.empty(len(mesh.polygons), np.int32)
-    mesh.polygons.foreach_get("material_index", index)
+    """(polygons,) int64: each polygon's material index, from its `material_index` attribute in
+    one copy (polygons' property goes through RNA item by item); a mesh without the attribute
+    has every polygon on slot 0."""
+    index = np.zeros(len(mesh.polygons), np.int32)
+    attribute = _attribute(mesh, "material_index", 'FACE')
+    if attribute is not None:
+        attribute.data.foreach_get("value", index)
     return index.astype(np.int64)
+
+
+def _attribute(mesh, name: str, domain: str):
+    """The mesh's integer attribute `name` on `domain`, or None where it has none."""
+    attribute = mesh.attributes.get(name)
+    if attribute is None or attribute.domain != domain or attribute.data_type != 'INT':
+        return None
+    return attribute
 
 
 def no_faces_warning(name: str) -> str:

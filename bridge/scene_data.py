@@ -22,7 +22,7 @@ from .mesh_data import read_triangles, triangle_albedo
 
 def _instance_triangles(instance, cache, notes):
     """(triangles (T, 3, 3) world space, albedo (T, 3), texture index (T,), texture uv (T, 3, 2),
-    emission (T, 3), light group (T,)) of one mesh instance."""
+    emission (T, 3), its Light Group's name) of one mesh instance."""
     obj = instance.object
     mesh = obj.to_mesh()
     try:
@@ -32,8 +32,7 @@ def _instance_triangles(instance, cache, notes):
         positions, loops, mat_index = tris
         albedo, tex_index, tex_uv = triangle_albedo(obj, mesh, loops, mat_index, cache, notes)
         emission = triangle_emission(obj, mesh, loops, mat_index, cache, notes)
-        group = np.full(len(positions), _light_group(obj), dtype=object)
-        return positions, albedo, tex_index, tex_uv, emission, group
+        return positions, albedo, tex_index, tex_uv, emission, _light_group(obj)
     finally:
         obj.to_mesh_clear()
 
@@ -241,7 +240,8 @@ def read_bake_scene(depsgraph) -> BakeScene:
                 parts.append(part)
     if not parts:
         raise BakeError("nothing to bake: the scene has no mesh visible to render")
-    tris, albedo, tex_index, tex_uv, emission, groups = (np.concatenate(x) for x in zip(*parts))
+    tris, albedo, tex_index, tex_uv, emission = (np.concatenate(x) for x in list(zip(*parts))[:5])
+    groups = [part[5] for part in parts]
     world = _world(depsgraph.scene)
     world_group = _light_group(depsgraph.scene.world)
     constant, environment = (None, world) if hasattr(world, "radiance") else (world, None)
@@ -258,7 +258,7 @@ def read_bake_scene(depsgraph) -> BakeScene:
         textures=cache.images,
         notes=notes,
         environment=environment,
-        emission_group=groups.astype(str) if groups.any() else None,
+        emission_group=np.repeat(groups, [len(part[0]) for part in parts]) if any(groups) else None,
         world_group=world_group,
     )
 
