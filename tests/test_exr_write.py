@@ -205,16 +205,20 @@ def texel_data(h=90, w=70, seed=0) -> TexelData:
     return TexelData(sh=sh, normal=np.zeros((h, w, 3), np.float32), coverage=coverage)
 
 
-def test_the_sh_files_channels_filled_band_by_band_are_the_filled_copies():
+@pytest.mark.parametrize("whole", [False, True], ids=["per layer", "whole SH"])
+def test_the_sh_files_channels_filled_band_by_band_are_the_filled_copies(whole):
     """The raw SH file's channels as the writer reads them, a band of rows at a time, in atlas
-    and EXR order: the bits of the filled copies; the TexelData is only read."""
+    and EXR order: the bits of the filled copies; the TexelData is only read. Given the
+    TexelData, the nine layers are filled from one band of the whole SH (`stage._whole_sh`)."""
     data = texel_data()
     fill = data.fill()
     assert len(fill.black) and (fill.source < 0).any() and (fill.source >= 0).any()
     assert max(data.coverage.shape) > 2 * DILATE_RINGS
     copies = raw_images(SH_FILE, data.layers(), fill)
     sh_before = data.sh.copy()
-    lazy = raw_images(SH_FILE, data.layers(), fill, banded=True)
+    lazy = raw_images(SH_FILE, data.layers(), fill, banded=True, data=data if whole else None)
+    layers = {id(image.layer) for image in lazy.values()}
+    assert len(layers) == (1 if whole else 9)
     assert lazy.keys() == copies.keys() and len(lazy) == 27
     h = data.coverage.shape[0]
     for name, image in lazy.items():

@@ -26,7 +26,7 @@ import numpy as np
 from .. import dilate as _dilate
 from ..memory import releasable_zeros, release_rows
 from ..stages import PlacedImage, Window, placed
-from .filled import FilledChannel, filled_channels
+from .filled import FilledChannel, FilledLayer, filled_channels
 from .raw import NOISE_UNKNOWN, SH_FILE, TEXELS_FILE
 from .spec import DILATE_BURIED_BLACK, NO_FILL, Channel, Encoding, FileSpec
 
@@ -397,6 +397,23 @@ def layer_images(
     return {name: placed(image[..., k], window, outside[k]) for k, name in enumerate(ch.exr_names)}
 
 
+def _whole_sh(spec: FileSpec, data: TexelData | None, fill: _dilate.Fill) -> FilledLayer | None:
+    """For the SH file's layers (SH0 … SH8, each a strided view of `data.sh`), one FilledLayer of
+    the whole SH `(H, W, 9·C)` (a view, no copy) that every channel reads a band from: a band
+    gathers each empty texel's 9·C values from its source at once, not one layer at a time (a
+    gather per texel and layer of a strided view costs more than the values it copies). None
+    for another file, without `data`, or where the layers are filled in different ways."""
+    if spec is not SH_FILE or data is None or len({ch.fill for ch in spec.channels}) != 1:
+        return None
+    if spec.channels[0].fill == NO_FILL or data.sh.shape[2:] != (len(spec.channels), len(spec.channels[0].exr_names)):
+        return None
+    h, w = data.sh.shape[:2]
+    whole = data.sh.reshape(h, w, -1)
+    if not np.shares_memory(whole, data.sh):  # the SH is not laid out as one image: no copy of it
+        return None
+    return FilledLayer(whole, fill, spec.channels[0].fill == DILATE_BURIED_BLACK)
+
+
 def raw_images(
     spec: FileSpec,
     layers: dict[str, np.ndarray],
@@ -410,9 +427,14 @@ def raw_images(
     same values), else filled copies. `data`: the TexelData of `layers`, whose window (if any)
     places them in the atlas (`TexelData.placed`)."""
     out: dict[str, np.ndarray | PlacedImage | FilledChannel] = {}
-    for ch in spec.channels:
+    whole = _whole_sh(spec, data, fill) if banded else None
+    for c, ch in enumerate(spec.channels):
         keep_black = ch.fill == DILATE_BURIED_BLACK
-        lazy = filled_channels(layers[ch.name], fill, keep_black) if banded and ch.fill != NO_FILL else None
+        lazy: list[FilledChannel] | None = None
+        if whole is not None:  # layer c is data.sh[:, :, c]: its channels follow one another in `whole`
+            lazy = [FilledChannel(whole, c * len(ch.exr_names) + k) for k in range(len(ch.exr_names))]
+        elif banded and ch.fill != NO_FILL:
+            lazy = filled_channels(layers[ch.name], fill, keep_black)
         for k, name in enumerate(ch.exr_names):
             image = layers[ch.name][..., k]
             filled: np.ndarray | FilledChannel
