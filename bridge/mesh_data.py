@@ -265,7 +265,12 @@ def triangle_polygons(mesh, count: int) -> np.ndarray:
 
 
 def triangle_corners(mesh, count: int) -> np.ndarray:
-    """(count · 3,) int64: the corners (loop indices) of the mesh's `count` loop triangles, flat."""
+    """(count · 3,) int64: the corners (loop indices) of the mesh's `count` loop triangles, flat.
+    A mesh of triangles only is its own triangulation: triangle k is polygon k, its corners
+    3k, 3k + 1, 3k + 2 (polygons' corners follow one another). Others are read from
+    `loop_triangles`, item by item inside Blender."""
+    if len(mesh.loops) == 3 * len(mesh.polygons) == 3 * count:
+        return np.arange(count * 3, dtype=np.int64)
     loops = np.empty(count * 3, np.int64)
     mesh.loop_triangles.foreach_get("loops", loops)
     return loops

@@ -29,8 +29,8 @@ def _grid(nx, ny):
 @pytest.fixture
 def meshes():
     """Objects whose evaluated meshes the test reads as the bake does (to_mesh): quads with three
-    materials, an n-gon, a mirrored and subdivided cube (modifiers), a mirrored grid (negative
-    scale) with no material_index attribute."""
+    materials, an n-gon, a mirrored and subdivided cube (modifiers), triangles only (the
+    triangulation's shortcut), a mirrored grid (negative scale) with no material_index attribute."""
     import bpy
 
     made = []
@@ -51,6 +51,7 @@ def meshes():
     cube.data.polygons.foreach_set("material_index", np.array([0, 1, 2, 2, 1, 0], np.int32))
     add("reads_ngon", _ngon(11))
     add("reads_modified", _cube(2.0), ("MIRROR", "SUBSURF"))
+    add("reads_triangulated", _ngon(7), ("SUBSURF", "TRIANGULATE"))
     plain = add("reads_plain", _grid(3, 4))
     plain.scale.x = -1.0
     bpy.context.view_layer.update()
@@ -61,13 +62,14 @@ def meshes():
         bpy.data.meshes.remove(mesh)
 
 
-def test_corner_vertices_and_materials_equal_the_rna_properties(meshes):
+def test_mesh_arrays_read_in_one_copy_equal_the_rna_properties(meshes):
     import bpy
 
     from hhd_lightmapper.bridge import mesh_data
 
     depsgraph = bpy.context.evaluated_depsgraph_get()
     assert "material_index" not in meshes[-1].data.attributes  # the fallback to slot 0 is exercised
+    shortcuts = 0
     for obj in meshes:
         evaluated = obj.evaluated_get(depsgraph)
         mesh = evaluated.to_mesh()
@@ -77,6 +79,10 @@ def test_corner_vertices_and_materials_equal_the_rna_properties(meshes):
             assert corners.tolist() == [loop.vertex_index for loop in mesh.loops]
             materials = mesh_data.polygon_materials(mesh)
             assert materials.tolist() == [p.material_index for p in mesh.polygons]
+            mesh.calc_loop_triangles()
+            tri_corners = mesh_data.triangle_corners(mesh, len(mesh.loop_triangles))
+            assert tri_corners.tolist() == [c for tri in mesh.loop_triangles for c in tri.loops]
+            shortcuts += len(mesh.loops) == 3 * len(mesh.polygons)
             positions, loops, mat_index = mesh_data.read_triangles(mesh, evaluated.matrix_world)
             m = np.array(evaluated.matrix_world)
             for t, tri in enumerate(mesh.loop_triangles):
@@ -87,3 +93,4 @@ def test_corner_vertices_and_materials_equal_the_rna_properties(meshes):
         finally:
             evaluated.to_mesh_clear()
     assert sorted(set(mesh_data.polygon_materials(meshes[0].data).tolist())) == [0, 1, 2]
+    assert shortcuts == 1  # the triangulated mesh: its own triangulation
