@@ -219,6 +219,8 @@ def test_the_sh_files_channels_filled_band_by_band_are_the_filled_copies(whole):
     lazy = raw_images(SH_FILE, data.layers(), fill, banded=True, data=data if whole else None)
     layers = {id(image.layer) for image in lazy.values()}
     assert len(layers) == (1 if whole else 9)
+    copied = raw_images(SH_FILE, {k: v.copy() for k, v in data.layers().items()}, fill, banded=True, data=data)
+    assert len({id(image.layer) for image in copied.values()}) == 9  # not views of data.sh: each its own
     assert lazy.keys() == copies.keys() and len(lazy) == 27
     h = data.coverage.shape[0]
     for name, image in lazy.items():

@@ -397,21 +397,36 @@ def layer_images(
     return {name: placed(image[..., k], window, outside[k]) for k, name in enumerate(ch.exr_names)}
 
 
-def _whole_sh(spec: FileSpec, data: TexelData | None, fill: _dilate.Fill) -> FilledLayer | None:
-    """For the SH file's layers (SH0 … SH8, each a strided view of `data.sh`), one FilledLayer of
-    the whole SH `(H, W, 9·C)` (a view, no copy) that every channel reads a band from: a band
-    gathers each empty texel's 9·C values from its source at once, not one layer at a time (a
-    gather per texel and layer of a strided view costs more than the values it copies). None
-    for another file, without `data`, or where the layers are filled in different ways."""
+def _whole_sh(
+    spec: FileSpec, layers: dict[str, np.ndarray], data: TexelData | None, fill: _dilate.Fill
+) -> FilledLayer | None:
+    """For the SH file's layers (SH0 … SH8: `data.sh[:, :, c]`, strided views), one FilledLayer
+    of the whole SH `(H, W, 9·C)` (a view) that every channel reads a band from: a band gathers
+    each empty texel's 9·C values from its source at once, not one layer at a time (a gather per
+    texel and layer of a strided view costs more than the values it copies). None for another
+    file, without `data`, where `layers` are not those views, where the layers are filled in
+    different ways, or where the SH's coefficients and colours are not one run of memory per
+    texel (the view would be a copy)."""
     if spec is not SH_FILE or data is None or len({ch.fill for ch in spec.channels}) != 1:
         return None
-    if spec.channels[0].fill == NO_FILL or data.sh.shape[2:] != (len(spec.channels), len(spec.channels[0].exr_names)):
+    sh = data.sh
+    if spec.channels[0].fill == NO_FILL or sh.shape[2:] != (len(spec.channels), len(spec.channels[0].exr_names)):
         return None
-    h, w = data.sh.shape[:2]
-    whole = data.sh.reshape(h, w, -1)
-    if not np.shares_memory(whole, data.sh):  # the SH is not laid out as one image: no copy of it
+    if sh.strides[2] != sh.shape[3] * sh.strides[3] or not all(
+        _same_view(layers[ch.name], sh[:, :, c]) for c, ch in enumerate(spec.channels)
+    ):
         return None
-    return FilledLayer(whole, fill, spec.channels[0].fill == DILATE_BURIED_BLACK)
+    return FilledLayer(sh.reshape(sh.shape[0], sh.shape[1], -1), fill, spec.channels[0].fill == DILATE_BURIED_BLACK)
+
+
+def _same_view(a: np.ndarray, b: np.ndarray) -> bool:
+    """`a` and `b` are the same view of the same memory (start, shape, strides, dtype)."""
+    return (
+        a.shape == b.shape
+        and a.strides == b.strides
+        and a.dtype == b.dtype
+        and a.__array_interface__["data"][0] == b.__array_interface__["data"][0]
+    )
 
 
 def raw_images(
@@ -427,7 +442,7 @@ def raw_images(
     same values), else filled copies. `data`: the TexelData of `layers`, whose window (if any)
     places them in the atlas (`TexelData.placed`)."""
     out: dict[str, np.ndarray | PlacedImage | FilledChannel] = {}
-    whole = _whole_sh(spec, data, fill) if banded else None
+    whole = _whole_sh(spec, layers, data, fill) if banded else None
     for c, ch in enumerate(spec.channels):
         keep_black = ch.fill == DILATE_BURIED_BLACK
         lazy: list[FilledChannel] | None = None
