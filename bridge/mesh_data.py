@@ -2,7 +2,9 @@
 
 Reads use foreach_get into preallocated arrays of the property's own type (float32 for
 coordinates, normals and UVs: `read_floats`), Blender's fast path; into another type it
-converts item by item. Unwrapping reads each object's own mesh
+converts item by item. Properties Blender computes per item (a corner's vertex, a polygon's
+material) are read from the mesh's attribute arrays instead (`corner_vertices`,
+`polygon_materials`). Unwrapping reads each object's own mesh
 (obj.data, before modifiers): the UV layer written there flows through the modifier stack, so
 the bake, which reads the evaluated mesh, sees UVs for subdivided/modified geometry too.
 """
