@@ -19,7 +19,7 @@ def ray_offset(positions: np.ndarray, origin: np.ndarray | None = None) -> float
     positions), so it works from millimetre to kilometre scenes, wherever the level sits."""
     lo, hi = bounds(positions)
     extent = float(np.linalg.norm(hi - lo))
-    at = frame_origin(positions) if origin is None else np.asarray(origin, np.float64)
+    at = _frame_origin(positions, lo, hi) if origin is None else np.asarray(origin, np.float64)
     magnitude = float(np.maximum(np.abs(lo - at), np.abs(hi - at)).max())
     return 1e-5 * extent + 32.0 * FLOAT32_EPS * magnitude
 
@@ -31,11 +31,21 @@ def frame_origin(points: np.ndarray) -> np.ndarray:
     that of the same level at the origin. A scene whose bounds already reach about the origin
     (its centre no farther out than its extent) keeps the world origin (coordinates unchanged).
     Non-finite corners are left out."""
-    p = np.asarray(points, np.float64).reshape(-1, 3)
-    p = p[np.isfinite(p).all(axis=1)]
-    if not len(p):
+    if np.size(points) == 0:
         return np.zeros(3)
-    lo, hi = bounds(p)
+    return _frame_origin(points, *bounds(points))
+
+
+def _frame_origin(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """`frame_origin(points)`, given `bounds(points)`: those bounds are the finite corners' own
+    unless one is not finite (a NaN or an infinity among the corners), when they are found again
+    without the non-finite corners (a copy: the rare case)."""
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        p = np.asarray(points, np.float64).reshape(-1, 3)
+        p = p[np.isfinite(p).all(axis=1)]
+        if not len(p):
+            return np.zeros(3)
+        lo, hi = bounds(p)
     centre = 0.5 * (lo + hi)
     return np.zeros(3) if np.abs(centre).max() <= np.linalg.norm(hi - lo) else centre
 
