@@ -270,3 +270,29 @@ def test_encoding_in_chunks_on_several_threads_gives_the_images_of_one_thread(mo
     assert images_one.keys() == images_two.keys()
     for name in images_one:
         np.testing.assert_array_equal(images_one[name], images_two[name])
+
+
+def test_a_small_atlas_is_encoded_in_several_chunks_with_the_images_of_one():
+    """An atlas of fewer than ENCODE_SPLIT × ENCODE_CHUNK texels is split into ENCODE_SPLIT chunks
+    (so every core encodes some): each texel's values are those of encoding it in one chunk, bit
+    for bit; the statistics summed per chunk agree to rounding."""
+    from hhd_lightmapper.core.encoding import stage
+
+    data = texel_data()
+    baked = int(data.coverage.sum())
+    assert stage.encode_chunk_texels(baked) == stage.MIN_ENCODE_CHUNK  # a small atlas: one chunk
+    assert stage.encode_chunk_texels(8 * stage.ENCODE_CHUNK) == stage.ENCODE_CHUNK
+    assert stage.encode_chunk_texels(8 * stage.ENCODE_CHUNK - 8) == stage.ENCODE_CHUNK - 1
+    encoder = encoding.for_settings(encoding.EncoderSettings())
+    one = encoding.encode_atlas(replace(data), encoder, raw=False, threads=2)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(stage, "MIN_ENCODE_CHUNK", 1)
+        assert stage.encode_chunk_texels(baked) < baked  # now split
+        split = encoding.encode_atlas(replace(data), encoder, raw=False, threads=2)
+    assert one.stats["texels_invalid"] == split.stats["texels_invalid"]
+    assert one.stats["irradz_max"] == split.stats["irradz_max"]
+    assert one.stats["irradz_mean_luminance"] == pytest.approx(split.stats["irradz_mean_luminance"], rel=1e-12)
+    images_one, images_split = one.files[encoder.file.key][1], split.files[encoder.file.key][1]
+    assert images_one.keys() == images_split.keys()
+    for name in images_one:
+        assert np.asarray(images_one[name]).tobytes() == np.asarray(images_split[name]).tobytes(), name

@@ -4,7 +4,8 @@ Input: `TexelData`, float32 images of the traced atlas (rows bottom-up, as Blend
 whether fresh from a bake (`TexelData.from_traced`) or read back from the files, so encoding
 either way gives identical files. Output: `EncodedAtlas`, per file the images of its EXR
 channels (still bottom-up and in the values' dtype; `lightmap_files` lays them out). Steps:
-  1. the Encoding encodes the baked texels, ENCODE_CHUNK at a time (bounding its float64 copies);
+  1. the Encoding encodes the baked texels in chunks of at most ENCODE_CHUNK (bounding its float64
+     copies), on every core;
   2. each layer is filled where there is no bake value, as its Channel says (`dilate.Fill`: the
      nearest chart texel within DILATE_RINGS, the atlas mean beyond; buried texels black);
   3. layers with a `pack` are packed (the highlight direction: unit vector → octahedral).
@@ -43,6 +44,10 @@ IMAGE_ROWS = 1 << 18
 
 #: Texels encoded per Encoding.encode call: bounds the float64 copies an encoding makes.
 ENCODE_CHUNK = 1 << 17
+#: A smaller atlas is encoded in this many chunks (`encode_chunk_texels`), so every core has some.
+ENCODE_SPLIT = 8
+#: ... of at least this many texels (fewer are not worth a task).
+MIN_ENCODE_CHUNK = 1 << 12
 
 #: Texels around the baked ones a window (`window_of`) keeps: more than any stage reaches from a
 #: baked texel (the dilation's DILATE_RINGS from a stitched gutter texel, itself next to a chart;
@@ -306,7 +311,7 @@ def encode_images(
     `data.sh` is taken (an empty image afterwards) once the texels are encoded, before the
     layers are filled (memory: the atlas's SH is its largest image). With a window
     (`TexelData.window`) the images are `stages.PlacedImage`s of the whole atlas. `tick`
-    (`core.progress.Tick`): reported per ENCODE_CHUNK texels and per layer filled. The chunks
+    (`core.progress.Tick`): reported per chunk (`encode_chunk_texels`) and per layer filled. The chunks
     are encoded on `threads` workers (0 = every core; numpy releases the GIL in the fit's array
     operations), each chunk as it would be alone, and written in order: the same images and
     statistics whatever the thread count. `release_sh`: the SH image's rows (texels) before the
@@ -327,10 +332,11 @@ def encode_images(
     # the fill and packing of a layer: about a fifth of encoding its texels (per atlas texel, not baked)
     texels_part, layers_part = ticker(tick).split([len(baked), 0.2 * h * w * len(channels)])
     step = texels_part.counter(len(baked), lambda done, of: f"encoding texels {done} of {of}")
-    starts = range(0, len(baked), ENCODE_CHUNK)
+    chunk = encode_chunk_texels(len(baked))
+    starts = range(0, len(baked), chunk)
 
     def encoded(s: int):
-        rows = baked[s : s + ENCODE_CHUNK]
+        rows = baked[s : s + chunk]
         return slice(s, s + len(rows)), encoding.encode(sh[rows], normal[rows])
 
     workers = min(resolve_threads(threads), len(starts))
@@ -355,6 +361,14 @@ def encode_images(
         del image
         step(k + 1)
     return images, encoding.summary(stats, len(baked))
+
+
+def encode_chunk_texels(texels: int) -> int:
+    """Texels per chunk `encode_images` encodes for `texels` baked texels: ENCODE_CHUNK, or
+    for fewer than ENCODE_SPLIT such chunks, an ENCODE_SPLIT-th of them (at least
+    MIN_ENCODE_CHUNK). A function of the texels only: the statistics summed per chunk do not
+    depend on the thread count."""
+    return min(ENCODE_CHUNK, max(MIN_ENCODE_CHUNK, -(-texels // ENCODE_SPLIT)))
 
 
 def _take(result, values: dict, stats: list) -> int:
