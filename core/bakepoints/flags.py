@@ -18,6 +18,9 @@ from .data import BakePoints
 BURIED_FRACTION = 0.5
 #: Probe directions per texel for the buried test (fixed, rotated per texel).
 BURIED_PROBES = 12
+#: `_for_chunks` gives each worker at least this many chunks (balance) of at least MIN_CHUNK rows.
+CHUNKS_PER_WORKER = 4
+MIN_CHUNK = 1 << 10
 
 
 def find_near_cover(
@@ -58,11 +61,15 @@ def find_near_cover(
 
 
 def _for_chunks(work, n: int, chunk: int, check=None, threads: int = 0) -> None:
-    """work(rows) for consecutive slices of range(n), `chunk` long, on `threads` workers (0 = every
-    core; Embree releases the GIL); `check()` before each chunk's result is taken (it raises to
-    stop: the chunks not started are dropped). Each chunk writes only its own rows, so the result
-    does not depend on the thread count."""
-    with ThreadPoolExecutor(max_workers=parallel.resolve_threads(threads)) as pool:
+    """work(rows) for consecutive slices of range(n), `chunk` long (shorter when that leaves a
+    worker fewer than CHUNKS_PER_WORKER of them, down to MIN_CHUNK: a small atlas's few chunks
+    would leave a core idle), on `threads` workers (0 = every core; Embree releases the GIL);
+    `check()` before each chunk's result is taken (it raises to stop: the chunks not started
+    are dropped). Each chunk writes only its own rows, so the result depends on neither the
+    thread count nor the chunks."""
+    workers = parallel.resolve_threads(threads)
+    chunk = max(1, min(chunk, max(MIN_CHUNK, -(-n // (CHUNKS_PER_WORKER * workers)))))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
         futures = [pool.submit(work, slice(s, min(s + chunk, n))) for s in range(0, n, chunk)]
         try:
             for future in futures:
