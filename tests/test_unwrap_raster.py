@@ -233,6 +233,22 @@ def test_ray_offset_scales_with_the_scene(scale):
     assert world > 32 * 1.19e-7 * 1e4 * scale
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_frame_origin_leaves_out_corners_that_are_not_finite(dtype):
+    """A far level is traced about the centre of its finite corners' bounds; a NaN or an infinite
+    corner changes nothing (the bounds are found again without it), no corner gives the origin."""
+    v, _ = meshes.cube(1.0)
+    far = (v + 1e5).astype(dtype)
+    centre = rays.frame_origin(far)
+    np.testing.assert_allclose(centre, 1e5, rtol=1e-6)
+    for bad in (np.nan, np.inf, -np.inf):
+        broken = np.concatenate([far, np.full((1, 3), bad, dtype), far[:1] * [1, 1, bad]])
+        assert np.array_equal(rays.frame_origin(broken), centre)
+    assert np.array_equal(rays.frame_origin(np.zeros((0, 3, 3), dtype)), np.zeros(3))
+    assert np.array_equal(rays.frame_origin(np.full((2, 3, 3), np.nan, dtype)), np.zeros(3))
+    assert np.array_equal(rays.frame_origin(v), np.zeros(3))  # about the origin: coordinates unchanged
+
+
 def floor_with(obstacle_v, obstacle_f, resolution=256, settled=True):
     """Bake points of a 4 m floor with an obstacle (`settled` False: not settled,
     scenekit/bakepoint_reference.py) and the RayScene of both."""
