@@ -242,7 +242,8 @@ def test_frame_origin_leaves_out_corners_that_are_not_finite(dtype):
     centre = rays.frame_origin(far)
     np.testing.assert_allclose(centre, 1e5, rtol=1e-6)
     for bad in (np.nan, np.inf, -np.inf):
-        broken = np.concatenate([far, np.full((1, 3), bad, dtype), far[:1] * [1, 1, bad]])
+        broken = np.concatenate([far, np.full((1, 3), bad, dtype), (far[:1] * [1, 1, bad]).astype(dtype)])
+        assert broken.dtype == dtype
         assert np.array_equal(rays.frame_origin(broken), centre)
     assert np.array_equal(rays.frame_origin(np.zeros((0, 3, 3), dtype)), np.zeros(3))
     assert np.array_equal(rays.frame_origin(np.full((2, 3, 3), np.nan, dtype)), np.zeros(3))
