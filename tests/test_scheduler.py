@@ -91,3 +91,25 @@ def test_the_time_budget_completes_the_first_pass_and_starts_nothing_after_it():
     assert outcome.stopped_by == "time_budget"
     np.testing.assert_array_equal(stats.passes, np.ones(250))
     assert [first for kind, _, first in log if kind == "added"] == [0, 100, 200]
+
+
+def test_a_small_atlas_is_cut_into_enough_chunks_for_every_core_and_a_large_one_is_not():
+    """`BakeSettings.chunk_size` by default: CHUNK_TEXELS texels for an atlas of at least
+    MIN_CHUNKS such chunks, a smaller atlas in MIN_CHUNKS chunks (of at least MIN_CHUNK_TEXELS),
+    a rule of the atlas alone; a chunk_texels set is kept; `scheduler.chunks` covers every texel
+    once, in order."""
+    from hhd_lightmapper.core.tracer.settings import CHUNK_TEXELS, MIN_CHUNK_TEXELS, MIN_CHUNKS
+
+    settings = BakeSettings()
+    assert settings.chunk_texels == 0
+    assert settings.chunk_size(MIN_CHUNKS * CHUNK_TEXELS) == CHUNK_TEXELS == settings.chunk_size(10**7)
+    assert settings.chunk_size(MIN_CHUNKS * CHUNK_TEXELS - MIN_CHUNKS) == CHUNK_TEXELS - 1
+    assert settings.chunk_size(4000) == 512 == MIN_CHUNK_TEXELS  # 8 chunks of a 128² atlas's texels
+    assert settings.chunk_size(20000) == 2500
+    assert settings.chunk_size(100) == MIN_CHUNK_TEXELS  # one chunk: too few texels to share
+    assert BakeSettings(chunk_texels=100).chunk_size(20000) == 100 == BakeSettings(chunk_texels=100).chunk_size(10)
+    for n in (1, 100, 4000, 20000, 70000):
+        parts = scheduler.chunks(settings, n)
+        assert np.array_equal(np.concatenate(parts), np.arange(n))
+        assert len(parts) == -(-n // settings.chunk_size(n))
+    assert BakeSettings(threads=1).chunk_size(4000) == BakeSettings(threads=2).chunk_size(4000)

@@ -1,6 +1,6 @@
 """Progressive passes split into deterministic work units, run on any executor. No bpy.
 
-The texels are cut into fixed chunks of `chunk_texels` (`chunks`); each pass runs one
+The texels are cut into fixed chunks of `chunk_size` (`chunks`); each pass runs one
 `WorkUnit` (seed, pass, chunk index, texel indices) per chunk over its texels still active (all
 of them unless a noise target stopped some). A unit draws every random number from a generator seeded by (seed, pass, chunk), so its
 result depends on nothing else: not on the executor, its workers or the order they finish in.
@@ -80,9 +80,9 @@ def run_unit(estimator: Estimator, unit: WorkUnit) -> UnitResult:
 
 
 def chunks(settings: BakeSettings, n: int) -> list[np.ndarray]:
-    """The fixed chunks of `settings.chunk_texels` texels of an atlas of n bake points: chunk c
-    is texels [c·size, (c + 1)·size); a pass's unit c traces the chunk's texels still active."""
-    size = settings.chunk_texels
+    """The fixed chunks of an atlas of n bake points, `settings.chunk_size(n)` texels each: chunk
+    c is texels [c·size, (c + 1)·size); a pass's unit c traces the chunk's texels still active."""
+    size = settings.chunk_size(n)
     return [np.arange(s, min(s + size, n)) for s in range(0, n, size)]
 
 
@@ -164,7 +164,7 @@ class _Run:
         settings = self.settings
         n = len(reduced.passes)
         max_passes = settings.passes
-        size = settings.chunk_texels
+        size = settings.chunk_size(n)
         count = -(-n // size)
         current: dict = {}
 

@@ -18,7 +18,7 @@ class BakeSettings:
     light only); seed: makes the bake reproducible; threads: worker threads, 0 = every core this
     process may use (`parallel.resolve_threads`; the result does not depend on it; with an
     executor of the caller's, the workers it has); chunk_texels: texels per work unit (bounds
-    memory: ~1 KB per texel-sample). pass_samples is a multiple of 4 (the directions come in two
+    memory: ~1 KB per texel-sample), 0 = by the atlas's size (`chunk_size`). pass_samples is a multiple of 4 (the directions come in two
     independent halves, `hemisphere_kernels.texel_hemisphere_rays`; 4 is the rule of the earlier
     estimator's four groups, kept so that the settings valid then stay valid).
 
@@ -41,7 +41,7 @@ class BakeSettings:
     bounces: int = 3
     seed: int = 0
     threads: int = 0
-    chunk_texels: int = 8192
+    chunk_texels: int = 0
     noise_target: float = 0.0
     time_budget: float = 0.0
     light_sets: bool = True
@@ -58,6 +58,16 @@ class BakeSettings:
     def passes(self) -> int:
         """The most passes a texel takes: `samples` rounded up to whole passes (at least 1)."""
         return max(1, -(-self.samples // self.pass_samples))
+
+    def chunk_size(self, n: int) -> int:
+        """Texels per fixed chunk of an atlas of `n` bake points: `chunk_texels` if set, else
+        CHUNK_TEXELS, or for an atlas of fewer than MIN_CHUNKS such chunks an n / MIN_CHUNKS-th
+        (at least MIN_CHUNK_TEXELS): a small atlas's passes, one unit per chunk, still spread
+        over the cores. A function of n and the settings alone, so the bake does not depend on
+        the threads (nor a farm's on its workers)."""
+        if self.chunk_texels > 0:
+            return self.chunk_texels
+        return min(CHUNK_TEXELS, max(MIN_CHUNK_TEXELS, -(-n // MIN_CHUNKS)))
 
     @property
     def worker_threads(self) -> int:
@@ -76,3 +86,9 @@ class BakeSettings:
 MIN_ADAPTIVE_PASSES = 4
 #: Fraction of the atlas mean I_z below which the noise target is absolute, not relative.
 NOISE_FLOOR = 0.1
+#: Texels per chunk (`BakeSettings.chunk_size`) of an atlas large enough ...
+CHUNK_TEXELS = 8192
+#: ... to be cut into at least this many; a smaller atlas is cut into this many ...
+MIN_CHUNKS = 8
+#: ... of at least this many texels (a unit's fixed cost outweighs a smaller one's rays).
+MIN_CHUNK_TEXELS = 512
