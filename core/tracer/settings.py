@@ -18,9 +18,10 @@ class BakeSettings:
     light only); seed: makes the bake reproducible; threads: worker threads, 0 = every core this
     process may use (`parallel.resolve_threads`; the result does not depend on it; with an
     executor of the caller's, the workers it has); chunk_texels: texels per work unit (bounds
-    memory: ~1 KB per texel-sample), 0 = by the atlas's size (`chunk_size`). pass_samples is a multiple of 4 (the directions come in two
-    independent halves, `hemisphere_kernels.texel_hemisphere_rays`; 4 is the rule of the earlier
-    estimator's four groups, kept so that the settings valid then stay valid).
+    memory: ~1 KB per texel-sample), 0 = by the atlas's size (`chunk_size`). pass_samples is a
+    multiple of 4 (the directions come in two independent halves,
+    `hemisphere_kernels.texel_hemisphere_rays`; 4 is the rule of the earlier estimator's four
+    groups, kept so that the settings valid then stay valid).
 
     noise_target: 0 (off) or the relative standard error of I_z (luminance) at which a texel
     stops: after at least MIN_ADAPTIVE_PASSES passes a texel whose pass-to-pass standard error
