@@ -111,14 +111,9 @@ def read_scene(tte, name: str, resolution: int):
     import bpy
 
     from hhd_lightmapper.bridge import mesh_data, scene_data
-    from scenekit.blender import select
 
     receivers = tte.load_scene(name)
-    scene = bpy.context.scene
-    scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density = tte.LAYER, resolution, 0.0
-    scene.hhd.padding = 2
-    select(receivers)
-    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
+    tte.unwrap(receivers, resolution)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     return mesh_data.read_surface(receivers, tte.LAYER, depsgraph), scene_data.read_bake_scene(depsgraph)
 

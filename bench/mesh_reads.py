@@ -124,17 +124,9 @@ def session_read(repeats: int) -> dict:
 
 def prepare(name: str) -> None:
     """The scene opened, every mesh selected and unwrapped at 512² (padding 2)."""
-    import bpy
-
     import time_to_error  # bench/, the script's folder
-    from scenekit.blender import select
 
-    receivers = time_to_error.load_scene(name)
-    scene = bpy.context.scene
-    scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density = time_to_error.LAYER, 512, 0.0
-    scene.hhd.padding = 2
-    select(receivers)
-    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
+    time_to_error.unwrap(time_to_error.load_scene(name), 512)
 
 
 def report(results: dict) -> str:

@@ -37,19 +37,10 @@ STAGES = ("bake_points", "trace", "seams", "post")
 
 def prepare(name: str, resolution: int) -> list:
     """The scene opened, its receivers selected and unwrapped at `resolution`² (padding 2)."""
-    import bpy
-
     import time_to_error  # bench/, the script's folder
-    from scenekit.blender import select
 
     receivers = time_to_error.load_scene(name)
-    scene = bpy.context.scene
-    scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density = time_to_error.LAYER, resolution, 0.0
-    scene.hhd.padding = 2
-    select(receivers)
-    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
-    for obj in receivers:
-        obj.hhd.atlas_width = obj.hhd.atlas_height = resolution
+    time_to_error.unwrap(receivers, resolution)
     return receivers
 
 

@@ -177,21 +177,30 @@ def load_scene(name: str) -> list:
 
 
 # ---- measurement --------------------------------------------------------------------------
+def unwrap(receivers: list, resolution: int, padding: int = 2) -> None:
+    """The receivers selected and unwrapped with the Unwrap operator into one `resolution`² atlas
+    on LAYER (the atlas at `resolution` even below the panel's 256: UVs are in [0, 1]²)."""
+    import bpy
+
+    from scenekit.blender import select
+
+    scene = bpy.context.scene
+    scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density = LAYER, resolution, 0.0
+    scene.hhd.padding = padding
+    select(receivers)
+    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
+    for obj in receivers:
+        obj.hhd.atlas_width = obj.hhd.atlas_height = resolution
+
+
 def measure(receivers, args) -> dict:
     import bpy
 
     from hhd_lightmapper.bridge import mesh_data, scene_data
     from hhd_lightmapper.core import bakepoints, rays
     from hhd_lightmapper.core.colour import LUMINANCE
-    from scenekit.blender import select
 
-    scene = bpy.context.scene
-    scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density = LAYER, args.resolution, 0.0
-    scene.hhd.padding = args.padding
-    select(receivers)
-    assert bpy.ops.hhd.unwrap() == {'FINISHED'}
-    for obj in receivers:  # the atlas at --resolution even below the panel's 256 (UVs are in [0, 1]²)
-        obj.hhd.atlas_width = obj.hhd.atlas_height = args.resolution
+    unwrap(receivers, args.resolution, args.padding)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     surface = mesh_data.read_surface(receivers, LAYER, depsgraph)
     bake_scene = scene_data.read_bake_scene(depsgraph)
