@@ -1,5 +1,6 @@
-"""A progress line for headless runs (no bpy): one updating line on a terminal, a new line every
-few percent when stdout is a log file (build machines), so either way the log shows progress."""
+"""A progress line for headless runs (no bpy): one updating line on a terminal, and when stdout is
+a log file (build machines) a new line at each stage's start, then every few percent or every
+few seconds, so either way the log shows every stage and that it is moving."""
 
 from __future__ import annotations
 
@@ -12,29 +13,38 @@ import time
 
 
 class ConsoleProgress:
-    """Callable `(fraction, message)`; prints `[ 42.0%] message`."""
+    """Callable `(fraction, message)`; prints `[ 42.0%] message`. In a log: a line whenever the
+    stage changes (the message's head, before its first ": "), the bar moved `step` or
+    `min_interval` seconds passed since the last line, and at the end."""
 
-    def __init__(self, stream=None, step: float = 0.05, min_interval: float = 10.0):
+    def __init__(self, stream=None, step: float = 0.05, min_interval: float = 5.0):
         self.stream = stream or sys.stdout
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.step = step
         self.min_interval = min_interval
         self.last_fraction = -1.0
         self.last_time = 0.0
+        self.last_stage: str | None = None
 
     def __call__(self, fraction: float, message: str) -> None:
         line = f"[{100 * fraction:5.1f}%] {message}"
         now = time.monotonic()
+        stage = message.split(": ", 1)[0]
         if self.tty:
             self.stream.write("\r" + line[:150].ljust(150))
             if fraction >= 1.0:
                 self.stream.write("\n")
-        elif fraction - self.last_fraction >= self.step or now - self.last_time >= self.min_interval or fraction >= 1.0:
+        elif (
+            stage != self.last_stage
+            or fraction - self.last_fraction >= self.step
+            or now - self.last_time >= self.min_interval
+            or fraction >= 1.0
+        ):
             self.stream.write(line + "\n")
         else:
             return
         self.stream.flush()
-        self.last_fraction, self.last_time = fraction, now
+        self.last_fraction, self.last_time, self.last_stage = fraction, now, stage
 
     def close(self) -> None:
         if self.tty and self.last_fraction < 1.0:
