@@ -526,8 +526,31 @@ def spoke_rays(position, face_normal, texel_size, offset, start, target):
     return anchor, origin, direction, length, reach
 
 
+def components(n, left, right):
+    """(n,) labels of the connected components of n nodes joined by the pairs (left[i], right[i]):
+    each node's label is the smallest node of its component (union-find whose roots are always
+    their set's smallest node, with path halving)."""
+    parent = np.arange(n)
+    for i in range(len(left)):
+        a, b = left[i], right[i]
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        while parent[b] != b:
+            parent[b] = parent[parent[b]]
+            b = parent[b]
+        if a < b:
+            parent[b] = a
+        elif b < a:
+            parent[a] = b
+    for i in range(n):  # parents precede their children: one pass resolves every root
+        parent[i] = parent[parent[i]]
+    return parent
+
+
 _HELPERS = ("max0", "min0", "clip", "overlap_with_texel", "barycentric")
 _KERNELS = (
+    "components",
     "rasterise_chunk",
     "choose_per_texel",
     "texel_points",

@@ -172,3 +172,29 @@ def test_a_dense_sphere_half_flipped_is_found_by_patches():
     found = inward.inward_triangles(*_tris(v, f, flip=flip))
     assert len(f) > 4000 and flip.sum() > 1000
     assert np.array_equal(found, flip)
+
+
+def test_components_label_each_node_with_its_components_smallest_node():
+    """The compiled union-find against the numpy label propagation it replaced: chains, stars,
+    self-loops, repeated pairs and isolated nodes, in random order."""
+    rng = np.random.default_rng(7)
+    for n, m in [(1, 0), (5, 0), (10, 3), (200, 150), (5000, 4000), (5000, 20000)]:
+        left, right = rng.integers(0, n, m), rng.integers(0, n, m)
+        if n == 200:  # one long chain given backwards: the worst case for label propagation
+            left, right = np.arange(n - 1)[::-1] + 1, np.arange(n - 1)[::-1]
+        got = inward._components(n, left, right)
+        want = inward._components_reference(n, left, right)
+        assert np.array_equal(got, want)
+        assert (got <= np.arange(n)).all()
+
+
+def test_find_on_two_threads_gives_what_one_thread_gives():
+    v, f = meshes.cube(1.0, (0, 0, 0.6))
+    cubes = [_tris(v + [3.0 * k, 0, 0], f, flip=slice(None) if k % 2 else None) for k in range(6)]
+    sizes = [_tris(*meshes.plane(10.0))] + cubes
+    surface = _surface(*sizes)
+    names = ["Floor"] + [f"Cube {k}" for k in range(6)]
+    one = inward.find(surface, names, threads=1)
+    two = inward.find(surface, names, threads=2)
+    assert [x.name for x in one] == [x.name for x in two] == ["Cube 1", "Cube 3", "Cube 5"]
+    assert all(np.array_equal(a.triangles, b.triangles) for a, b in zip(one, two))

@@ -24,10 +24,12 @@ the open side"), so their texels' n_v and hemisphere are those of the side light
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .. import parallel, progress, raster_kernels
 from ..rays import RayScene, ray_offset
 from .data import SurfaceTriangles, weld
 
@@ -105,23 +107,45 @@ def light_points(scene) -> np.ndarray:
     return out
 
 
-def find(surface: SurfaceTriangles, objects: list[str], lights: np.ndarray | None = None) -> list[InwardObject]:
+def find(
+    surface: SurfaceTriangles, objects: list[str], lights: np.ndarray | None = None, check=None, threads: int = 0
+) -> list[InwardObject]:
     """The objects of one atlas (`surface.object_index` indexes `objects`) with faces that point
     in, in object order; `lights` (N, 3): `light_points` of the scene (a closed shell holding
-    one is a room seen from inside: not flagged)."""
+    one is a room seen from inside: not flagged). The objects are checked on `threads` workers
+    (0 = every core; Embree and numpy's large operations release the GIL), the largest first;
+    `check()` between objects (a `core.progress.Tick` is told the share of triangles done)."""
     lights = np.zeros((0, 3)) if lights is None else np.asarray(lights, np.float64).reshape(-1, 3)
     positions = np.asarray(surface.positions, np.float64)
     object_index = np.asarray(surface.object_index)
     polygon = getattr(surface, "polygon", None)
     normals = np.asarray(surface.normals)
-    found = []
     order = np.argsort(object_index, kind="stable")
     keys, starts = np.unique(object_index[order], return_index=True)
-    for k, rows in zip(keys, np.split(order, starts[1:])):
-        flagged = rows[inward_triangles(positions[rows], normals[rows], lights)]
-        if len(flagged):
-            faces = len(np.unique(np.asarray(polygon)[flagged])) if polygon is not None else len(flagged)
-            found.append(InwardObject(str(objects[int(k)]), faces, flagged))
+    parts = np.split(order, starts[1:]) if len(order) else []
+    tick = progress.ticker(check)
+    flagged: dict[int, np.ndarray] = {}
+    with ThreadPoolExecutor(max_workers=parallel.resolve_threads(threads)) as pool:
+        futures = {
+            pool.submit(lambda rows: rows[inward_triangles(positions[rows], normals[rows], lights)], parts[j]): j
+            for j in sorted(range(len(parts)), key=lambda j: -len(parts[j]))
+        }
+        try:
+            done = 0
+            for future in as_completed(futures):
+                j = futures[future]
+                flagged[j] = future.result()
+                done += len(parts[j])
+                tick.at(done / max(len(order), 1))
+        finally:
+            for future in futures:
+                future.cancel()
+    found = []
+    for j, k in enumerate(keys):
+        if len(flagged[j]):
+            rows = flagged[j]
+            faces = len(np.unique(np.asarray(polygon)[rows])) if polygon is not None else len(rows)
+            found.append(InwardObject(str(objects[int(k)]), faces, rows))
     return found
 
 
@@ -189,7 +213,15 @@ def facing_patches(vertex: np.ndarray, turned: np.ndarray) -> np.ndarray:
 
 def _components(n: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
     """(n,) labels of the connected components of n nodes joined by the pairs (left, right):
-    minimum-label propagation with full pointer jumping after each step."""
+    each node's label is the smallest node of its component (`raster_kernels.components`)."""
+    return raster_kernels.get().components(
+        n, np.ascontiguousarray(left, np.int64), np.ascontiguousarray(right, np.int64)
+    )
+
+
+def _components_reference(n: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """`_components` in numpy (the tests' reference): minimum-label propagation with full
+    pointer jumping after each step."""
     label = np.arange(n)
     while True:
         low = np.minimum(label[left], label[right])
