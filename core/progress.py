@@ -30,27 +30,30 @@ from collections.abc import Callable, Sequence
 LAST = 0.999
 
 # Estimated cost per unit of work, in microseconds on the 2-core test machine (only the ratios
-# matter). From the timings of the issue's 3.9M-texel Production kitchen (trace 508 s at 64
-# samples and 8 bounces, denoise 96 s, stitch 68 s, raw files ~76 s, encode + write ~100 s) and
-# a 1024² bake here (floor and ball, 634k texels, 16 samples: trace 4 s, raw files 4 s,
-# denoise 13 s, encode 2 s); stitch and encode from the 4096² bedroom's stages after the compiled
-# dilation and the chunk-parallel encoder (bench/results/end_to_end.md).
+# matter), from the stages of two 4096² Production bakes of bench/end_to_end.py: the bedroom
+# (7.0M texels baked, 449k triangles) and three bedrooms side by side (2.4M texels, 1.35M
+# triangles, 19,863 charts). Where the two differ (stitching and encoding grow with the seams),
+# the constant lies between them.
+#: Checking for faces that point in (`core.bakepoints.inward`), per receiver triangle.
+COST_INWARD = 1.5
 #: The bake points of one atlas texel (raster, probes): per baked texel.
 COST_POINTS = 3.0
 #: Tracing one sample of one texel, per bounce after the first hit added: × (1 + bounces / 2).
-COST_SAMPLE = 0.3
+COST_SAMPLE = 0.33
 #: Finding the seams (per baked texel).
-COST_SEAMS = 1.0
+COST_SEAMS = 1.2
 #: The texel images of a traced atlas (per baked texel).
-COST_IMAGE = 1.5
-#: Writing one channel of one texel of an EXR (ZIP, per texel of the window written).
-COST_WRITE = 0.12
+COST_IMAGE = 0.3
+#: Writing one channel of one texel of a raw EXR (float, ZIP; per texel of the window written).
+COST_WRITE = 0.004
+#: Writing one channel of one texel of an encoded EXR or of a preview image made of it.
+COST_WRITE_ENCODED = 0.018
 #: The denoiser (per baked texel).
-COST_DENOISE = 25.0
+COST_DENOISE = 14.0
 #: Seam stitching of the SH and of the encoded layers (per baked texel).
 COST_STITCH = 6.0
 #: Encoding (HHD's fit) and filling the layers (per baked texel).
-COST_ENCODE = 2.7
+COST_ENCODE = 1.0
 #: The post stages' costs by name (`core.post.stages_for`; the stitch stage's SH half: the
 #: other, `post.stitch_encoded`, runs after encoding).
 POST_COSTS = {"denoise": COST_DENOISE, "stitch": 0.6 * COST_STITCH}

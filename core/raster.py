@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import parallel, raster_kernels
+from . import parallel, progress, raster_kernels
 
 #: Candidate (triangle, texel) pairs per chunk: bounds the temporaries; larger chunks were not faster.
 PAIRS_PER_CHUNK = 1 << 18
@@ -71,20 +71,19 @@ def rasterise(uv: np.ndarray, width: int, height: int, check=None, threads: int 
         a, b = bound
         return Coverage(*kernel(p[a:b], m[a:b], off[a:b], lo[a:b], hi[a:b], counts[a:b], live[a:b], width))
 
-    parts = []
+    parts: list[Coverage] = []
     workers = parallel.resolve_threads(threads)
+    tick = progress.ticker(check)
     with ThreadPoolExecutor(max_workers=workers) as pool:
         futures: deque = deque()
         try:
             for bound in bounds:  # at most `workers` chunks ahead (memory: their temporaries)
                 futures.append(pool.submit(chunk, bound))
                 if len(futures) > workers:
-                    if check is not None:
-                        check()
+                    tick.at(len(parts) / len(bounds))
                     parts.append(futures.popleft().result())
             while futures:
-                if check is not None:
-                    check()
+                tick.at(len(parts) / len(bounds))
                 parts.append(futures.popleft().result())
         finally:
             for future in futures:

@@ -113,12 +113,14 @@ def run(
     exr.set_threads(settings.trace.threads)
     report = Progress(progress, cancel)
     t0 = time.perf_counter()
-    atlases, found, scene = check_inward(atlases, scene, settings.inward_faces)
-    ray_scene = ray_scene_of(scene)
     # until the bake points are known, half of each atlas's texels is a guess of its baked texels
     guess = [a.width * a.height // 2 for a in atlases]
-    report.plan(sum(meter.COST_POINTS * n + sum(_atlas_costs(n, 2 * n, settings)) for n in guess))
+    inward_cost = meter.COST_INWARD * sum(len(a.surface.positions) for a in atlases)
+    report.plan(inward_cost + sum(meter.COST_POINTS * n + sum(_atlas_costs(n, 2 * n, settings)) for n in guess))
     report.plan(_probes_cost(probe_grids or [], settings.trace))
+    checking = report.span(inward_cost, "faces that point in")
+    atlases, found, scene = check_inward(atlases, scene, settings.inward_faces, checking, settings.trace.threads)
+    ray_scene = ray_scene_of(scene)
     build = runner.bake_points(atlases, scene, ray_scene, settings.trace.threads, cancel)
     points = _built_points(atlases, build, found, guess, report, cancel)
     t_points = time.perf_counter() - t0
@@ -155,11 +157,11 @@ def _built_points(atlases, build: list, found, guess: list[int], report: Progres
     inward faces' records (`found`); `guess`: its planned texels."""
     points = []
     for i, atlas in enumerate(atlases):
-        tick = report.span(meter.COST_POINTS * guess[i])
+        tick = report.span(meter.COST_POINTS * guess[i], f"bake points of '{atlas.name}'")
         _check_cancel(cancel)
-        points.append(build.pop(0)())
+        points.append(build.pop(0)(tick))
         inward.count_texels(found[i], points[-1].triangle)
-        tick.show(1.0, f"bake points of '{atlas.name}': {len(points[-1].texel)} texels")
+        tick.show(1.0, f"{len(points[-1].texel)} texels")
     return points
 
 

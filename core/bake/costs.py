@@ -46,7 +46,7 @@ def _set_costs(texels: int, area: int, settings: PipelineSettings) -> dict[str, 
         "post": (meter.COST_DENOISE if settings.denoise else 0.0) * texels + 0.6 * stitch * texels,
         "encode": meter.COST_ENCODE * texels,
         "stitch encoded": 0.4 * stitch * texels,
-        "write": meter.COST_WRITE * area * encoded,
+        "write": meter.COST_WRITE_ENCODED * area * encoded,
     }
 
 

@@ -8,24 +8,28 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import bakepoints, memory
+from .. import bakepoints, memory, progress
 from ..bakepoints import BakePoints, inward
 from ..errors import BakeError, InwardFacesRefused
+from ..progress import Tick
 from ..rays import RayScene
 from ..scene import BakeScene
 from .data import AtlasInput, _check_cancel
 
 
-def points_of(atlas: AtlasInput, ray_scene: RayScene | None, threads: int = 0, cancel=None) -> BakePoints:
+def points_of(
+    atlas: AtlasInput, ray_scene: RayScene | None, threads: int = 0, cancel=None, tick: Tick | None = None
+) -> BakePoints:
     """Stage 1 for one atlas: its bake points (buried and near-cover probes against `ray_scene`,
     all the scene's geometry). Raises BakeError naming an object whose UVs cover no texel.
-    `threads`: workers of the probe passes (0 = every core)."""
+    `threads`: workers of the probe passes (0 = every core). `tick`: the stage's part of the
+    bake's progress (it checks for the cancel), else `cancel()` is polled."""
     points = bakepoints.build(
         atlas.surface,
         atlas.width,
         atlas.height,
         occluders=ray_scene,
-        check=lambda: _check_cancel(cancel),
+        check=tick if tick is not None else lambda: _check_cancel(cancel),
         threads=threads,
         albedo=False,  # the tracer takes albedo from the scene's triangles
     )
@@ -52,16 +56,20 @@ def ray_scene_of(scene: BakeScene) -> RayScene | None:
 
 
 def check_inward(
-    atlases: list[AtlasInput], scene: BakeScene, mode: str = inward.OPEN_SIDE
+    atlases: list[AtlasInput], scene: BakeScene, mode: str = inward.OPEN_SIDE, check=None, threads: int = 0
 ) -> tuple[list[AtlasInput], list[list[inward.InwardObject]], BakeScene]:
     """Faces that point into their own object (`core.bakepoints.inward`), found before any bake point:
     (the atlases to bake: with `mode` OPEN_SIDE those faces' normals turned round, else as
     given; per atlas the objects found; the scene to trace: with OPEN_SIDE those faces' winding
-    turned round, `inward.flip_scene`). REFUSE with any found: InwardFacesRefused naming them."""
+    turned round, `inward.flip_scene`). REFUSE with any found: InwardFacesRefused naming them.
+    `check`: called between objects (a `core.progress.Tick` is told how far the check has come);
+    `threads`: workers over the objects (0 = every core)."""
     if mode not in inward.MODES:
         raise BakeError(f"inward faces: unknown setting {mode!r} (one of {', '.join(inward.MODES)})")
     lights = inward.light_points(scene)
-    found = [inward.find(atlas.surface, atlas.objects, lights) for atlas in atlases]
+    sizes = [max(len(atlas.surface.positions), 1) for atlas in atlases]
+    ticks = progress.ticker(check).split(sizes)
+    found = [inward.find(atlas.surface, atlas.objects, lights, tick, threads) for atlas, tick in zip(atlases, ticks)]
     if mode == inward.REFUSE and any(found):
         raise InwardFacesRefused([item.message(mode) for items in found for item in items])
     if mode == inward.OPEN_SIDE and any(found):

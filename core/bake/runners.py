@@ -12,7 +12,7 @@ from typing import Protocol
 
 from .. import tracer
 from ..bakepoints import BakePoints
-from ..progress import Progress
+from ..progress import Progress, Tick
 from ..rays import RayScene
 from ..scene import BakeScene
 from .costs import _atlas_costs, _trace_cost, _window_texels
@@ -65,8 +65,9 @@ class AtlasRunner(Protocol):
 
     def bake_points(
         self, atlases: list[AtlasInput], scene: BakeScene, ray_scene: RayScene | None, threads: int, cancel
-    ) -> list[Callable[[], BakePoints]]:
-        """Per atlas, a function returning its bake points (checked, `points.check_points`)."""
+    ) -> list[Callable[[Tick], BakePoints]]:
+        """Per atlas, a function returning its bake points (checked, `points.check_points`), told
+        its part of the progress (a `core.progress.Tick`, which also checks for the cancel)."""
         ...
 
     def start(self, jobs: AtlasJobs, out_dir) -> None:
@@ -94,7 +95,7 @@ class LocalRunner:
 
     def bake_points(
         self, atlases: list[AtlasInput], scene: BakeScene, ray_scene: RayScene | None, threads: int, cancel
-    ) -> list[Callable[[], BakePoints]]:
+    ) -> list[Callable[[Tick], BakePoints]]:
         return [functools.partial(points_of, atlas, ray_scene, threads, cancel) for atlas in atlases]
 
     def start(self, jobs: AtlasJobs, out_dir) -> None:
@@ -119,7 +120,7 @@ class FarmRunner:
 
     def bake_points(
         self, atlases: list[AtlasInput], scene: BakeScene, ray_scene: RayScene | None, threads: int, cancel
-    ) -> list[Callable[[], BakePoints]]:
+    ) -> list[Callable[[Tick], BakePoints]]:
         remote = self.farm.bake_points(atlases, scene, cancel)  # on the farm's workers
         return [functools.partial(_checked, atlas, wait) for atlas, wait in zip(atlases, remote)]
 
@@ -139,8 +140,9 @@ class FarmRunner:
         self.farm.finished()
 
 
-def _checked(atlas: AtlasInput, wait: Callable[[], BakePoints]) -> BakePoints:
+def _checked(atlas: AtlasInput, wait: Callable[[], BakePoints], tick: Tick) -> BakePoints:
     """The bake points of `atlas` built on the farm, once `wait` returns them, checked."""
+    tick.at(0.0, "on the farm's workers")
     return check_points(atlas, wait())
 
 

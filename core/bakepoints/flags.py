@@ -7,7 +7,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .. import parallel, raster_kernels
+from .. import parallel, progress, raster_kernels
 from ..rays import RayScene
 from . import data
 from .covers import CoverProbe
@@ -65,16 +65,16 @@ def _for_chunks(work, n: int, chunk: int, check=None, threads: int = 0) -> None:
     worker fewer than CHUNKS_PER_WORKER of them, down to MIN_CHUNK: a small atlas's few chunks
     would leave a core idle), on `threads` workers (0 = every core; Embree releases the GIL);
     `check()` before each chunk's result is taken (it raises to stop: the chunks not started
-    are dropped). Each chunk writes only its own rows, so the result depends on neither the
-    thread count nor the chunks."""
+    are dropped; a `core.progress.Tick` also reports the share of chunks done). Each chunk writes
+    only its own rows, so the result depends on neither the thread count nor the chunks."""
     workers = parallel.resolve_threads(threads)
     chunk = max(1, min(chunk, max(MIN_CHUNK, -(-n // (CHUNKS_PER_WORKER * workers)))))
+    tick = progress.ticker(check)
     with ThreadPoolExecutor(max_workers=workers) as pool:
         futures = [pool.submit(work, slice(s, min(s + chunk, n))) for s in range(0, n, chunk)]
         try:
-            for future in futures:
-                if check is not None:
-                    check()
+            for k, future in enumerate(futures):
+                tick.at(k / len(futures))
                 future.result()
         finally:
             for future in futures:
