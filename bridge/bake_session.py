@@ -14,12 +14,16 @@ import bpy
 
 from ..core import bake as core_bake
 from ..core import encoding as core_encoding
+from ..core import progress as core_progress
 from ..core.errors import BakeError
 from ..core.files.lightmap_files import AtlasFiles
 from . import collection_instances, denoiser, fingerprints, mesh_data, scene_data
 from . import settings as bake_settings
 
 DEFAULT_ATLAS = "Lightmap"
+#: The shares of reading a scene (`BakeSession`): every object's triangles, the receivers' surfaces,
+#: the fingerprints (measured on a 1.35M-triangle level: bench/end_to_end.py).
+READ_SHARES = (0.25, 0.6, 0.15)
 
 
 def target_objects(context, names: list[str] | None = None, settings=None) -> list:
@@ -179,8 +183,14 @@ class BakeSession:
         threads: int | None = None,
         scheduler: str | None = None,
         settings=None,
+        progress=None,
     ):
         settings = context.scene.hhd if settings is None else settings
+        # `progress(fraction, message)`: how far the reading has come (a large level takes seconds)
+        scene_part, surface_part, fingerprint_part = core_progress.Tick(progress, name="reading the scene").split(
+            READ_SHARES,
+            ["reading the scene: objects", "reading the scene: receivers", "reading the scene: fingerprints"],
+        )
         #: a Dask scheduler's address to bake on (core.farm), "" for this machine
         self.scheduler = (settings.scheduler if scheduler is None else scheduler).strip()
         self.farm_warnings: list[str] = []
@@ -192,12 +202,12 @@ class BakeSession:
         depsgraph = context.evaluated_depsgraph_get()
         cache = mesh_data.TextureCache()
         notes: list[str] = []
-        self.scene = scene_data.read_bake_scene(depsgraph)
+        self.scene = scene_data.read_bake_scene(depsgraph, scene_part)
         self.probe_grids = scene_data.read_probe_grids(depsgraph)
         notes += self.scene.notes
         self.atlases = []
-        for name, width, height, members in groups:
-            surface = mesh_data.read_surface(members, settings.uv_layer, depsgraph, cache, notes)
+        for (name, width, height, members), part in zip(groups, surface_part.split([1] * len(groups))):
+            surface = mesh_data.read_surface(members, settings.uv_layer, depsgraph, cache, notes, part)
             self.atlases.append(
                 core_bake.AtlasInput(name, width, height, surface, [o.name for o in members], instance_records(members))
             )
@@ -207,7 +217,8 @@ class BakeSession:
         self.atlas_count = len(self.atlases)
         self.atlas_objects = [o for a in self.atlases for o in a.objects]
         # what the lighting depends on, for Bake Changed and the stale report (core.incremental)
-        self.fingerprints = fingerprints.scene_fingerprints(context, groups, settings.uv_layer)
+        self.fingerprints = fingerprints.scene_fingerprints(context, groups, settings.uv_layer, fingerprint_part)
+        fingerprint_part.show(1.0)
         self.pack = settings.pack_images
         self.blend = bpy.data.filepath
         self.scene_name = context.scene.name  # the bpy scene, for the light sets' weights after the bake

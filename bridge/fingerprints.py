@@ -199,16 +199,21 @@ def instance_key(instance) -> str:
     return instance.object.name
 
 
-def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_layer: str) -> Fingerprints:
+def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_layer: str, tick=None) -> Fingerprints:
     """The fingerprints of the scene now: every render-visible mesh object and light, the world,
     and the layout of each atlas of `atlases` ([(name, width, height, receiver objects)], as
-    `bake_session.atlas_groups` gives them) from the receivers' `uv_layer`."""
+    `bake_session.atlas_groups` gives them) from the receivers' `uv_layer`. `tick` (a
+    `core.progress.Tick`) is told the share of the scene's objects read."""
+    from ..core import progress
+
     depsgraph = context.evaluated_depsgraph_get()
     receivers = {o.name: o for _, _, _, members in atlases for o in members}
     found = Fingerprints()
     materials: dict = {}
     uv: dict[str, str] = {}
-    for instance in depsgraph.object_instances:
+    tick, total = progress.ticker(tick), max(len(depsgraph.objects), 1)
+    for k, instance in enumerate(depsgraph.object_instances):
+        tick.at(min(k / total, 1.0))
         obj = instance.object
         matrix = np.array(instance.matrix_world, dtype=np.float64)
         key = instance_key(instance)

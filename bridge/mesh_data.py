@@ -315,17 +315,23 @@ def no_faces_warning(name: str) -> str:
     return f"'{name}': its modifiers leave no faces; nothing baked for it, its texels stay empty"
 
 
-def read_surface(objects, uv_layer: str, depsgraph, cache: TextureCache | None = None, notes: list | None = None):
+def read_surface(
+    objects, uv_layer: str, depsgraph, cache: TextureCache | None = None, notes: list | None = None, tick=None
+):
     """SurfaceTriangles of the evaluated meshes of `objects` (modifiers applied, world space):
     positions, corner normals (smooth/flat/custom as Blender shades them), lightmap UVs (an
     instance's through its rectangle, `lightmap_rect`: atlas UVs for every object), object
-    index and albedo (constant or image texture) per triangle. `notes` collects fallbacks."""
+    index and albedo (constant or image texture) per triangle. `notes` collects fallbacks;
+    `tick` (a `core.progress.Tick`) is told the share of the objects read."""
+    from ..core import progress
     from ..core.bakepoints import SurfaceTriangles
 
     cache = cache or TextureCache()
     notes = notes if notes is not None else []
     parts = []
+    tick = progress.ticker(tick)
     for index, obj in enumerate(objects):
+        tick.at(index / max(len(objects), 1))
         evaluated = obj.evaluated_get(depsgraph)
         mesh = evaluated.to_mesh()
         try:

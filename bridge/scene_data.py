@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import blender_compat
+from ..core import progress as core_progress
 from ..core.errors import BakeError
 from ..core.probes import ProbeGrid
 from ..core.scene import AreaLight, BakeScene, PointLight, SpotLight, SunLight
@@ -227,10 +228,13 @@ def _vector_mapping(world, node) -> np.ndarray:
     return rotation @ np.linalg.inv(scale)  # NORMAL: inverse-transpose of R·S
 
 
-def read_bake_scene(depsgraph) -> BakeScene:
-    """BakeScene of everything visible to render in the evaluated depsgraph."""
+def read_bake_scene(depsgraph, tick=None) -> BakeScene:
+    """BakeScene of everything visible to render in the evaluated depsgraph. `tick` (a
+    `core.progress.Tick`) is told the share of the scene's objects read."""
     parts, lights, cache, notes = [], [], TextureCache(), []
-    for instance in depsgraph.object_instances:
+    tick, total = core_progress.ticker(tick), max(len(depsgraph.objects), 1)
+    for k, instance in enumerate(depsgraph.object_instances):
+        tick.at(min(k / total, 1.0))
         obj = instance.object
         if obj.type == 'LIGHT':
             lights.append(_light(instance))

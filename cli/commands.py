@@ -53,7 +53,13 @@ def bake(context, args, settings) -> str:
         return bake_subset(context, args, settings)
     if args.unwrap:
         print(unwrap(context, args, settings), flush=True)
-    session = bake_session.BakeSession(context, args.objects, args.out, threads=args.threads, settings=settings)
+    reading = ConsoleProgress(step=0.25)
+    try:
+        session = bake_session.BakeSession(
+            context, args.objects, args.out, threads=args.threads, settings=settings, progress=reading
+        )
+    finally:
+        reading.close()
     for w in session.warnings:
         print(f"warning: {w}")
     print(f"bake: {session.describe()}", flush=True)

@@ -7,6 +7,8 @@ status text, Esc cancels within a chunk of texels, and the .blend is only change
 has finished (images loaded).
 """
 
+import contextlib
+
 import bpy
 
 from ..bridge import bake_session, collection_instances
@@ -30,6 +32,25 @@ def receivers_poll(cls, context) -> bool:
         cls.poll_message_set("Select the mesh objects (or collection instances) that receive lightmaps")
         return False
     return True
+
+
+@contextlib.contextmanager
+def reading_progress(context):
+    """`progress(fraction, message)` for reading the scene on the main thread (before the work
+    starts): the progress line in background mode, else the window's progress cursor."""
+    if bpy.app.background:
+        console = ConsoleProgress(step=0.25)
+        try:
+            yield console
+        finally:
+            console.close()
+        return
+    wm = context.window_manager
+    wm.progress_begin(0, 1000)
+    try:
+        yield lambda fraction, _message: wm.progress_update(int(1000 * fraction))
+    finally:
+        wm.progress_end()
 
 
 class SessionWork(modal_work.ModalWork):
@@ -82,7 +103,8 @@ class HHD_OT_bake(SessionWork, bpy.types.Operator):
 
     def _start(self, context):
         try:
-            self.session = bake_session.BakeSession(context)
+            with reading_progress(context) as progress:
+                self.session = bake_session.BakeSession(context, progress=progress)
         except BakeError as exc:
             self.report({'ERROR'}, str(exc))
             return False
