@@ -16,7 +16,12 @@ def test_progress_in_a_log_prints_a_line_every_step_and_the_end():
         progress(i / 10, f"'A': chunk {i}")
     progress.close()
     lines = out.getvalue().splitlines()
-    assert lines == ["[ 10.0%] 'A': chunk 1", "[ 40.0%] 'A': chunk 4", "[ 70.0%] 'A': chunk 7", "[100.0%] 'A': chunk 10"]
+    assert lines == [
+        "[ 10.0%] 'A': chunk 1",
+        "[ 40.0%] 'A': chunk 4",
+        "[ 70.0%] 'A': chunk 7",
+        "[100.0%] 'A': chunk 10",
+    ]
 
 
 def test_progress_in_a_log_prints_each_stage_start_and_after_min_interval(monkeypatch):
