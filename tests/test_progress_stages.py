@@ -5,6 +5,7 @@ cancel raised while they run leaves the previous files as they were."""
 
 import hashlib
 import json
+import re
 
 import numpy as np
 import pytest
@@ -196,3 +197,39 @@ def test_an_unwrap_reports_its_eta_as_a_bake_does(monkeypatch):
         (0.25, "xatlas: charted 1 of 4 parts, ETA 30 s"),
         (1.0, "xatlas: done"),
     ]
+
+
+def test_the_stages_before_the_trace_report_their_parts_in_order(baked):
+    """The inward check and the bake points (rasterising, the cover probe, settling, buried and
+    near-cover texels) each report within their share, before the trace's first chunk."""
+    calls, _ = baked
+    first_trace = min(i for i, (_, m) in enumerate(calls) if "chunk" in m or "pass" in m)
+    before = [m for _, m in calls[:first_trace]]
+    parts = [
+        "faces that point in",
+        "bake points of 'Lightmap': rasterising",
+        "bake points of 'Lightmap': cover probe",
+        "bake points of 'Lightmap': settling",
+        "bake points of 'Lightmap': buried texels",
+        "bake points of 'Lightmap': near cover",
+    ]
+    where = [next(i for i, m in enumerate(before) if m.startswith(p)) for p in parts]
+    assert where == sorted(where)
+    assert re.fullmatch(r"bake points of 'Lightmap': \d+ texels, ETA .*", before[-1])
+    assert sum(m.startswith("bake points of 'Lightmap': settling") for m in before) >= 2  # per chunk
+
+
+@pytest.mark.parametrize("where", ["faces that point in", "bake points of 'Lightmap': settling"])
+def test_a_cancel_before_the_trace_stops_the_bake_and_writes_nothing(settings, tmp_path, where):
+    atlas, scene = floor_and_ball()
+    seen = []
+
+    def on_progress(fraction, message):
+        seen.append(message)
+        if message.startswith(where):
+            raise BakeCancelled("cancelled from the progress callback")
+
+    with pytest.raises(BakeCancelled):
+        bake.run([atlas], scene, settings, tmp_path, progress=on_progress)
+    assert not any("chunk" in m for m in seen)
+    assert not folder_hash(tmp_path)
