@@ -11,6 +11,8 @@ Each case runs `python -m hhd_lightmapper.cli FILE.blend bake --unwrap ... --pre
   (`--texel-density 2.35`, which lets xatlas size the atlas freely: 182², ~2.4k texels baked);
 - room-256-draft: the same room at the CLI's smallest `--resolution`, 256²;
 - bedroom-1024-draft, bedroom-4096-production: the shared bedroom, all its meshes;
+- level-4096-production: three copies of the bedroom side by side (213 meshes, 1.35M polygons),
+  a level of the size of the issue's kitchen, Production at 4096²;
 - bedroom-4096-post: the Production bake at 4 samples per texel: the stages around the trace as
   at 4096² Production (the same texels, denoise, stitching, files) in a fifth of the time, for
   working on them; its shares are not the Production bake's.
@@ -114,6 +116,12 @@ CASES = {
         "size": ["--resolution", "4096"],
         "preset": "production",
         "label": "bedroom 4096² Production",
+    },
+    "level-4096-production": {
+        "scene": "level",
+        "size": ["--resolution", "4096"],
+        "preset": "production",
+        "label": "three bedrooms 4096² Production",
     },
     "bedroom-4096-post": {
         "scene": "bedroom",
@@ -288,6 +296,27 @@ def _room(folder: Path) -> Path:
     return folder / "room.blend"
 
 
+def _level(folder: Path) -> Path:
+    """Three copies of the shared bedroom side by side, each object and mesh copied (213 meshes,
+    1.35M polygons): a level of the size of the issue's kitchen (295 objects, 1.44M polygons)."""
+    code = (
+        "import sys, bpy; from mathutils import Vector; "
+        "bpy.ops.wm.open_mainfile(filepath=sys.argv[1]); "
+        "objs = list(bpy.context.scene.objects); "
+        "xs = [(o.matrix_world @ Vector(c)).x for o in objs if o.type == 'MESH' for c in o.bound_box]; "
+        "width = 1.2 * (max(xs) - min(xs))\n"
+        "for k in (1, 2):\n"
+        "    for o in objs:\n"
+        "        c = o.copy(); c.data = o.data.copy() if o.data is not None else None\n"
+        "        c.location.x += k * width if o.parent is None else 0.0\n"
+        "        [coll.objects.link(c) for coll in o.users_collection]\n"
+        "bpy.ops.wm.save_as_mainfile(filepath=sys.argv[2])"
+    )
+    blend = folder / "level.blend"
+    subprocess.run([sys.executable, "-c", code, str(SHARED_BEDROOM), str(blend)], check=True, capture_output=True)
+    return blend
+
+
 def _atlases(out: Path) -> dict:
     """The atlases' sizes, their baked texels, each sidecar's `timings_seconds` (by atlas:
     "bake_points" is the bake points of every atlas, built before the first trace, in each) and,
@@ -327,6 +356,8 @@ def run_case(name: str, scratch: Path) -> dict:
     folder.mkdir(parents=True)
     if case["scene"] == "room":
         blend = _room(folder)
+    elif case["scene"] == "level":
+        blend = _level(folder)
     else:
         blend = folder / "bedroom.blend"
         shutil.copyfile(SHARED_BEDROOM, blend)
