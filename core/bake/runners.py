@@ -142,7 +142,7 @@ class FarmRunner:
 
 def _checked(atlas: AtlasInput, wait: Callable[[], BakePoints], tick: Tick) -> BakePoints:
     """The bake points of `atlas` built on the farm, once `wait` returns them, checked."""
-    tick.at(0.0, "on the farm's workers")
+    tick.at(0.0, "built by the farm's workers")
     return check_points(atlas, wait())
 
 
