@@ -334,44 +334,37 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, fi
     triangle's id in triangles (T, 3, 3) (−1: several), its luminance, the near distance², the
     distance² from which the tree below is descended by power alone (`_pick_leaf`), its share of
     its siblings' summed power (`lights.emitters.sibling_shares`).
-    Element-wise and branch-free, so the first loops vectorise (bit for bit the scalar
-    arithmetic; `_max`, as numba's `max` does not let them; without fast-math, which would reassociate the sum and make its last bits
-    depend on the arrays' alignment: a seed would no longer reproduce a bake bit for bit
-    across processes). Scalars and three arrays: a call's cost grows with its arguments.
+    One pass, each cluster's weight finished before the next (its horizon factor's square roots
+    only where the normal points outside the cone into the sphere, its solid angle only where x
+    lies near): a few clusters per call, so a branch is cheaper than the vectorised loops this
+    replaced (bit for bit their values; no fast-math, which would reassociate the sum and make
+    its last bits depend on the arrays' alignment: a seed would no longer reproduce a bake bit
+    for bit across processes). Scalars and three arrays: a call's cost grows with its arguments.
     With d the distance, r the radius and a = normal · (centre − x): the normal lies inside
     the cone of directions into the sphere when a ≥ √(d² − r²), else the nearest edge's
     cosine is (a √(d² − r²) + √(d² − a²) r) / d²; inside the sphere, 1."""
-    near = 0
-    if horizon:
-        for c in range(first, end):
-            dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
-            d2 = dx * dx + dy * dy + dz * dz
-            near += d2 < clusters[8, c]
-            r2 = clusters[3, c]
-            a = nx * dx + ny * dy + nz * dz
-            h2 = d2 - r2
-            edge = a * math.sqrt(_max(h2, 0.0)) + math.sqrt(_max(d2 - a * a, 0.0)) * clusters[4, c]  # × d2
-            outside = (h2 > 0.0) & ((a < 0.0) | (a * a < h2))
-            d2s = _max(d2, 1e-300)
-            w[c] = clusters[5, c] * (_max(edge, 0.0) if outside else d2s) / (_max(d2, r2) * d2s)
-    else:
-        for c in range(first, end):
-            dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
-            d2 = dx * dx + dy * dy + dz * dz
-            near += d2 < clusters[8, c]
-            w[c] = clusters[5, c] / _max(d2, clusters[3, c])
-    for c in range(first, end if near else first):  # lone triangles near x: by solid angle
-        if clusters[6, c] < 0.0 or w[c] <= 0.0:
-            continue
-        dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
-        d2 = dx * dx + dy * dy + dz * dz
-        if d2 < clusters[8, c]:
-            omega = _solid_angle(px, py, pz, triangles, int(clusters[6, c]))
-            if math.isfinite(omega):  # NaN from a corner: keep the distance's weight
-                w[c] *= clusters[7, c] * omega * max(d2, clusters[3, c]) / clusters[5, c]
     total = 0.0
     for c in range(first, end):
-        total += w[c]
+        dx, dy, dz = clusters[0, c] - px, clusters[1, c] - py, clusters[2, c] - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        r2 = clusters[3, c]
+        if horizon:
+            a = nx * dx + ny * dy + nz * dz
+            h2 = d2 - r2
+            d2s = _max(d2, 1e-300)
+            if h2 > 0.0 and (a < 0.0 or a * a < h2):  # the normal outside the cone: its edge's cosine
+                edge = a * math.sqrt(h2) + math.sqrt(_max(d2 - a * a, 0.0)) * clusters[4, c]  # × d2
+                wc = clusters[5, c] * _max(edge, 0.0) / (_max(d2, r2) * d2s)
+            else:
+                wc = clusters[5, c] * d2s / (_max(d2, r2) * d2s)
+        else:
+            wc = clusters[5, c] / _max(d2, r2)
+        if d2 < clusters[8, c] and clusters[6, c] >= 0.0 and wc > 0.0:  # a lone triangle near x
+            omega = _solid_angle(px, py, pz, triangles, int(clusters[6, c]))
+            if math.isfinite(omega):  # NaN from a corner: keep the distance's weight
+                wc *= clusters[7, c] * omega * max(d2, r2) / clusters[5, c]
+        w[c] = wc
+        total += wc
     return total
 
 
