@@ -48,6 +48,7 @@ def bake(context, args, settings) -> str:
     --changed bake a subset (`bake_subset`). Ctrl-C or SIGTERM cancels: no file replaced."""
     from ..bridge import bake_session
     from ..core.console import ConsoleProgress, interrupt_as_cancel
+    from ..core.progress import with_eta
 
     if args.only or args.changed:
         return bake_subset(context, args, settings)
@@ -56,7 +57,7 @@ def bake(context, args, settings) -> str:
     reading = ConsoleProgress(step=0.25)
     try:
         session = bake_session.BakeSession(
-            context, args.objects, args.out, threads=args.threads, settings=settings, progress=reading
+            context, args.objects, args.out, threads=args.threads, settings=settings, progress=with_eta(reading)
         )
     finally:
         reading.close()

@@ -14,6 +14,7 @@ import bpy
 from ..bridge import bake_session, collection_instances
 from ..core.console import ConsoleProgress
 from ..core.errors import BakeError, InwardFacesRefused
+from ..core.progress import with_eta
 from ..core.tracer import BakeCancelled
 from . import modal_work
 
@@ -41,7 +42,7 @@ def reading_progress(context):
     if bpy.app.background:
         console = ConsoleProgress(step=0.25)
         try:
-            yield console
+            yield with_eta(console)
         finally:
             console.close()
         return
