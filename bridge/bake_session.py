@@ -21,9 +21,9 @@ from . import collection_instances, denoiser, fingerprints, mesh_data, scene_dat
 from . import settings as bake_settings
 
 DEFAULT_ATLAS = "Lightmap"
-#: The shares of reading a scene (`BakeSession`): every object's triangles, the receivers' surfaces,
-#: the fingerprints (measured on a 1.35M-triangle level: bench/end_to_end.py).
-READ_SHARES = (0.25, 0.6, 0.15)
+#: The shares of reading a scene (`BakeSession`): every object's triangles and fingerprint, the
+#: receivers' surfaces, the atlases' layouts (measured on a 1.35M-triangle level: bench/end_to_end.py).
+READ_SHARES = (0.4, 0.58, 0.02)
 
 
 def target_objects(context, names: list[str] | None = None, settings=None) -> list:
@@ -189,7 +189,7 @@ class BakeSession:
         # `progress(fraction, message)`: how far the reading has come (a large level takes seconds)
         scene_part, surface_part, fingerprint_part = core_progress.Tick(progress, name="reading the scene").split(
             READ_SHARES,
-            ["reading the scene: objects", "reading the scene: receivers", "reading the scene: fingerprints"],
+            ["reading the scene: objects", "reading the scene: receivers", "reading the scene: layouts"],
         )
         #: a Dask scheduler's address to bake on (core.farm), "" for this machine
         self.scheduler = (settings.scheduler if scheduler is None else scheduler).strip()
@@ -202,7 +202,10 @@ class BakeSession:
         depsgraph = context.evaluated_depsgraph_get()
         cache = mesh_data.TextureCache()
         notes: list[str] = []
-        self.scene = scene_data.read_bake_scene(depsgraph, scene_part)
+        # what the lighting depends on, for Bake Changed and the stale report (core.incremental),
+        # read with the scene: each mesh evaluated once
+        reader = fingerprints.Reader(groups, settings.uv_layer)
+        self.scene = scene_data.read_bake_scene(depsgraph, scene_part, reader.visit)
         self.probe_grids = scene_data.read_probe_grids(depsgraph)
         notes += self.scene.notes
         self.atlases = []
@@ -216,8 +219,8 @@ class BakeSession:
         self.occluder_triangles = int(len(self.scene.triangles))
         self.atlas_count = len(self.atlases)
         self.atlas_objects = [o for a in self.atlases for o in a.objects]
-        # what the lighting depends on, for Bake Changed and the stale report (core.incremental)
-        self.fingerprints = fingerprints.scene_fingerprints(context, groups, settings.uv_layer, fingerprint_part)
+        fingerprint_part.at(0.0)
+        self.fingerprints = reader.finish(depsgraph)
         fingerprint_part.show(1.0)
         self.pack = settings.pack_images
         self.blend = bpy.data.filepath

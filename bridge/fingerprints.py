@@ -203,62 +203,88 @@ def scene_fingerprints(context, atlases: list[tuple[str, int, int, list]], uv_la
     """The fingerprints of the scene now: every render-visible mesh object and light, the world,
     and the layout of each atlas of `atlases` ([(name, width, height, receiver objects)], as
     `bake_session.atlas_groups` gives them) from the receivers' `uv_layer`. `tick` (a
-    `core.progress.Tick`) is told the share of the scene's objects read."""
+    `core.progress.Tick`) is told the share of the scene's objects read. A bake reads them with
+    its scene instead (`Reader`, `scene_data.read_bake_scene(visit=)`): each mesh evaluated once."""
     from ..core import progress
 
     depsgraph = context.evaluated_depsgraph_get()
-    receivers = {o.name: o for _, _, _, members in atlases for o in members}
-    found = Fingerprints()
-    materials: dict = {}
-    uv: dict[str, str] = {}
+    reader = Reader(atlases, uv_layer)
     tick, total = progress.ticker(tick), max(len(depsgraph.objects), 1)
     for k, instance in enumerate(depsgraph.object_instances):
         tick.at(min(k / total, 1.0))
         obj = instance.object
-        matrix = np.array(instance.matrix_world, dtype=np.float64)
+        if obj.type == 'MESH' and not obj.hide_render:
+            mesh = obj.to_mesh()
+            try:
+                reader.visit(instance, mesh)
+            finally:
+                obj.to_mesh_clear()
+        else:
+            reader.visit(instance)
+    return reader.finish(depsgraph)
+
+
+class Reader:
+    """`scene_fingerprints` instance by instance: `visit(instance, mesh)` for every object
+    instance of the evaluated depsgraph, in its order (mesh: the render-visible mesh instance's
+    evaluated mesh, `instance.object.to_mesh()`, while it exists; None for other instances),
+    then `finish(depsgraph)`."""
+
+    def __init__(self, atlases: list[tuple[str, int, int, list]], uv_layer: str):
+        self.atlases, self.uv_layer = atlases, uv_layer
+        self.receivers = {o.name: o for _, _, _, members in atlases for o in members}
+        self.found = Fingerprints()
+        self.materials: dict = {}
+        self.uv: dict[str, str] = {}
+
+    def visit(self, instance, mesh=None) -> None:
+        obj = instance.object
         key = instance_key(instance)
         if obj.type == 'LIGHT':
+            matrix = np.array(instance.matrix_world, dtype=np.float64)
             light = obj.data
             position = None if light.type == 'SUN' else matrix[:3, 3].tolist()
-            found.lights[key] = {
+            self.found.lights[key] = {
                 "hash": digest(matrix, _rna_values(light), str(getattr(obj, "lightgroup", ""))),
                 "position": position,
                 "power": float(light.energy) * float(max(light.color)),
             }
-        elif obj.type == 'MESH' and not obj.hide_render:
-            mesh = obj.to_mesh()
-            try:
-                mats = [material_digest(slot.material, materials) for slot in obj.material_slots]
-                arrays = _mesh_arrays(mesh)
-                entry = {
-                    "hash": digest(matrix, *arrays, mats, str(getattr(obj, "lightgroup", ""))),
-                    "bounds": _bounds(arrays[0], matrix),
-                    "emits": any(_emits(slot.material) for slot in obj.material_slots),
-                }
-                if key in receivers:
-                    rect = tuple(receivers[key].hhd.lightmap_rect)  # an instance's place (part 2)
-                    entry["uv"] = digest(_uv_digest(mesh, uv_layer), rect)
-                    uv[key] = entry["uv"]
-                found.objects[key] = entry
-            finally:
-                obj.to_mesh_clear()
-    for _, _, _, members in atlases:  # receivers hidden from render keep their layout
-        for obj in members:
-            if obj.name not in uv:
-                evaluated = obj.evaluated_get(depsgraph)
-                mesh = evaluated.to_mesh()
-                try:
-                    rect = tuple(getattr(obj.hhd, "lightmap_rect", ()))
-                    uv[obj.name] = digest(_uv_digest(mesh, uv_layer), rect)
-                finally:
-                    evaluated.to_mesh_clear()
-    world = depsgraph.scene.world
-    if world is not None:
-        tree = blender_compat.node_tree_of(world)
-        found.world = digest(tuple(world.color), _tree(tree, set()), str(getattr(world, "lightgroup", "")))
-    for name, width, height, members in atlases:
-        found.layout[name] = layout_digest(width, height, {o.name: uv.get(o.name, "") for o in members})
-    return found
+        elif mesh is not None:
+            matrix = np.array(instance.matrix_world, dtype=np.float64)
+            mats = [material_digest(slot.material, self.materials) for slot in obj.material_slots]
+            arrays = _mesh_arrays(mesh)
+            entry = {
+                "hash": digest(matrix, *arrays, mats, str(getattr(obj, "lightgroup", ""))),
+                "bounds": _bounds(arrays[0], matrix),
+                "emits": any(_emits(slot.material) for slot in obj.material_slots),
+            }
+            if key in self.receivers:
+                rect = tuple(self.receivers[key].hhd.lightmap_rect)  # an instance's place (part 2)
+                entry["uv"] = digest(_uv_digest(mesh, self.uv_layer), rect)
+                self.uv[key] = entry["uv"]
+            self.found.objects[key] = entry
+
+    def finish(self, depsgraph) -> Fingerprints:
+        """The fingerprints: the visited instances', the layouts (receivers hidden from render
+        read here) and the world's."""
+        uv = self.uv
+        for _, _, _, members in self.atlases:  # receivers hidden from render keep their layout
+            for obj in members:
+                if obj.name not in uv:
+                    evaluated = obj.evaluated_get(depsgraph)
+                    mesh = evaluated.to_mesh()
+                    try:
+                        rect = tuple(getattr(obj.hhd, "lightmap_rect", ()))
+                        uv[obj.name] = digest(_uv_digest(mesh, self.uv_layer), rect)
+                    finally:
+                        evaluated.to_mesh_clear()
+        world = depsgraph.scene.world
+        if world is not None:
+            tree = blender_compat.node_tree_of(world)
+            self.found.world = digest(tuple(world.color), _tree(tree, set()), str(getattr(world, "lightgroup", "")))
+        for name, width, height, members in self.atlases:
+            self.found.layout[name] = layout_digest(width, height, {o.name: uv.get(o.name, "") for o in members})
+        return self.found
 
 
 def _uv_digest(mesh, uv_layer: str) -> str:

@@ -21,12 +21,15 @@ from .materials import TextureCache, checked, triangle_emission
 from .mesh_data import read_triangles, triangle_albedo
 
 
-def _instance_triangles(instance, cache, notes):
+def _instance_triangles(instance, cache, notes, visit=None):
     """(triangles (T, 3, 3) world space, albedo (T, 3), texture index (T,), texture uv (T, 3, 2),
-    emission (T, 3), its Light Group's name) of one mesh instance."""
+    emission (T, 3), its Light Group's name) of one mesh instance; `visit(instance, mesh)`, if
+    given, sees its evaluated mesh first."""
     obj = instance.object
     mesh = obj.to_mesh()
     try:
+        if visit is not None:
+            visit(instance, mesh)
         tris = read_triangles(mesh, instance.matrix_world)
         if tris is None:
             return None
@@ -228,20 +231,26 @@ def _vector_mapping(world, node) -> np.ndarray:
     return rotation @ np.linalg.inv(scale)  # NORMAL: inverse-transpose of R·S
 
 
-def read_bake_scene(depsgraph, tick=None) -> BakeScene:
+def read_bake_scene(depsgraph, tick=None, visit=None) -> BakeScene:
     """BakeScene of everything visible to render in the evaluated depsgraph. `tick` (a
-    `core.progress.Tick`) is told the share of the scene's objects read."""
+    `core.progress.Tick`) is told the share of the scene's objects read. `visit(instance, mesh)`,
+    if given, is called for every object instance in order, with the evaluated mesh of a
+    render-visible mesh instance (else None): the fingerprints read with the scene
+    (`fingerprints.Reader`), each mesh evaluated once."""
     parts, lights, cache, notes = [], [], TextureCache(), []
     tick, total = core_progress.ticker(tick), max(len(depsgraph.objects), 1)
     for k, instance in enumerate(depsgraph.object_instances):
         tick.at(min(k / total, 1.0))
         obj = instance.object
-        if obj.type == 'LIGHT':
-            lights.append(_light(instance))
-        elif obj.type == 'MESH' and not obj.hide_render:
-            part = _instance_triangles(instance, cache, notes)
+        if obj.type == 'MESH' and not obj.hide_render:
+            part = _instance_triangles(instance, cache, notes, visit)
             if part is not None:
                 parts.append(part)
+            continue
+        if visit is not None:
+            visit(instance, None)
+        if obj.type == 'LIGHT':
+            lights.append(_light(instance))
     if not parts:
         raise BakeError("nothing to bake: the scene has no mesh visible to render")
     tris, albedo, tex_index, tex_uv, emission = (np.concatenate(x) for x in list(zip(*parts))[:5])
