@@ -187,7 +187,7 @@ class BakeSession:
     ):
         settings = context.scene.hhd if settings is None else settings
         # `progress(fraction, message)`: how far the reading has come (a large level takes seconds)
-        scene_part, surface_part, fingerprint_part = core_progress.Tick(progress, name="reading the scene").split(
+        scene_part, surface_part, layout_part = core_progress.Tick(progress, name="reading the scene").split(
             READ_SHARES,
             ["reading the scene: objects", "reading the scene: receivers", "reading the scene: layouts"],
         )
@@ -219,9 +219,9 @@ class BakeSession:
         self.occluder_triangles = int(len(self.scene.triangles))
         self.atlas_count = len(self.atlases)
         self.atlas_objects = [o for a in self.atlases for o in a.objects]
-        fingerprint_part.at(0.0)
+        layout_part.at(0.0)
         self.fingerprints = reader.finish(depsgraph)
-        fingerprint_part.show(1.0)
+        layout_part.show(1.0)
         self.pack = settings.pack_images
         self.blend = bpy.data.filepath
         self.scene_name = context.scene.name  # the bpy scene, for the light sets' weights after the bake
