@@ -179,6 +179,11 @@ def test_command_line_exit_codes(baked_scene, cli_run, tmp_path):
     ok = run_cli(blend, "bake", "--out", str(tmp_path / "cli"), "--objects", "Floor", "Cube", "--preset", "draft")
     assert ok.returncode == cli.EXIT_OK, ok.stderr
     assert "[100.0%]" in ok.stdout and (tmp_path / "cli" / "Lightmap_hhd.exr").is_file()
+    # every stage announces itself on the console in bake order, the scene's reading first
+    starts = ["reading the scene: objects", "faces that point in", "bake points of 'Lightmap'", "'Lightmap': chunk"]
+    starts += ["seams 'Lightmap'", "encode 'Lightmap'", "write 'Lightmap'"]
+    where = [next((i for i, line in enumerate(ok.stdout.splitlines()) if s in line), -1) for s in starts]
+    assert -1 not in where and where == sorted(where), (where, ok.stdout)
     encode = run_cli(blend, "encode", "--out", str(tmp_path / "cli"), "--objects", "Floor", "Cube", "--model", "ahd")
     assert encode.returncode == cli.EXIT_OK, encode.stderr
     assert json.loads((tmp_path / "cli" / "Lightmap.json").read_text())["encoder"]["model"] == "ahd"
