@@ -107,7 +107,20 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
     pick = np.empty(n, np.int64)
     pdf = np.empty(n)
     w = np.empty(clusters.shape[1])
+    top = child_first.shape[0] - 1  # the first node with several children: its children's weights by blocks
+    while child_count[top] == 1:
+        top = child_first[top]
+    top_a, top_end = child_first[top], child_first[top] + child_count[top]
+    wk = np.empty((max(top_end - top_a, 0), _BLOCK))
+    d2k = np.empty((max(top_end - top_a, 0), _BLOCK))
+    soa = np.empty((6, _BLOCK))
     for i in range(n):
+        j = i % _BLOCK
+        if j == 0 and top_end - top_a > 1:
+            _top_weights(x, normals, horizon, clusters, top_a, top_end, i, min(i + _BLOCK, n), wk, d2k, soa)
+        top_total = -1.0  # (a tree of one leaf: no weights)
+        if top_end - top_a > 1:
+            top_total = _top_total(x[i, 0], x[i, 1], x[i, 2], clusters, triangles, w, top_a, top_end, wk, d2k, j)
         nx, ny, nz = _normal(normals, i)
         cluster, chance = _pick_leaf(
             x[i, 0],
@@ -124,6 +137,8 @@ def sample_emitters(x, normals, u, triangles, tri_normal, tri_area, within, emit
             child_count,
             u[0, i],
             share,
+            top,
+            top_total,
         )
         lo, hi = first[cluster], last[cluster]  # the first row whose key exceeds cluster + u
         v = cluster + u[1, i]
@@ -368,6 +383,70 @@ def _cluster_weights(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, fi
     return total
 
 
+#: Points whose weights of the tree's top nodes `sample_emitters` computes together (`_top_weights`).
+_BLOCK = 128
+
+
+def _top_weights(x, normals, horizon, clusters, a, end, i0, i1, wk, d2k, soa):
+    """`_cluster_weights`' distance and horizon weights of the nodes a .. end − 1 at the points
+    x[i0:i1] into wk[k, j] (node a + k, point i0 + j), their distances² into d2k: node by node
+    over the points (copied into the rows of soa (6, block) first: contiguous), branch-free, so
+    the inner loop vectorises (the same operations, so the same bits). The near solid angles
+    follow per point (`_top_total`)."""
+    m = i1 - i0
+    for j in range(m):
+        soa[0, j], soa[1, j], soa[2, j] = x[i0 + j, 0], x[i0 + j, 1], x[i0 + j, 2]
+    if horizon:
+        for j in range(m):
+            soa[3, j], soa[4, j], soa[5, j] = normals[i0 + j, 0], normals[i0 + j, 1], normals[i0 + j, 2]
+    px, py, pz, nx, ny, nz = soa[0], soa[1], soa[2], soa[3], soa[4], soa[5]
+    for k in range(end - a):
+        c = a + k
+        cx, cy, cz, r2, r, power = (
+            clusters[0, c],
+            clusters[1, c],
+            clusters[2, c],
+            clusters[3, c],
+            clusters[4, c],
+            clusters[5, c],
+        )
+        wrow, drow = wk[k], d2k[k]
+        if horizon:
+            for j in range(m):
+                dx, dy, dz = cx - px[j], cy - py[j], cz - pz[j]
+                d2 = dx * dx + dy * dy + dz * dz
+                along = nx[j] * dx + ny[j] * dy + nz[j] * dz
+                h2 = d2 - r2
+                edge = along * math.sqrt(_max(h2, 0.0)) + math.sqrt(_max(d2 - along * along, 0.0)) * r
+                outside = (h2 > 0.0) & ((along < 0.0) | (along * along < h2))
+                d2s = _max(d2, 1e-300)
+                wrow[j] = power * (_max(edge, 0.0) if outside else d2s) / (_max(d2, r2) * d2s)
+                drow[j] = d2
+        else:
+            for j in range(m):
+                dx, dy, dz = cx - px[j], cy - py[j], cz - pz[j]
+                d2 = dx * dx + dy * dy + dz * dz
+                wrow[j] = power / _max(d2, r2)
+                drow[j] = d2
+
+
+def _top_total(px, py, pz, clusters, triangles, w, a, end, wk, d2k, j):
+    """The weights of nodes a .. end − 1 at point (px, py, pz), column j of `_top_weights`, into
+    w[a:end], a lone triangle near the point by its solid angle as `_cluster_weights` does;
+    returns their sum, in index order."""
+    total = 0.0
+    for k in range(end - a):
+        c = a + k
+        wc, d2 = wk[k, j], d2k[k, j]
+        if d2 < clusters[8, c] and clusters[6, c] >= 0.0 and wc > 0.0:
+            omega = _solid_angle(px, py, pz, triangles, int(clusters[6, c]))
+            if math.isfinite(omega):
+                wc *= clusters[7, c] * omega * max(d2, clusters[3, c]) / clusters[5, c]
+        w[c] = wc
+        total += wc
+    return total
+
+
 def _max(a, b):
     """max(a, b) as numba's builtin gives it (b where b > a, else a: a NaN or a tie keeps a), in
     a form LLVM vectorises: a loop calling the builtin stays scalar."""
@@ -382,13 +461,16 @@ def _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, first
     return _cluster_chances(total, share)
 
 
-def _pick_leaf(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_first, child_count, u, share):
+def _pick_leaf(
+    px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_first, child_count, u, share, top=-1, top_total=-1.0
+):
     """(leaf, chance): a leaf of the light tree (`lights.tree.light_tree`: child_first, child_count
     (N + 1,), the last entry the root) picked at (px, py, pz) by the uniform number u, one level
     at a time among a node's children (`_child_chance`), u rescaled to the picked child's
     interval for the next level; below a node the point lies far from (distance² at least its
     clusters[9]), by power alone (clusters[10]): its leaves' weights would differ little.
-    chance: the product of the levels' probabilities."""
+    chance: the product of the levels' probabilities. top_total ≥ 0: node `top`'s children's
+    weights are already in w, summing to it (`_top_total`)."""
     node = child_first.shape[0] - 1
     chance = 1.0
     far = False
@@ -399,6 +481,8 @@ def _pick_leaf(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, child_fi
             continue
         if far:
             scale, mix = 0.0, 1.0
+        elif node == top and top_total >= 0.0:
+            scale, mix = _cluster_chances(top_total, share)
         else:
             scale, mix = _child_chance(px, py, pz, nx, ny, nz, horizon, clusters, triangles, w, a, end, share)
         pick, below, acc = end - 1, 0.0, 0.0
@@ -543,6 +627,8 @@ def _cluster_chances(total, share):
 _HELPERS = (
     "_solid_angle",
     "_cluster_weights",
+    "_top_weights",
+    "_top_total",
     "_max",
     "_normal",
     "_cluster_chances",
