@@ -422,6 +422,25 @@ def test_the_compiled_samples_are_the_numpy_spec():
     np.testing.assert_allclose(pdf[ok], numpy_pdf(light, x[ok], None, dirs[ok], dist[ok], pick[ok]), rtol=1e-9)
 
 
+@pytest.mark.parametrize("count", [1, 3, 40])
+def test_a_points_sample_does_not_depend_on_the_points_sampled_with_it(count):
+    """The kernel computes the light tree's top weights for blocks of points together
+    (`light_kernels._top_weights`): each point's sample is bit for bit the one it gets alone."""
+    rng = np.random.default_rng(count)
+    centres = rng.uniform(-3, 3, (count, 3)) * [1, 1, 0.2] + [0, 0, 2]
+    tris, emission = lamps([tuple(c) for c in centres], size=0.5)
+    light = lights.emitters.EmissiveTriangles(tris, emission)
+    x = rng.uniform(-3, 3, (300, 3)) * [1, 1, 0.3]
+    normals = rng.normal(size=(300, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    u = rng.random((4, len(x)))
+    together = light._sample_points(rng, x, normals=normals, u=u)
+    for i in (0, 1, 127, 128, 129, 299):
+        alone = light._sample_points(rng, x[i : i + 1], normals=normals[i : i + 1], u=u[:, i : i + 1])
+        for got, want in zip(alone, together):
+            np.testing.assert_array_equal(got[0], want[i])
+
+
 def lamp_room(res=32):
     """A 2 m floor (the receiver) with a small emissive box 3 cm above it (near: sampled by
     solid angle, sharp 1/d² falloff), a large one 1.5 m up and a dim far one beside it."""
