@@ -219,25 +219,6 @@ def _components(n: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
     )
 
 
-def _components_reference(n: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """`_components` in numpy (the tests' reference): minimum-label propagation with full
-    pointer jumping after each step."""
-    label = np.arange(n)
-    while True:
-        low = np.minimum(label[left], label[right])
-        new = label.copy()
-        np.minimum.at(new, left, low)
-        np.minimum.at(new, right, low)
-        while True:  # jump until every label is a root
-            jumped = new[new]
-            if np.array_equal(jumped, new):
-                break
-            new = jumped
-        if np.array_equal(new, label):
-            return label
-        label = new
-
-
 def _samples(patch: np.ndarray, per_patch: int = PATCH_SAMPLES) -> np.ndarray:
     """Indices of up to `per_patch` triangles of each patch, spread over its triangles' order."""
     order = np.argsort(patch, kind="stable")
