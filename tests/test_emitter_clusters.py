@@ -196,6 +196,48 @@ def test_a_nodes_share_of_its_siblings_power_sums_them_one_at_a_time():
     assert pairwise_differs  # (the order matters for these powers)
 
 
+def tree_inputs():
+    """Emitter centroids (E, 3) that exercise the tree's splits: random sets of every size, lamps
+    on a grid (equal boxes: ties broken by the first), coincident points, one point."""
+    rng = np.random.default_rng(11)
+    sets = [rng.random((n, 3)) * [10.0, 10.0, 3.0] for n in (1, 2, 3, 9, 40, 700, 7000)]
+    grid = np.stack(np.meshgrid(np.arange(8.0), np.arange(8.0), np.arange(2.0)), -1).reshape(-1, 3) * 1.5 + 0.1
+    sets.append(np.repeat(grid, 12, axis=0) + np.tile(rng.random((12, 3)) * 0.1, (len(grid), 1)))
+    sets.append(np.repeat(rng.random((5, 3)), 30, axis=0) * 1e5)  # far from the origin, coincident in fives
+    sets.append(np.zeros((7, 3)))
+    x = np.nextafter(1.0, 2.0)  # the middle of [1, x] rounds onto 1: the lowest points split off
+    sets.append(np.array([[1.0, 0.0, 0.0], [x, 0.0, 0.0], [x, 0.0, 0.0], [1.0, 0.0, 0.0], [x, 0.0, 0.0]]))
+    return sets
+
+
+def test_the_compiled_light_tree_is_the_numpy_one_to_the_bit():
+    """`light_kernels.light_tree`, `node_sums` and `sibling_shares` (what `EmissiveTriangles`
+    builds with: the numpy tree took ~0.3 s for thousands of emitters, per bake) give the very
+    arrays of their numpy specifications, for the tree's own settings and small ones."""
+    kernels = lights.emitters._kernels.get()
+    for centroids in tree_inputs():
+        for top, fanout, most in ((32, 8, 4096), (4, 2, 50), (32, 1, 4096), (32, 8, 40), (1, 8, 4096)):
+            expected = lights.tree.light_tree(centroids, top, fanout, most)
+            got = kernels.light_tree(np.ascontiguousarray(centroids), top, fanout, most)
+            for e, g in zip(expected, got):
+                np.testing.assert_array_equal(g, e)
+            leaf, first, count, _ = expected
+            n = len(count) - 1
+            rng = np.random.default_rng(len(centroids))
+            lo, power = np.zeros((n, 3)), np.zeros(n)
+            lo[leaf] = centroids - rng.random(centroids.shape)
+            power[leaf] = rng.uniform(0.01, 100.0, len(centroids))
+            hi = lo + 1.0
+            spec = [a.copy() for a in (lo, hi, power)]
+            lights.tree.node_sums(*spec, first, count)
+            kernels.node_sums(lo, hi, power, first, count)
+            for e, g in zip(spec, (lo, hi, power)):
+                np.testing.assert_array_equal(g, e)
+            np.testing.assert_array_equal(
+                kernels.sibling_shares(power, first, count), lights.emitters.sibling_shares(power, first, count)
+            )
+
+
 def test_among_many_lamps_the_tree_gives_the_one_overhead_several_times_the_samples(monkeypatch):
     """A point 20 cm under one of 144 small lamps, which brings most of its light: the flat
     clusters (about 5 lamps each, a triangle by power within) give that lamp a few percent of the

@@ -1,6 +1,7 @@
 """Compiled (numba) kernels of `tracer.lights`: emissive triangles sampled through their cluster
 tree (`sample_emitters`, `emitter_pdf`), area lights by solid angle (`sample_area_light`), and
-the one point, spot or area light chosen per shading point (`choose_lights`). No bpy.
+the one point, spot or area light chosen per shading point (`choose_lights`), and the emitters'
+light tree built (`light_tree`, `node_sums`, `sibling_shares`). No bpy.
 
 Each has a numpy specification in `tracer.lights` that the tests compare it with. Nothing
 compiles until `get()` (`core.compiled`).
@@ -624,6 +625,164 @@ def _cluster_chances(total, share):
     return (1.0 - share) / total, share
 
 
+def _cluster_splits(centroids, perm, start, end, most, first, last, base, extent):
+    """`lights.tree.cluster_splits` of the points centroids[perm[start:end]] (E, 3), in place:
+    perm[start:end] reordered so that each of the k ≤ `most` clusters is a run, cluster j's being
+    perm[first[base + j]:last[base + j]]; `extent` (≥ most,) scratch. Returns k. The same
+    clusters, numbered alike: the same comparisons on the same float64 values (a box's diagonal
+    as numpy's `norm` of its `ptp`, the first of equal maxima)."""
+    first[base], last[base] = start, end
+    extent[0] = _diagonal(centroids, perm, start, end)
+    k = 1
+    while k < most:
+        c = 0
+        for j in range(1, k):
+            if extent[j] > extent[c]:
+                c = j
+        if extent[c] <= 0.0:
+            break
+        s, e = first[base + c], last[base + c]
+        lo = np.full(3, np.inf)
+        hi = np.full(3, -np.inf)
+        for i in range(s, e):
+            for a in range(3):
+                v = centroids[perm[i], a]
+                lo[a] = min(lo[a], v)
+                hi[a] = max(hi[a], v)
+        axis = 0
+        for a in (1, 2):
+            if hi[a] - lo[a] > hi[axis] - lo[axis]:
+                axis = a
+        mid = 0.5 * (lo[axis] + hi[axis])
+        upper = 0
+        for i in range(s, e):
+            upper += centroids[perm[i], axis] >= mid
+        strict = upper == e - s  # the middle rounds onto the lowest point: split off the lowest points
+        m = s  # lower points to the front, upper to the back
+        for i in range(s, e):
+            v = centroids[perm[i], axis]
+            if not (v > lo[axis] if strict else v >= mid):
+                perm[m], perm[i] = perm[i], perm[m]
+                m += 1
+        last[base + c], first[base + k], last[base + k] = m, m, e
+        extent[c] = _diagonal(centroids, perm, s, m)
+        extent[k] = _diagonal(centroids, perm, m, e)
+        k += 1
+    return k
+
+
+def _diagonal(centroids, perm, start, end):
+    """The length of the diagonal of the box of centroids[perm[start:end]] (as numpy's
+    `norm(ptp(points, axis=0))`, the squares summed in axis order)."""
+    total = 0.0
+    for a in range(3):
+        lo, hi = np.inf, -np.inf
+        for i in range(start, end):
+            v = centroids[perm[i], a]
+            lo = min(lo, v)
+            hi = max(hi, v)
+        total += (hi - lo) * (hi - lo)
+    return math.sqrt(total)
+
+
+def light_tree(centroids, top, fanout, most_leaves):
+    """`lights.tree.light_tree` compiled (the same tree: the numpy function is its
+    specification, the tests compare them): the points centroids (E ≥ 1, 3) split into at most
+    `top` top clusters, then breadth first each cluster of several points into at most `fanout`,
+    until every leaf is one point (or coincident points) or there are `most_leaves` leaves.
+    Returns (leaf (E,), child_first (N + 1,), child_count (N + 1,), parent (N,)), as it does."""
+    n = len(centroids)
+    cap = top + 2 * max(most_leaves, 1) + fanout + 1
+    perm = np.arange(n)
+    first = np.zeros(cap, np.int64)
+    last = np.zeros(cap, np.int64)
+    child_first = np.zeros(cap + 1, np.int64)
+    child_count = np.zeros(cap + 1, np.int64)
+    parent = np.full(cap, -1, np.int64)
+    extent = np.empty(max(top, fanout, 1) + 1)
+    k = _cluster_splits(centroids, perm, 0, n, top, first, last, 0, extent)
+    nodes, leaves, c = k, k, 0
+    while c < nodes and leaves < most_leaves:
+        s, e = first[c], last[c]
+        m = 1
+        if e - s > 1:
+            m = _cluster_splits(
+                centroids, perm, s, e, min(fanout, most_leaves - leaves + 1), first, last, nodes, extent
+            )
+        if m > 1:
+            child_first[c], child_count[c] = nodes, m
+            parent[nodes : nodes + m] = c
+            nodes += m
+            leaves += m - 1
+        c += 1
+    leaf = np.zeros(n, np.int64)
+    for c in range(nodes):
+        if child_count[c] == 0:
+            for i in range(first[c], last[c]):
+                leaf[perm[i]] = c
+    child_first[nodes], child_count[nodes] = 0, k
+    parent_of = parent[:nodes].copy()
+    for c in range(nodes):
+        if parent_of[c] < 0:
+            parent_of[c] = nodes
+    return leaf, child_first[: nodes + 1].copy(), child_count[: nodes + 1].copy(), parent_of
+
+
+def node_sums(lo, hi, power, child_first, child_count):
+    """`lights.tree.node_sums` compiled (the same bits: its children's power summed in numpy's
+    order, `_pairwise_sum`), in place."""
+    for node in range(len(power) - 1, -1, -1):
+        a, m = child_first[node], child_count[node]
+        if m:
+            for axis in range(3):
+                low, high = lo[a, axis], hi[a, axis]
+                for c in range(a + 1, a + m):
+                    low = min(low, lo[c, axis])
+                    high = max(high, hi[c, axis])
+                lo[node, axis], hi[node, axis] = low, high
+            power[node] = _pairwise_sum(power, a, a + m)
+
+
+def _pairwise_sum(values, start, end):
+    """values[start:end].sum() as numpy adds a contiguous float64 run (its pairwise summation:
+    eight partial sums over blocks of up to 128, halves above), to the bit."""
+    n = end - start
+    if n < 8:
+        total = 0.0
+        for i in range(start, end):
+            total += values[i]
+        return total
+    if n > 128:
+        half = n // 2
+        half -= half % 8
+        return _pairwise_sum(values, start, start + half) + _pairwise_sum(values, start + half, end)
+    r0, r1, r2, r3 = values[start], values[start + 1], values[start + 2], values[start + 3]
+    r4, r5, r6, r7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
+    i = start + 8
+    while i < end - n % 8:
+        r0, r1, r2, r3 = r0 + values[i], r1 + values[i + 1], r2 + values[i + 2], r3 + values[i + 3]
+        r4, r5, r6, r7 = r4 + values[i + 4], r5 + values[i + 5], r6 + values[i + 6], r7 + values[i + 7]
+        i += 8
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < end:
+        total += values[i]
+        i += 1
+    return total
+
+
+def sibling_shares(power, child_first, child_count):
+    """`lights.emitters.sibling_shares` compiled (the same loop: the same bits)."""
+    share = np.ones(len(power))
+    for node in range(len(child_count)):
+        a, m = child_first[node], child_count[node]
+        total = 0.0
+        for c in range(a, a + m):
+            total += power[c]
+        for c in range(a, a + m):
+            share[c] = power[c] / total
+    return share
+
+
 _HELPERS = (
     "_solid_angle",
     "_cluster_weights",
@@ -644,11 +803,21 @@ _HELPERS = (
     "_surely_small",
     "_spherical_rectangle",
 )
-#: every helper inlined: they run per sample, and a call costs more than most of them
+#: every per-sample helper inlined: they run per sample, and a call costs more than most of them
 KERNELS = compiled.KernelSet(
     __name__,
-    kernels=("sample_emitters", "sample_area_light", "choose_lights", "emitter_pdf"),
-    helpers=_HELPERS,
+    kernels=(
+        "sample_emitters",
+        "sample_area_light",
+        "choose_lights",
+        "emitter_pdf",
+        "light_tree",
+        "node_sums",
+        "sibling_shares",
+    ),
+    # the light tree's, built once per bake: not inlined
+    helpers=(*_HELPERS, "_cluster_splits", "_diagonal", "_pairwise_sum"),
+    allocating=("_cluster_splits",),
     inline=_HELPERS,
 )
 get = KERNELS.get

@@ -9,7 +9,6 @@ import numpy as np
 from ...colour import LUMINANCE
 from .. import light_kernels as _kernels
 from .light import Light, RayPdf, Sample, _rows, uniforms
-from .tree import light_tree
 
 #: Most spatial clusters the emitting triangles of one light group are split into.
 CLUSTERS = 32
@@ -103,8 +102,9 @@ class EmissiveTriangles(Light):
             self.luminance = np.zeros(0)
             return
         corners = self.triangles[self.index]
-        leaf, self.child_first, self.child_count, self.parent = light_tree(
-            corners.mean(axis=1), CLUSTERS, FANOUT, MAX_LEAVES
+        # compiled: `tree.light_tree` is its specification
+        leaf, self.child_first, self.child_count, self.parent = _kernels.get().light_tree(
+            np.ascontiguousarray(corners.mean(axis=1), np.float64), CLUSTERS, FANOUT, MAX_LEAVES
         )
         k = len(self.parent)
         self.cluster_of[self.index] = leaf
@@ -115,11 +115,7 @@ class EmissiveTriangles(Light):
         np.minimum.at(lo, leaf, corners.min(axis=1))
         np.maximum.at(hi, leaf, corners.max(axis=1))
         self.cluster_power = power_of_leaf
-        for node in range(k - 1, -1, -1):  # children before parents (breadth-first order reversed)
-            a, m = self.child_first[node], self.child_count[node]
-            if m:
-                lo[node], hi[node] = lo[a : a + m].min(axis=0), hi[a : a + m].max(axis=0)
-                self.cluster_power[node] = self.cluster_power[a : a + m].sum()
+        _kernels.get().node_sums(lo, hi, self.cluster_power, self.child_first, self.child_count)  # `tree.node_sums`
         self.centre = 0.5 * (lo + hi)
         self.radius2 = np.maximum(0.25 * np.square(hi - lo).sum(axis=1), 1e-12)
         self.order = self.index[np.argsort(leaf, kind="stable")]
@@ -222,7 +218,7 @@ class EmissiveTriangles(Light):
             radius2 = self.radius2
             rows = [self.centre.T, radius2, np.sqrt(radius2), self.cluster_power, self.lone, self.luminance]
             rows += [NEAR_RADII**2 * radius2, DESCEND_RADII**2 * radius2]
-            rows += [sibling_shares(self.cluster_power, self.child_first, self.child_count)]
+            rows += [_kernels.get().sibling_shares(self.cluster_power, self.child_first, self.child_count)]
             clusters = np.ascontiguousarray(np.vstack(rows), np.float64)
             tree = (self.child_first, self.child_count, self.parent)
             self._kernel_arrays = (clusters, self.key, self.order, self.first, self.last, self.bound, *tree)
@@ -269,7 +265,8 @@ def sibling_shares(power: np.ndarray, child_first: np.ndarray, child_count: np.n
     """(N,): each light tree node's power over the summed power of its siblings (its parent's
     children, `light_tree`'s links), the sum taken one node at a time in index order, as a
     kernel's loop would: the kernels read these shares instead of summing and dividing per
-    sample, the same numbers to the bit."""
+    sample, the same numbers to the bit. numpy: the specification of the compiled
+    `light_kernels.sibling_shares` (which `EmissiveTriangles` uses)."""
     share = np.ones(len(power))
     for node in range(len(child_count)):
         a, m = int(child_first[node]), int(child_count[node])

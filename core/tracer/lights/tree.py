@@ -63,3 +63,15 @@ def light_tree(centroids: np.ndarray, top: int, fanout: int, most_leaves: int):
             leaf[members[c]] = c
     parent_of = np.array([nodes if p < 0 else p for p in parent], np.int64)
     return leaf, np.array(child_first + [0], np.int64), np.array(child_count + [k], np.int64), parent_of
+
+
+def node_sums(lo: np.ndarray, hi: np.ndarray, power: np.ndarray, child_first: np.ndarray, child_count: np.ndarray):
+    """Each inner node's box and power from its children's, in place: lo, hi (N, 3) and power (N,)
+    filled for the leaves; nodes as `light_tree` numbers them (children after their parent, so
+    a reversed pass sees every child before its parent). numpy: the specification of the
+    compiled `light_kernels.node_sums`."""
+    for node in range(len(power) - 1, -1, -1):
+        a, m = child_first[node], child_count[node]
+        if m:
+            lo[node], hi[node] = lo[a : a + m].min(axis=0), hi[a : a + m].max(axis=0)
+            power[node] = power[a : a + m].sum()
