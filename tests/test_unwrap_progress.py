@@ -76,6 +76,34 @@ def test_progress_is_monotonic_and_ends_at_one():
     assert all(0.0 <= f <= 1.0 for f in fractions) and all(isinstance(m, str) and m for _, m in calls)
 
 
+@pytest.mark.parametrize("one_child", [True, False], ids=["fit-in-one-child", "rounds-driven-here"])
+def test_progress_goes_on_while_xatlas_charts_a_part_and_packs_a_round(monkeypatch, one_child):
+    """xatlas says nothing while it charts a part or packs a round (seconds each on a level):
+    while a child works, the calling thread reports every HEARTBEAT seconds, with the seconds
+    waited, never going back, from no other thread."""
+    import threading
+
+    monkeypatch.setattr(worker_runs, "HEARTBEAT", 0.05)
+    if not one_child:  # the rounds of two densities packed side by side, driven from here
+        monkeypatch.setattr(unwrap.packing, "ONE_CHILD_TRIANGLES", 0)
+        monkeypatch.setattr(unwrap.packing, "_cores", lambda: 2)
+    calls, caller = [], threading.get_ident()
+    unwrap.unwrap(
+        [sphere_mesh(rings=48, segments=96)],  # 9k triangles: about a second of charting
+        unwrap.UnwrapSettings(resolution=1024),
+        lambda f, msg: calls.append((f, msg, threading.get_ident())),
+    )
+    fractions = [f for f, _, _ in calls]
+    assert fractions == sorted(fractions) and {t for *_, t in calls} == {caller}
+    waited = [re.fullmatch(r"xatlas: (charting|packing).*, (\d+) s", m) for _, m, _ in calls]
+    charting = [int(w[2]) for w in waited if w and w[1] == "charting"]
+    packing = [int(w[2]) for w in waited if w and w[1] == "packing"]
+    assert len(charting) >= 3 and len(packing) >= 2, [m for _, m, _ in calls]
+    assert charting == sorted(charting)  # one wait; the packing's restart each round
+    if not one_child:  # each round's wait says which density it packs
+        assert all("texels/m" in m for _, m, _ in calls if re.match(r"xatlas: packing.*, \d+ s$", m))
+
+
 def test_cancel_while_charting_kills_the_child_and_caches_nothing(child_pids):
     mesh = sphere_mesh(rings=48, segments=96)  # 9k triangles: about a second of charting
     at_cancel = []  # the children started when the cancel came, each still running or not

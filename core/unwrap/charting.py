@@ -4,12 +4,14 @@ child processes (`xatlas_worker.chart`), a large mesh split into its connected p
 from __future__ import annotations
 
 import hashlib
+import time
 from collections import OrderedDict
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
 import numpy as np
 
+from . import worker_runs
 from .data import Charts, UnwrapMesh
 from .worker_runs import _cores, _run_worker
 
@@ -108,12 +110,20 @@ def _chart_uncached(meshes, stats, progress, cancel=None):
     if progress:
         progress(0.0, f"xatlas: charting {sum(len(m.triangles) for m in meshes)} triangles")
     results: list = [None] * len(jobs)
+    start, done = time.monotonic(), 0
     with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
         futures = {pool.submit(run, job): k for k, job in enumerate(jobs)}
-        for done, future in enumerate(as_completed(futures), 1):  # progress from this thread only
-            results[futures[future]] = future.result()
-            if progress:
-                progress(done / len(jobs), f"xatlas: charted {done} of {len(jobs)} parts")
+        pending = set(futures)
+        while pending:  # progress from this thread only: a line per part, and while none ends
+            finished, pending = wait(pending, timeout=worker_runs.HEARTBEAT, return_when=FIRST_COMPLETED)
+            for future in finished:
+                results[futures[future]] = future.result()
+                done += 1
+                if progress:
+                    progress(done / len(jobs), f"xatlas: charted {done} of {len(jobs)} parts")
+            if progress and not finished:
+                seconds = time.monotonic() - start
+                progress(done / len(jobs), f"xatlas: charting {len(jobs) - done} of {len(jobs)} parts, {seconds:.0f} s")
     pieces: dict[int, list] = {}
     for job, result in zip(jobs, results):
         for (i, rows, *_), charts in zip(job, result):

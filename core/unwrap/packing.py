@@ -11,7 +11,7 @@ import numpy as np
 
 from . import xatlas_packing
 from .data import MAX_RESOLUTION, AtlasFull, ObjectUV
-from .worker_runs import _cores, _run_worker
+from .worker_runs import _cores, _run_worker, waiting
 
 #: Packed atlases kept for re-unwrapping the same charts with the same settings: at most this
 #: many, and this many bytes of UVs (24 per triangle).
@@ -104,9 +104,9 @@ def _pack(meshes, charts, keys, resolution, density, padding, progress=None, can
         _PACKED.move_to_end(cache_key)
         return dict(_PACKED[cache_key], packs=0)
     if density is not None:
-        result = _pack_at([density], charts, meshes, 0, padding, density * xatlas_packing.PACK_UNITS_PER_TEXEL, cancel)[
-            0
-        ]
+        units = density * xatlas_packing.PACK_UNITS_PER_TEXEL
+        beat = (lambda s: progress(0.0, f"xatlas: packing at {density:.4g} texels/m, {s:.0f} s")) if progress else None
+        result = waiting(lambda: _pack_at([density], charts, meshes, 0, padding, units, cancel), beat)[0]
         if max(result["width"], result["height"]) > MAX_RESOLUTION:
             raise AtlasFull(
                 f"texel density {density:g}/m needs a {result['width']}×{result['height']} atlas for "
@@ -144,15 +144,23 @@ def _fit(meshes, charts, resolution, padding, progress=None, cancel=None):
     fills = tuple(xatlas_packing.FIRST_FILL)
     if triangles <= ONE_CHILD_TRIANGLES:
         fills = (float(np.mean(fills)),)
+    shown = [0.0, "xatlas: packing"]  # the last progress reported: repeated while a child packs
+
+    def report(fraction, message):
+        shown[:] = [fraction, message]
+        if progress:
+            progress(fraction, message)
+
+    beat = (lambda s: progress(shown[0], f"{shown[1]}, {s:.0f} s")) if progress else None
     if _cores() < 2 or len(fills) == 1:
         job = {"task": "fit", "charts": payload, "resolution": int(resolution), "padding": int(padding), "fills": fills}
-        result = _run_worker(job, [m.name for m in meshes], triangles, cancel)
+        result = waiting(lambda: _run_worker(job, [m.name for m in meshes], triangles, cancel), beat)
     else:
 
         def pack_at(densities, units):
-            return _pack_at(densities, charts, meshes, resolution, padding, units, cancel)
+            return waiting(lambda: _pack_at(densities, charts, meshes, resolution, padding, units, cancel), beat)
 
-        result = xatlas_packing.fit(pack_at, boxes, resolution, padding, fills, progress)
+        result = xatlas_packing.fit(pack_at, boxes, resolution, padding, fills, report)
     if not result["fits"]:
         raise AtlasFull(
             f"could not fit the {len(boxes)} charts of {_names(meshes)} into one {resolution}² atlas "

@@ -10,8 +10,13 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, wait
+from typing import TypeVar
 
 from ..errors import BakeCancelled, BakeError
+
+T = TypeVar("T")
 
 #: xatlas runs in child processes (`xatlas_worker`): tries before giving up, and the time after
 #: which a child counts as hung (generous: several times the measured charting time, see
@@ -20,7 +25,24 @@ XATLAS_ATTEMPTS = 3
 XATLAS_TIMEOUT_BASE, XATLAS_TIMEOUT_PER_TRIANGLE = 120.0, 2e-4
 #: Seconds between checks of `cancel()` while a child runs: a cancelled unwrap stops this soon.
 CANCEL_POLL = 0.1
+#: Seconds between the progress calls made while waiting on children (`waiting`): xatlas reports
+#: nothing while it charts a part or packs a round, which takes seconds on a level.
+HEARTBEAT = 1.0
 _WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "xatlas_worker.py")
+
+
+def waiting(work: Callable[[], T], beat: Callable[[float], None] | None) -> T:
+    """work()'s result, run on a helper thread while this thread calls beat(seconds waited) every
+    HEARTBEAT seconds (progress is reported from the calling thread only); work's exception is
+    raised here. Without `beat`, work() is called here."""
+    if beat is None:
+        return work()
+    start = time.monotonic()
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        future = pool.submit(work)
+        while not wait([future], timeout=HEARTBEAT).done:
+            beat(time.monotonic() - start)
+        return future.result()
 
 
 def _check(cancel) -> None:
