@@ -123,7 +123,7 @@ def _chart_uncached(meshes, stats, progress, cancel=None):
                     progress(done / len(jobs), f"xatlas: charted {done} of {len(jobs)} parts")
             if progress and not finished:
                 seconds = time.monotonic() - start
-                progress(done / len(jobs), f"xatlas: charting {len(jobs) - done} of {len(jobs)} parts, {seconds:.0f} s")
+                progress(done / len(jobs), f"xatlas: charting, {done} of {len(jobs)} parts done, {seconds:.0f} s")
     pieces: dict[int, list] = {}
     for job, result in zip(jobs, results):
         for (i, rows, *_), charts in zip(job, result):
