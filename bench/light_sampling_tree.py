@@ -10,6 +10,11 @@ quads of two triangles on a ceiling grid, as a level's bulbs and panels are); th
 timed with the compiled kernels and with their numpy specifications (the code before them, the
 peer, in the same run, the two interleaved; the median of `--repeats`), and whether both give the same arrays.
 
+With `--bedroom` (bpy), also in a bake: the shared bedroom with its lamp bulbs emitting (the
+`LampEmitter` material given an emission: 7,012 emitting triangles, as a level lit by emissive
+meshes) and its receivers unwrapped at `--resolution`², traced on one thread (`--samples` spp,
+8 bounces, the bake points built before) with each build, interleaved: the whole trace's seconds.
+
 Writes bench/results/light_sampling_tree.md.
 """
 
@@ -78,13 +83,60 @@ def with_numpy_specs():
     return restore
 
 
+def bedroom_traces(resolution: int, samples: int, repeats: int) -> dict:
+    """One-thread traces of the bedroom lit by its lamp bulbs, with the compiled build and with
+    the numpy specifications (interleaved): their medians, the emitting triangles and the texels."""
+    import tempfile
+
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="hhd-bench-blender-"))
+    import bpy  # noqa: F401
+
+    import hhd_lightmapper
+    import trace_profile  # bench/, the script's folder
+    from hhd_lightmapper.core import bake, rays, tracer
+
+    hhd_lightmapper.register()
+    surface, scene = trace_profile.read_scene("bedroom", resolution, edit=_lamps_emit)
+    ray_scene = rays.RayScene(scene.triangles)
+    settings = tracer.BakeSettings.from_samples(samples, bounces=8, threads=1)
+    objects = [str(k) for k in range(int(surface.object_index.max(initial=-1)) + 1)]
+    points = bake.points_of(bake.AtlasInput("atlas", resolution, resolution, surface, objects), ray_scene)
+    tracer.bake(points, scene, settings, ray_scene=ray_scene)  # untimed: warm
+    runs = []
+    for _ in range(repeats):
+        compiled_s = tracer.bake(points, scene, settings, ray_scene=ray_scene).seconds
+        restore = with_numpy_specs()
+        try:
+            runs.append((compiled_s, tracer.bake(points, scene, settings, ray_scene=ray_scene).seconds))
+        finally:
+            restore()
+    return {
+        "emitting": int((scene.emission.max(axis=1) > 0.0).sum()),
+        "texels": int(len(points.texel)),
+        "compiled": statistics.median(c for c, _ in runs),
+        "numpy": statistics.median(n for _, n in runs),
+    }
+
+
+def _lamps_emit() -> None:
+    """The bedroom's lamp bulbs (`LampEmitter`) emit a warm white at strength 10."""
+    import bpy
+
+    node = next(n for n in bpy.data.materials["LampEmitter"].node_tree.nodes if n.type == 'BSDF_PRINCIPLED')
+    node.inputs["Emission Color"].default_value = (1.0, 0.9, 0.8, 1.0)
+    node.inputs["Emission Strength"].default_value = 10.0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--emitters", type=int, nargs="+", default=[16, 700, 7000, 30000])
     ap.add_argument("--triangles", type=int, default=450_000, help="the scene's triangles (the bedroom has 449,389)")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--bedroom", action="store_true", help="also time traces of the bedroom lit by its lamp bulbs")
+    ap.add_argument("--resolution", type=int, default=256, help="--bedroom's atlas")
+    ap.add_argument("--samples", type=int, default=16, help="--bedroom's samples per texel")
     args = ap.parse_args()
-    build(*lamp_scene(16, 1000))  # compiled (or loaded from numba's cache) before any timing
+    build(*lamp_scene(16, args.triangles))  # compiled (or loaded from numba's cache), memory touched, before any timing
     rows = []
     for n in args.emitters:
         tris, emission = lamp_scene(n, max(args.triangles, n))
@@ -125,6 +177,21 @@ def main() -> int:
         "The compiled build still reads and writes per-triangle arrays of the whole scene (primitive ids index "
         "them): that part is the same in both columns and is most of the compiled one's time.",
     ]
+    if args.bedroom:
+        b = bedroom_traces(args.resolution, args.samples, args.repeats)
+        print(f"bedroom: numpy {b['numpy']:.2f} s, compiled {b['compiled']:.2f} s", flush=True)
+        lines += [
+            "",
+            f"In a bake: the bedroom lit by its lamp bulbs ({b['emitting']:,} emitting triangles), {b['texels']:,} "
+            f"texels at {args.resolution}², {args.samples} spp, 8 bounces, one thread, the whole trace (the light "
+            f"tree built in it), median of {args.repeats}, interleaved:",
+            "",
+            "| build | trace s |",
+            "|---|---|",
+            f"| numpy specifications | {b['numpy']:.2f} |",
+            f"| compiled | {b['compiled']:.2f} |",
+            f"| numpy / compiled | {b['numpy'] / b['compiled']:.2f}× |",
+        ]
     OUT.write_text("\n".join(lines) + "\n")
     return 0
 

@@ -59,8 +59,9 @@ def main() -> int:
     return 0
 
 
-def read_scene(name: str, resolution: int):
-    """bench/time_to_error.py's scene `name` unwrapped at `resolution`²: (surface, bake scene)."""
+def read_scene(name: str, resolution: int, edit=None):
+    """bench/time_to_error.py's scene `name` unwrapped at `resolution`²: (surface, bake scene).
+    `edit()`, if given, changes the scene once it is open (e.g. a material made emissive)."""
     import bpy
 
     import time_to_error as tte
@@ -68,6 +69,8 @@ def read_scene(name: str, resolution: int):
     from scenekit.blender import select
 
     receivers = tte.load_scene(name)
+    if edit is not None:
+        edit()
     scene = bpy.context.scene
     scene.hhd.uv_layer, scene.hhd.resolution, scene.hhd.texel_density, scene.hhd.padding = tte.LAYER, resolution, 0.0, 2
     select(receivers)
